@@ -1,0 +1,173 @@
+"""The experiment contract: what an experiment script gives the engine.
+
+An experiment is a *program* in the purejaxrl style: one learner's whole run is a pure
+function of ``(key, config)``, cut into ``num_chunks`` chunks so that the engine can show
+progress, write metrics and checkpoint between them. The engine ``vmap``s the program over
+learners (sweep values x seeds), ``jit``s it and shards the learner axis over devices.
+
+See ``docs/engine.md`` for a complete example.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import jax
+
+__all__ = ["Program", "Experiment", "RunResult", "ReportSection", "RunContext"]
+
+Config = Any  # a flax.struct dataclass declared with vbl.params.param/section
+Carry = Any  # any pytree of arrays (one learner's state)
+Metrics = dict[str, jax.Array]
+
+
+@dataclass(frozen=True)
+class Program:
+    """One learner's whole run as pure functions; the engine vmaps them over learners.
+
+    Attributes:
+      init: ``(key, config) -> carry``. ``key`` is a raw ``uint32[2]`` PRNG key that depends
+        only on ``(base seed, seed index)``; ``config`` holds the *traced* fields of one
+        learner (float fields as ``float32`` scalars, int fields as ``int32``, bools as
+        ``bool``), static fields as plain Python values.
+      step: ``(carry, config) -> (carry, metrics)``: run one chunk. ``metrics`` maps names to
+        float/int scalars or small fixed-shape arrays (per learner). Conventional names the
+        progress bar and plots understand: ``episodes`` (episodes finished in the chunk) and
+        ``success_rate`` (fraction in [0, 1] of those episodes that succeeded).
+      num_chunks: number of ``step`` calls in one run (>= 1).
+      final: optional ``(carry, config, key) -> metrics`` evaluated once after the last chunk
+        (e.g. greedy evaluation on fresh starts); ``key`` is independent of the training keys.
+    """
+
+    init: Callable[[jax.Array, Config], Carry]
+    step: Callable[[Carry, Config], tuple[Carry, Metrics]]
+    num_chunks: int
+    final: Callable[[Carry, Config, jax.Array], Metrics] | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.num_chunks, int) or self.num_chunks < 1:
+            raise ValueError(f"Program.num_chunks must be an int >= 1, got {self.num_chunks!r}")
+
+
+@dataclass(frozen=True)
+class ReportSection:
+    """One experiment's part of ``report.md`` (written by ``vbl reproduce``).
+
+    ``markdown`` compares our numbers with the paper's; ``figures`` are PNG paths
+    (absolute, or relative to the run folder) that the report links.
+    """
+
+    markdown: str
+    figures: tuple[str | Path, ...] = ()
+
+
+@dataclass
+class RunResult:
+    """What a finished run hands to ``Experiment.report``.
+
+    Attributes:
+      experiment: the experiment's name.
+      out_dir: the run folder.
+      config: the resolved base config (before sweep values).
+      sweep: ``{path: [values]}`` of the sweep (empty when none).
+      points: one dict ``{path: value}`` per sweep point (a single ``{}`` without a sweep).
+      seeds: seeds per sweep point.
+      curves: ``{metric: array[points, chunks, seeds, ...]}`` per-chunk metrics.
+      final: ``{metric: array[points, seeds, ...]}`` from ``Program.final`` (may be empty).
+      summary: the content of ``summary.json``.
+      figures: PNG paths written by the engine.
+      extra: anything an experiment's ``run`` escape hatch returns.
+    """
+
+    experiment: str
+    out_dir: Path
+    config: Config
+    sweep: dict[str, list[Any]]
+    points: list[dict[str, Any]]
+    seeds: int
+    curves: dict[str, Any]
+    final: dict[str, Any]
+    summary: dict[str, Any]
+    figures: list[Path] = field(default_factory=list)
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class RunContext:
+    """Given to ``Experiment.run`` (the escape hatch for jobs that are not chunked programs).
+
+    Attributes:
+      config: the resolved, validated config.
+      seeds: number of seeds asked for; ``base_seed``: the run's base seed.
+      out_dir: the run folder (already created; config.json already written).
+      quick: True under ``--quick``.
+      log: ``log(step, metrics_dict)`` appends a JSON line to ``metrics.jsonl``.
+      quiet: True when progress output is off.
+    """
+
+    config: Config
+    seeds: int
+    base_seed: int
+    out_dir: Path
+    quick: bool
+    log: Callable[[int, Mapping[str, Any]], None]
+    quiet: bool
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """A registered experiment: a config, a program factory, and how to report it.
+
+    Attributes:
+      name: CLI name (``vbl run NAME``); letters, digits, ``_`` and ``-``.
+      description: one line for ``vbl list``.
+      default_config: a ``flax.struct`` dataclass instance built from ``vbl.params`` fields,
+        usually with sections (``env``, ``agent``, ``train``).
+      make_program: ``config -> Program``; may read static fields of ``config`` (shapes, code
+        paths, ``num_chunks``); must not depend on traced values (those arrive in ``init``/
+        ``step``). Called once per combination of static values.
+      run: escape hatch for jobs that are not chunked programs: ``run(ctx: RunContext) ->
+        dict`` (JSON-able summary); the engine still writes the run folder. Exactly one of
+        ``make_program`` and ``run`` must be given.
+      quick: ``{dotted.path: value}`` overrides applied by ``--quick`` (before ``--set``).
+      seeds: default number of seeds; ``quick_seeds``: the number under ``--quick``.
+      paper_result: True if ``vbl reproduce`` should run it.
+      paper: the paper's numbers (free-form, for ``report``).
+      report: ``RunResult -> ReportSection`` for ``vbl reproduce``.
+      sweep: default sweep ``{path: [values]}`` (e.g. the table rows a paper result needs);
+        ``--sweep`` on the command line replaces it for the paths it names.
+    """
+
+    name: str
+    description: str
+    default_config: Config
+    make_program: Callable[[Config], Program] | None = None
+    run: Callable[[RunContext], dict[str, Any]] | None = None
+    quick: Mapping[str, Any] = field(default_factory=dict)
+    seeds: int = 8
+    quick_seeds: int | None = None
+    paper_result: bool = False
+    paper: Mapping[str, Any] | None = None
+    report: Callable[[RunResult], ReportSection] | None = None
+    sweep: Mapping[str, tuple[Any, ...] | list[Any]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        import re
+
+        if not re.fullmatch(r"[A-Za-z0-9_\-]+", self.name or ""):
+            raise ValueError(f"Experiment.name must use letters, digits, '_' or '-', "
+                             f"got {self.name!r}")
+        if (self.make_program is None) == (self.run is None):
+            raise ValueError(f"experiment {self.name!r}: give exactly one of make_program "
+                             f"and run")
+        if not dataclasses.is_dataclass(self.default_config) or isinstance(
+                self.default_config, type):
+            raise ValueError(f"experiment {self.name!r}: default_config must be a flax.struct "
+                             f"dataclass instance, got {type(self.default_config).__name__}")
+        for n, v in (("seeds", self.seeds), ("quick_seeds", self.quick_seeds)):
+            if v is not None and (not isinstance(v, int) or v < 1):
+                raise ValueError(f"experiment {self.name!r}: {n} must be an int >= 1, got {v!r}")
