@@ -1,1 +1,42 @@
-"""vbl.agents."""
+"""vbl.agents: batched tabular Q-learning, exploration, Learning from Easy Missions."""
+
+from vbl.agents.exploration import (
+    ExplorationParams,
+    ScheduleParams,
+    schedule_value,
+    select_action,
+)
+from vbl.agents.lem import LEMParams, LEMState, lem_init, lem_update
+from vbl.agents.qlearning import (
+    QLearningParams,
+    QLearningRunner,
+    QRunnerParams,
+    QRunnerState,
+    init_q,
+    learner_keys,
+    make_qlearning,
+    make_qlearning_runner,
+    q_update,
+    stack_for_learners,
+)
+
+__all__ = [
+    "ExplorationParams",
+    "ScheduleParams",
+    "schedule_value",
+    "select_action",
+    "LEMParams",
+    "LEMState",
+    "lem_init",
+    "lem_update",
+    "QLearningParams",
+    "QLearningRunner",
+    "QRunnerParams",
+    "QRunnerState",
+    "init_q",
+    "learner_keys",
+    "make_qlearning",
+    "make_qlearning_runner",
+    "q_update",
+    "stack_for_learners",
+]

@@ -1,1 +1,17 @@
-"""vbl.envs."""
+"""vbl.envs: tasks as gymnax-1.0-style functional environments, and a brax adapter.
+
+Submodules are imported on use (``from vbl.envs.shooting import ShootingEnv``) so that
+``import vbl.envs`` stays light.
+"""
+
+__all__ = ["ShootingEnv", "ShootingParams", "BraxAdapter"]
+
+
+def __getattr__(name):
+    if name in ("ShootingEnv", "ShootingParams", "ShootingState", "StartParams"):
+        from vbl.envs import shooting
+        return getattr(shooting, name)
+    if name == "BraxAdapter":
+        from vbl.envs.brax_adapter import BraxAdapter
+        return BraxAdapter
+    raise AttributeError(f"module 'vbl.envs' has no attribute {name!r}")

@@ -116,10 +116,6 @@ class WorldParams:
 
     def check(self) -> None:
         """Cross-field rules (called by :func:`vbl.params.validate`)."""
-        from vbl.params import validate
-
-        for name in ("field", "goal", "ball", "robot", "two_motor", "four_wheel"):
-            validate(getattr(self, name), prefix=f"{name}.")
         kinds = self.robot_kinds
         if not isinstance(kinds, tuple) or len(kinds) == 0:
             raise ParamError(f"robot_kinds={kinds!r} must be a non-empty tuple of "

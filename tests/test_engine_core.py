@@ -1,0 +1,211 @@
+"""Engine tests in-process: overrides, sweeps == separate runs, learner batches, statistics,
+checkpoint guards, error exit codes of the CLI entry point."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+from tests.engine_helpers import TINY_SETS, experiments_dir
+from vbl.engine import Experiment, get
+from vbl.engine.checkpoint import CheckpointError, Checkpoints
+from vbl.engine.config import parse_sweep, parse_value, split_values, stack_traced
+from vbl.engine.results import t_quantile_975
+from vbl.engine.runner import run_experiment
+from vbl.engine.sharding import batch_layout
+from vbl.params import ParamError
+
+
+@pytest.fixture(scope="module")
+def toy(tmp_path_factory):
+    d = experiments_dir(tmp_path_factory.mktemp("exps"))
+    old = os.environ.get("VBL_EXPERIMENTS_DIR")
+    os.environ["VBL_EXPERIMENTS_DIR"] = str(d)
+    yield get("toy_bandit")
+    if old is None:
+        os.environ.pop("VBL_EXPERIMENTS_DIR", None)
+    else:
+        os.environ["VBL_EXPERIMENTS_DIR"] = old
+
+
+SWEEP = {"agent.learning_rate": [0.1, 0.5], "env.num_arms": [3, 4]}
+
+
+@pytest.fixture(scope="module")
+def swept(toy, tmp_path_factory):
+    out = tmp_path_factory.mktemp("runs") / "sweep"
+    sets = {"train.pulls_per_chunk": 5, "train.num_chunks": 3}
+    res = run_experiment(toy, sets=sets, sweep=SWEEP, seeds=3, out=out, quiet=True,
+                         checkpoint_every=2)
+    return res, sets
+
+
+def test_parse_values():
+    assert parse_value("0.5") == 0.5 and isinstance(parse_value("3"), int)
+    assert parse_value("true") is True and parse_value("False") is False
+    assert parse_value("(1, 2.5)") == (1, 2.5)
+    assert parse_value("12", default="a") == "12"  # str fields keep their text
+    assert split_values("0.1,(1,2),x") == ["0.1", "(1,2)", "x"]
+
+
+def test_override_errors_name_the_problem(toy):
+    cfg = toy.default_config
+    with pytest.raises(ParamError, match=r"valid: \['epsilon', 'initial_value', "):
+        parse_sweep("agent.eps=0.1,0.2", cfg)
+    with pytest.raises(ParamError, match="out of range: must be <= 1.0"):
+        run_experiment(toy, sets={"agent.epsilon": 1.5}, out=None, quiet=True)
+    with pytest.raises(ParamError, match="expected int"):
+        run_experiment(toy, sets={"env.num_arms": 2.5}, quiet=True)
+    with pytest.raises(ParamError, match="must be >= 2"):
+        run_experiment(toy, sweep={"env.num_arms": [3, 1]}, quiet=True)
+
+
+def test_stacked_config_dtypes(toy):
+    st = stack_traced([toy.default_config, toy.default_config], repeats=3)
+    assert st.agent.learning_rate.shape == (6,) and st.agent.learning_rate.dtype == np.float32
+    assert st.env.num_arms == 10  # static fields stay Python values
+
+
+def test_t_quantile_matches_scipy():
+    from scipy.stats import t
+
+    for df in (1, 2, 5, 29, 30, 31, 100, 5000):
+        assert t_quantile_975(df) == pytest.approx(t.ppf(0.975, df), abs=2e-5)
+
+
+@pytest.mark.parametrize("n,d,b", [(1, 1, 4096), (5, 4, 4096), (5000, 4, 4096), (12, 2, 5),
+                                   (7, 3, 1)])
+def test_batch_layout_covers_learners(n, d, b):
+    nb, size = batch_layout(n, d, b)
+    assert size % d == 0 and nb * size >= n and (nb - 1) * size < n
+    assert size <= max(d, b - b % d) or nb == 1
+
+
+def test_sweep_layout_and_files(swept):
+    res, _ = swept
+    # 4 points (2 static groups of 2), 3 chunks, 3 seeds
+    assert res.curves["success_rate"].shape == (4, 3, 3)
+    assert res.final["greedy_is_best"].shape == (4, 3)
+    assert [p["env.num_arms"] for p in res.points] == [3, 4, 3, 4]
+    files = {p.name for p in res.out_dir.iterdir()}
+    assert {"config.json", "metrics.jsonl", "summary.json", "checkpoints",
+            "success_rate.png"} <= files
+    rows = [json.loads(x) for x in (res.out_dir / "metrics.jsonl").read_text().splitlines()]
+    assert len(rows) == 4 * 3 + 4  # per (chunk, point) + one "final" row per point
+    assert sorted({r["step"] for r in rows}) == [1, 2, 3, 4, 5, 6]  # 2 groups x 3 chunks
+    # summary statistics agree with the per-seed values (mean and Student-t interval)
+    v = np.asarray(rows[0]["metrics"]["regret"]["per_seed"])
+    st = rows[0]["metrics"]["regret"]
+    assert st["mean"] == pytest.approx(v.mean())
+    assert st["ci95"] == pytest.approx(4.302653 * v.std(ddof=1) / np.sqrt(3))
+
+
+@pytest.mark.parametrize("point", [1, 2])
+def test_sweep_equals_separate_runs(toy, swept, point, tmp_path):
+    res, sets = swept
+    values = res.points[point]
+    one = run_experiment(toy, sets={**sets, **values}, seeds=3, out=tmp_path / "one",
+                         quiet=True, plots=False)
+    for k, a in one.curves.items():
+        np.testing.assert_array_equal(a[0], res.curves[k][point], err_msg=k)
+    for k, a in one.final.items():
+        np.testing.assert_array_equal(a[0], res.final[k][point], err_msg=k)
+
+
+def test_learner_batches_do_not_change_results(toy, swept, tmp_path):
+    res, sets = swept
+    small = run_experiment(toy, sets=sets, sweep=SWEEP, seeds=3, out=tmp_path / "b",
+                           quiet=True, plots=False, learner_batch=4)
+    for k in res.curves:
+        np.testing.assert_array_equal(small.curves[k], res.curves[k])
+
+
+def test_random_policy_matches_analytic_rates(toy, tmp_path):
+    """epsilon = 1: every pull is uniform, so the best arm's share is 1/K and the expected
+    regret per pull is max(mu) - mean(mu) -- independent of learning."""
+    k, pulls, chunks, seeds = 4, 50, 4, 32
+    res = run_experiment(toy, sets={"env.num_arms": k, "agent.epsilon": 1.0,
+                                    "train.pulls_per_chunk": pulls, "train.num_chunks": chunks},
+                         seeds=seeds, out=tmp_path / "r", quiet=True, plots=False)
+    share = res.curves["success_rate"][0].mean()
+    se = np.sqrt(0.25 * 0.75 / (pulls * chunks * seeds))
+    assert abs(share - 1 / k) < 4 * se
+    assert np.all(res.curves["episodes"] == pulls)
+
+
+def test_greedy_learners_find_the_best_arm(toy, tmp_path):
+    res = run_experiment(toy, sets={"env.num_arms": 4, "agent.epsilon": 0.2,
+                                    "train.num_chunks": 4}, seeds=32, out=tmp_path / "g",
+                         quiet=True, plots=False)
+    sr = res.curves["success_rate"][0].mean(axis=1)
+    assert sr[-1] > sr[0] and res.final["greedy_is_best"].mean() > 0.6  # chance is 0.25
+
+
+def test_escape_hatch_run_writes_the_folder(tmp_path, toy):
+    def run(ctx):
+        for i in range(3):
+            ctx.log(i + 1, {"x": float(i) * ctx.config.agent.learning_rate})
+        return {"answer": 42, "seeds": ctx.seeds}
+
+    exp = Experiment(name="hatch", description="d", default_config=toy.default_config,
+                     run=run, seeds=2)
+    res = run_experiment(exp, out=tmp_path / "h", quiet=True)
+    assert res.extra == {"answer": 42, "seeds": 2}
+    assert json.loads((tmp_path / "h" / "summary.json").read_text())["result"]["answer"] == 42
+    assert len((tmp_path / "h" / "metrics.jsonl").read_text().splitlines()) == 3
+
+
+def test_checkpoint_guards(tmp_path):
+    tree = {"q": np.arange(6, dtype=np.float32).reshape(3, 2), "k": np.ones((3, 2), np.uint32)}
+    ck = Checkpoints(tmp_path / "ck", fingerprint="aaaa")
+    ck.save(4, tree, {"group": 0})
+    ck.close()
+    back, meta = Checkpoints(tmp_path / "ck", "aaaa").restore(4, tree)
+    np.testing.assert_array_equal(back["q"], tree["q"])
+    with pytest.raises(CheckpointError, match="another config"):
+        Checkpoints(tmp_path / "ck", "bbbb").restore(4, tree)
+    with pytest.raises(CheckpointError, match="shape"):
+        Checkpoints(tmp_path / "ck", "aaaa").restore(4, {"q": np.zeros((4, 2), np.float32),
+                                                         "k": tree["k"]})
+
+
+def test_cli_errors_exit_nonzero(toy, tmp_path, capsys):
+    from vbl.cli import main
+
+    assert main(["run", "no_such_thing"]) == 1
+    assert "valid: ['toy_bandit']" in capsys.readouterr().err
+    assert main(["run", "toy_bandit", "--set", "agent.epsilon=-1"]) == 2
+    assert "agent.epsilon=-1.0 is out of range" in capsys.readouterr().err
+    assert main(["run", "toy_bandit", "--set", "agent.nope=1"]) == 2
+    assert "valid: ['epsilon'" in capsys.readouterr().err
+    assert main(["run", "toy_bandit", "--set", "agent.epsilon"]) == 2
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    assert main(["run", "toy_bandit", "--quiet", "--out", str(blocker / "run")]) == 1
+    assert "cannot write to output folder" in capsys.readouterr().err
+    full = tmp_path / "full"
+    full.mkdir()
+    (full / "something").write_text("keep me")
+    assert main(["run", "toy_bandit", "--quiet", "--out", str(full)]) == 1
+    assert "exists and is not empty" in capsys.readouterr().err
+    assert main(["run", "toy_bandit", "--quiet", "--overwrite", "--out", str(full)]) == 1
+    assert "holds no vbl run" in capsys.readouterr().err
+    assert (full / "something").read_text() == "keep me"
+
+
+def test_cli_resume_with_another_config_is_refused(toy, swept, capsys):
+    from vbl.cli import main
+
+    res, _ = swept
+    args = ["run", "toy_bandit", "--quiet", "--resume", "--out", str(res.out_dir),
+            "--set", "train.pulls_per_chunk=5", "--set", "train.num_chunks=3", "--seeds", "3",
+            "--sweep", "agent.learning_rate=0.1,0.5", "--sweep", "env.num_arms=3,4"]
+    assert main(args + ["--set", "agent.epsilon=0.3"]) == 1
+    assert "another config (differs in ['agent.epsilon'])" in capsys.readouterr().err
+    assert main(args) == 0  # the same options resume (here: nothing left to run)
+
+
+assert TINY_SETS  # shared tiny config (used by the subprocess tests)

@@ -1,0 +1,233 @@
+"""Image features: analytic pinhole geometry, the NumPy reference, vmap, noise."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import vbl  # noqa: F401
+from tests.reference.camera_np import section2_features_np, section3_features_np
+from vbl.vision import CameraParams, flatten_section3, section2_features, section3_features
+from vbl.vision import features as F
+
+CAM = CameraParams()
+R = 0.11
+HL = 8.22 / 2
+GOAL = np.array([[HL, 0.75, 0.0], [HL, 0.75, 0.5], [HL, -0.75, 0.5], [HL, -0.75, 0.0]])
+FU = 256 / math.tan(math.radians(67 / 2))
+FV = 240 / math.tan(math.radians(60 / 2))
+SIZE = np.array([0.4, 0.4, 0.3])
+# tolerance: 1e-4 of each feature's range (image width for px, W*H for areas, 2 for x5)
+TOL2 = np.array([512, 512, 480, 512, 2, 1, 1, 1, 1]) * 1e-4
+TOL3 = np.r_[[512] * 4, [512] * 10, 512 * 480, [512] * 4, 512 * 480, [1] * 6] * 1e-4
+
+sec2 = jax.jit(section2_features)
+sec3 = jax.jit(lambda *a: flatten_section3(section3_features(*a)))
+
+
+def f32(x):
+    return jnp.asarray(x, jnp.float32)
+
+
+def s2(pose, ball, cam=CAM, radius=R, goal=GOAL, key=None):
+    return np.asarray(sec2(f32(pose), f32(ball), radius, f32(goal), cam, key))
+
+
+def s3(pose, ball, other, cam=CAM, size=SIZE):
+    return np.asarray(sec3(f32(pose), f32(ball), R, f32(GOAL), f32(other), f32(size), cam))
+
+
+# ----------------------------------------------------------------------------- analytic
+
+def test_ball_on_optical_axis():
+    # ball centre on the optical axis: ground distance g from the camera with
+    # (h - r) / g = tan 26 deg; the image of a sphere seen on-axis is a circle of angular
+    # radius alpha, sin alpha = r / d, so its width is 2 fu tan(alpha) = 2 fu r/sqrt(d^2-r^2)
+    g = (CAM.height - R) / math.tan(math.radians(26))
+    d = math.hypot(g, CAM.height - R)
+    ball = [CAM.forward_offset + g, 0.0]
+    x = s2([0, 0, 0], ball)
+    np.testing.assert_allclose(x[F.SEC2_BALL_SIZE], 2 * FU * R / math.sqrt(d * d - R * R),
+                               rtol=1e-5)
+    assert abs(x[F.SEC2_BALL_POS]) < 1e-3 and x[F.SEC2_BALL_VISIBLE] == 1
+    y = s3([0, 0, 0], ball, [-3, 0, 0])
+    np.testing.assert_allclose(y[:4], [0, 0, 2 * FU * R / math.sqrt(d * d - R * R),
+                                       2 * FV * R / math.sqrt(d * d - R * R)],
+                               rtol=1e-5, atol=1e-3)
+
+
+@pytest.mark.parametrize("dist", [0.4, 1.0, 2.5])
+def test_ball_straight_ahead_any_distance(dist):
+    # straight ahead (X = 0) but off-axis: the vertical image lines u = c tangent to the
+    # sphere are planes through the camera with normal (1, 0, -c/fu) at distance r from
+    # the centre (0, Y, Z): (c Z / fu)^2 = r^2 (1 + c^2/fu^2) -> c = ±fu r/sqrt(Z^2-r^2),
+    # Z = depth of the centre along the tilted axis.
+    tau = math.radians(-26)
+    z = dist * math.cos(tau) + (R - CAM.height) * math.sin(tau)
+    x = s2([1.0, 0.5, 0.0], [1.0 + CAM.forward_offset + dist, 0.5])
+    np.testing.assert_allclose(x[0], 2 * FU * R / math.sqrt(z * z - R * R), rtol=1e-5)
+    assert abs(x[1]) < 1e-3
+
+
+def test_ball_partial_at_right_border_level_camera():
+    # level camera at the ball's height: the horizontal tangents from the camera to the
+    # ball's equator are at angles phi_c ± asin(r/d); put the centre just beyond the border
+    cam = CameraParams(height=R, tilt_deg=0.0, forward_offset=0.0)
+    d = 1.5
+    half = math.radians(67 / 2)
+    phi_c = half + 0.5 * math.asin(R / d)         # right tangent outside, left one inside
+    ball = [d * math.cos(phi_c), -d * math.sin(phi_c)]
+    x = s2([0, 0, 0], ball, cam=cam)
+    u_left = FU * math.tan(phi_c - math.asin(R / d))
+    assert x[F.SEC2_BALL_VISIBLE] == 1
+    np.testing.assert_allclose(x[0], 256 - u_left, rtol=1e-4)
+    np.testing.assert_allclose(x[1], 0.5 * (256 + u_left), rtol=1e-5)
+    # moving it further right: lost to the right
+    phi = half + 1.2 * math.asin(R / d)
+    x = s2([0, 0, 0], [d * math.cos(phi), -d * math.sin(phi)], cam=cam)
+    assert x[F.SEC2_BALL_VISIBLE] == 0 and x[F.SEC2_BALL_LOST_SIDE] == 1 and x[0] == 0
+
+
+def test_goal_frontal_and_mirrored():
+    x = s2([0, 0, 0], [1, 0])
+    assert x[F.SEC2_GOAL_VISIBLE] == 1
+    assert abs(x[F.SEC2_GOAL_POS]) < 1e-3 and abs(x[F.SEC2_GOAL_ORIENT]) < 1e-5
+    a = s2([1.0, 0.8, -0.3], [2.0, 0.3])
+    b = s2([1.0, -0.8, 0.3], [2.0, -0.3])
+    assert a[F.SEC2_GOAL_ORIENT] > 0.02                 # left post nearer: taller
+    np.testing.assert_allclose(a[[1, 3, 4]], -b[[1, 3, 4]], atol=1e-3)
+    np.testing.assert_allclose(a[[0, 2]], b[[0, 2]], rtol=1e-5)
+
+
+def test_goal_image_height_level_camera():
+    # level camera at the goal's mid-height facing it at depth D: post height fv * 0.5 / D
+    cam = CameraParams(height=0.25, tilt_deg=0.0, forward_offset=0.0)
+    dd = 3.0
+    x = s2([HL - dd, 0, 0], [-3, 0], cam=cam)
+    np.testing.assert_allclose(x[F.SEC2_GOAL_SIZE], FV * 0.5 / dd, rtol=1e-5)
+    y = s3([HL - dd, 0, 0], [-3, 0], [-3, 1, 0], cam=cam)
+    w, h = FU * 1.5 / dd, FV * 0.5 / dd
+    np.testing.assert_allclose(y[4:12], [-w / 2, -h / 2, -w / 2, h / 2, w / 2, h / 2,
+                                         w / 2, -h / 2], rtol=1e-5)
+    np.testing.assert_allclose(y[12:15], [0, 0, w * h], rtol=1e-5, atol=1e-3)
+
+
+def test_other_robot_front_face_level_camera():
+    # level camera at the box's mid-height, box front face square on: only that face
+    cam = CameraParams(height=0.15, tilt_deg=0.0, forward_offset=0.0)
+    dd = 2.0
+    y = s3([0, 0, 0], [-3, 0], [dd + SIZE[0] / 2, 0, 0.0], cam=cam)
+    w, h = FU * SIZE[1] / dd, FV * SIZE[2] / dd
+    np.testing.assert_allclose(y[15:20], [0, 0, w, h, w * h], rtol=1e-5, atol=1e-3)
+
+
+def test_lost_behind_and_outside():
+    x = s2([0, 0.5, math.pi], [1, 0.8])   # facing -x: +y is on the camera's right
+    assert x[F.SEC2_BALL_VISIBLE] == 0 and x[F.SEC2_BALL_LOST_SIDE] == 1
+    assert x[F.SEC2_GOAL_VISIBLE] == 0 and x[F.SEC2_GOAL_LOST_SIDE] == -1
+    np.testing.assert_array_equal(x[:5], 0)
+    x = s2([0, 0, 0], [0.5, -1.5])         # 72 deg to the right
+    assert x[F.SEC2_BALL_VISIBLE] == 0 and x[F.SEC2_BALL_LOST_SIDE] == 1
+    x = s2([0, 0, 1.4], [0.5, -1.5])       # goal far to the right of the view
+    assert x[F.SEC2_GOAL_VISIBLE] == 0 and x[F.SEC2_GOAL_LOST_SIDE] == 1
+
+
+def test_goal_partial_view_and_ranges():
+    x = s2([3.6, 0, 0], [0, 0])            # close: both posts outside the image
+    assert x[F.SEC2_GOAL_VISIBLE] == 1 and abs(x[F.SEC2_GOAL_POS]) < 1e-3
+    assert 0 < x[F.SEC2_GOAL_SIZE] <= 480
+    x = s2([2.0, 1.2, -0.2], [0, 0])       # left post cut by the left border
+    assert x[F.SEC2_GOAL_VISIBLE] == 1 and -256 <= x[F.SEC2_GOAL_POS] <= 256
+    assert -1 <= x[F.SEC2_GOAL_ORIENT] <= 1
+
+
+def test_ball_occludes_post():
+    pose = [2.0, 0.75, 0.0]
+    free = s2(pose, [0, -2])
+    hidden = s2(pose, [3.6, 0.75])         # ball in front of the left post's foot
+    # left end loses its lower part: x5 = (hl - hr) / x3 falls
+    assert hidden[F.SEC2_GOAL_ORIENT] < free[F.SEC2_GOAL_ORIENT] - 0.05
+    behind = s2([2.0, 0.75, 0.0], [4.3, 0.75])   # ball inside the goal: no occlusion
+    np.testing.assert_allclose(behind[2:5], free[2:5], atol=1e-4)
+
+
+def test_robot_occludes_ball():
+    y = s3([0, 0, 0], [2.0, 0], [1.5, 0, 0])    # ball hidden behind a 0.3 m-high box
+    assert y[20] == 0 and y[22] == 1
+    y = s3([0, 0, 0], [1.0, 0], [1.5, 0, 0])    # ball in front: robot area reduced
+    z = s3([0, 0, 0], [1.0, 2.0], [1.5, 0, 0])
+    assert y[20] == 1 and y[19] < z[19]
+
+
+# ----------------------------------------------------------------------------- reference
+
+def _random_scenes(n, seed):
+    rng = np.random.default_rng(seed)
+    out = []
+    for i in range(n):
+        if i % 3 == 0:                      # near the goal, looking at it
+            pose = [rng.uniform(2.6, 3.8), rng.uniform(-1.2, 1.2), rng.uniform(-0.8, 0.8)]
+        else:
+            pose = [rng.uniform(-2, 3.5), rng.uniform(-2, 2), rng.uniform(-np.pi, np.pi)]
+        ang = pose[2] + rng.uniform(-0.8, 0.8)
+        ball = np.array(pose[:2]) + rng.uniform(0.32, 2.5) * np.array([np.cos(ang),
+                                                                        np.sin(ang)])
+        ang = pose[2] + rng.uniform(-0.6, 0.6)
+        other = np.r_[np.array(pose[:2]) + rng.uniform(0.5, 2.5) * np.array(
+            [np.cos(ang), np.sin(ang)]), rng.uniform(-np.pi, np.pi)]
+        out.append((np.array(pose), ball, other))
+    return out
+
+
+def test_section2_matches_numpy_reference():
+    for pose, ball, _ in _random_scenes(45, 1):
+        got, want = s2(pose, ball), section2_features_np(pose, ball, R, GOAL, CAM)
+        assert np.all(np.abs(got - want) <= TOL2), (pose, ball, got, want)
+
+
+def test_section3_matches_numpy_reference():
+    for pose, ball, other in _random_scenes(24, 2):
+        got = s3(pose, ball, other)
+        want = section3_features_np(pose, ball, R, GOAL, other, SIZE, CAM)
+        assert np.all(np.abs(got - want) <= TOL3), (pose, ball, other, got, want)
+
+
+# ----------------------------------------------------------------------------- jax
+
+def test_vmap_equals_loop_and_dtypes():
+    scenes = _random_scenes(8, 3)
+    poses = f32([s[0] for s in scenes])
+    balls = f32([s[1] for s in scenes])
+    others = f32([s[2] for s in scenes])
+    b2 = jax.vmap(section2_features, in_axes=(0, 0, None, None, None))(
+        poses, balls, R, f32(GOAL), CAM)
+    b3 = jax.vmap(lambda p, b, o: flatten_section3(section3_features(
+        p, b, R, f32(GOAL), o, f32(SIZE), CAM)))(poses, balls, others)
+    assert b2.dtype == jnp.float32 and b3.dtype == jnp.float32
+    assert b2.shape == (8, F.SEC2_DIM) and b3.shape == (8, F.SEC3_DIM)
+    for i in range(8):
+        np.testing.assert_allclose(np.asarray(b2[i]), s2(poses[i], balls[i]), atol=1e-3)
+        np.testing.assert_allclose(np.asarray(b3[i]), s3(poses[i], balls[i], others[i]),
+                                   rtol=1e-5, atol=1e-2)
+    obs = section3_features(poses[0], balls[0], R, f32(GOAL), others[0], f32(SIZE), CAM)
+    for leaf in jax.tree_util.tree_leaves(obs):
+        assert leaf.dtype == jnp.float32
+
+
+def test_pixel_noise():
+    pose, ball = [1.0, 0.3, 0.1], [2.2, 0.4]
+    exact = s2(pose, ball)
+    np.testing.assert_array_equal(s2(pose, ball, key=jax.random.key(0)), exact)  # std 0
+    std = 2.0
+    cam = CameraParams(pixel_noise_std=std)
+    keys = jax.random.split(jax.random.key(1), 4000)
+    xs = np.asarray(jax.jit(jax.vmap(section2_features, in_axes=(None,) * 5 + (0,)))(
+        f32(pose), f32(ball), R, f32(GOAL), cam, keys))
+    for idx, want in ((F.SEC2_BALL_SIZE, std), (F.SEC2_BALL_POS, std),
+                      (F.SEC2_GOAL_POS, std / math.sqrt(2)),
+                      (F.SEC2_GOAL_SIZE, std / math.sqrt(2))):
+        np.testing.assert_allclose(xs[:, idx].std(), want, rtol=0.06)
+        np.testing.assert_allclose(xs[:, idx].mean(), exact[idx], atol=4 * want / 60)
+    np.testing.assert_array_equal(xs[:, 5:], np.broadcast_to(exact[5:], xs[:, 5:].shape))

@@ -1,0 +1,91 @@
+"""Learning from Easy Missions: the difficulty rises when Q stops changing, and not before."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import vbl  # noqa: F401  (x64 on, as in every vbl program)
+from vbl.agents import stack_for_learners
+from vbl.agents.lem import LEMParams, lem_init, lem_update
+from vbl.params import ParamError, validate
+
+P = LEMParams(enabled=True, window=3, threshold=0.01, step=0.25)
+
+
+def _drive(p, qs):
+    def body(st, q):
+        st = lem_update(st, q, p)
+        return st, st.difficulty
+    st, d = jax.lax.scan(body, lem_init(p, jnp.zeros(qs.shape[1:], jnp.float32)), qs)
+    return d, st
+
+
+def drive(p, qs):
+    """Feed the tables qs (T, S, A) one per step; difficulty after each step (T,)."""
+    d, st = _drive(p, qs)
+    return np.asarray(d), st
+
+
+def tables(values, shape=(4, 2)):
+    return jnp.asarray(np.stack([np.full(shape, v, np.float32) for v in values]))
+
+
+def test_raises_only_after_q_stops_changing():
+    # Q changes at steps 1..6 (q_t = t), then stays at 6. Checks every 3 steps: the check at
+    # step 9 sees no change since step 6 -> raise there, not earlier.
+    vals = [1, 2, 3, 4, 5, 6] + [6] * 9
+    d, st = drive(P, tables(vals))
+    np.testing.assert_allclose(d[:8], 0.0)
+    np.testing.assert_allclose(d[8:], 0.25)  # steps 9..15: one raise, no second (no learning)
+    assert d.dtype == np.float32 and int(st.raises) == 1
+
+
+def test_untouched_table_does_not_count_as_converged():
+    d, st = drive(P, tables([0.0] * 12))
+    np.testing.assert_allclose(d, 0.0)
+    assert int(st.raises) == 0
+
+
+def test_repeated_learning_raises_to_the_cap():
+    # learn, settle, learn, settle ...: each settle raises; capped at max_difficulty 0.6
+    p = P.replace(max_difficulty=0.6)
+    vals = []
+    for k in range(1, 6):
+        vals += [float(k)] * 3 + [float(k)] * 3
+    d, st = drive(p, tables(vals))
+    assert d[-1] == pytest.approx(0.6)
+    assert np.all(np.diff(d) >= 0) and int(st.raises) == 3  # 0.25, 0.5, 0.6
+
+
+def test_max_versus_mean_statistic():
+    # one of 8 entries keeps moving by 0.02 per step: max sees it, the mean (0.0025 per
+    # step, 0.0075 per window) does not
+    base = np.zeros((12, 4, 2), np.float32)
+    base[:, 0, 0] = 1.0 + 0.02 * np.arange(12)
+    d_max, _ = drive(P, jnp.asarray(base))
+    d_mean, _ = drive(P.replace(statistic="mean"), jnp.asarray(base))
+    np.testing.assert_allclose(d_max, 0.0)
+    assert d_mean[-1] > 0.0
+
+
+def test_disabled_and_batched():
+    d, _ = drive(P.replace(enabled=False), tables([1, 2, 3] + [3] * 9))
+    np.testing.assert_allclose(d, 1.0)  # off: max_difficulty, fixed
+    # two learners with different thresholds in one vmap: only the loose one raises
+    qs = jnp.asarray(np.stack([np.full((4, 2), 1.0 + 0.001 * (t % 2), np.float32)
+                               for t in range(9)]))
+    ps = stack_for_learners(P, 2).replace(threshold=jnp.array([0.0005, 0.01], jnp.float32))
+    d, _ = jax.vmap(_drive, in_axes=(0, None))(ps, qs)
+    assert d[0, -1] == 0.0 and d[1, -1] > 0.0
+
+
+@pytest.mark.parametrize("kw,match", [
+    (dict(initial_difficulty=0.5, max_difficulty=0.3), "initial_difficulty"),
+    (dict(step=0.0), "step"), (dict(window=0), "window"), (dict(threshold=0.0), "threshold"),
+    (dict(initial_difficulty=1.5), "initial_difficulty")])
+def test_bad_params(kw, match):
+    with pytest.raises(ParamError, match=match):
+        validate(LEMParams(**kw))

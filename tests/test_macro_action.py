@@ -1,0 +1,136 @@
+"""Macro actions on a toy counter env: repeat until the discrete state changes, cap, episode
+end inside the repeat, discounted reward, vmap over environments, use inside the runner."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from flax import struct
+
+import vbl  # noqa: F401  (x64 on, as in every vbl program)
+from vbl.agents import (
+    QLearningParams,
+    QRunnerParams,
+    learner_keys,
+    make_qlearning_runner,
+    stack_for_learners,
+)
+from vbl.agents.lem import LEMParams
+from vbl.params import ParamError, validate
+from vbl.spaces.macro_action import MacroActionParams, make_macro_step
+
+GOAL = 10   # the counter reaching 10 ends the episode with success
+BLOCK = 3   # discrete state = counter // 3
+
+
+@struct.dataclass
+class CounterParams:
+    max_steps: int = 50
+    step_reward: float = 1.0   # reward of every primitive
+    goal_reward: float = 0.0   # extra reward on reaching the goal
+
+
+@struct.dataclass
+class CounterState:
+    c: jax.Array
+    t: jax.Array
+
+
+class CounterEnv:
+    """Action 0: +1, action 1: stay, action 2: -1 (floor 0)."""
+
+    num_actions = 3
+    default_params = CounterParams()
+
+    def reset(self, key, params):
+        return jnp.array([0.0], jnp.float32), CounterState(c=jnp.int32(0), t=jnp.int32(0))
+
+    def step(self, key, state, action, params):
+        delta = jnp.array([1, 0, -1], jnp.int32)[action]
+        c = jnp.maximum(state.c + delta, 0)
+        t = state.t + 1
+        term = c >= GOAL
+        trunc = (t >= params.max_steps) & ~term
+        done = term | trunc
+        obs_r, st_r = self.reset(key, params)
+        st = jax.tree.map(lambda a, b: jnp.where(done, a, b), st_r, CounterState(c=c, t=t))
+        obs = jnp.where(done, obs_r, jnp.array([c], jnp.float32))
+        r = (params.step_reward + params.goal_reward * term).astype(jnp.float32)
+        return obs, st, r, term, trunc, {"success": term, "counter": c}
+
+
+def block_of(obs):
+    return (obs[..., 0] // BLOCK).astype(jnp.int32)
+
+
+ENV = CounterEnv()
+MACRO = jax.jit(jax.vmap(make_macro_step(ENV.step, block_of),
+                         in_axes=(0, 0, 0, 0, None, None, None)))
+
+
+def run(counters, actions, max_repeats=20, gamma=0.5, t=0):
+    counters = np.asarray(counters)
+    n = len(counters)
+    st = CounterState(c=jnp.asarray(counters, jnp.int32), t=jnp.full((n,), t, jnp.int32))
+    s0 = jnp.asarray(counters // BLOCK, jnp.int32)
+    keys = jax.random.split(jax.random.PRNGKey(0), n)
+    return MACRO(keys, st, s0, jnp.asarray(actions, jnp.int32), ENV.default_params,
+                 max_repeats, gamma)
+
+
+def test_repeat_until_state_changes_cap_and_episode_end():
+    # counter 0 (+1): 0->3 in 3; counter 1: 2; counter 5 (-1): 5->2 in 3;
+    # counter 4 (stay): never changes -> cap 7; counter 9 (+1): ends the episode in 1
+    out = run([0, 1, 5, 4, 9], [0, 0, 2, 1, 0], max_repeats=7, gamma=0.5)
+    np.testing.assert_array_equal(out.num_primitives, [3, 2, 3, 7, 1])
+    assert out.num_primitives.dtype == jnp.int32 and out.reward.dtype == jnp.float32
+    want_r = [sum(0.5 ** i for i in range(n)) for n in (3, 2, 3, 7, 1)]
+    np.testing.assert_allclose(out.reward, want_r, rtol=1e-6)
+    np.testing.assert_array_equal(out.env_state.c, [3, 3, 2, 4, 0])  # last: auto-reset
+    np.testing.assert_array_equal(out.next_state, [1, 1, 0, 1, 0])
+    np.testing.assert_array_equal(out.terminated, [False, False, False, False, True])
+    np.testing.assert_array_equal(out.info["success"], [False, False, False, False, True])
+    np.testing.assert_array_equal(out.info["counter"], [3, 3, 2, 4, 10])  # pre-reset facts
+    np.testing.assert_array_equal(out.env_state.t, [3, 2, 3, 7, 0])
+
+
+def test_truncation_inside_the_repeat_and_traced_cap():
+    out = run([4, 4], [1, 1], max_repeats=jnp.int32(30), gamma=1.0, t=45)  # limit at t=50
+    np.testing.assert_array_equal(out.num_primitives, [5, 5])
+    np.testing.assert_array_equal(out.truncated, [True, True])
+    np.testing.assert_allclose(out.reward, [5.0, 5.0])
+    # the cap is traced: a vmapped sweep over caps in one compiled function
+    f = jax.jit(jax.vmap(lambda m: run([4], [1], max_repeats=m).num_primitives[0]))
+    np.testing.assert_array_equal(f(jnp.array([1, 2, 9], jnp.int32)), [1, 2, 9])
+
+
+def test_macro_params_validation():
+    with pytest.raises(ParamError, match="max_repeats"):
+        validate(MacroActionParams(max_repeats=0))
+
+
+def test_runner_with_macro_actions_learns_the_counter():
+    """Q-learning on the blocks (state = counter // 3) with macro actions reaches the goal."""
+    from vbl.agents import ExplorationParams, ScheduleParams
+
+    params = QRunnerParams(
+        agent=QLearningParams(num_states=GOAL // BLOCK + 1, num_actions=3, discount=0.9,
+                              exploration=ExplorationParams(schedule=ScheduleParams(
+                                  kind="linear", init_value=1.0, end_value=0.0,
+                                  transition_steps=60.0))),
+        macro=MacroActionParams(enabled=True, max_repeats=5), lem=LEMParams(enabled=False),
+        num_envs=8, chunk_steps=100)
+    runner = make_qlearning_runner(ENV, block_of, params)
+    bp = stack_for_learners(params, 2)
+    ep = stack_for_learners(CounterParams(step_reward=0.0, goal_reward=1.0), 2)
+    carry = runner.init_batch(learner_keys(3, 2), bp, ep)
+    carry, m = runner.run_chunk_batch(carry, bp, ep)
+    prim, act = np.asarray(m["primitives"]), np.asarray(m["actions"])
+    assert np.all(prim >= act) and prim.sum() > act.sum()  # actions span several primitives
+    # the learned greedy action in every non-terminal block is "+1"
+    np.testing.assert_array_equal(np.argmax(np.asarray(carry.q)[:, :GOAL // BLOCK], -1), 0)
+    # late in the chunk (epsilon 0) every finished episode succeeds in 4 macro actions
+    late = slice(80, 100)
+    assert np.all(np.asarray(m["successes"])[:, late] == np.asarray(m["episodes"])[:, late])

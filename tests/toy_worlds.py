@@ -1,0 +1,114 @@
+"""Small gymnax-style JAX worlds for the state-space construction tests.
+
+* :class:`LineWorld` (Section 2.1 test): a position ``p`` on the line ``[0, 1]``,
+  primitives 0 = forward (``+step``) and 1 = backward (``-step``), the goal at the
+  right end (``p >= 1``). Below ``flip_below`` the robot faces the other way (the
+  primitives swap direction), which makes a second, hand-derivable state.
+* :class:`TwoRegionWorld` (Section 2.2 test): a point ``x`` in ``[0, 1]^2``, four
+  primitives ``+-e0, +-e1``; the change of ``x`` is ``step * gain * u`` with
+  ``gain = gain_left`` for ``x0 < boundary`` and ``gain_right`` otherwise (one affine
+  model per region); the goal is the corner ``x0 >= goal_lo and x1 >= goal_lo``.
+
+Both follow the ``ShootingEnv`` API: ``reset(key, params) -> (obs, state)``,
+``step(key, state, action, params) -> (obs, state, reward, terminated, truncated,
+info)`` with auto-reset and ``info["success"]``.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from vbl.params import param
+
+F32 = jnp.float32
+
+
+@struct.dataclass
+class LineParams:
+    step: float = param(0.05, doc="distance moved per primitive", gt=0.0)
+    flip_below: float = param(0.0, doc="primitives swap direction for p < flip_below",
+                              ge=0.0, le=1.0)
+    max_steps: int = param(100, doc="time limit", static=True, ge=1)
+
+
+@struct.dataclass
+class ToyState:
+    x: jax.Array       # (D,) float32
+    step: jax.Array    # () int32
+
+
+class LineWorld:
+    """Position on a line, forward/backward, goal at p >= 1."""
+
+    num_actions = 2
+    action_labels = ("F", "B")
+
+    @property
+    def default_params(self) -> LineParams:
+        return LineParams()
+
+    def reset(self, key, params):
+        x = jax.random.uniform(key, (1,), F32, 0.0, 1.0)
+        return x, ToyState(x, jnp.zeros((), jnp.int32))
+
+    def step(self, key, state, action, params):
+        p = state.x[0]
+        sign = jnp.where(action == 0, 1.0, -1.0).astype(F32)
+        sign = jnp.where(p < params.flip_below, -sign, sign)
+        p2 = jnp.maximum(p + jnp.asarray(params.step, F32) * sign, 0.0)
+        success = p2 >= 1.0
+        n = state.step + 1
+        truncated = (n >= params.max_steps) & ~success
+        done = success | truncated
+        obs0, fresh = self.reset(key, params)
+        nxt = ToyState(jnp.reshape(p2, (1,)).astype(F32), n)
+        new = jax.tree_util.tree_map(lambda a, b: jnp.where(done, a, b), fresh, nxt)
+        info = dict(success=success, episode_done=done, episode_length=n)
+        return new.x, new, success.astype(F32), success, truncated, info
+
+
+@struct.dataclass
+class TwoRegionParams:
+    step: float = param(0.02, doc="distance per primitive at gain 1", gt=0.0)
+    boundary: float = param(0.5, doc="x0 of the region boundary", gt=0.0, lt=1.0)
+    gain_left: float = param(1.0, doc="gain of the dynamics for x0 < boundary")
+    gain_right: float = param(-1.0, doc="gain of the dynamics for x0 >= boundary")
+    goal_lo: float = param(0.9, doc="goal corner: x0 and x1 >= goal_lo", gt=0.0, le=1.0)
+    max_steps: int = param(200, doc="time limit", static=True, ge=1)
+
+
+_DIRS = jnp.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]], F32)
+
+
+class TwoRegionWorld:
+    """Two regions of different affine dynamics in [0, 1]^2."""
+
+    num_actions = 4
+    action_labels = ("+x0", "-x0", "+x1", "-x1")
+
+    @property
+    def default_params(self) -> TwoRegionParams:
+        return TwoRegionParams()
+
+    def reset(self, key, params):
+        x = jax.random.uniform(key, (2,), F32, 0.0, 1.0)
+        return x, ToyState(x, jnp.zeros((), jnp.int32))
+
+    def delta(self, x, action, params):
+        """The noiseless change of x (2,) under ``action`` (before clipping to the box)."""
+        gain = jnp.where(x[0] < params.boundary, params.gain_left, params.gain_right)
+        return (jnp.asarray(params.step, F32) * gain.astype(F32) * _DIRS[action]).astype(F32)
+
+    def step(self, key, state, action, params):
+        x2 = jnp.clip(state.x + self.delta(state.x, action, params), 0.0, 1.0)
+        success = jnp.all(x2 >= params.goal_lo)
+        n = state.step + 1
+        truncated = (n >= params.max_steps) & ~success
+        done = success | truncated
+        _, fresh = self.reset(key, params)
+        new = jax.tree_util.tree_map(lambda a, b: jnp.where(done, a, b), fresh,
+                                     ToyState(x2.astype(F32), n))
+        info = dict(success=success, episode_done=done, episode_length=n)
+        return new.x, new, success.astype(F32), success, truncated, info

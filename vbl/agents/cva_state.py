@@ -1,0 +1,360 @@
+"""Q-learning on CVA-estimated state vectors (the architecture of Figure 11, Section 3).
+
+One learner (all functions are written for one learner and ``vmap``-ed over learners):
+
+1. **collect** ``u(t)``, ``y(t)`` with uniformly random actions (:func:`collect`);
+2. **identify** one CVA model per observed object (``ball``, ``goal``, ``other``) with the
+   AIC order and the lag rule of Sec. 3.1.2 (:func:`identify_object`, built on
+   :func:`vbl.sysid.cva.fit_one`);
+3. **filter**: inside the env loop, each object's model turns the running history of its
+   outputs and the learner's inputs into the canonical state ``mu`` (:func:`filter_state`);
+   the first ``n_used`` components of every object (CVA orders them by canonical
+   correlation, i.e. importance) are concatenated into the state vector
+   ``[mu_ball, mu_goal, mu_other]``;
+4. **quantise** the state vector into a Q-table index with a quantiser fitted to the states
+   of the collected data (:mod:`vbl.spaces.quantize`);
+5. **Q-learning** with the batched runner of :mod:`vbl.agents.qlearning`.
+
+The baseline of Table 2 (``state="current"``) is the same pipeline with the current
+features ``y(t)`` of the same objects as the state vector (no history, no CVA).
+
+The memory (the filter history) lives in the env-loop carry: :class:`FilteredEnv` wraps a
+gymnax-style env; its state holds the inner env state and the history; its observation is
+``{"index": int32 (), "state": float32 (d,)}``, so the generic Q-learning runner uses
+``state_fn = lambda o: o["index"]``. Its params hold the fitted models and the quantiser,
+which are per-learner pytrees.
+
+Decision-time state: at time ``t`` (after observing ``y(t)``, before choosing ``u(t)``) the
+state is ``mu(t+1) = [I_n 0] U p(t+1)`` with the not-yet-chosen ``u(t)`` at its data mean
+(0 in normalised units), i.e. built from ``y(t) .. y(t-l+1)`` and ``u(t-1) .. u(t-l+1)``.
+At an episode start the history is filled with the first observation and the stop command
+``u = 0`` (the robot at rest).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from vbl.agents.qlearning import QRunnerParams, make_qlearning_runner
+from vbl.params import ParamError, param, section, validate
+from vbl.spaces.quantize import (
+    Quantizer,
+    QuantizerParams,
+    fit_quantizer,
+    make_quantizer,
+    num_states,
+    quantize,
+)
+from vbl.sysid.cva import fit_one, n_identifiable
+from vbl.sysid.params import CVAParams
+
+__all__ = [
+    "STATE_KINDS",
+    "CVAStateParams",
+    "ObjectModel",
+    "FilteredParams",
+    "FilteredState",
+    "FilteredEnv",
+    "collect",
+    "identify_object",
+    "filter_state",
+    "state_dim",
+    "make_cva_learner",
+]
+
+#: What the Q-learner sees (static choice).
+STATE_KINDS = ("cva", "current")
+
+
+@struct.dataclass
+class CVAStateParams:
+    """The Figure 11 pipeline of one learner (data collection, CVA, quantiser, Q-learning)."""
+
+    state: str = param("cva", doc="'cva': CVA state vectors [mu_obj...]; 'current': the "
+                       "current features y(t) of the same objects (Table 2 baseline)",
+                       static=True, choices=STATE_KINDS)
+    objects: tuple = param(("ball", "goal", "other"), doc="observed objects (keys of the "
+                           "env's obs_slices), one CVA model each", static=True)
+    n_used: int = param(2, doc="canonical states used per object (the first n_used, ordered "
+                        "by canonical correlation); components beyond the AIC order n* are 0",
+                        static=True, ge=1)
+    extra: tuple = param((), doc="extra obs_slices appended unfiltered to the state vector "
+                         "(e.g. 'lost_side')", static=True)
+    collect_steps: int = param(2000, doc="random-action steps collected per learner for the "
+                               "identification and the quantiser fit", unit="step",
+                               static=True, ge=10)
+    cva: CVAParams = section(CVAParams, doc="CVA identification (order by AIC, lag rule)")
+    quantizer: QuantizerParams = section(QuantizerParams, doc="state vector -> Q-table index")
+    runner: QRunnerParams = section(QRunnerParams, doc="batched Q-learning runner")
+
+    def check(self) -> None:
+        if not self.objects:
+            raise ParamError("objects must name at least one observed object")
+        if self.cva.lag == 0 and self.cva.lag_max < 1:
+            raise ParamError("cva.lag_max must be >= 1")
+
+
+@struct.dataclass
+class ObjectModel:
+    """A fitted CVA filter of one object, padded to ``lag_max`` (normalised units).
+
+    ``mu = sum_j Uu[:, j] @ u_n(t-j) + Uy[:, j] @ y_n(t-j)`` over j = 0 .. lag_max-1 (the
+    decision-time state; ``u_n(t) = 0``), where ``x_n = (x - mean) / scale``.
+    """
+
+    Uu: jax.Array       # (n_used, lag_max, m)
+    Uy: jax.Array       # (n_used, lag_max, q)
+    u_mean: jax.Array   # (m,)
+    u_scale: jax.Array  # (m,)
+    y_mean: jax.Array   # (q,)
+    y_scale: jax.Array  # (q,)
+    lag: jax.Array      # () int32 selected l
+    n: jax.Array        # () int32 AIC order n* at that l
+    logdet: jax.Array   # () log det R(n*) at that l
+    aic: jax.Array      # () AIC(n*) at that l
+
+
+def collect(env: Any, key: jax.Array, env_params: Any, num_steps: int) -> dict[str, jax.Array]:
+    """Run uniformly random actions for ``num_steps`` (auto-reset included).
+
+    Returns ``obs`` (N, obs_dim) float32 = y(t), ``u`` (N, m) float32 = the command taken
+    after observing y(t), ``start`` (N,) bool = y(t) is the first of an episode.
+    """
+    k_reset, k_run = jax.random.split(key)
+    obs0, st0 = env.reset(k_reset, env_params)
+
+    def body(c, k):
+        obs, st, start = c
+        k_a, k_s = jax.random.split(k)
+        a = jax.random.randint(k_a, (), 0, env.num_actions, jnp.int32)
+        obs2, st2, _, term, trunc, info = env.step(k_s, st, a, env_params)
+        out = (obs, jnp.asarray(info["u"], jnp.float32), start)
+        return (obs2, st2, term | trunc), out
+
+    _, (obs, u, start) = jax.lax.scan(body, (obs0, st0, jnp.bool_(True)),
+                                      jax.random.split(k_run, num_steps))
+    return {"obs": obs.astype(jnp.float32), "u": u, "start": start}
+
+
+def identify_object(u: jax.Array, y: jax.Array, cva: CVAParams, n_used: int) -> ObjectModel:
+    """CVA + AIC order + lag rule on one data set ``u (N, m)``, ``y (N, q)`` (jit/vmap-able).
+
+    Lag rule (Sec. 3.1.2): from ``l = 1``, stop at the first l whose ``log det R(n*) <
+    cva.logdet_stop``; otherwise keep growing l while ``AIC(n*)`` decreases; at most
+    ``cva.lag_max`` (a fixed ``cva.lag > 0`` skips the rule).
+    """
+    m, q = u.shape[1], y.shape[1]
+    lags = cva.lags()
+    lag_max = max(lags)
+    fits = []
+    for lag in lags:
+        k = cva.horizon_for(lag)
+        cap = n_identifiable(lag, k, m, q) if not cva.n_max else min(
+            cva.n_max, n_identifiable(lag, k, m, q))
+        f = fit_one(u, y, cva, lag=lag, horizon=k, n_cap=cap)
+        rows = f.U[:n_used]
+        if rows.shape[0] < n_used:
+            rows = jnp.concatenate([rows, jnp.zeros((n_used - rows.shape[0], rows.shape[1]),
+                                                    rows.dtype)])
+        rows = rows * (jnp.arange(n_used) < f.n)[:, None]  # components beyond n* are 0
+        uu = rows[:, :lag * m].reshape(n_used, lag, m)
+        uy = rows[:, lag * m:].reshape(n_used, lag, q)
+        pad = lag_max - lag
+        uu = jnp.pad(uu, ((0, 0), (0, pad), (0, 0)))
+        uy = jnp.pad(uy, ((0, 0), (0, pad), (0, 0)))
+        fits.append(ObjectModel(Uu=uu.astype(jnp.float32), Uy=uy.astype(jnp.float32),
+                                u_mean=f.u_mean.astype(jnp.float32),
+                                u_scale=f.u_scale.astype(jnp.float32),
+                                y_mean=f.y_mean.astype(jnp.float32),
+                                y_scale=f.y_scale.astype(jnp.float32),
+                                lag=jnp.int32(lag), n=f.n.astype(jnp.int32),
+                                logdet=f.logdet[f.n].astype(jnp.float32),
+                                aic=f.aic[f.n].astype(jnp.float32)))
+    # lag rule as a static sweep with a "stopped" flag
+    chosen = fits[0]
+    stopped = fits[0].logdet < cva.logdet_stop
+    for f in fits[1:]:
+        take = (~stopped) & (f.aic < chosen.aic)
+        stopped = stopped | (~take) | (f.logdet < cva.logdet_stop)
+        chosen = jax.tree.map(lambda a, b, t=take: jnp.where(t, a, b), f, chosen)
+    return chosen
+
+
+def filter_state(model: ObjectModel, hist_u: jax.Array, hist_y: jax.Array) -> jax.Array:
+    """Decision-time canonical state (n_used,) float32 from raw histories.
+
+    ``hist_u`` (lag_max, m): row j = u(t-j) (row 0 is ignored: u(t) is not chosen yet);
+    ``hist_y`` (lag_max, q): row j = y(t-j).
+    """
+    un = (hist_u - model.u_mean) / model.u_scale
+    un = un.at[0].set(0.0)
+    yn = (hist_y - model.y_mean) / model.y_scale
+    return (jnp.einsum("njm,jm->n", model.Uu, un)
+            + jnp.einsum("njq,jq->n", model.Uy, yn)).astype(jnp.float32)
+
+
+# ---------------------------------------------------------------------------- the env wrapper
+
+
+@struct.dataclass
+class FilteredParams:
+    """Per-learner params of :class:`FilteredEnv` (a pytree; vmapped over learners)."""
+
+    inner: Any                      # the wrapped env's params
+    models: tuple                   # one ObjectModel per object (empty for 'current')
+    quantizer: Quantizer
+
+
+@struct.dataclass
+class FilteredState:
+    inner: Any
+    hist_u: tuple   # per object (lag_max, m) raw u, row 0 = newest
+    hist_y: tuple   # per object (lag_max, q) raw y, row 0 = newest
+
+
+class FilteredEnv:
+    """A gymnax-style env whose observation is the quantised (CVA or current) state."""
+
+    def __init__(self, env: Any, p: CVAStateParams, m: int):
+        self.env, self.p, self.m = env, p, int(m)
+        self.num_actions = env.num_actions
+        slices = env.obs_slices
+        for name in tuple(p.objects) + tuple(p.extra):
+            if name not in slices:
+                raise ParamError(f"object {name!r} is not in the env's obs_slices; valid: "
+                                 f"{sorted(slices)}")
+        self.slices = [slices[o] for o in p.objects]
+        self.extra = [slices[o] for o in p.extra]
+        self.lag_max = max(p.cva.lags())
+
+    def state_vector(self, hist_u, hist_y, obs, models) -> jax.Array:
+        if self.p.state == "cva":
+            parts = [filter_state(mod, hu, hy) for mod, hu, hy in zip(models, hist_u, hist_y,
+                                                                        strict=True)]
+        else:
+            parts = [obs[s] for s in self.slices]
+        parts += [obs[s] for s in self.extra]
+        return jnp.concatenate(parts).astype(jnp.float32)
+
+    def _fresh_hist(self, obs):
+        hu = tuple(jnp.zeros((self.lag_max, self.m), jnp.float32) for _ in self.slices)
+        hy = tuple(jnp.broadcast_to(obs[s], (self.lag_max, s.stop - s.start)).astype(
+            jnp.float32) for s in self.slices)
+        return hu, hy
+
+    def _out(self, obs, hu, hy, params: FilteredParams):
+        x = self.state_vector(hu, hy, obs, params.models)
+        return {"index": quantize(params.quantizer, x), "state": x}
+
+    def reset(self, key, params: FilteredParams):
+        obs, st = self.env.reset(key, params.inner)
+        hu, hy = self._fresh_hist(obs)
+        return self._out(obs, hu, hy, params), FilteredState(st, hu, hy)
+
+    def step(self, key, state: FilteredState, action, params: FilteredParams):
+        obs, st, r, term, trunc, info = self.env.step(key, state.inner, action, params.inner)
+        u = jnp.asarray(info["u"], jnp.float32)
+        done = term | trunc
+        hu_new, hy_new = [], []
+        for hu, hy, s in zip(state.hist_u, state.hist_y, self.slices, strict=True):
+            hu = jnp.roll(hu, 1, axis=0).at[1].set(u).at[0].set(0.0)
+            hy = jnp.roll(hy, 1, axis=0).at[0].set(obs[s])
+            hu_new.append(hu)
+            hy_new.append(hy)
+        fu, fy = self._fresh_hist(obs)
+        hu = tuple(jnp.where(done, a, b) for a, b in zip(fu, hu_new, strict=True))
+        hy = tuple(jnp.where(done, a, b) for a, b in zip(fy, hy_new, strict=True))
+        return (self._out(obs, hu, hy, params), FilteredState(st, hu, hy), r, term, trunc,
+                info)
+
+
+def state_dim(env: Any, p: CVAStateParams) -> int:
+    """Dimension d of the state vector that is quantised."""
+    sl = env.obs_slices
+    if p.state == "cva":
+        d = p.n_used * len(p.objects)
+    else:
+        d = sum(sl[o].stop - sl[o].start for o in p.objects)
+    return int(d + sum(sl[o].stop - sl[o].start for o in p.extra))
+
+
+def _history_states(fenv: FilteredEnv, data, models) -> jax.Array:
+    """State vectors (N, d) of the collected data, with the same history rule as the env loop."""
+    obs, u, start = data["obs"], data["u"], data["start"]
+
+    def body(c, x):
+        hu, hy = c
+        o, u_prev, st = x
+        rolled_u = tuple(jnp.roll(h, 1, axis=0).at[1].set(u_prev).at[0].set(0.0) for h in hu)
+        rolled_y = tuple(jnp.roll(h, 1, axis=0).at[0].set(o[s])
+                         for h, s in zip(hy, fenv.slices, strict=True))
+        fu, fy = fenv._fresh_hist(o)
+        hu = tuple(jnp.where(st, a, b) for a, b in zip(fu, rolled_u, strict=True))
+        hy = tuple(jnp.where(st, a, b) for a, b in zip(fy, rolled_y, strict=True))
+        return (hu, hy), fenv.state_vector(hu, hy, o, models)
+
+    u_prev = jnp.concatenate([jnp.zeros_like(u[:1]), u[:-1]])
+    init = fenv._fresh_hist(obs[0])
+    _, xs = jax.lax.scan(body, init, (obs, u_prev, start))
+    return xs
+
+
+class CVALearner(struct.PyTreeNode):
+    """Pure functions of one learner (vmap over learners); built by :func:`make_cva_learner`."""
+
+    prepare: Any = struct.field(pytree_node=False)  # (key, p, env_params) -> FilteredParams
+    runner: Any = struct.field(pytree_node=False)   # QLearningRunner on the FilteredEnv
+    env: Any = struct.field(pytree_node=False)      # the FilteredEnv
+    num_states: int = struct.field(pytree_node=False)
+
+
+def make_cva_learner(env: Any, p: CVAStateParams, m: int | None = None) -> CVALearner:
+    """Validate ``p`` and build the learner's pure functions for ``env``.
+
+    ``env`` needs ``num_actions``, ``obs_slices``, ``reset``/``step`` (gymnax style, auto-reset,
+    ``info["u"]`` the motor command (m,), ``info["success"]``). ``m`` is the input dimension
+    (default: the length of ``info["u"]``, found by one abstract step).
+
+    ``prepare(key, p, env_params)``: collect, identify, fit the quantiser; returns the
+    :class:`FilteredParams` for the runner. The runner's ``agent.num_states`` must equal
+    the quantiser's number of states (checked here).
+    """
+    validate(p)
+    if m is None:
+        key = jax.random.PRNGKey(0)
+        ep = env.default_params
+        _, st = jax.eval_shape(env.reset, key, ep)
+        out = jax.eval_shape(lambda s: env.step(key, s, jnp.int32(0), ep), st)
+        m = int(np.prod(out[5]["u"].shape))
+    fenv = FilteredEnv(env, p, m)
+    d = state_dim(env, p)
+    make_quantizer(p.quantizer, d)
+    s = num_states(p.quantizer, d)
+    if p.runner.agent.num_states != s:
+        raise ParamError(f"runner.agent.num_states={p.runner.agent.num_states} but the "
+                         f"quantiser gives {s} states ({p.quantizer.method}, d={d}); set them "
+                         "equal")
+    lags = p.cva.lags()
+    need = p.cva.min_samples_factor * 2 * max(lags) * (m + 11)
+    if p.state == "cva" and p.collect_steps < need:
+        raise ParamError(f"collect_steps={p.collect_steps} is too few for CVA up to lag "
+                         f"{max(lags)}; use >= {int(need)}")
+    runner = make_qlearning_runner(fenv, lambda o: o["index"], p.runner, env_params=None)
+
+    def prepare(key, pp: CVAStateParams, env_params) -> FilteredParams:
+        k_col, k_q = jax.random.split(key)
+        data = collect(env, k_col, env_params, p.collect_steps)
+        models = ()
+        if p.state == "cva":
+            models = tuple(identify_object(data["u"], data["obs"][:, sl], pp.cva, p.n_used)
+                           for sl in fenv.slices)
+        xs = _history_states(fenv, data, models)
+        qz = fit_quantizer(k_q, xs, pp.quantizer)
+        return FilteredParams(inner=env_params, models=models, quantizer=qz)
+
+    return CVALearner(prepare=prepare, runner=runner, env=fenv, num_states=s)

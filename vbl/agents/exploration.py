@@ -1,0 +1,180 @@
+"""Exploration for tabular learners: epsilon-greedy and Boltzmann action selection.
+
+The exploration rate (epsilon) or temperature follows a schedule of the optax
+family (``optax.constant_schedule``, ``optax.linear_schedule``,
+``optax.exponential_decay``, ``optax.cosine_decay_schedule``). The schedule
+*kind* is static (it picks the formula); its *numbers* are traced pytree leaves,
+so a sweep can ``vmap`` over e.g. the final epsilon. optax's constructors run
+Python checks on their numbers (``if transition_steps <= 0``), which a traced
+value cannot pass, so :func:`schedule_value` evaluates the same formulas with
+``jnp``; :func:`to_optax` builds the optax schedule for concrete numbers and the
+tests check that both agree.
+
+Greedy choices break ties uniformly at random with an explicit key.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from flax import struct
+
+from vbl.params import ParamError, param, section
+
+__all__ = [
+    "SCHEDULE_KINDS",
+    "EXPLORATION_KINDS",
+    "ScheduleParams",
+    "ExplorationParams",
+    "schedule_value",
+    "to_optax",
+    "greedy_action",
+    "epsilon_greedy_action",
+    "boltzmann_action",
+    "boltzmann_probs",
+    "select_action",
+]
+
+#: Schedule formulas (static choice); each equals the optax schedule of that name.
+SCHEDULE_KINDS = ("constant", "linear", "exponential", "cosine")
+#: Action-selection rules (static choice).
+EXPLORATION_KINDS = ("epsilon_greedy", "boltzmann")
+
+
+@struct.dataclass
+class ScheduleParams:
+    """A scalar schedule v(count) of the optax family (count = schedule steps, see
+    :attr:`ExplorationParams.count_unit`).
+
+    * ``constant``: v = init_value.
+    * ``linear`` (``optax.linear_schedule``): init_value until ``transition_begin``, then a
+      straight line to end_value over ``transition_steps``, then end_value.
+    * ``exponential`` (``optax.exponential_decay``): init_value * decay_rate ** (c / T)
+      with c = count - transition_begin (c <= 0: init_value), floored to c // T when
+      ``staircase``, never below end_value.
+    * ``cosine`` (``optax.cosine_decay_schedule`` with alpha = end/init): end_value +
+      (init_value - end_value) * (1 + cos(pi * min(count, T) / T)) / 2.
+    """
+
+    kind: str = param("linear", doc="schedule formula", static=True, choices=SCHEDULE_KINDS)
+    init_value: float = param(1.0, doc="value at count 0", ge=0.0)
+    end_value: float = param(0.1, doc="final value (exponential: lower bound)", ge=0.0)
+    transition_steps: float = param(2000.0, doc="length T of the transition, in counts",
+                                    unit="count", gt=0.0)
+    transition_begin: float = param(0.0, doc="counts held at init_value before the "
+                                    "transition (linear, exponential)", unit="count", ge=0.0)
+    decay_rate: float = param(0.5, doc="exponential: factor per transition_steps",
+                              gt=0.0, le=1.0)
+    staircase: bool = param(False, doc="exponential: decay in discrete steps of T counts",
+                            static=True)
+
+
+@struct.dataclass
+class ExplorationParams:
+    """How a learner picks actions from its Q-table row."""
+
+    kind: str = param("epsilon_greedy", doc="epsilon-greedy (rate = epsilon) or Boltzmann "
+                      "(rate = temperature, in Q units)", static=True,
+                      choices=EXPLORATION_KINDS)
+    count_unit: str = param("steps", doc="what the schedule counts: learner steps (one step "
+                            "= one action in each of the E environments) or finished "
+                            "episodes (trials) of the learner", static=True,
+                            choices=("steps", "episodes"))
+    schedule: ScheduleParams = section(ScheduleParams, doc="epsilon or temperature schedule")
+
+    def check(self) -> None:
+        s = self.schedule
+        vals = {"init_value": s.init_value, "end_value": s.end_value}
+        for name, v in vals.items():
+            arr = np.asarray(v)
+            if self.kind == "epsilon_greedy" and bool(np.any((arr < 0) | (arr > 1))):
+                raise ParamError(f"exploration.schedule.{name}={v!r}: epsilon must be in [0, 1]")
+            if self.kind == "boltzmann" and bool(np.any(arr <= 0)):
+                raise ParamError(f"exploration.schedule.{name}={v!r}: a Boltzmann temperature "
+                                 "must be > 0 (use epsilon_greedy with epsilon 0 for greedy)")
+
+
+def schedule_value(p: ScheduleParams, count: Any) -> jax.Array:
+    """The schedule at ``count`` (any shape, int or float), as float32; traced numbers allowed."""
+    c = jnp.asarray(count, jnp.float32)
+    init = jnp.asarray(p.init_value, jnp.float32)
+    end = jnp.asarray(p.end_value, jnp.float32)
+    steps = jnp.asarray(p.transition_steps, jnp.float32)
+    begin = jnp.asarray(p.transition_begin, jnp.float32)
+    if p.kind == "constant":
+        return jnp.broadcast_to(init, c.shape)
+    if p.kind == "linear":
+        frac = 1.0 - jnp.clip(c - begin, 0.0, steps) / steps
+        return (init - end) * frac + end
+    if p.kind == "exponential":
+        d = c - begin
+        e = d / steps
+        if p.staircase:
+            e = jnp.floor(e)
+        rate = jnp.asarray(p.decay_rate, jnp.float32)
+        v = jnp.where(d <= 0, init, init * jnp.power(rate, e))
+        return jnp.maximum(v, end)
+    if p.kind == "cosine":
+        cos = 0.5 * (1.0 + jnp.cos(jnp.pi * jnp.minimum(c, steps) / steps))
+        return (init - end) * cos + end
+    raise ParamError(f"schedule kind {p.kind!r} unknown; choose one of {list(SCHEDULE_KINDS)}")
+
+
+def to_optax(p: ScheduleParams) -> optax.Schedule:
+    """The equivalent optax schedule (needs concrete Python numbers, not traced ones)."""
+    init, end = float(p.init_value), float(p.end_value)
+    steps, begin = float(p.transition_steps), float(p.transition_begin)
+    if p.kind == "constant":
+        return optax.constant_schedule(init)
+    if p.kind == "linear":
+        return optax.linear_schedule(init, end, steps, begin)
+    if p.kind == "exponential":
+        return optax.exponential_decay(init, steps, float(p.decay_rate), begin, p.staircase, end)
+    if p.kind == "cosine":
+        return optax.cosine_decay_schedule(init, steps, alpha=end / init if init else 0.0)
+    raise ParamError(f"schedule kind {p.kind!r} unknown; choose one of {list(SCHEDULE_KINDS)}")
+
+
+def greedy_action(key: jax.Array, q_rows: jax.Array) -> jax.Array:
+    """argmax over the last axis of ``q_rows`` (..., A), ties broken uniformly at random.
+
+    Returns int32 (...)."""
+    best = jnp.max(q_rows, axis=-1, keepdims=True)
+    logits = jnp.where(q_rows >= best, 0.0, -jnp.inf).astype(jnp.float32)
+    return jax.random.categorical(key, logits, axis=-1).astype(jnp.int32)
+
+
+def epsilon_greedy_action(key: jax.Array, q_rows: jax.Array, epsilon: Any) -> jax.Array:
+    """With probability ``epsilon`` a uniform action (any of the A), else greedy. int32 (...)."""
+    k_explore, k_rand, k_greedy = jax.random.split(key, 3)
+    shape, n_act = q_rows.shape[:-1], q_rows.shape[-1]
+    explore = jax.random.uniform(k_explore, shape, jnp.float32) < jnp.asarray(epsilon,
+                                                                              jnp.float32)
+    rand = jax.random.randint(k_rand, shape, 0, n_act, jnp.int32)
+    return jnp.where(explore, rand, greedy_action(k_greedy, q_rows))
+
+
+def boltzmann_probs(q_rows: jax.Array, temperature: Any) -> jax.Array:
+    """softmax(q / T) over the last axis, float32 (..., A); stable for small T."""
+    t = jnp.asarray(temperature, jnp.float32)
+    return jax.nn.softmax(q_rows.astype(jnp.float32) / t, axis=-1)
+
+
+def boltzmann_action(key: jax.Array, q_rows: jax.Array, temperature: Any) -> jax.Array:
+    """Sample a ~ softmax(q / T) over the last axis (T > 0, Q units). int32 (...)."""
+    t = jnp.asarray(temperature, jnp.float32)
+    logits = q_rows.astype(jnp.float32) / t
+    return jax.random.categorical(key, logits, axis=-1).astype(jnp.int32)
+
+
+def select_action(key: jax.Array, q_rows: jax.Array, rate: Any, kind: str) -> jax.Array:
+    """Pick actions for Q rows (..., A) with ``kind`` (static) at ``rate`` (epsilon or T)."""
+    if kind == "epsilon_greedy":
+        return epsilon_greedy_action(key, q_rows, rate)
+    if kind == "boltzmann":
+        return boltzmann_action(key, q_rows, rate)
+    raise ParamError(f"exploration kind {kind!r} unknown; choose one of {list(EXPLORATION_KINDS)}")

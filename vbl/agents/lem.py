@@ -1,0 +1,106 @@
+"""Learning from Easy Missions (LEM): a start-difficulty curriculum driven by Q convergence.
+
+Episodes start from easy situations first (``start_difficulty`` 0: goal large in
+the image, ball near) and the start distribution moves outwards (towards 1: fully
+random starts) whenever the Q-table has stopped changing.
+
+Rule (checked once every ``window`` learner steps, pure functions on
+:class:`LEMState`): let ``change`` be the max (or mean, ``statistic``) of
+``|Q - Q_snapshot|`` over all entries, where the snapshot was taken at the
+previous check. If ``change < threshold`` **and** Q has moved by at least
+``threshold`` (same statistic) since the difficulty was last raised, the
+difficulty rises by ``step`` (capped at ``max_difficulty``). Then the snapshot
+is retaken and the window restarts. The second condition keeps an untouched table
+(for example all zeros because no reward has been seen yet) from counting as
+converged.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from vbl.params import ParamError, param
+
+__all__ = ["LEMParams", "LEMState", "lem_init", "lem_update", "q_change"]
+
+
+@struct.dataclass
+class LEMParams:
+    """On/off switch and thresholds of the Learning-from-Easy-Missions curriculum."""
+
+    enabled: bool = param(True, doc="use the curriculum; off: difficulty stays at "
+                          "max_difficulty (random starts)", static=True)
+    initial_difficulty: float = param(0.0, doc="start difficulty of the first episodes "
+                                      "(0 easiest, 1 fully random)", ge=0.0, le=1.0)
+    max_difficulty: float = param(1.0, doc="difficulty the curriculum stops at", ge=0.0,
+                                  le=1.0)
+    step: float = param(0.1, doc="difficulty increase when Q has converged", gt=0.0, le=1.0)
+    window: int = param(200, doc="learner steps between convergence checks", unit="steps",
+                        ge=1)
+    threshold: float = param(1e-3, doc="Q counts as converged when its change over a window "
+                             "is below this", unit="Q", gt=0.0)
+    statistic: str = param("max", doc="change statistic over the table: max or mean of "
+                           "|delta Q|", static=True, choices=("max", "mean"))
+
+    def check(self) -> None:
+        import numpy as np
+
+        if not np.all(np.asarray(self.initial_difficulty) <= np.asarray(self.max_difficulty)):
+            raise ParamError(f"lem.initial_difficulty={self.initial_difficulty} must be <= "
+                             f"lem.max_difficulty={self.max_difficulty}")
+
+
+@struct.dataclass
+class LEMState:
+    """Curriculum state of one learner."""
+
+    difficulty: jax.Array   #: float32, current start_difficulty in [0, 1]
+    q_snapshot: jax.Array   #: float32 (S, A), Q at the previous check
+    q_at_raise: jax.Array   #: float32 (S, A), Q when the difficulty was last raised (or init)
+    steps: jax.Array        #: int32, steps since the previous check
+    raises: jax.Array       #: int32, how many times the difficulty rose
+
+
+def q_change(q: jax.Array, ref: jax.Array, statistic: str) -> jax.Array:
+    """max or mean of |q - ref| over all entries (float32 scalar)."""
+    d = jnp.abs(q.astype(jnp.float32) - ref.astype(jnp.float32))
+    if statistic == "max":
+        return jnp.max(d)
+    if statistic == "mean":
+        return jnp.mean(d)
+    raise ParamError(f"lem.statistic={statistic!r}; choose 'max' or 'mean'")
+
+
+def lem_init(p: LEMParams, q: jax.Array) -> LEMState:
+    """Initial curriculum state for the Q-table ``q`` (S, A).
+
+    Disabled: the difficulty is ``max_difficulty`` and never changes."""
+    start = p.initial_difficulty if p.enabled else p.max_difficulty
+    q = q.astype(jnp.float32)
+    return LEMState(difficulty=jnp.asarray(start, jnp.float32), q_snapshot=q, q_at_raise=q,
+                    steps=jnp.int32(0), raises=jnp.int32(0))
+
+
+def lem_update(state: LEMState, q: jax.Array, p: LEMParams) -> LEMState:
+    """Advance one learner step with the current table ``q``; raise difficulty on convergence."""
+    if not p.enabled:
+        return state
+    steps = state.steps + 1
+    check = steps >= jnp.asarray(p.window, jnp.int32)
+    thr = jnp.asarray(p.threshold, jnp.float32)
+    q = q.astype(jnp.float32)
+    converged = q_change(q, state.q_snapshot, p.statistic) < thr
+    learned = q_change(q, state.q_at_raise, p.statistic) >= thr
+    cap = jnp.asarray(p.max_difficulty, jnp.float32)
+    can_rise = state.difficulty < cap
+    raise_now = check & converged & learned & can_rise
+    difficulty = jnp.where(raise_now,
+                           jnp.minimum(state.difficulty + jnp.asarray(p.step, jnp.float32), cap),
+                           state.difficulty)
+    return LEMState(difficulty=difficulty,
+                    q_snapshot=jnp.where(check, q, state.q_snapshot),
+                    q_at_raise=jnp.where(raise_now, q, state.q_at_raise),
+                    steps=jnp.where(check, 0, steps).astype(jnp.int32),
+                    raises=state.raises + raise_now.astype(jnp.int32))

@@ -1,0 +1,181 @@
+"""Config helpers: parse ``--set``/``--sweep`` text, apply validated overrides, split static
+from traced fields, stack traced leaves along a learner axis, JSON and fingerprints."""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any
+
+import jax
+import numpy as np
+
+from vbl.params import ParamError, get_path, iter_params, replace_path, static_paths, validate
+
+__all__ = [
+    "EngineError", "parse_value", "parse_assignment", "parse_sweep", "split_values",
+    "apply_overrides", "is_static", "config_to_dict", "fingerprint", "stack_traced",
+    "traced_dtype",
+]
+
+
+class EngineError(RuntimeError):
+    """A run cannot proceed (bad folder, bad checkpoint, unknown experiment...); the message
+    says what is wrong and what to do."""
+
+
+def _field_default(config: Any, path: str) -> Any:
+    parent_path, _, name = path.rpartition(".")
+    parent = get_path(config, parent_path) if parent_path else config
+    f = next(f for f in dataclasses.fields(parent) if f.name == name)
+    return None if f.default is dataclasses.MISSING else f.default
+
+
+def split_values(text: str) -> list[str]:
+    """Split ``"0.1,(1,2),abc"`` on commas outside parentheses/brackets."""
+    out, depth, cur = [], 0, []
+    for ch in text:
+        if ch in "([":
+            depth += 1
+        elif ch in ")]":
+            depth -= 1
+        if ch == "," and depth == 0:
+            out.append("".join(cur).strip())
+            cur = []
+        else:
+            cur.append(ch)
+    out.append("".join(cur).strip())
+    return out
+
+
+def _parse_scalar(text: str) -> Any:
+    t = text.strip()
+    if t.lower() in ("true", "false"):
+        return t.lower() == "true"
+    for conv in (int, float):
+        try:
+            return conv(t)
+        except ValueError:
+            pass
+    if len(t) >= 2 and t[0] == t[-1] and t[0] in "'\"":
+        return t[1:-1]
+    return t
+
+
+def parse_value(text: str, default: Any = None) -> Any:
+    """Parse one command-line value: bool (true/false), int, float, tuple ``(a,b)`` or str.
+
+    ``default`` (the field's default) guides the parse: a str field keeps the text as is.
+    """
+    t = text.strip()
+    if isinstance(default, str):
+        return t
+    if (t.startswith("(") and t.endswith(")")) or (t.startswith("[") and t.endswith("]")):
+        inner = t[1:-1].strip()
+        return tuple(parse_value(x) for x in split_values(inner)) if inner else ()
+    if isinstance(default, tuple) and "," in t:
+        return tuple(_parse_scalar(x) for x in split_values(t))
+    return _parse_scalar(t)
+
+
+def parse_assignment(text: str, config: Any) -> tuple[str, Any]:
+    """``"env.ball_radius=0.12"`` -> ``("env.ball_radius", 0.12)``, the path checked."""
+    if "=" not in text:
+        raise ParamError(f"bad override {text!r}: use PATH=VALUE, e.g. agent.learning_rate=0.1")
+    path, _, value = text.partition("=")
+    path = path.strip()
+    get_path(config, path)  # unknown names list the valid ones
+    return path, parse_value(value, _field_default(config, path))
+
+
+def parse_sweep(text: str, config: Any) -> tuple[str, list[Any]]:
+    """``"agent.learning_rate=0.1,0.25"`` -> ``("agent.learning_rate", [0.1, 0.25])``."""
+    if "=" not in text:
+        raise ParamError(f"bad sweep {text!r}: use PATH=V1,V2,..., e.g. "
+                         f"agent.learning_rate=0.1,0.25,0.5")
+    path, _, values = text.partition("=")
+    path = path.strip()
+    get_path(config, path)
+    default = _field_default(config, path)
+    vals = [parse_value(v, default) for v in split_values(values)]
+    if not vals or any(v == "" for v in vals):
+        raise ParamError(f"sweep {text!r} has an empty value")
+    return path, vals
+
+
+def apply_overrides(config: Any, overrides: Mapping[str, Any] | Iterable[tuple[str, Any]]
+                    ) -> Any:
+    """Return ``config`` with every ``path -> value`` set (each validated), then validated."""
+    items = overrides.items() if isinstance(overrides, Mapping) else overrides
+    for path, value in items:
+        config = replace_path(config, path, value)
+    return validate(config)
+
+
+def is_static(config: Any, path: str) -> bool:
+    return path in static_paths(config)
+
+
+def _jsonable(v: Any) -> Any:
+    if isinstance(v, np.ndarray | jax.Array):
+        return np.asarray(v).tolist()
+    if isinstance(v, np.generic):
+        return v.item()
+    if isinstance(v, tuple | list):
+        return [_jsonable(x) for x in v]
+    if isinstance(v, float | int | str | bool) or v is None:
+        return v
+    return repr(v)
+
+
+def config_to_dict(config: Any) -> dict[str, Any]:
+    """``{dotted.path: JSON-able value}`` of every parameter."""
+    return {p: _jsonable(v) for p, _, v in iter_params(config)}
+
+
+def fingerprint(obj: Any) -> str:
+    """sha256 of the canonical JSON of ``obj`` (first 16 hex digits)."""
+    text = json.dumps(_jsonable_tree(obj), sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def _jsonable_tree(obj: Any) -> Any:
+    if isinstance(obj, Mapping):
+        return {str(k): _jsonable_tree(v) for k, v in obj.items()}
+    return _jsonable(obj)
+
+
+def traced_dtype(value: Any) -> np.dtype:
+    """float -> float32, int -> int32, bool -> bool (what a program sees)."""
+    a = np.asarray(value)
+    if a.dtype.kind == "b":
+        return np.dtype(bool)
+    if a.dtype.kind in "iu":
+        return np.dtype(np.int32)
+    if a.dtype.kind == "f":
+        return np.dtype(np.float32)
+    raise ParamError(f"traced parameter value {value!r} (dtype {a.dtype}) cannot be an array; "
+                     f"declare the field static=True")
+
+
+def stack_traced(configs: Sequence[Any], repeats: int = 1) -> Any:
+    """Stack the traced leaves of equally-structured configs along a new learner axis.
+
+    Each config is repeated ``repeats`` times (seeds), giving leaves of shape
+    ``(len(configs) * repeats, *leaf_shape)`` as NumPy arrays with :func:`traced_dtype`.
+    """
+    leaves0, treedef = jax.tree_util.tree_flatten(configs[0])
+    all_leaves = [leaves0]
+    for c in configs[1:]:
+        leaves, td = jax.tree_util.tree_flatten(c)
+        if td != treedef:
+            raise EngineError("sweep points differ in static fields inside one group")
+        all_leaves.append(leaves)
+    stacked = []
+    for i in range(len(leaves0)):
+        dt = traced_dtype(leaves0[i])
+        col = np.stack([np.asarray(ls[i], dtype=dt) for ls in all_leaves])
+        stacked.append(np.repeat(col, repeats, axis=0))
+    return jax.tree_util.tree_unflatten(treedef, stacked)

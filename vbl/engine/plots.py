@@ -1,0 +1,65 @@
+"""Learning-curve figures (matplotlib Agg): one line per sweep point, 95% band over seeds."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vbl.engine.results import t_quantile_975
+
+__all__ = ["point_label", "plot_curves"]
+
+
+def point_label(values: dict[str, Any]) -> str:
+    return ", ".join(f"{p.rsplit('.', 1)[-1]}={v}" for p, v in values.items()) or "run"
+
+
+def plot_curves(curves: dict[str, np.ndarray], points: list[dict[str, Any]], out_dir: Path,
+                title: str = "") -> list[Path]:
+    """Write ``<metric>.png`` for every scalar metric of ``curves[metric][point, chunk, seed]``.
+
+    The x axis is cumulative episodes (mean over seeds) when an ``episodes`` metric exists,
+    else the chunk number. Bands: Student t 95% interval of the mean over seeds.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    paths = []
+    episodes = curves.get("episodes")
+    for name, arr in curves.items():
+        if name == "episodes" or arr.ndim != 3:
+            continue
+        fig, ax = plt.subplots(figsize=(6.4, 4.0))
+        seeds = arr.shape[2]
+        for p, values in enumerate(points):
+            y = arr[p]
+            ok = ~np.all(np.isnan(y), axis=1)
+            y = y[ok]
+            if episodes is not None:
+                x = np.nancumsum(np.nanmean(episodes[p][ok], axis=1))
+                xlabel = "episodes"
+            else:
+                x = np.arange(1, y.shape[0] + 1)
+                xlabel = "chunk"
+            m = y.mean(axis=1)
+            (line,) = ax.plot(x, m, label=point_label(values))
+            if seeds > 1:
+                h = t_quantile_975(seeds - 1) * y.std(axis=1, ddof=1) / np.sqrt(seeds)
+                ax.fill_between(x, m - h, m + h, color=line.get_color(), alpha=0.2, lw=0)
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(name)
+        ax.set_title(f"{title} ({seeds} seeds, 95% band)" if title else f"{seeds} seeds")
+        if len(points) > 1 or points[0]:
+            ax.legend(fontsize="small")
+        ax.grid(alpha=0.3)
+        fig.tight_layout()
+        path = Path(out_dir) / (re.sub(r"[^A-Za-z0-9_.-]", "_", name) + ".png")
+        fig.savefig(path, dpi=100)
+        plt.close(fig)
+        paths.append(path)
+    return paths

@@ -1,0 +1,103 @@
+"""Experiment registry: scripts in ``experiments/*.py`` call :func:`register`; the CLI finds
+them with :func:`discover` (the ``experiments/`` folder next to the installed package, or the
+folders in ``$VBL_EXPERIMENTS_DIR``, separated by ``os.pathsep``)."""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import sys
+import traceback
+from pathlib import Path
+
+from vbl.engine.config import EngineError
+from vbl.engine.experiment import Experiment
+
+__all__ = ["register", "get", "all_experiments", "discover", "experiment_dirs",
+           "import_errors"]
+
+_REGISTRY: dict[str, Experiment] = {}
+_SOURCES: dict[str, str] = {}
+_IMPORT_ERRORS: dict[str, str] = {}
+_DISCOVERED: set[Path] = set()
+
+
+def register(experiment: Experiment) -> Experiment:
+    """Add ``experiment`` to the registry and return it (re-registering from the same file
+    replaces it; the same name from another file is an error)."""
+    if not isinstance(experiment, Experiment):
+        raise TypeError(f"register() takes an Experiment, got {type(experiment).__name__}")
+    frame = sys._getframe(1)
+    source = os.path.realpath(frame.f_code.co_filename)
+    old = _SOURCES.get(experiment.name)
+    if old is not None and old != source:
+        raise EngineError(f"experiment name {experiment.name!r} is registered twice: "
+                          f"{old} and {source}")
+    _REGISTRY[experiment.name] = experiment
+    _SOURCES[experiment.name] = source
+    return experiment
+
+
+def experiment_dirs() -> list[Path]:
+    """Folders searched for experiment scripts."""
+    env = os.environ.get("VBL_EXPERIMENTS_DIR")
+    if env:
+        return [Path(p) for p in env.split(os.pathsep) if p]
+    import vbl
+
+    return [Path(vbl.__file__).resolve().parents[1] / "experiments"]
+
+
+def discover() -> dict[str, Experiment]:
+    """Import every ``*.py`` (not starting with ``_``) in :func:`experiment_dirs` once.
+
+    A script that fails to import is recorded (see :func:`import_errors`) and skipped.
+    """
+    for d in experiment_dirs():
+        if not d.is_dir():
+            continue
+        for path in sorted(d.glob("*.py")):
+            path = path.resolve()
+            if path.name.startswith("_") or path in _DISCOVERED:
+                continue
+            if str(path) in _SOURCES.values():  # already registered (e.g. run standalone)
+                _DISCOVERED.add(path)
+                continue
+            _DISCOVERED.add(path)
+            mod_name = f"vbl_experiments.{path.stem}"
+            try:
+                spec = importlib.util.spec_from_file_location(mod_name, path)
+                module = importlib.util.module_from_spec(spec)
+                sys.modules[mod_name] = module
+                spec.loader.exec_module(module)
+            except Exception as e:  # noqa: BLE001 - one broken script must not hide the others
+                sys.modules.pop(mod_name, None)
+                _IMPORT_ERRORS[str(path)] = "".join(
+                    traceback.format_exception_only(type(e), e)).strip()
+    return dict(_REGISTRY)
+
+
+def import_errors() -> dict[str, str]:
+    """``{script path: error}`` of experiment scripts that failed to import."""
+    return dict(_IMPORT_ERRORS)
+
+
+def all_experiments() -> dict[str, Experiment]:
+    return dict(sorted(_REGISTRY.items()))
+
+
+def get(name: str) -> Experiment:
+    """The experiment called ``name`` (discovering scripts first); unknown names list the
+    valid ones."""
+    if name not in _REGISTRY:
+        discover()
+    if name not in _REGISTRY:
+        msg = f"unknown experiment {name!r}; valid: {sorted(_REGISTRY) or '(none)'}"
+        broken = [p for p in _IMPORT_ERRORS if Path(p).stem == name]
+        if broken:
+            msg += f"\n{broken[0]} failed to import: {_IMPORT_ERRORS[broken[0]]}"
+        elif _IMPORT_ERRORS:
+            msg += f" ({len(_IMPORT_ERRORS)} script(s) failed to import: " + ", ".join(
+                Path(p).name for p in _IMPORT_ERRORS) + ")"
+        raise EngineError(msg)
+    return _REGISTRY[name]

@@ -1,0 +1,255 @@
+"""Run an experiment: resolve the config, plan the sweep, run every group's chunks vmapped,
+jitted and sharded, checkpoint, log metrics, summarise and plot."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+from jax.experimental import multihost_utils
+
+from vbl.engine.checkpoint import Checkpoints
+from vbl.engine.config import (
+    EngineError,
+    apply_overrides,
+    config_to_dict,
+    fingerprint,
+)
+from vbl.engine.experiment import Experiment, RunContext, RunResult
+from vbl.engine.plots import plot_curves
+from vbl.engine.progress import Progress, auto_quiet
+from vbl.engine.results import (
+    MetricsLog,
+    prepare_run_dir,
+    read_json,
+    read_metrics,
+    seed_stats,
+    write_json,
+)
+from vbl.engine.sharding import batch_layout, learner_sharding, pad_index, put, to_host
+from vbl.engine.sweep import Group, SweepPlan, make_plan
+
+__all__ = ["run_experiment", "resolve", "load_result"]
+
+DEFAULT_CHECKPOINT_EVERY = 10  # chunks between checkpoints (and one at the end of a group)
+DEFAULT_LEARNER_BATCH = 4096  # most learners in one compiled call
+
+
+def resolve(experiment: Experiment, sets: Mapping[str, Any] | None = None,
+            sweep: Mapping[str, Sequence[Any]] | None = None, seeds: int | None = None,
+            base_seed: int = 0, quick: bool = False) -> tuple[Any, dict, int, dict]:
+    """``(config, sweep, seeds, spec)``: defaults + quick overrides + ``sets``, validated;
+    ``spec`` is the JSON description whose fingerprint guards checkpoints."""
+    config = experiment.default_config
+    if quick:
+        config = apply_overrides(config, experiment.quick)
+    config = apply_overrides(config, sets or {})
+    full_sweep = {p: list(v) for p, v in experiment.sweep.items()}
+    full_sweep.update({p: list(v) for p, v in (sweep or {}).items()})
+    if seeds is None:
+        seeds = experiment.quick_seeds if (quick and experiment.quick_seeds) else experiment.seeds
+    spec = {"experiment": experiment.name, "config": config_to_dict(config),
+            "sweep": full_sweep, "seeds": seeds, "base_seed": base_seed}
+    spec["fingerprint"] = fingerprint(spec)
+    return config, full_sweep, seeds, spec
+
+
+def _sync(name: str) -> None:
+    if jax.process_count() > 1:
+        multihost_utils.sync_global_devices(name)
+
+
+def run_experiment(experiment: Experiment, *, sets: Mapping[str, Any] | None = None,
+                   sweep: Mapping[str, Sequence[Any]] | None = None, seeds: int | None = None,
+                   base_seed: int = 0, out: str | Path | None = None, resume: bool = False,
+                   overwrite: bool = False, quick: bool = False, quiet: bool | None = None,
+                   checkpoint_every: int = DEFAULT_CHECKPOINT_EVERY,
+                   learner_batch: int = DEFAULT_LEARNER_BATCH, plots: bool = True) -> RunResult:
+    """Run ``experiment`` over ``sweep`` x ``seeds`` and write its run folder.
+
+    Args:
+      sets: ``{dotted.path: value}`` overrides (validated). ``sweep``: ``{path: [values]}``
+        (the grid is the product). ``seeds``: seeds per sweep point (default: the
+        experiment's). ``base_seed``: see :func:`vbl.engine.sweep.learner_keys`.
+      out: run folder (default ``runs/<name>-<timestamp>``). ``resume``: continue from the
+        folder's last checkpoint. ``overwrite``: replace an existing run folder.
+      checkpoint_every: chunks between checkpoints. ``learner_batch``: most learners per
+        compiled call (larger grids run in several batches; same results).
+    Returns: a :class:`RunResult` (curves/final as NumPy arrays, on process 0).
+    Raises: ParamError (bad overrides), EngineError / CheckpointError (folder, checkpoint).
+    """
+    if not isinstance(checkpoint_every, int) or checkpoint_every < 1:
+        raise EngineError(f"checkpoint_every must be an int >= 1, got {checkpoint_every!r}")
+    if not isinstance(learner_batch, int) or learner_batch < 1:
+        raise EngineError(f"learner_batch must be an int >= 1, got {learner_batch!r}")
+    primary = jax.process_index() == 0
+    if jax.process_count() > 1 and out is None:
+        raise EngineError("a multi-process run needs --out on a shared file system")
+    config, full_sweep, seeds, spec = resolve(experiment, sets, sweep, seeds, base_seed, quick)
+    plan = make_plan(experiment, config, full_sweep, seeds, base_seed) \
+        if experiment.make_program is not None else None
+    quiet = (auto_quiet() if quiet is None else quiet) or not primary
+
+    run_dir = prepare_run_dir(out, experiment.name, resume=resume, overwrite=overwrite,
+                              primary=primary)
+    cfg_path = run_dir / "config.json"
+    if resume and cfg_path.exists():
+        old = read_json(cfg_path)
+        if old.get("fingerprint") != spec["fingerprint"]:
+            diff = sorted(k for k in set(old.get("config", {})) | set(spec["config"])
+                          if old.get("config", {}).get(k) != spec["config"].get(k))
+            other = [k for k in ("experiment", "sweep", "seeds", "base_seed")
+                     if old.get(k) != spec.get(k)]
+            raise EngineError(f"cannot resume {run_dir}: it was run with another config "
+                              f"(differs in {other + diff}); use the same options, or "
+                              f"--overwrite / another --out")
+    elif primary:
+        write_json(cfg_path, spec)
+    _sync("vbl-run-dir")
+    log = MetricsLog(run_dir / "metrics.jsonl", enabled=primary)
+    t_start = time.perf_counter()
+
+    if plan is None:  # escape hatch
+        if primary and not resume:
+            (run_dir / "metrics.jsonl").unlink(missing_ok=True)
+
+        def log_fn(step, metrics):
+            log.append([{"step": int(step), "metrics": dict(metrics)}])
+
+        ctx = RunContext(config, seeds, base_seed, run_dir, quick, log_fn, quiet)
+        extra = experiment.run(ctx) or {}
+        summary = {"experiment": experiment.name, "fingerprint": spec["fingerprint"],
+                   "result": extra, "wall_time_s": time.perf_counter() - t_start}
+        if primary:
+            write_json(run_dir / "summary.json", summary)
+        return RunResult(experiment.name, run_dir, config, full_sweep, [{}], seeds, {}, {},
+                         summary, sorted(run_dir.glob("*.png")), dict(extra))
+
+    ckpts = Checkpoints(run_dir / "checkpoints", spec["fingerprint"])
+    start = (ckpts.latest_step() or 0) if resume else 0
+    if resume and primary:
+        log.truncate_after(start)
+    progress = Progress(plan.total_steps, start, experiment.name, quiet)
+    sharding = learner_sharding()
+    try:
+        for group in plan.groups:
+            if group.step_offset + group.num_chunks <= start:
+                continue
+            _run_group(plan, group, sharding, ckpts, log, progress, start, checkpoint_every,
+                       learner_batch)
+    finally:
+        progress.close()
+        ckpts.close()
+    wall = time.perf_counter() - t_start
+    _sync("vbl-run-done")
+    result = load_result(run_dir, experiment, config, plan, plots=plots and primary)
+    result.summary.update(wall_time_s=wall, resumed_from_step=start,
+                          learners=plan.num_learners, devices=jax.device_count(),
+                          processes=jax.process_count())
+    if primary:
+        write_json(run_dir / "summary.json", result.summary)
+    return result
+
+
+def _run_group(plan: SweepPlan, group: Group, sharding, ckpts: Checkpoints, log: MetricsLog,
+               progress: Progress, start: int, every: int, learner_batch: int) -> None:
+    prog = group.program
+    n = group.num_learners
+    nb, size = batch_layout(n, len(sharding.mesh.devices.flat), learner_batch)
+    idx = pad_index(n, nb * size)
+    reps = len(group.point_ids)
+    init_keys = np.tile(plan.init_keys, (reps, 1))
+    final_keys = np.tile(plan.final_keys, (reps, 1))
+
+    def batches(tree):  # host tree [n, ...] -> per-batch device trees [size, ...]
+        padded = jax.tree.map(lambda x: np.asarray(x)[idx], tree)
+        return [put(jax.tree.map(lambda x, b=b: x[b * size:(b + 1) * size], padded), sharding)
+                for b in range(nb)]
+
+    def gather(trees):  # per-batch device trees -> host tree [n, ...]
+        host = [to_host(t) for t in trees]
+        return jax.tree.map(lambda *xs: np.concatenate(xs)[:n], *host)
+
+    init_fn = jax.jit(jax.vmap(prog.init), out_shardings=sharding)
+    step_fn = jax.jit(jax.vmap(prog.step), out_shardings=(sharding, sharding))
+    cfgs = batches(group.configs)
+    done = max(0, start - group.step_offset)
+    if done > 0:
+        shape = jax.eval_shape(jax.vmap(prog.init), jax.ShapeDtypeStruct((n, 2), np.uint32),
+                               jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype),
+                                            group.configs))
+        like = jax.tree.map(lambda s: np.zeros(s.shape, s.dtype), shape)
+        carry_host, _ = ckpts.restore(start, like)
+        carries = batches(carry_host)
+    else:
+        carries = [init_fn(k, c) for k, c in zip(batches(init_keys), cfgs, strict=True)]
+
+    for chunk in range(done, prog.num_chunks):
+        t0 = time.perf_counter()
+        outs = [step_fn(c, cfg) for c, cfg in zip(carries, cfgs, strict=True)]
+        carries = [o[0] for o in outs]
+        metrics = gather([o[1] for o in outs])
+        dt = time.perf_counter() - t0
+        step = group.step_offset + chunk + 1
+        log.append(_rows(plan, group, step, chunk, metrics))
+        progress.update(metrics, dt)
+        last = chunk + 1 == prog.num_chunks
+        if last and prog.final is not None:
+            final_fn = jax.jit(jax.vmap(prog.final), out_shardings=sharding)
+            fin = gather([final_fn(c, cfg, k) for c, cfg, k in
+                          zip(carries, cfgs, batches(final_keys), strict=True)])
+            log.append(_rows(plan, group, step, "final", fin))
+        if last or (chunk + 1) % every == 0:
+            ckpts.save(step, gather(carries), {"group": group.index, "chunk": chunk + 1})
+
+
+def _rows(plan: SweepPlan, group: Group, step: int, chunk: int | str,
+          metrics: dict[str, np.ndarray]) -> list[dict[str, Any]]:
+    s = plan.seeds
+    rows = []
+    for j, p in enumerate(group.point_ids):
+        rows.append({"step": step, "group": group.index, "chunk": chunk, "point": p,
+                     "values": plan.points[p],
+                     "metrics": {k: seed_stats(np.asarray(v)[j * s:(j + 1) * s])
+                                 for k, v in metrics.items()}})
+    return rows
+
+
+def load_result(run_dir: Path, experiment: Experiment, config: Any, plan: SweepPlan,
+                plots: bool = True) -> RunResult:
+    """Rebuild curves/final arrays from ``metrics.jsonl``; write plots and the summary dict."""
+    rows = read_metrics(run_dir / "metrics.jsonl")
+    npts, chunks = len(plan.points), max(g.num_chunks for g in plan.groups)
+    curves: dict[str, np.ndarray] = {}
+    final: dict[str, np.ndarray] = {}
+    for r in rows:
+        p = r["point"]
+        for k, st in r["metrics"].items():
+            v = np.asarray(st["per_seed"], dtype=np.float64)
+            if r["chunk"] == "final":
+                final.setdefault(k, np.full((npts,) + v.shape, np.nan))[p] = v
+            else:
+                curves.setdefault(k, np.full((npts, chunks) + v.shape, np.nan))[p, r["chunk"]] = v
+    points = []
+    for p, values in enumerate(plan.points):
+        entry: dict[str, Any] = {"point": p, "values": values}
+        last = {k: a[p][~np.all(np.isnan(a[p].reshape(chunks, -1)), axis=1)] for k, a in
+                curves.items()}
+        entry["last_chunk"] = {k: _no_seeds(seed_stats(v[-1])) for k, v in last.items()
+                               if len(v)}
+        entry["final"] = {k: seed_stats(a[p]) for k, a in final.items()}
+        points.append(entry)
+    figures = plot_curves(curves, plan.points, run_dir, experiment.name) if plots and curves \
+        else sorted(run_dir.glob("*.png"))
+    summary = {"experiment": experiment.name, "seeds": plan.seeds, "sweep": plan.sweep,
+               "chunks": plan.total_steps, "points": points}
+    return RunResult(experiment.name, run_dir, config, plan.sweep, plan.points, plan.seeds,
+                     curves, final, summary, list(figures))
+
+
+def _no_seeds(st: dict[str, Any]) -> dict[str, Any]:
+    return {k: v for k, v in st.items() if k != "per_seed"}

@@ -1,0 +1,503 @@
+"""The two-robot shooting/passing task of Section 3.3 (gymnax-1.0 style, see
+``docs/two_robot_task.md``).
+
+Two 4-wheel-steering robots (7 actions each, ``u = FOUR_WHEEL_U[action]``) share the
+field with the ball and the goal in the +x end wall. Robot 0 is the **shooter**, robot 1
+the **passer**. One of them is the learner, the other is scripted
+(:mod:`vbl.envs.other_agents`):
+
+* ``task="shoot"``: the learner is the shooter; the scripted passer waits a random
+  delay, drives to the ball and kicks it towards the shooter, so the ball arrives
+  *rolling*. Success: the ball enters the goal after the shooter touched it.
+* ``task="pass"``: the learner is the passer; the scripted shooter waits. The ball starts
+  rolling towards the passer. Success: the ball comes within ``receive_distance`` of the
+  shooter's centre or touches the shooter.
+
+Kicks (:func:`apply_kicks`): a robot that touches the ball while driving forward
+(``v > 0``) with the ball within ``kick_cone_deg`` of its heading kicks it: the ball's
+velocity is set to the robot's kick speed along its heading (the learner; the shooter at
+``shooter_kick_speed``, a learning passer at ``passer_kick_speed``), or, for the scripted
+passer, at ``other.kick_speed`` towards the shooter's centre with ``other.aim_noise_deg``
+of Gaussian aim error. Without a kick the world's contact physics applies (a push).
+
+Observation: the learner's Section 3 features (26,) float32 of its own camera
+(``flatten_section3`` of ``section3_features``), with the Section 3.4.2 noise model
+(:mod:`vbl.envs.noise`) when switched on. Slices: :data:`OBS_SLICES`.
+
+An episode ends (terminated) on success, on a goal without success, when the ball
+comes to rest after it was kicked (``shoot``; ``pass``: whenever it comes to rest) if
+``end_on_rest``, or when the ball leaves the field; it is truncated after ``max_steps``.
+Reward 1.0 on success, else 0.
+
+API::
+
+    env = ShootPassEnv("shoot")               # or "pass"
+    params = env.default_params
+    obs, state = env.reset(key, params)
+    obs, state, reward, terminated, truncated, info = env.step(key, state, action, params)
+
+``step`` auto-resets; ``info``: ``success``, ``episode_done``, ``episode_length``,
+``u`` (2,) float32 of the learner's action, ``touched`` (learner touched the ball this
+episode), ``kicked`` (the ball was kicked this episode), ``goal``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from vbl.envs.noise import (
+    NoiseParams,
+    advance_phase,
+    eccentric_centroid,
+    noisy_camera,
+    noisy_world,
+    perturb_ball_velocity,
+)
+from vbl.envs.other_agents import AgentMemory, OtherAgentParams, act, init_memory
+from vbl.params import ParamError, param, section, validate
+from vbl.vision.camera import CameraParams
+from vbl.world.params import FourWheelParams, WorldParams
+from vbl.world.physics import WorldState, goal_corners, world_step, wrap_angle
+from vbl.world.robots import FOUR_WHEEL_LABELS, FOUR_WHEEL_U
+
+__all__ = ["TASKS", "OBS_SLICES", "OBS_DIM", "SHOOTER", "PASSER", "StartParams",
+           "ShootPassParams", "ShootPassState", "ShootPassEnv", "apply_kicks",
+           "observe", "default_world"]
+
+F32 = jnp.float32
+I32 = jnp.int32
+
+TASKS = ("shoot", "pass")
+SHOOTER, PASSER = 0, 1
+OBS_DIM = 26
+OBS_SLICES = dict(ball=slice(0, 4), goal=slice(4, 15), other=slice(15, 20),
+                  visible=slice(20, 23), lost_side=slice(23, 26))
+
+
+def default_world() -> WorldParams:
+    """World with two 4-wheel-steering robots (0 shooter, 1 passer)."""
+    return WorldParams(robot_kinds=("four_wheel", "four_wheel"))
+
+
+@struct.dataclass
+class StartParams:
+    """Start distribution (both tasks share the geometry; ``pass_*`` only for "pass").
+
+    The shooter stands in front of the goal; the passer stands ``pass_dist`` away from it,
+    ``pass_angle`` off the shooter-to-goal direction (side drawn at random), so it sees
+    the goal and the passer at once: the shooter faces the bisector of the goal and the
+    passer directions (+- jitter); the passer faces the shooter (+- jitter).
+    """
+
+    shooter_x_min: float = param(0.5, doc="shooter x range, lower end", unit="m")
+    shooter_x_max: float = param(1.8, doc="shooter x range, upper end", unit="m")
+    shooter_y_max: float = param(0.6, doc="shooter |y| range", unit="m", ge=0.0)
+    shooter_jitter_deg: float = param(10.0, doc="uniform +- jitter of the shooter heading "
+                                      "around the goal/passer bisector", unit="deg", ge=0.0,
+                                      le=180.0)
+    pass_dist_min: float = param(1.6, doc="shooter-passer centre distance, lower end",
+                                 unit="m", gt=0.0)
+    pass_dist_max: float = param(2.2, doc="shooter-passer centre distance, upper end",
+                                 unit="m", gt=0.0)
+    pass_angle_min_deg: float = param(20.0, doc="passer direction off the shooter-goal "
+                                      "direction, lower end", unit="deg", ge=0.0, le=90.0)
+    pass_angle_max_deg: float = param(40.0, doc="passer direction off the shooter-goal "
+                                      "direction, upper end", unit="deg", ge=0.0, le=90.0)
+    passer_jitter_deg: float = param(10.0, doc="uniform +- jitter of the passer heading "
+                                     "around the direction to the shooter", unit="deg",
+                                     ge=0.0, le=180.0)
+    pass_passer_jitter_deg: float = param(60.0, doc="pass: uniform +- jitter of the (learning)"
+                                          " passer's heading around the direction to the "
+                                          "shooter (it must turn while the ball comes)",
+                                          unit="deg", ge=0.0, le=180.0)
+    ball_gap_min: float = param(0.45, doc="shoot: ball centre distance from the passer "
+                                "centre, on the passer-shooter line, lower end", unit="m",
+                                gt=0.0)
+    ball_gap_max: float = param(0.7, doc="shoot: same, upper end", unit="m", gt=0.0)
+    pass_ball_gap_min: float = param(0.7, doc="pass: ball start distance from the passer "
+                                     "along the passer-shooter line, lower end", unit="m",
+                                     gt=0.0)
+    pass_ball_gap_max: float = param(1.0, doc="pass: same, upper end", unit="m", gt=0.0)
+    pass_ball_lateral: float = param(0.1, doc="pass: uniform +- sideways offset of the ball "
+                                     "start", unit="m", ge=0.0)
+    pass_ball_speed_min: float = param(0.4, doc="pass: initial ball speed, lower end",
+                                       unit="m/s", ge=0.0)
+    pass_ball_speed_max: float = param(0.8, doc="pass: initial ball speed, upper end",
+                                       unit="m/s", ge=0.0)
+    pass_ball_dir_jitter_deg: float = param(30.0, doc="pass: uniform +- jitter of the ball "
+                                            "direction around 'towards the passer'",
+                                            unit="deg", ge=0.0, le=180.0)
+    margin: float = param(0.05, doc="robots and ball start at least this far from the walls "
+                          "(beyond their radius)", unit="m", ge=0.0)
+
+
+@struct.dataclass
+class ShootPassParams:
+    """Parameters of the two-robot task (``vbl.params`` fields)."""
+
+    world: WorldParams = section(default_world, doc="physics (robot 0 shooter, 1 passer)")
+    shooter_camera: CameraParams = section(CameraParams, doc="shooter's camera")
+    passer_camera: CameraParams = section(
+        lambda: CameraParams(tilt_deg=-20.0),
+        doc="passer's camera (tilted less than the shooter's: the two bodies differ)")
+    passer_body: FourWheelParams = section(
+        lambda: FourWheelParams(speed=0.35, max_steer_deg=25.0),
+        doc="passer's drive (slower motor, smaller steering angle); used when the passer "
+            "collects identification data (vbl.envs.collect). The world physics has one "
+            "body for all robots, so inside this env both robots use world.four_wheel")
+    noise: NoiseParams = section(NoiseParams, doc="Section 3.4.2 noise model (default off)")
+    other: OtherAgentParams = section(OtherAgentParams, doc="the scripted robot")
+    start: StartParams = section(StartParams, doc="start distribution")
+    shooter_kick_speed: float = param(2.0, doc="ball speed of a shooter kick (along its "
+                                      "heading)", unit="m/s", ge=0.0)
+    passer_kick_speed: float = param(1.6, doc="ball speed of a learning passer's kick (along "
+                                     "its heading)", unit="m/s", ge=0.0)
+    kick_cone_deg: float = param(30.0, doc="a touch kicks only when the ball is within +- "
+                                 "this of the robot heading", unit="deg", ge=0.0, le=180.0)
+    receive_distance: float = param(0.45, doc="pass: success when the ball centre comes "
+                                    "this close to the shooter centre", unit="m", gt=0.0)
+    rest_speed: float = param(0.05, doc="the ball is at rest below this speed", unit="m/s",
+                              ge=0.0)
+    end_on_rest: bool = param(True, doc="end the episode (failure) when the ball comes to "
+                              "rest after the pass/kick (shoot) or at all (pass)")
+    robot_height: float = param(0.3, doc="height of a robot body (what the other camera "
+                                "sees)", unit="m", gt=0.0)
+    max_steps: int = param(100, doc="time limit: primitives per episode (10 s at 0.1 s)",
+                           static=True, ge=1)
+
+    def check(self) -> None:
+        s = self.start
+        for lo, hi in (("shooter_x_min", "shooter_x_max"), ("pass_dist_min", "pass_dist_max"),
+                       ("pass_angle_min_deg", "pass_angle_max_deg"),
+                       ("ball_gap_min", "ball_gap_max"),
+                       ("pass_ball_gap_min", "pass_ball_gap_max"),
+                       ("pass_ball_speed_min", "pass_ball_speed_max")):
+            if np.any(np.asarray(getattr(s, lo)) > np.asarray(getattr(s, hi))):
+                raise ParamError(f"start.{lo}={getattr(s, lo)} must be <= start.{hi}="
+                                 f"{getattr(s, hi)}")
+        rr = self.world.robot.radius
+        rb = self.world.ball.radius
+        if np.any(np.asarray(s.ball_gap_min) <= rr + rb):
+            raise ParamError(f"start.ball_gap_min={s.ball_gap_min} must exceed robot.radius + "
+                             f"ball.radius = {rr + rb} (ball would start inside the passer)")
+        if np.any(np.asarray(s.pass_dist_min) - np.asarray(s.pass_ball_gap_max)
+                  - np.asarray(s.pass_ball_lateral) <= np.asarray(self.receive_distance)):
+            raise ParamError("start.pass_dist_min - start.pass_ball_gap_max - "
+                             "start.pass_ball_lateral must exceed receive_distance (a pass "
+                             "episode would start as a success)")
+        if self.world.robot_kinds != ("four_wheel", "four_wheel"):
+            raise ParamError(f"world.robot_kinds={self.world.robot_kinds!r} must be "
+                             "('four_wheel', 'four_wheel') (shooter, passer)")
+
+
+@struct.dataclass
+class ShootPassState:
+    """world: :class:`WorldState` (robots (2, 3): 0 shooter, 1 passer); step () int32;
+    memory: the scripted robot's :class:`AgentMemory`; touched () bool: the learner touched
+    the ball this episode; kicked () bool: the ball was kicked this episode; phase ()
+    float32: rolling phase of the ball (noise model), rad."""
+
+    world: WorldState
+    step: jax.Array
+    memory: AgentMemory
+    touched: jax.Array
+    kicked: jax.Array
+    phase: jax.Array
+
+
+def _is_traced(tree: Any) -> bool:
+    return any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(tree))
+
+
+def apply_kicks(key: jax.Array, world: WorldState, touch: jax.Array, actions: jax.Array,
+                speeds: jax.Array, aim_at: jax.Array, aim_noise: jax.Array,
+                cone_deg: jax.Array) -> tuple[WorldState, jax.Array]:
+    """Kicks after a world step.
+
+    touch: (R,) bool (robot touched the ball this step); actions: (R,) int32;
+    speeds: (R,) float32 kick speeds (m/s; 0 = this robot never kicks);
+    aim_at: (R,) int32, -1 = kick along the own heading, j >= 0 = towards robot j's centre;
+    aim_noise: (R,) float32 std of the kick direction, rad; cone_deg: () half-angle, deg.
+    A robot kicks when it touched the ball, drives forward (v > 0) and the ball is within
+    the cone around its heading. When several kick, the last robot index wins.
+    Returns (world with the new ball velocity, kicked (R,) bool).
+    """
+    n = world.robots.shape[0]
+    v_sign = jnp.asarray(FOUR_WHEEL_U, I32)[actions, 0]
+    noise = jax.random.normal(key, (n,), F32) * aim_noise
+    cone = jnp.deg2rad(jnp.asarray(cone_deg, F32))
+    vel = world.ball_vel
+    kicked = []
+    for i in range(n):
+        pose = world.robots[i]
+        d = world.ball - pose[:2]
+        bearing = wrap_angle(jnp.arctan2(d[1], d[0]) - pose[2])
+        target = world.robots[jnp.maximum(aim_at[i], 0), :2] - world.ball
+        ang = jnp.where(aim_at[i] >= 0, jnp.arctan2(target[1], target[0]), pose[2]) + noise[i]
+        k = touch[i] & (v_sign[i] > 0) & (jnp.abs(bearing) <= cone) & (speeds[i] > 0) \
+            & ~world.scored
+        vel = jnp.where(k, speeds[i] * jnp.stack([jnp.cos(ang), jnp.sin(ang)]), vel)
+        kicked.append(k)
+    return world.replace(ball_vel=vel.astype(F32)), jnp.stack(kicked)
+
+
+def observe(world: WorldState, me: int, cam: CameraParams, params: ShootPassParams,
+            phase: jax.Array, key: jax.Array) -> jax.Array:
+    """Section 3 features (26,) float32 of robot ``me`` (static int) seeing the ball, the
+    goal and the other robot, with image noise and centroid eccentricity from
+    ``params.noise``. ``cam``: that robot's camera (before noise)."""
+    from vbl.vision.features import flatten_section3, section3_features
+
+    other = 1 - me
+    cam = noisy_camera(cam, params.noise)
+    other_size = jnp.stack([jnp.asarray(params.world.robot.radius, F32),
+                            jnp.asarray(params.robot_height, F32)])
+    obs = section3_features(world.robots[me], world.ball,
+                            jnp.asarray(params.world.ball.radius, F32),
+                            goal_corners(params.world), world.robots[other], other_size,
+                            cam, key=key)
+    flat = flatten_section3(obs).astype(F32)
+    ball = eccentric_centroid(flat[OBS_SLICES["ball"]], flat[OBS_SLICES["visible"]][0], phase,
+                              params.noise)
+    return flat.at[OBS_SLICES["ball"]].set(ball)
+
+
+class ShootPassEnv:
+    """Two-robot task: ``task="shoot"`` (learner = shooter) or ``"pass"`` (learner = passer).
+
+    Args:
+      task: "shoot" or "pass".
+      params: default parameters (validated); ``None`` uses the defaults.
+    """
+
+    num_actions = 7
+    action_labels = FOUR_WHEEL_LABELS
+    obs_slices = OBS_SLICES
+    observation_shape = (OBS_DIM,)
+
+    def __init__(self, task: str = "shoot", params: ShootPassParams | None = None):
+        if task not in TASKS:
+            raise ValueError(f"task={task!r} is not allowed; choose one of {list(TASKS)}")
+        self.task = task
+        self.learner = SHOOTER if task == "shoot" else PASSER
+        self.other = 1 - self.learner
+        self.other_behaviour = "passer" if task == "shoot" else "waiter"
+        self._default_params = self.validate(ShootPassParams() if params is None else params)
+
+    @property
+    def default_params(self) -> ShootPassParams:
+        return self._default_params
+
+    @property
+    def name(self) -> str:
+        return f"ShootPass-{self.task}"
+
+    # ------------------------------------------------------------------ checks
+    def validate(self, params: ShootPassParams) -> ShootPassParams:
+        """Check parameter types, bounds and consistency; raise ParamError. Returns params."""
+        if not isinstance(params, ShootPassParams):
+            raise ParamError(f"params must be ShootPassParams, got {type(params).__name__}")
+        validate(params)
+        for name in ("world", "shooter_camera", "passer_camera", "passer_body", "noise",
+                     "other", "start"):
+            validate(getattr(params, name), prefix=f"{name}.")
+        return params
+
+    def check_action(self, action: Any) -> None:
+        """Raise ValueError unless ``action`` is a () integer in [0, 7)."""
+        a = np.asarray(action)
+        if a.shape != ():
+            raise ValueError(f"action must be a scalar index (shape ()), got shape {a.shape}; "
+                             "vmap the env for a batch")
+        if a.dtype.kind not in "iu":
+            raise ValueError(f"action must be an integer index, got dtype {a.dtype}")
+        if not 0 <= int(a) < self.num_actions:
+            raise ValueError(f"action {int(a)} out of range for {self.name}: must be in "
+                             f"[0, {self.num_actions - 1}] ({', '.join(self.action_labels)})")
+
+    def _check_inputs(self, state, action, params):
+        if not _is_traced((action, state)):
+            self.check_action(action)
+            if not isinstance(state, ShootPassState):
+                raise ValueError(f"state must be ShootPassState, got {type(state).__name__}")
+            if np.shape(state.world.robots) != (2, 3):
+                raise ValueError(f"state.world.robots has shape {np.shape(state.world.robots)};"
+                                 " expected (2, 3) (one env; vmap for a batch)")
+        if not _is_traced(params):
+            self.validate(params)
+
+    # ------------------------------------------------------------------ start
+    def sample_start(self, key: jax.Array, params: ShootPassParams) -> WorldState:
+        """Draw the start world state of this task (see :class:`StartParams`)."""
+        sp, wp = params.start, params.world
+        half = jnp.stack([jnp.asarray(wp.field.length, F32),
+                          jnp.asarray(wp.field.width, F32)]) / 2
+        rr = jnp.asarray(wp.robot.radius, F32)
+        rb = jnp.asarray(wp.ball.radius, F32)
+        mg = jnp.asarray(sp.margin, F32)
+        u = jax.random.uniform(key, (12,), F32)
+
+        def lerp(lo, hi, x):
+            return jnp.asarray(lo, F32) + (jnp.asarray(hi, F32) - jnp.asarray(lo, F32)) * x
+
+        def unit(a):
+            return jnp.stack([jnp.cos(a), jnp.sin(a)])
+
+        lim_r = half - rr - mg
+        s_xy = jnp.stack([lerp(sp.shooter_x_min, sp.shooter_x_max, u[0]),
+                          lerp(-sp.shooter_y_max, sp.shooter_y_max, u[1])])
+        s_xy = jnp.clip(s_xy, -lim_r, lim_r)
+        goal = jnp.stack([half[0], jnp.zeros((), F32)])
+        to_goal = jnp.arctan2(goal[1] - s_xy[1], goal[0] - s_xy[0])
+        side = jnp.where(u[2] < 0.5, -1.0, 1.0).astype(F32)
+        alpha = jnp.deg2rad(lerp(sp.pass_angle_min_deg, sp.pass_angle_max_deg, u[3])) * side
+        dist = lerp(sp.pass_dist_min, sp.pass_dist_max, u[4])
+        p_xy = jnp.clip(s_xy + dist * unit(to_goal + alpha), -lim_r, lim_r)
+        # headings
+        to_p = jnp.arctan2(p_xy[1] - s_xy[1], p_xy[0] - s_xy[0])
+        bis = to_goal + 0.5 * wrap_angle(to_p - to_goal)
+        s_th = wrap_angle(bis + jnp.deg2rad(jnp.asarray(sp.shooter_jitter_deg, F32))
+                          * (2 * u[5] - 1))
+        back = wrap_angle(to_p + jnp.pi)  # passer -> shooter
+        p_jit = sp.passer_jitter_deg if self.task == "shoot" else sp.pass_passer_jitter_deg
+        p_th = wrap_angle(back + jnp.deg2rad(jnp.asarray(p_jit, F32)) * (2 * u[6] - 1))
+        lim_b = half - rb - mg
+        if self.task == "shoot":
+            gap = lerp(sp.ball_gap_min, sp.ball_gap_max, u[7])
+            ball = p_xy + gap * unit(back)
+            vel = jnp.zeros(2, F32)
+        else:
+            gap = lerp(sp.pass_ball_gap_min, sp.pass_ball_gap_max, u[7])
+            lat = jnp.asarray(sp.pass_ball_lateral, F32) * (2 * u[8] - 1)
+            ball = p_xy + gap * unit(back) + lat * unit(back + jnp.pi / 2)
+            to_passer = jnp.arctan2(p_xy[1] - ball[1], p_xy[0] - ball[0])
+            d_ang = to_passer + jnp.deg2rad(jnp.asarray(sp.pass_ball_dir_jitter_deg, F32)) * (
+                2 * u[9] - 1)
+            vel = lerp(sp.pass_ball_speed_min, sp.pass_ball_speed_max, u[10]) * unit(d_ang)
+        ball = jnp.clip(ball, -lim_b, lim_b)
+        robots = jnp.stack([jnp.concatenate([s_xy, s_th[None]]),
+                            jnp.concatenate([p_xy, p_th[None]])]).astype(F32)
+        return WorldState(robots=robots, ball=ball.astype(F32), ball_vel=vel.astype(F32),
+                          scored=jnp.zeros((), bool), ball_out=jnp.zeros((), bool))
+
+    def _fresh(self, key: jax.Array, params: ShootPassParams) -> ShootPassState:
+        k_s, k_m = jax.random.split(key)
+        return ShootPassState(world=self.sample_start(k_s, params), step=jnp.zeros((), I32),
+                              memory=init_memory(k_m, params.other),
+                              touched=jnp.zeros((), bool), kicked=jnp.zeros((), bool),
+                              phase=jnp.zeros((), F32))
+
+    # ------------------------------------------------------------------ obs
+    def learner_camera(self, params: ShootPassParams) -> CameraParams:
+        return params.shooter_camera if self.learner == SHOOTER else params.passer_camera
+
+    def get_obs(self, state: ShootPassState, params: ShootPassParams,
+                key: jax.Array) -> jax.Array:
+        """The learner's Section 3 features (26,) float32."""
+        return observe(state.world, self.learner, self.learner_camera(params), params,
+                       state.phase, key)
+
+    def reset(self, key: jax.Array, params: ShootPassParams | None = None
+              ) -> tuple[jax.Array, ShootPassState]:
+        """Fresh episode: (obs (26,) float32, state)."""
+        params = self._default_params if params is None else params
+        if not _is_traced(params):
+            self.validate(params)
+        k_start, k_obs = jax.random.split(key)
+        state = self._fresh(k_start, params)
+        return self.get_obs(state, params, k_obs), state
+
+    # ------------------------------------------------------------------ dynamics
+    def _transition(self, key, state: ShootPassState, action, params: ShootPassParams):
+        k_other, k_world, k_kick, k_ecc = jax.random.split(key, 4)
+        a_other, memory = act(self.other_behaviour, k_other, state.world, state.memory,
+                              self.other, params.other)
+        a_me = jnp.asarray(action, I32).reshape(())
+        actions = (jnp.zeros(2, I32).at[self.learner].set(a_me).at[self.other].set(a_other))
+        wp = noisy_world(params.world, params.noise)
+        world, events = world_step(k_world, state.world, actions, wp)
+        # kicks
+        if self.task == "shoot":
+            speeds = jnp.stack([jnp.asarray(params.shooter_kick_speed, F32),
+                                jnp.asarray(params.other.kick_speed, F32)])
+            aim_at = jnp.array([-1, SHOOTER], I32)
+            aim_noise = jnp.stack([jnp.zeros((), F32), jnp.deg2rad(
+                jnp.asarray(params.other.aim_noise_deg, F32))])
+        else:
+            speeds = jnp.stack([jnp.zeros((), F32), jnp.asarray(params.passer_kick_speed, F32)])
+            aim_at = jnp.array([-1, -1], I32)
+            aim_noise = jnp.zeros(2, F32)
+        world, kicks = apply_kicks(k_kick, world, events.touch, actions, speeds, aim_at,
+                                   aim_noise, params.kick_cone_deg)
+        # eccentric rolling (noise model)
+        rolled = jnp.sqrt(jnp.sum((world.ball - state.world.ball) ** 2))
+        rb = jnp.asarray(params.world.ball.radius, F32)
+        world = world.replace(ball_vel=perturb_ball_velocity(k_ecc, world.ball_vel, rolled, rb,
+                                                             params.noise))
+        phase = advance_phase(state.phase, state.world.ball, world.ball, rb)
+        memory = memory.replace(kicked=memory.kicked | kicks[self.other])
+        touched = state.touched | events.touch[self.learner]
+        kicked = state.kicked | jnp.any(kicks)
+        # outcome
+        speed = jnp.sqrt(jnp.sum(world.ball_vel ** 2))
+        speed0 = jnp.sqrt(jnp.sum(state.world.ball_vel ** 2))
+        rest_speed = jnp.asarray(params.rest_speed, F32)
+        came_to_rest = (speed < rest_speed) & (speed0 >= rest_speed) & ~world.scored
+        if self.task == "shoot":
+            success = events.goal & touched
+            rest_fail = came_to_rest & kicked
+        else:
+            d = world.ball - world.robots[SHOOTER, :2]
+            near = jnp.sqrt(jnp.sum(d * d)) <= jnp.asarray(params.receive_distance, F32)
+            success = (near | events.touch[SHOOTER]) & ~world.scored
+            rest_fail = came_to_rest
+        rest_fail = rest_fail & jnp.asarray(params.end_on_rest, bool)
+        step = state.step + 1
+        terminated = success | events.goal | events.ball_out | rest_fail
+        truncated = (step >= params.max_steps) & ~terminated
+        reward = success.astype(F32)
+        info = dict(success=success, episode_done=terminated | truncated, episode_length=step,
+                    u=jnp.asarray(FOUR_WHEEL_U, F32)[a_me], touched=touched, kicked=kicked,
+                    goal=events.goal)
+        nstate = ShootPassState(world=world, step=step, memory=memory, touched=touched,
+                                kicked=kicked, phase=phase)
+        return nstate, reward, terminated, truncated, info
+
+    def step_env(self, key: jax.Array, state: ShootPassState, action: jax.Array,
+                 params: ShootPassParams | None = None):
+        """One primitive without auto-reset: (obs, state, reward, terminated, truncated, info)."""
+        params = self._default_params if params is None else params
+        self._check_inputs(state, action, params)
+        k_tr, k_obs = jax.random.split(key)
+        state, reward, terminated, truncated, info = self._transition(k_tr, state, action,
+                                                                      params)
+        return self.get_obs(state, params, k_obs), state, reward, terminated, truncated, info
+
+    def step(self, key: jax.Array, state: ShootPassState, action: jax.Array,
+             params: ShootPassParams | None = None):
+        """One primitive with auto-reset (fresh start draw when the episode ended).
+
+        Returns (obs (26,) float32, state, reward () float32, terminated () bool,
+        truncated () bool, info); obs/state are the new episode's after a reset, while
+        reward/terminated/truncated/info describe the finished step.
+        """
+        params = self._default_params if params is None else params
+        self._check_inputs(state, action, params)
+        k_tr, k_reset, k_obs = jax.random.split(key, 3)
+        nstate, reward, terminated, truncated, info = self._transition(k_tr, state, action,
+                                                                       params)
+        done = info["episode_done"]
+        fresh = self._fresh(k_reset, params)
+        nstate = jax.tree_util.tree_map(lambda a, b: jnp.where(done, a, b), fresh, nstate)
+        return (self.get_obs(nstate, params, k_obs), nstate, reward, terminated, truncated,
+                info)
+
+    def __repr__(self) -> str:
+        fields = [f.name for f in dataclasses.fields(ShootPassParams)]
+        return f"ShootPassEnv(task={self.task!r}, params={fields})"

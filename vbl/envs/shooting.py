@@ -1,0 +1,295 @@
+"""The shooting task of Section 2 as a gymnax-1.0-style functional environment.
+
+One robot (two-motor by default), a ball and the goal in the +x end wall. The
+robot sees the Section 2 feature vector (9,) float32 of its camera
+(:func:`vbl.vision.features.section2_features`). Reward 1.0 when the ball enters
+the goal, else 0. An episode ends on a goal (terminated), the ball leaving the
+field (terminated; only possible with ``world.field.walls=False``), or after
+``max_steps`` primitives (truncated).
+
+Start distribution (``start_difficulty`` d in [0, 1], traced so a sweep or a
+curriculum can move it): an *easy* draw puts the robot ``start.easy_goal_dist`` in
+front of the goal centre facing it, the ball just in front of the robot, both
+jittered by ``start.easy_jitter_*``; a *full* draw puts the robot and the ball
+uniformly in the field (``start.margin`` from the walls) with a uniform heading.
+The start is the interpolation ``(1 - d) * easy + d * full`` of positions and of the
+heading (full heading taken relative to the easy one, in (-pi, pi]). If the ball
+then overlaps the robot it is pushed radially to ``start.min_gap`` from it.
+
+API::
+
+    env = ShootingEnv()                         # static options
+    params = env.default_params
+    obs, state = env.reset(key, params)
+    obs, state, reward, terminated, truncated, info = env.step(key, state, action, params)
+
+``step`` auto-resets with a fresh start draw; ``step_env`` does not (used by the
+brax adapter). ``info``: ``success`` (goal this step), ``ball_out``,
+``episode_done``, ``episode_length`` (primitives in the episode that just ended
+or is running, before the reset).
+
+Errors: the constructor and :meth:`ShootingEnv.validate` check parameters
+(:class:`vbl.params.ParamError`); ``reset``/``step`` called outside ``jit`` with
+concrete values also check the parameters and the action (ValueError naming the
+allowed range). Inside ``jit``/``vmap`` the checks are skipped (values are traced).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from vbl.params import ParamError, param, section, validate
+from vbl.vision.camera import CameraParams
+from vbl.vision.features import SEC2_DIM, section2_features
+from vbl.world.params import ROBOT_KINDS, WorldParams
+from vbl.world.physics import WorldState, goal_corners, world_step, wrap_angle
+from vbl.world.robots import action_labels, num_actions
+
+__all__ = ["StartParams", "ShootingParams", "ShootingState", "ShootingEnv"]
+
+F32 = jnp.float32
+
+
+@struct.dataclass
+class StartParams:
+    """Start distribution of the shooting task (see the module docstring)."""
+
+    margin: float = param(0.3, doc="full draw: distance of robot and ball centres from the "
+                          "walls", unit="m", ge=0.0)
+    easy_goal_dist: float = param(1.0, doc="easy draw: robot centre distance in front of the "
+                                  "goal line (robot on the goal axis facing it)", unit="m",
+                                  gt=0.0)
+    easy_ball_gap: float = param(0.05, doc="easy draw: gap between robot and ball, ball "
+                                 "straight ahead", unit="m", ge=0.0)
+    easy_jitter_xy: float = param(0.1, doc="easy draw: uniform +- jitter of robot and ball "
+                                  "positions", unit="m", ge=0.0)
+    easy_jitter_deg: float = param(10.0, doc="easy draw: uniform +- jitter of the heading",
+                                   unit="deg", ge=0.0, le=180.0)
+    min_gap: float = param(0.02, doc="minimum start gap between ball and robot surfaces",
+                           unit="m", ge=0.0)
+
+
+@struct.dataclass
+class ShootingParams:
+    """Parameters of the shooting task."""
+
+    world: WorldParams = section(WorldParams, doc="physics")
+    camera: CameraParams = section(CameraParams, doc="robot camera")
+    start: StartParams = section(StartParams, doc="start distribution")
+    start_difficulty: float = param(1.0, doc="start distribution: 0 easy (near the goal, "
+                                    "ball in front), 1 full random; interpolated between",
+                                    ge=0.0, le=1.0)
+    max_steps: int = param(300, doc="time limit: action primitives per episode (30 s at "
+                           "0.1 s)", static=True, ge=1)
+
+
+@struct.dataclass
+class ShootingState:
+    """world: :class:`WorldState` with one robot; step: () int32 primitives taken so far."""
+
+    world: WorldState
+    step: jax.Array
+
+
+def _is_traced(tree: Any) -> bool:
+    return any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(tree))
+
+
+class ShootingEnv:
+    """Shooting task: drive the ball into the goal (Section 2).
+
+    Args:
+      robot_kind: "two_motor" (Section 2, 9 actions, default) or "four_wheel" (7 actions).
+      params: default parameters (validated); ``None`` uses the defaults.
+    """
+
+    def __init__(self, robot_kind: str = "two_motor", params: ShootingParams | None = None):
+        if robot_kind not in ROBOT_KINDS:
+            raise ValueError(f"robot_kind={robot_kind!r} is not allowed; choose one of "
+                             f"{list(ROBOT_KINDS)}")
+        self.robot_kind = robot_kind
+        if params is None:
+            params = ShootingParams()
+            params = params.replace(world=params.world.replace(robot_kinds=(robot_kind,)))
+        self._default_params = self.validate(params)
+
+    # ------------------------------------------------------------------ metadata
+    @property
+    def default_params(self) -> ShootingParams:
+        return self._default_params
+
+    @property
+    def num_actions(self) -> int:
+        """Number of discrete action primitives (9 two-motor, 7 four-wheel)."""
+        return num_actions(self.robot_kind)
+
+    @property
+    def action_labels(self) -> tuple[str, ...]:
+        return action_labels(self.robot_kind)
+
+    @property
+    def observation_shape(self) -> tuple[int, ...]:
+        return (SEC2_DIM,)
+
+    @property
+    def name(self) -> str:
+        return "Shooting-" + self.robot_kind
+
+    # ------------------------------------------------------------------ checks
+    def validate(self, params: ShootingParams) -> ShootingParams:
+        """Check parameter types, bounds and consistency; raise ParamError. Returns params."""
+        if not isinstance(params, ShootingParams):
+            raise ParamError(f"params must be ShootingParams, got {type(params).__name__}")
+        validate(params)
+        validate(params.world, prefix="world.")
+        validate(params.camera, prefix="camera.")
+        validate(params.start, prefix="start.")
+        if params.world.robot_kinds != (self.robot_kind,):
+            raise ParamError(f"world.robot_kinds={params.world.robot_kinds!r} must be "
+                             f"({self.robot_kind!r},) for this {self.name} env")
+        return params
+
+    def check_action(self, action: Any) -> None:
+        """Raise ValueError unless ``action`` is a () integer in [0, num_actions)."""
+        a = np.asarray(action)
+        if a.shape != ():
+            raise ValueError(f"action must be a scalar index (shape ()), got shape {a.shape}; "
+                             "vmap the env for a batch")
+        if a.dtype.kind not in "iu":
+            raise ValueError(f"action must be an integer index, got dtype {a.dtype}")
+        if not 0 <= int(a) < self.num_actions:
+            raise ValueError(f"action {int(a)} out of range for {self.name}: must be in "
+                             f"[0, {self.num_actions - 1}] ({', '.join(self.action_labels)})")
+
+    def _check_state(self, state: ShootingState) -> None:
+        if not isinstance(state, ShootingState):
+            raise ValueError(f"state must be ShootingState, got {type(state).__name__}")
+        if np.shape(state.world.robots) != (1, 3) or np.shape(state.world.ball) != (2,):
+            raise ValueError(f"state has robots {np.shape(state.world.robots)} / ball "
+                             f"{np.shape(state.world.ball)}; expected (1, 3) / (2,) (one env; "
+                             "vmap for a batch)")
+
+    # ------------------------------------------------------------------ core
+    def sample_start(self, key: jax.Array, params: ShootingParams) -> WorldState:
+        """Draw a start world state (see the module docstring)."""
+        wp, sp = params.world, params.start
+        half = jnp.stack([jnp.asarray(wp.field.length, F32), jnp.asarray(wp.field.width, F32)]) / 2
+        rr = jnp.asarray(wp.robot.radius, F32)
+        rb = jnp.asarray(wp.ball.radius, F32)
+        d = jnp.asarray(params.start_difficulty, F32)
+        u = jax.random.uniform(key, (10,), F32, -1.0, 1.0)
+        # easy draw
+        jit_xy = jnp.asarray(sp.easy_jitter_xy, F32)
+        th_e = jnp.deg2rad(jnp.asarray(sp.easy_jitter_deg, F32)) * u[0]
+        r_e = jnp.stack([half[0] - jnp.asarray(sp.easy_goal_dist, F32), jnp.zeros((), F32)])
+        r_e = r_e + jit_xy * u[1:3]
+        reach = rr + rb + jnp.asarray(sp.easy_ball_gap, F32)
+        b_e = r_e + reach * jnp.stack([jnp.cos(th_e), jnp.sin(th_e)]) + jit_xy * u[3:5]
+        # full draw
+        box = half - jnp.asarray(sp.margin, F32)
+        r_f = box * u[5:7]
+        th_f = np.float32(np.pi) * u[7]
+        b_f = box * u[8:10]
+        # interpolate
+        r = (1 - d) * r_e + d * r_f
+        th = wrap_angle(th_e + d * wrap_angle(th_f - th_e))
+        b = (1 - d) * b_e + d * b_f
+        # keep both inside the field, then separate ball from robot
+        r = jnp.clip(r, -(half - rr), half - rr)
+        lim_b = half - rb
+        b = jnp.clip(b, -lim_b, lim_b)
+        off = b - r
+        dist = jnp.sqrt(jnp.sum(off * off))
+        need = rr + rb + jnp.asarray(sp.min_gap, F32)
+        heading = jnp.stack([jnp.cos(th), jnp.sin(th)])
+        n = jnp.where(dist > 1e-6, off / jnp.maximum(dist, 1e-6), heading)
+        b = jnp.where(dist < need, jnp.clip(r + need * n, -lim_b, lim_b), b)
+        robots = jnp.concatenate([r, th[None]])[None, :]
+        return WorldState(robots=robots, ball=b, ball_vel=jnp.zeros(2, F32),
+                          scored=jnp.zeros((), bool), ball_out=jnp.zeros((), bool))
+
+    def get_obs(self, world: WorldState, params: ShootingParams,
+                key: jax.Array | None = None) -> jax.Array:
+        """Section 2 features (9,) float32 of the robot's camera.
+
+        Pixel noise (``camera.pixel_noise_std > 0``) is drawn from ``key``; with the noise
+        off the noise-free branch runs (no random draws).
+        """
+        def features(k):
+            return section2_features(world.robots[0], world.ball,
+                                     jnp.asarray(params.world.ball.radius, F32),
+                                     goal_corners(params.world), params.camera, key=k)
+
+        if key is None:
+            return features(None)
+        noisy = jnp.asarray(params.camera.pixel_noise_std, F32) > 0
+        return jax.lax.cond(noisy, features, lambda k: features(None), key)
+
+    def reset(self, key: jax.Array, params: ShootingParams | None = None
+              ) -> tuple[jax.Array, ShootingState]:
+        """Fresh episode: (obs (9,) float32, state)."""
+        params = self._default_params if params is None else params
+        if not _is_traced(params):
+            self.validate(params)
+        k_start, k_obs = jax.random.split(key)
+        world = self.sample_start(k_start, params)
+        state = ShootingState(world=world, step=jnp.zeros((), jnp.int32))
+        return self.get_obs(world, params, k_obs), state
+
+    def _transition(self, key, state: ShootingState, action, params: ShootingParams):
+        world, events = world_step(key, state.world, jnp.reshape(action, (1,)).astype(jnp.int32),
+                                   params.world)
+        step = state.step + 1
+        terminated = events.goal | events.ball_out
+        truncated = (step >= params.max_steps) & ~terminated
+        reward = events.goal.astype(F32)
+        info = dict(success=events.goal, ball_out=events.ball_out,
+                    episode_done=terminated | truncated, episode_length=step)
+        return ShootingState(world=world, step=step), reward, terminated, truncated, info
+
+    def _check_inputs(self, state, action, params):
+        if not _is_traced((action, state)):
+            self.check_action(action)
+            self._check_state(state)
+        if not _is_traced(params):
+            self.validate(params)
+
+    def step_env(self, key: jax.Array, state: ShootingState, action: jax.Array,
+                 params: ShootingParams | None = None):
+        """One primitive without auto-reset: (obs, state, reward, terminated, truncated, info)."""
+        params = self._default_params if params is None else params
+        self._check_inputs(state, action, params)
+        k_world, k_obs = jax.random.split(key)
+        state, reward, terminated, truncated, info = self._transition(k_world, state, action,
+                                                                      params)
+        return self.get_obs(state.world, params, k_obs), state, reward, terminated, truncated, info
+
+    def step(self, key: jax.Array, state: ShootingState, action: jax.Array,
+             params: ShootingParams | None = None):
+        """One primitive with auto-reset (fresh start draw when the episode ended).
+
+        Returns (obs (9,) float32, state, reward () float32, terminated () bool,
+        truncated () bool, info dict); obs is the first observation of the new episode
+        when it reset, while reward/terminated/truncated/info describe the finished step.
+        """
+        params = self._default_params if params is None else params
+        self._check_inputs(state, action, params)
+        k_world, k_reset, k_obs = jax.random.split(key, 3)
+        nstate, reward, terminated, truncated, info = self._transition(k_world, state, action,
+                                                                       params)
+        done = info["episode_done"]
+        fresh = ShootingState(world=self.sample_start(k_reset, params),
+                              step=jnp.zeros((), jnp.int32))
+        nstate = jax.tree_util.tree_map(lambda a, b: jnp.where(done, a, b), fresh, nstate)
+        return (self.get_obs(nstate.world, params, k_obs), nstate, reward, terminated,
+                truncated, info)
+
+    def __repr__(self) -> str:
+        fields = [f.name for f in dataclasses.fields(ShootingParams)]
+        return f"ShootingEnv(robot_kind={self.robot_kind!r}, params={fields})"

@@ -1,0 +1,388 @@
+"""Off-line, action-based state-space construction (paper Section 2.1).
+
+A *state* is a set of input vectors from which repeating **one kind** of action
+primitive reaches the goal, or a state built before, whatever the number of
+repetitions; that primitive is the state's action. States are grown backwards from
+the goal until no new one appears.
+
+Algorithm (all fixed-shape, jit- and vmap-able):
+
+1. :func:`collect_experience`: ``episodes_per_action`` episodes per primitive in
+   parallel environments, each holding its primitive for ``horizon`` steps (or until
+   the episode ends); start situations are the env's random starts, optionally with
+   a per-episode start difficulty drawn uniformly in ``[difficulty_lo,
+   difficulty_hi]`` (spreads the data over the feature space). Features are
+   normalised to ``[0, 1]`` (:class:`FeatureParams`).
+2. :func:`build_state_map`, iteration ``i = 0, 1, ...``: a point ``x_t`` of an
+   episode with primitive ``a`` (one of its first ``start_window`` points, not yet
+   inside a built state) *reaches* when a later step of the same episode hits the
+   goal or lands inside a built state. Per primitive, the reaching points are
+   clustered (k-means, ``clusters_per_action``) and each cluster becomes a
+   hyper-ellipsoid (:mod:`vbl.spaces.ellipsoids`, ``coverage`` quantile of its
+   members). A cluster is kept when it has ``min_points`` members and at least
+   ``min_reliability`` of *all* of ``a``'s start points inside it reach. The kept
+   ellipsoids of primitive ``a`` at iteration ``i`` form one state with action
+   ``a``, ``i + 1`` transitions to the goal and division order ``i``. Stop when an
+   iteration adds nothing (or after ``max_iterations``).
+
+The result is a :class:`StateMap`; :func:`classify` maps ``x`` to the containing
+state with the fewest transitions (ties: smallest Mahalanobis distance), ``-1`` in
+the *remainder* (no state contains ``x``: situations never seen reaching the goal);
+:func:`policy_action` uses the nearest ellipsoid there.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from vbl.params import ParamError, param, validate
+from vbl.spaces.ellipsoids import fit_ellipsoids, kmeans, mahalanobis2
+
+__all__ = [
+    "FeatureParams",
+    "CollectParams",
+    "ActionBasedParams",
+    "Experience",
+    "StateMap",
+    "sec2_features",
+    "collect_experience",
+    "build_state_map",
+    "classify",
+    "policy_action",
+    "num_states",
+    "rollout_success",
+]
+
+F32 = jnp.float32
+
+
+@struct.dataclass
+class FeatureParams:
+    """Normalisation of the Section-2 observation to the unit cube (paper ranges)."""
+
+    ball_size_max: float = param(270.0, doc="x1 ball diameter range [0, max]", unit="px",
+                                 source="P", gt=0.0)
+    ball_pos_max: float = param(270.0, doc="x2 ball position range [-max, max]", unit="px",
+                                source="P", gt=0.0)
+    goal_size_max: float = param(480.0, doc="x3 goal size range [0, max]", unit="px",
+                                 source="P", gt=0.0)
+    goal_pos_max: float = param(256.0, doc="x4 goal position range [-max, max]", unit="px",
+                                source="P", gt=0.0)
+    lost_sides: bool = param(True, doc="append the ball/goal lost side ((side + 1) / 2) as "
+                             "features 6 and 7 (else 5 features)", static=True)
+
+    @property
+    def dim(self) -> int:
+        return 7 if self.lost_sides else 5
+
+
+def sec2_features(obs: jax.Array, p: FeatureParams = FeatureParams()) -> jax.Array:
+    """Section-2 observation (..., 9) -> normalised features (..., p.dim) float32 in [0, 1].
+
+    x1 / max, (x2 + max) / 2max, x3 / max, (x4 + max) / 2max, (x5 + 1) / 2, and when
+    ``lost_sides``: (ball_lost_side + 1) / 2, (goal_lost_side + 1) / 2; clipped to [0, 1].
+    """
+    o = jnp.asarray(obs, F32)
+    f = [o[..., 0] / p.ball_size_max, (o[..., 1] + p.ball_pos_max) / (2 * p.ball_pos_max),
+         o[..., 2] / p.goal_size_max, (o[..., 3] + p.goal_pos_max) / (2 * p.goal_pos_max),
+         (o[..., 4] + 1.0) / 2.0]
+    if p.lost_sides:
+        f += [(o[..., 7] + 1.0) / 2.0, (o[..., 8] + 1.0) / 2.0]
+    return jnp.clip(jnp.stack(f, axis=-1), 0.0, 1.0).astype(F32)
+
+
+@struct.dataclass
+class CollectParams:
+    """Experience collection: episodes holding one primitive."""
+
+    episodes_per_action: int = param(1000, doc="episodes per action primitive (all run in "
+                                     "parallel)", static=True, ge=1)
+    horizon: int = param(100, doc="primitives held per episode (fewer when it ends)",
+                         unit="steps", static=True, ge=1)
+    difficulty_lo: float = param(0.0, doc="per-episode start difficulty drawn uniformly in "
+                                 "[lo, hi] (envs with params.start_difficulty)", ge=0.0, le=1.0)
+    difficulty_hi: float = param(1.0, doc="upper end of the start difficulty range",
+                                 ge=0.0, le=1.0)
+
+    def check(self) -> None:
+        if np.any(np.asarray(self.difficulty_lo) > np.asarray(self.difficulty_hi)):
+            raise ParamError(f"collect.difficulty_lo={self.difficulty_lo} must be <= "
+                             f"collect.difficulty_hi={self.difficulty_hi}")
+
+
+@struct.dataclass
+class ActionBasedParams:
+    """Thresholds of the backward construction (normalised feature units)."""
+
+    max_iterations: int = param(12, doc="most construction iterations (transitions to goal)",
+                                static=True, ge=1)
+    clusters_per_action: int = param(6, doc="k-means clusters per primitive and iteration",
+                                     static=True, ge=1)
+    kmeans_iters: int = param(10, doc="Lloyd iterations of the k-means", static=True, ge=1)
+    start_window: int = param(40, doc="first points of each episode used as start points "
+                              "(the rest only serve as look-ahead)", unit="steps",
+                              static=True, ge=1)
+    coverage: float = param(0.9, doc="fraction of a cluster's members inside its ellipsoid",
+                            gt=0.0, le=1.0)
+    min_points: float = param(20.0, doc="fewest members of a kept cluster", ge=1.0)
+    min_reliability: float = param(0.7, doc="least fraction of the primitive's start points "
+                                   "inside the ellipsoid that reach the goal/built states",
+                                   gt=0.0, le=1.0)
+    ridge: float = param(1e-4, doc="added to cluster covariances", unit="(norm. units)^2",
+                         gt=0.0)
+
+
+@struct.dataclass
+class Experience:
+    """x (A, N, T+1, D) float32 features before each step; valid (A, N, T+1) bool (inside
+    the episode); goal (A, N, T) bool (step t scored). Episode group a held primitive a."""
+
+    x: jax.Array
+    valid: jax.Array
+    goal: jax.Array
+
+
+@struct.dataclass
+class StateMap:
+    """Built states (capacity S = max_iterations * A) made of ellipsoids (E = S * K).
+
+    centre (E, D), shape (E, D, D) float32; ell_active (E,) bool; ell_state (E,) int32
+    the state an ellipsoid belongs to; per state (S,): action int32 (state s = i * A + a,
+    made at iteration i, has action a), transitions int32 (state transitions to the goal:
+    1 + those of the state its points reach), order int32 (division order i), active bool;
+    iterations () int32 run. An ellipsoid whose points, repeating a, reach a state that
+    already has action a joins that state (F then F is still F).
+    """
+
+    centre: jax.Array
+    shape: jax.Array
+    ell_active: jax.Array
+    ell_state: jax.Array
+    action: jax.Array
+    transitions: jax.Array
+    order: jax.Array
+    active: jax.Array
+    iterations: jax.Array
+
+
+def collect_experience(env: Any, env_params: Any, key: jax.Array,
+                       feature_fn: Callable[[jax.Array], jax.Array], num_actions: int,
+                       p: CollectParams = CollectParams()) -> Experience:
+    """Run ``episodes_per_action`` episodes per primitive, each holding it (jit-able)."""
+    n, t_len = p.episodes_per_action, p.horizon
+    has_diff = hasattr(env_params, "start_difficulty")
+
+    def episode(k, a):
+        k_d, k_reset, k_run = jax.random.split(k, 3)
+        ep = env_params
+        if has_diff:
+            d = jax.random.uniform(k_d, (), F32, p.difficulty_lo, p.difficulty_hi)
+            ep = env_params.replace(start_difficulty=d)
+        obs, st = env.reset(k_reset, ep)
+
+        def body(carry, kt):
+            obs, st, alive = carry
+            obs2, st2, _, term, trunc, info = env.step(kt, st, a, ep)
+            out = (feature_fn(obs), alive, alive & info["success"])
+            return (obs2, st2, alive & ~(term | trunc)), out
+
+        (obs_t, _, alive_t), (xs, valid, goal) = jax.lax.scan(
+            body, (obs, st, jnp.ones((), bool)), jax.random.split(k_run, t_len))
+        x = jnp.concatenate([xs, feature_fn(obs_t)[None]], axis=0)
+        valid = jnp.concatenate([valid, alive_t[None]], axis=0)
+        return x.astype(F32), valid, goal
+
+    keys = jax.random.split(key, num_actions * n).reshape(num_actions, n, -1)
+    acts = jnp.broadcast_to(jnp.arange(num_actions, dtype=jnp.int32)[:, None], (num_actions, n))
+    x, valid, goal = jax.vmap(jax.vmap(episode))(keys, acts)
+    return Experience(x=x, valid=valid, goal=goal)
+
+
+def _check_build(exp: Experience, p: ActionBasedParams) -> None:
+    validate(p)
+    if exp.x.ndim != 4:
+        raise ValueError(f"experience.x must be (A, N, T+1, D), got shape {exp.x.shape}")
+    t1 = exp.x.shape[2]
+    if p.start_window > t1 - 1:
+        raise ParamError(f"start_window={p.start_window} must be <= the collection horizon "
+                         f"{t1 - 1} (the episodes' length)")
+
+
+def build_state_map(exp: Experience, p: ActionBasedParams, key: jax.Array) -> StateMap:
+    """Grow the states backwards from the goal (see the module docstring).
+
+    Jit-able with ``p`` static-closed (traced thresholds may be vmapped); use
+    :func:`make_builder` for a checked, jitted version.
+    """
+    n_act, n_ep, t1, dim = exp.x.shape
+    w, k, n_it = p.start_window, p.clusters_per_action, p.max_iterations
+    s_cap = n_it * n_act
+    e_cap = s_cap * k
+    goal_lab = s_cap                       # target label of "scored"
+    big = jnp.int32(10 ** 6)
+    pts = exp.x[:, :, :w, :].reshape(n_act, n_ep * w, dim)
+    starts_valid = exp.valid[:, :, :w]
+    i32 = jnp.int32
+
+    smap = StateMap(
+        centre=jnp.zeros((e_cap, dim), F32), shape=jnp.zeros((e_cap, dim, dim), F32),
+        ell_active=jnp.zeros((e_cap,), bool), ell_state=jnp.zeros((e_cap,), i32),
+        action=jnp.tile(jnp.arange(n_act, dtype=i32), n_it),
+        transitions=jnp.full((s_cap,), big, i32),
+        order=jnp.repeat(jnp.arange(n_it, dtype=i32), n_act),
+        active=jnp.zeros((s_cap,), bool), iterations=jnp.zeros((), i32))
+
+    def cluster(kk, pa, cand, starts, reach, tgt):
+        _, assign = kmeans(kk, pa, cand, k, p.kmeans_iters)
+        c, m, cnt = fit_ellipsoids(pa, cand, assign, k, p.coverage, p.ridge)
+        inside = (mahalanobis2(pa, c, m) <= 1.0) & starts[:, None]              # (P, k)
+        n_in = jnp.sum(inside, axis=0).astype(F32)
+        n_ok = jnp.sum(inside & reach[:, None], axis=0).astype(F32)
+        rel = n_ok / jnp.maximum(n_in, 1.0)
+        ok = (cnt >= p.min_points) & (rel >= p.min_reliability)
+        member = jax.nn.one_hot(assign, k, dtype=F32) * cand.astype(F32)[:, None]  # (P, k)
+        hist = member.T @ jax.nn.one_hot(jnp.maximum(tgt, 0), s_cap + 1, dtype=F32)
+        return c, m, ok, jnp.argmax(hist, axis=-1).astype(i32)                  # mode target
+
+    def first_target(lab):
+        """Label of the first goal/built state hit after each point (-1 none): (A, N, T)."""
+        def back(nxt, inp):
+            g, l_next = inp
+            cur = jnp.where(g, goal_lab, jnp.where(l_next >= 0, l_next, nxt))
+            return cur, cur
+        xs = (jnp.moveaxis(exp.goal, 2, 0), jnp.moveaxis(lab[..., 1:], 2, 0))
+        _, tgt = jax.lax.scan(back, jnp.full(exp.goal.shape[:2], -1, i32), xs, reverse=True)
+        return jnp.moveaxis(tgt, 0, 2)
+
+    def body(carry):
+        it, key, sm, lab, _ = carry
+        key, kc = jax.random.split(key)
+        tgt = first_target(lab)
+        reach = tgt >= 0
+        starts = starts_valid & (lab[..., :w] < 0)
+        cand = starts & reach[..., :w]
+        flat = (lambda a: a.reshape(n_act, -1))
+        c, m, ok, mode = jax.vmap(cluster)(jax.random.split(kc, n_act), pts, flat(cand),
+                                           flat(starts), flat(reach[..., :w]),
+                                           flat(tgt[..., :w]))                # (A, k, ...)
+        acts = jnp.arange(n_act, dtype=i32)[:, None]
+        fresh = (it * n_act + acts) * jnp.ones((1, k), i32)                       # (A, k)
+        mode_state = jnp.minimum(mode, s_cap - 1)
+        same = (mode < goal_lab) & (sm.action[mode_state] == acts)
+        ell_state = jnp.where(same, mode, fresh)                                  # (A, k)
+        trans_mode = jnp.where(mode == goal_lab, 0, sm.transitions[mode_state])
+        new_trans = jnp.where(ok & ~same, trans_mode + 1, big)
+        fresh_trans = jnp.min(new_trans, axis=1)                                  # (A,)
+        base = (it * n_act * k).astype(i32)
+        z = jnp.zeros((), i32)
+        s_idx = (it * n_act).astype(i32)
+        upd = jax.lax.dynamic_update_slice
+        transitions = upd(sm.transitions, fresh_trans, (s_idx,))
+        active = upd(sm.active, jnp.any(ok & ~same, axis=1), (s_idx,))
+        sm = sm.replace(
+            centre=upd(sm.centre, c.reshape(-1, dim), (base, z)),
+            shape=upd(sm.shape, m.reshape(-1, dim, dim), (base, z, z)),
+            ell_active=upd(sm.ell_active, ok.reshape(-1), (base,)),
+            ell_state=upd(sm.ell_state, ell_state.reshape(-1), (base,)),
+            transitions=transitions, active=active, iterations=it + 1)
+        # label the points that fall inside the new ellipsoids (fewest transitions wins)
+        d2 = mahalanobis2(exp.x, c.reshape(-1, dim), m.reshape(-1, dim, dim))      # (A,N,T1,Ak)
+        e_st = ell_state.reshape(-1)
+        score = jnp.where((d2 <= 1.0) & ok.reshape(-1), transitions[e_st].astype(F32) * 4.0
+                          + d2, jnp.inf)
+        best = jnp.argmin(score, axis=-1)
+        hit = jnp.isfinite(jnp.min(score, axis=-1)) & exp.valid & (lab < 0)
+        lab = jnp.where(hit, e_st[best], lab)
+        return it + 1, key, sm, lab, jnp.any(ok)
+
+    def cond(carry):
+        it, _, _, _, added = carry
+        return (it < n_it) & added
+
+    init = (jnp.zeros((), i32), key, smap, jnp.full(exp.valid.shape, -1, i32),
+            jnp.ones((), bool))
+    _, _, smap, _, _ = jax.lax.while_loop(cond, body, init)
+    return smap
+
+
+def make_builder(p: ActionBasedParams) -> Callable[[Experience, jax.Array], StateMap]:
+    """Validated, jitted ``build(exp, key) -> StateMap`` for the thresholds ``p``."""
+    validate(p)
+
+    @jax.jit
+    def _build(exp, key):
+        return build_state_map(exp, p, key)
+
+    def build(exp: Experience, key: jax.Array) -> StateMap:
+        _check_build(exp, p)
+        return _build(exp, key)
+
+    return build
+
+
+def _scores(sm: StateMap, x: jax.Array) -> tuple[jax.Array, jax.Array]:
+    d2 = mahalanobis2(x, sm.centre, sm.shape)                                    # (..., E)
+    d2 = jnp.where(sm.ell_active, d2, jnp.inf)
+    return d2, sm.ell_state
+
+
+def classify(sm: StateMap, x: jax.Array) -> jax.Array:
+    """State index (int32, (...)) of features x (..., D); -1 when no state contains x."""
+    d2, st = _scores(sm, x)
+    inside = d2 <= 1.0
+    key = jnp.where(inside, sm.transitions[st].astype(F32) * 4.0 + d2, jnp.inf)
+    best = jnp.argmin(key, axis=-1)
+    return jnp.where(jnp.any(inside, axis=-1), st[best], -1).astype(jnp.int32)
+
+
+def nearest_state(sm: StateMap, x: jax.Array) -> jax.Array:
+    """State of the ellipsoid with the smallest Mahalanobis distance (int32 (...))."""
+    d2, st = _scores(sm, x)
+    return st[jnp.argmin(d2, axis=-1)].astype(jnp.int32)
+
+
+def policy_action(sm: StateMap, x: jax.Array) -> jax.Array:
+    """The map's action for features x (..., D): the containing state's action, else the
+    nearest ellipsoid's (int32 (...))."""
+    s = classify(sm, x)
+    s = jnp.where(s >= 0, s, nearest_state(sm, x))
+    return sm.action[s]
+
+
+def num_states(sm: StateMap) -> jax.Array:
+    """Number of built states (the goal not counted), int32."""
+    return jnp.sum(sm.active).astype(jnp.int32)
+
+
+def rollout_success(env: Any, env_params: Any, key: jax.Array,
+                    policy: Callable[[jax.Array, jax.Array], jax.Array], num_episodes: int,
+                    max_steps: int) -> tuple[jax.Array, jax.Array]:
+    """Run ``num_episodes`` fresh episodes (parallel) with ``policy(obs, key) -> action``.
+
+    Returns (success (num_episodes,) bool: the first episode scored within max_steps,
+    length (num_episodes,) int32 steps taken).
+    """
+    def one(k):
+        k0, k1 = jax.random.split(k)
+        obs, st = env.reset(k0, env_params)
+
+        def body(carry, kt):
+            obs, st, alive, ok, n = carry
+            ka, ks = jax.random.split(kt)
+            a = policy(obs, ka)
+            obs2, st2, _, term, trunc, info = env.step(ks, st, a, env_params)
+            ok = ok | (alive & info["success"])
+            n = n + alive.astype(jnp.int32)
+            return (obs2, st2, alive & ~(term | trunc), ok, n), None
+
+        init = (obs, st, jnp.ones((), bool), jnp.zeros((), bool), jnp.zeros((), jnp.int32))
+        (_, _, _, ok, n), _ = jax.lax.scan(body, init, jax.random.split(k1, max_steps))
+        return ok, n
+
+    return jax.vmap(one)(jax.random.split(key, num_episodes))

@@ -1,0 +1,422 @@
+"""On-line, incremental state-space segmentation (paper Section 2.2).
+
+State representation: a **partition of the normalised feature cube [0, 1]^D into
+axis-aligned boxes** (the leaves of a binary tree of axis-aligned splits, stored
+flat as fixed-capacity arrays ``lo``, ``hi`` (L, D) and ``active`` (L,)). A state is
+a box; the goal is the terminal event (not a box). Classification is one vectorised
+box test, no tree walk.
+
+Learning (one robot, one environment; :func:`make_learner` vmaps over seeds):
+
+1. Start with one box (the paper's two states: "goal" and "other").
+2. Every step, the transition ``(x, a, y)`` goes into a ring buffer of the last
+   ``buffer_size`` transitions, with ``y = (x' - x, outcome_weight^(1/2) * scored)``
+   (``x' - x`` is taken as 0 on a terminal step; truncated steps are not stored).
+3. Every ``update_every`` steps the local models are refitted from the buffer:
+   per box and primitive an affine least-squares model ``y ~ W^T [x, 1]`` (ridge
+   ``ridge``) from sufficient statistics (sums of ``z z^T``, ``z y^T``, ``|y|^2``,
+   scatter-added in float64), also per box, primitive, axis and ``bins`` equal bins
+   of the box along that axis. A box whose summed residual per transition exceeds
+   ``split_error`` is cut in two at the bin edge (axis, cut) that most reduces the
+   residual, when the reduction per transition is at least ``split_gain``, both
+   sides hold ``min_samples`` transitions and are ``min_width`` wide (one split per
+   update; the box with the largest reduction). The new box gets fresh Q-values
+   (the parent's, or ``q_init``). If nothing splits, the two face-adjacent boxes whose
+   union is a box and whose joint model raises the residual per transition by at
+   most ``merge_tol`` (< ``split_gain``: hysteresis) merge; their Q-values average.
+   The "outcomes disagree" criterion is the outcome output of the model: a box where
+   the same primitive sometimes scores and sometimes not has a large residual there.
+4. Q-learning on boxes with Boltzmann action selection; an *action* holds its
+   primitive until the box changes, the episode ends or ``max_repeat`` steps pass,
+   then ``Q(s, a) += alpha (r + gamma max Q(s') - Q(s, a))`` (target ``r`` when the
+   episode terminated; no update on truncation).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from vbl.agents.exploration import boltzmann_action
+from vbl.params import ParamError, param, validate
+
+__all__ = [
+    "IncrementalParams",
+    "Segmentation",
+    "Buffer",
+    "Learner",
+    "init_learner",
+    "leaf_of",
+    "record",
+    "structure_update",
+    "num_states",
+    "greedy_action",
+    "learner_step",
+]
+
+F32 = jnp.float32
+F64 = jnp.float64
+I32 = jnp.int32
+
+
+@struct.dataclass
+class IncrementalParams:
+    """Segmentation thresholds (normalised feature units) and the Q-learner."""
+
+    max_states: int = param(48, doc="capacity: most boxes (states, the goal not counted)",
+                            static=True, ge=1)
+    bins: int = param(4, doc="candidate cuts per axis: bin edges of this many equal bins",
+                      static=True, ge=2)
+    buffer_size: int = param(2048, doc="transitions kept for the local models (most recent)",
+                             static=True, ge=8)
+    update_every: int = param(100, doc="steps between model refits / split / merge",
+                              unit="steps", static=True, ge=1)
+    split_error: float = param(2e-4, doc="a box may split when its model residual per "
+                               "transition exceeds this", unit="(norm. units)^2", gt=0.0)
+    split_gain: float = param(5e-5, doc="least residual reduction per transition of a split",
+                              unit="(norm. units)^2", gt=0.0)
+    merge_tol: float = param(1e-5, doc="merge two boxes when their joint model raises the "
+                             "residual per transition by at most this (< split_gain)",
+                             unit="(norm. units)^2", ge=0.0)
+    min_samples: float = param(30.0, doc="least transitions on each side of a split / in "
+                               "each box of a merge", ge=1.0)
+    min_width: float = param(1.0 / 64, doc="narrowest box side a split may create",
+                             unit="norm. units", gt=0.0, lt=0.5)
+    outcome_weight: float = param(0.01, doc="weight of the 'scored' output in the residual "
+                                  "(outcome disagreement)", ge=0.0)
+    ridge: float = param(1e-4, doc="ridge of the least-squares fits", gt=0.0)
+    inherit_q: bool = param(True, doc="a new box starts from its parent's Q-values (else "
+                            "q_init)", static=True)
+    q_init: float = param(0.0, doc="initial Q-value of new boxes (inherit_q off, and at "
+                          "start)")
+    alpha: float = param(0.25, doc="Q-learning rate", gt=0.0, le=1.0)
+    gamma: float = param(0.8, doc="discount per action (state change)", ge=0.0, lt=1.0)
+    temperature: float = param(0.05, doc="Boltzmann temperature", unit="Q units", gt=0.0)
+    max_repeat: int = param(50, doc="most primitives one action holds in an unchanged box",
+                            unit="steps", ge=1)
+
+    def check(self) -> None:
+        if np.any(np.asarray(self.merge_tol) >= np.asarray(self.split_gain)):
+            raise ParamError(f"merge_tol={self.merge_tol} must be < split_gain="
+                             f"{self.split_gain} (else a split is undone at once)")
+        if np.any(np.asarray(self.split_gain) > np.asarray(self.split_error)):
+            raise ParamError(f"split_gain={self.split_gain} must be <= split_error="
+                             f"{self.split_error}")
+
+
+@struct.dataclass
+class Segmentation:
+    """Boxes: lo, hi (L, D) float32 corners; active (L,) bool."""
+
+    lo: jax.Array
+    hi: jax.Array
+    active: jax.Array
+
+
+@struct.dataclass
+class Buffer:
+    """Ring buffer: x (M, D) float32, a (M,) int32, y (M, D+1) float32, valid (M,) bool,
+    ptr () int32 next slot."""
+
+    x: jax.Array
+    a: jax.Array
+    y: jax.Array
+    valid: jax.Array
+    ptr: jax.Array
+
+
+@struct.dataclass
+class Learner:
+    """seg, buf, q (L, A) float32, splits/merges () int32 counters."""
+
+    seg: Segmentation
+    buf: Buffer
+    q: jax.Array
+    splits: jax.Array
+    merges: jax.Array
+
+
+def init_learner(p: IncrementalParams, dim: int, num_actions: int) -> Learner:
+    """One box covering [0, 1]^dim, an empty buffer, Q = q_init."""
+    cap, m = p.max_states, p.buffer_size
+    seg = Segmentation(lo=jnp.zeros((cap, dim), F32),
+                       hi=jnp.zeros((cap, dim), F32).at[0].set(1.0),
+                       active=jnp.zeros((cap,), bool).at[0].set(True))
+    buf = Buffer(x=jnp.zeros((m, dim), F32), a=jnp.zeros((m,), I32),
+                 y=jnp.zeros((m, dim + 1), F32), valid=jnp.zeros((m,), bool),
+                 ptr=jnp.zeros((), I32))
+    q = jnp.full((cap, num_actions), p.q_init, F32)
+    return Learner(seg=seg, buf=buf, q=q, splits=jnp.zeros((), I32), merges=jnp.zeros((), I32))
+
+
+def leaf_of(seg: Segmentation, x: jax.Array) -> jax.Array:
+    """Box index (int32 (...)) of features x (..., D) in [0, 1] (upper faces at 1 included)."""
+    ge = x[..., None, :] >= seg.lo
+    lt = (x[..., None, :] < seg.hi) | (seg.hi >= 1.0)
+    inside = jnp.all(ge & lt, axis=-1) & seg.active
+    return jnp.argmax(inside, axis=-1).astype(I32)
+
+
+def num_states(seg: Segmentation) -> jax.Array:
+    """Number of boxes (states; the goal not counted), int32."""
+    return jnp.sum(seg.active).astype(I32)
+
+
+def record(buf: Buffer, x: jax.Array, a: jax.Array, y: jax.Array, valid: jax.Array) -> Buffer:
+    """Write one transition at ``ptr`` when ``valid`` (the pointer advances only then)."""
+    i = buf.ptr
+    w = lambda arr, v: arr.at[i].set(jnp.where(valid, v, arr[i]))  # noqa: E731
+    return Buffer(x=w(buf.x, x.astype(F32)), a=w(buf.a, a.astype(I32)),
+                  y=w(buf.y, y.astype(F32)), valid=w(buf.valid, valid),
+                  ptr=jnp.where(valid, (i + 1) % buf.x.shape[0], i).astype(I32))
+
+
+def _spd_solve(a: jax.Array, b: jax.Array) -> jax.Array:
+    """Solve a w = b for symmetric positive definite a (..., Z, Z), b (..., Z, Y).
+
+    An unrolled Cholesky (Z is small and static): elementwise ops over the batch, which
+    XLA compiles far faster than a batched LAPACK solve."""
+    z = a.shape[-1]
+    lo = [[None] * z for _ in range(z)]
+    for i in range(z):
+        for j in range(i + 1):
+            acc = a[..., i, j]
+            for k in range(j):
+                acc = acc - lo[i][k] * lo[j][k]
+            if i == j:
+                lo[i][i] = jnp.sqrt(jnp.maximum(acc, 1e-300))
+            else:
+                lo[i][j] = acc / lo[j][j]
+    u = []
+    for i in range(z):                                    # forward: L u = b
+        acc = b[..., i, :]
+        for k in range(i):
+            acc = acc - lo[i][k][..., None] * u[k]
+        u.append(acc / lo[i][i][..., None])
+    w = [None] * z
+    for i in reversed(range(z)):                          # backward: L^T w = u
+        acc = u[i]
+        for k in range(i + 1, z):
+            acc = acc - lo[k][i][..., None] * w[k]
+        w[i] = acc / lo[i][i][..., None]
+    return jnp.stack(w, axis=-2)
+
+
+def _sse(szz, szy, syy, n, ridge):
+    """Residual sum of squares of the ridge fit from sufficient statistics (..., Z, Z),
+    (..., Z, Y), (...), (...) -> (...) float64, >= 0 (0 where n = 0)."""
+    z = szz.shape[-1]
+    w = _spd_solve(szz + ridge * jnp.eye(z, dtype=F64), szy)
+    sse = syy - 2.0 * jnp.sum(w * szy, axis=(-2, -1)) + jnp.sum(w * (szz @ w), axis=(-2, -1))
+    return jnp.where(n > 0, jnp.maximum(sse, 0.0), 0.0)
+
+
+def _stats(seg: Segmentation, buf: Buffer, num_actions: int, bins: int, weight_out):
+    """Bin statistics (L, A, D, B, ...) of the buffer under the current boxes (float64)."""
+    cap, dim = seg.lo.shape
+    x = buf.x.astype(F64)
+    y = buf.y.astype(F64).at[:, -1].multiply(jnp.sqrt(jnp.asarray(weight_out, F64)))
+    zz = jnp.concatenate([x, jnp.ones((x.shape[0], 1), F64)], axis=1)
+    leaf = leaf_of(seg, buf.x)
+    width = jnp.maximum(seg.hi[leaf] - seg.lo[leaf], 1e-12)
+    b = jnp.clip(jnp.floor(bins * (buf.x - seg.lo[leaf]) / width), 0, bins - 1).astype(I32)
+    base = (leaf * num_actions + buf.a) * dim                                     # (M,)
+    idx = (base[:, None] + jnp.arange(dim, dtype=I32)[None]) * bins + b           # (M, D)
+    idx = jnp.where(buf.valid[:, None], idx, cap * num_actions * dim * bins)      # dropped
+    nseg = cap * num_actions * dim * bins + 1
+    vals = (zz[:, :, None] * zz[:, None, :], zz[:, :, None] * y[:, None, :],
+            jnp.sum(y * y, axis=1), jnp.ones(x.shape[0], F64))
+    out = []
+    for v in vals:
+        rep = jnp.broadcast_to(v[:, None], (v.shape[0], dim) + v.shape[1:])
+        s = jax.ops.segment_sum(rep.reshape((-1,) + v.shape[1:]), idx.reshape(-1), nseg)
+        out.append(s[:-1].reshape((cap, num_actions, dim, bins) + v.shape[1:]))
+    return out
+
+
+def structure_update(lr: Learner, p: IncrementalParams) -> tuple[Learner, jax.Array, jax.Array]:
+    """Refit the local models from the buffer; split one box, or else merge two.
+
+    Returns (learner, split happened () bool, merge happened () bool).
+    """
+    seg = lr.seg
+    cap, dim = seg.lo.shape
+    n_act = lr.q.shape[1]
+    nb = p.bins
+    ridge = jnp.asarray(p.ridge, F64)
+    szz, szy, syy, cnt = _stats(seg, lr.buf, n_act, nb, p.outcome_weight)
+    # whole boxes: sum the bins of axis 0
+    t_zz, t_zy, t_yy, t_n = (a[:, :, 0].sum(axis=2) for a in (szz, szy, syy, cnt))
+    sse_box = _sse(t_zz, t_zy, t_yy, t_n, ridge).sum(axis=1)                      # (L,)
+    n_box = t_n.sum(axis=1)
+    # candidate cuts: left = bins < c, c = 1..B-1
+    cum = [jnp.cumsum(a, axis=3)[:, :, :, :-1] for a in (szz, szy, syy, cnt)]
+    tot = [jnp.expand_dims(a, 2) for a in (t_zz, t_zy, t_yy, t_n)]
+    tot = [jnp.expand_dims(a, 3) for a in tot]
+    right = [t - c for t, c in zip(tot, cum, strict=True)]
+    sse_l = _sse(*cum, ridge).sum(axis=1)                                         # (L, D, B-1)
+    sse_r = _sse(*right, ridge).sum(axis=1)
+    n_l, n_r = cum[3].sum(axis=1), right[3].sum(axis=1)
+    gain = (sse_box[:, None, None] - sse_l - sse_r) / jnp.maximum(n_box, 1.0)[:, None, None]
+    width = (seg.hi - seg.lo)[:, :, None]                                        # (L, D, 1)
+    frac = jnp.arange(1, nb, dtype=F32)[None, None] / nb                          # cut position
+    err = sse_box / jnp.maximum(n_box, 1.0)
+    ok = (seg.active[:, None, None] & (err > p.split_error)[:, None, None]
+          & (gain >= p.split_gain) & (n_l >= p.min_samples) & (n_r >= p.min_samples)
+          & (frac * width >= p.min_width) & ((1 - frac) * width >= p.min_width)
+          & ~jnp.all(seg.active))
+    score = jnp.where(ok, gain, -jnp.inf).reshape(-1)
+    best = jnp.argmax(score)
+    do_split = jnp.isfinite(score[best])
+    leaf, rem = best // (dim * (nb - 1)), best % (dim * (nb - 1))
+    axis, c = rem // (nb - 1), rem % (nb - 1)
+    cut = seg.lo[leaf, axis] + (c + 1).astype(F32) / nb * (seg.hi[leaf, axis] - seg.lo[leaf, axis])
+    new = jnp.argmin(seg.active)                                                  # free slot
+    s_lo = seg.lo.at[new].set(seg.lo[leaf].at[axis].set(cut))
+    s_hi = seg.hi.at[new].set(seg.hi[leaf]).at[leaf, axis].set(cut)
+    q_new = jnp.where(p.inherit_q, lr.q[leaf], jnp.full((n_act,), p.q_init, F32))
+    split_seg = Segmentation(lo=s_lo, hi=s_hi, active=seg.active.at[new].set(True))
+    split_q = lr.q.at[new].set(q_new)
+
+    # merges: face-adjacent pairs whose union is a box
+    lo_i, lo_j = seg.lo[:, None], seg.lo[None]
+    hi_i, hi_j = seg.hi[:, None], seg.hi[None]
+    same = (lo_i == lo_j) & (hi_i == hi_j)                                        # (L, L, D)
+    touch = (hi_i == lo_j)
+    n_same = jnp.sum(same, axis=-1)
+    adj = (n_same == dim - 1) & jnp.any(touch & ~same, axis=-1)
+    adj = adj & seg.active[:, None] & seg.active[None]
+    u = [a[:, None] + a[None] for a in (t_zz, t_zy, t_yy, t_n)]
+    sse_u = _sse(*u, ridge).sum(axis=2)                                           # (L, L)
+    n_u = n_box[:, None] + n_box[None]
+    rise = (sse_u - sse_box[:, None] - sse_box[None]) / jnp.maximum(n_u, 1.0)
+    m_ok = (adj & (rise <= p.merge_tol) & (n_box[:, None] >= p.min_samples)
+            & (n_box[None] >= p.min_samples))
+    m_score = jnp.where(m_ok, -rise, -jnp.inf).reshape(-1)
+    m_best = jnp.argmax(m_score)
+    do_merge = jnp.isfinite(m_score[m_best]) & ~do_split
+    i, j = m_best // cap, m_best % cap
+    merge_seg = Segmentation(lo=seg.lo.at[i].set(jnp.minimum(seg.lo[i], seg.lo[j])),
+                             hi=seg.hi.at[i].set(jnp.maximum(seg.hi[i], seg.hi[j])),
+                             active=seg.active.at[j].set(False))
+    merge_q = lr.q.at[i].set(0.5 * (lr.q[i] + lr.q[j]))
+
+    pick = lambda a, b, c0: jnp.where(do_split, a, jnp.where(do_merge, b, c0))  # noqa: E731
+    seg2 = jax.tree_util.tree_map(pick, split_seg, merge_seg, seg)
+    q2 = pick(split_q, merge_q, lr.q)
+    lr = lr.replace(seg=seg2, q=q2, splits=lr.splits + do_split.astype(I32),
+                    merges=lr.merges + do_merge.astype(I32))
+    return lr, do_split, do_merge
+
+
+def greedy_action(lr: Learner, x: jax.Array) -> jax.Array:
+    """argmax_a Q(box(x), a), int32."""
+    return jnp.argmax(lr.q[leaf_of(lr.seg, x)], axis=-1).astype(I32)
+
+
+@struct.dataclass
+class Option:
+    """The action being held: state s0, primitive a, steps n, active (False: choose anew)."""
+
+    s0: jax.Array
+    a: jax.Array
+    n: jax.Array
+    active: jax.Array
+
+
+def init_option() -> Option:
+    return Option(jnp.zeros((), I32), jnp.zeros((), I32), jnp.zeros((), I32),
+                  jnp.zeros((), bool))
+
+
+def learner_step(key: jax.Array, lr: Learner, opt: Option, env: Any, env_state: Any,
+                 obs: jax.Array, env_params: Any, p: IncrementalParams,
+                 feature_fn: Callable[[jax.Array], jax.Array]):
+    """One primitive of the on-line learner (Q-learning + buffer; no structure change).
+
+    Returns (learner, option, env_state, obs, info) with info from the env plus
+    ``reward``, ``terminated``, ``truncated``.
+    """
+    k_act, k_env = jax.random.split(key)
+    x = feature_fn(obs)
+    s = leaf_of(lr.seg, x)
+    a_new = boltzmann_action(k_act, lr.q[s], p.temperature)
+    a = jnp.where(opt.active, opt.a, a_new)
+    s0 = jnp.where(opt.active, opt.s0, s)
+    n = jnp.where(opt.active, opt.n, 0) + 1
+    obs2, env_state2, r, term, trunc, info = env.step(k_env, env_state, a, env_params)
+    done = term | trunc
+    x2 = feature_fn(obs2)
+    s2 = leaf_of(lr.seg, x2)
+    dx = jnp.where(term, 0.0, x2 - x)
+    y = jnp.concatenate([dx, info["success"].astype(F32)[None]])
+    buf = record(lr.buf, x, a, y, ~(trunc & ~term))
+    end = done | (s2 != s0) | (n >= p.max_repeat)
+    target = jnp.where(term, r, r + p.gamma * jnp.max(lr.q[s2]))
+    upd = end & ~(trunc & ~term)
+    q = lr.q.at[s0, a].add(jnp.where(upd, p.alpha * (target - lr.q[s0, a]), 0.0))
+    lr = lr.replace(buf=buf, q=q.astype(F32))
+    opt = Option(s0=s0.astype(I32), a=a.astype(I32), n=n.astype(I32), active=~end)
+    info = dict(info, reward=r, terminated=term, truncated=trunc)
+    return lr, opt, env_state2, obs2, info
+
+
+def check_params(p: IncrementalParams) -> IncrementalParams:
+    """Validate (ParamError naming the field); returns p."""
+    return validate(p)
+
+
+@struct.dataclass
+class RunCarry:
+    """Everything one on-line learner carries between chunks."""
+
+    key: jax.Array
+    lr: Learner
+    opt: Option
+    env_state: Any
+    obs: jax.Array
+    trials: jax.Array      # () int32 finished episodes
+
+
+def init_run(key: jax.Array, env: Any, env_params: Any, p: IncrementalParams, dim: int,
+             num_actions: int) -> RunCarry:
+    """Fresh learner (one box) and a fresh episode."""
+    k_env, k_run = jax.random.split(key)
+    obs, st = env.reset(k_env, env_params)
+    return RunCarry(key=k_run, lr=init_learner(p, dim, num_actions), opt=init_option(),
+                    env_state=st, obs=obs, trials=jnp.zeros((), I32))
+
+
+def run_updates(carry: RunCarry, env: Any, params_fn: Callable[[jax.Array], Any],
+                p: IncrementalParams, feature_fn: Callable[[jax.Array], jax.Array],
+                num_updates: int):
+    """``num_updates`` x (``update_every`` primitives, then :func:`structure_update`).
+
+    ``params_fn(trials) -> env params`` lets the environment change with the number of
+    finished trials (Figure 9's ball-size changes). Returns (carry, per-step dict with
+    ``success``, ``done`` (U * K,) bool and ``trial`` (U * K,) int32 index of the trial
+    the step belonged to, and ``states`` (U,) int32 after each update).
+    """
+    def prim(c, _):
+        key, k = jax.random.split(c.key)
+        ep = params_fn(c.trials)
+        lr, opt, st, obs, info = learner_step(k, c.lr, c.opt, env, c.env_state, c.obs, ep, p,
+                                              feature_fn)
+        done = info["terminated"] | info["truncated"]
+        out = dict(success=info["success"] & done, done=done, trial=c.trials)
+        opt = opt.replace(active=opt.active & ~done)
+        return RunCarry(key, lr, opt, st, obs, c.trials + done.astype(I32)), out
+
+    def block(c, _):
+        c, out = jax.lax.scan(prim, c, None, length=p.update_every)
+        lr, _, _ = structure_update(c.lr, p)
+        return c.replace(lr=lr), (out, num_states(lr.seg))
+
+    carry, (out, states) = jax.lax.scan(block, carry, None, length=num_updates)
+    out = jax.tree_util.tree_map(lambda a: a.reshape((-1,) + a.shape[2:]), out)
+    return carry, dict(out, states=states)

@@ -1,0 +1,118 @@
+"""Macro actions: one action = repeat one primitive until the discrete state changes.
+
+The lab's earlier work fixed the "state-action deviation" of a coarse grid this
+way: an action is a primitive held (repeated) until the robot's discrete state
+differs from the one it started in, the episode ends, or a cap on repeats is
+reached. :func:`macro_step` wraps any gymnax-style ``step`` and a state-index
+function in a ``lax.while_loop``; it is pure and vmaps over environments (a
+vmapped loop runs until every environment has stopped; the finished ones are
+frozen by the loop's select).
+
+The returned reward is the discounted sum ``sum_i discount**i * r_i`` over the n
+primitives, so a semi-Markov Q-learning update bootstraps with ``discount**n``
+(``vbl.agents.qlearning`` does). If the episode ends inside the repeat, the loop
+stops at that primitive; the env's auto-reset has already drawn the next start, so
+the returned ``obs`` / ``state`` belong to the new episode and ``info`` carries the
+ended episode's facts, exactly as a single env step would.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from vbl.params import param
+
+__all__ = ["MacroActionParams", "MacroOutcome", "macro_step", "make_macro_step"]
+
+
+@struct.dataclass
+class MacroActionParams:
+    """Whether one action repeats its primitive until the discrete state changes."""
+
+    enabled: bool = param(True, doc="repeat each primitive until the discrete state changes "
+                          "(the earlier work's one action); off: one action = one primitive",
+                          static=True)
+    max_repeats: int = param(20, doc="cap on primitives per action (at the default 0.1 s "
+                             "primitive: 2 s)", unit="primitives", ge=1)
+
+
+@struct.dataclass
+class MacroOutcome:
+    """Result of one macro action of one environment (add a leading axis when vmapped)."""
+
+    obs: Any              #: observation after the last primitive (a new episode's if it ended)
+    env_state: Any        #: env state after the last primitive
+    reward: jax.Array     #: float32, sum_i discount**i r_i over the primitives
+    terminated: jax.Array  #: bool, the episode ended by reaching a terminal state
+    truncated: jax.Array  #: bool, the episode ended by its time limit
+    info: Any             #: the env's info of the last primitive
+    num_primitives: jax.Array  #: int32 n in 1..max_repeats
+    next_state: jax.Array  #: int32 discrete state of ``obs``
+
+
+def _zeros_like_struct(tree: Any) -> Any:
+    return jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), tree)
+
+
+def macro_step(step_fn: Callable, state_index_fn: Callable, key: jax.Array, env_state: Any,
+               state_index: jax.Array, action: jax.Array, env_params: Any, max_repeats: Any,
+               discount: Any) -> MacroOutcome:
+    """Repeat ``action`` from ``env_state`` (whose discrete state is ``state_index``).
+
+    Args:
+      step_fn: gymnax-style ``step(key, state, action, params) -> (obs, state, reward,
+        terminated, truncated, info)`` of ONE environment (auto-reset).
+      state_index_fn: obs -> int32 discrete state.
+      key: PRNG key; primitive i uses ``fold_in(key, i)``.
+      env_state, state_index: current env state and its discrete state (int32 scalar).
+      action: int32 primitive to repeat.
+      env_params: the env's params pytree.
+      max_repeats: cap on primitives (int >= 1, may be traced).
+      discount: per-primitive discount of the summed reward (may be traced).
+
+    Stops after the first primitive for which the discrete state differs from
+    ``state_index``, the episode ends, or ``max_repeats`` primitives ran.
+    """
+    s0 = jnp.asarray(state_index, jnp.int32)
+    gamma = jnp.asarray(discount, jnp.float32)
+    cap = jnp.asarray(max_repeats, jnp.int32)
+    out_shape = jax.eval_shape(step_fn, key, env_state, action, env_params)
+    obs0, _, _, term0, trunc0, info0 = _zeros_like_struct(out_shape)
+
+    init = dict(env_state=env_state, obs=obs0, reward=jnp.float32(0.0),
+                weight=jnp.float32(1.0), n=jnp.int32(0), terminated=term0.astype(bool),
+                truncated=trunc0.astype(bool), info=info0, s=s0)
+
+    def cond(c):
+        moving = (c["s"] == s0) & ~(c["terminated"] | c["truncated"]) & (c["n"] < cap)
+        return (c["n"] == 0) | moving
+
+    def body(c):
+        obs, st, r, term, trunc, info = step_fn(jax.random.fold_in(key, c["n"]), c["env_state"],
+                                                action, env_params)
+        return dict(env_state=st, obs=obs,
+                    reward=c["reward"] + c["weight"] * jnp.asarray(r, jnp.float32),
+                    weight=c["weight"] * gamma, n=c["n"] + 1,
+                    terminated=jnp.asarray(term, bool), truncated=jnp.asarray(trunc, bool),
+                    info=info, s=jnp.asarray(state_index_fn(obs), jnp.int32))
+
+    c = jax.lax.while_loop(cond, body, init)
+    return MacroOutcome(obs=c["obs"], env_state=c["env_state"], reward=c["reward"],
+                        terminated=c["terminated"], truncated=c["truncated"], info=c["info"],
+                        num_primitives=c["n"], next_state=c["s"])
+
+
+def make_macro_step(step_fn: Callable, state_index_fn: Callable) -> Callable:
+    """``f(key, env_state, state_index, action, env_params, max_repeats, discount) ->
+    MacroOutcome``: :func:`macro_step` bound to an env's ``step`` and a state function."""
+
+    def f(key, env_state, state_index, action, env_params, max_repeats, discount):
+        return macro_step(step_fn, state_index_fn, key, env_state, state_index, action,
+                          env_params, max_repeats, discount)
+
+    return f

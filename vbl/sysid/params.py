@@ -1,0 +1,74 @@
+"""Parameters of CVA identification (Section 3.1.1-3.1.2 of the paper).
+
+All options of :func:`vbl.sysid.identify` live in :class:`CVAParams`; see ``docs/sysid.md``.
+"""
+
+from __future__ import annotations
+
+from flax import struct
+
+from vbl.params import ParamError, param
+
+__all__ = ["CVAParams", "METHODS", "PARAM_COUNTS", "DTYPES"]
+
+METHODS = ("projected", "paper")
+PARAM_COUNTS = ("larimore", "sippy")
+DTYPES = ("float64", "float32")
+
+
+@struct.dataclass
+class CVAParams:
+    """Options of batched CVA identification with AIC order and lag selection."""
+
+    lag: int = param(0, doc="past lag l of the stack p(t); 0 selects l per data set by the "
+                     "lag rule of Sec. 3.1.2 (l = 1 .. lag_max)", source="P/C",
+                     static=True, ge=0)
+    lag_max: int = param(6, doc="largest lag the lag rule tries", static=True, ge=1)
+    horizon: int = param(0, doc="future horizon k of the stack f(t); 0 means k = l",
+                         static=True, ge=0)
+    n_max: int = param(0, doc="largest state order n swept; 0 means all identifiable orders "
+                       "min(l(m+q), kq)", static=True, ge=0)
+    n_min: int = param(1, doc="smallest state order n considered by the AIC argmin",
+                       static=True, ge=0)
+    method: str = param("projected", doc="'projected': future inputs projected out of past "
+                        "and future stacks before the canonical correlations (Larimore); "
+                        "'paper': the plain recipe of Eqs. (2)-(5)", static=True,
+                        choices=METHODS)
+    param_count: str = param("larimore", doc="AIC parameter count lambda(n): 'larimore' "
+                             "n(2q+m)+qm+q(q+1)/2, 'sippy' n(q+m)+qm", static=True,
+                             choices=PARAM_COUNTS)
+    demean: bool = param(True, doc="remove each channel's mean before identification",
+                         static=True)
+    standardize: bool = param(True, doc="divide each channel by its standard deviation "
+                              "(log det R then means the same in any units)", static=True)
+    dtype: str = param("float64", doc="floating type of the identification arithmetic",
+                       static=True, choices=DTYPES)
+    reg: float = param(1e-10, doc="regularisation floor (float64): eps * mean diagonal added "
+                       "to every covariance before a Cholesky factorisation", ge=0.0, lt=1.0)
+    reg_float32: float = param(1e-6, doc="regularisation floor used when dtype='float32'",
+                               ge=0.0, lt=1.0)
+    logdet_stop: float = param(0.0, doc="lag rule: stop growing l once log det R < this",
+                               source="P")
+    const_tol: float = param(1e-9, doc="a channel whose std <= const_tol * max|x| is "
+                             "constant (error)", ge=0.0, lt=1.0)
+    min_samples_factor: float = param(2.0, doc="require N-k-l+1 >= this x (l+k)(m+q) "
+                                      "samples in the covariance estimates", ge=1.0)
+
+    def check(self) -> None:
+        if self.lag > self.lag_max and self.lag != 0:
+            raise ParamError(f"lag={self.lag} exceeds lag_max={self.lag_max}; raise lag_max "
+                             "or lower lag")
+        if self.n_max and self.n_min > self.n_max:
+            raise ParamError(f"n_min={self.n_min} exceeds n_max={self.n_max}")
+
+    def lags(self) -> tuple[int, ...]:
+        """Lags tried: ``(lag,)`` when fixed, else ``1 .. lag_max``."""
+        return (self.lag,) if self.lag > 0 else tuple(range(1, self.lag_max + 1))
+
+    def horizon_for(self, lag: int) -> int:
+        """Future horizon k used with past lag ``lag``."""
+        return self.horizon if self.horizon > 0 else lag
+
+    def floor(self) -> float:
+        """Regularisation floor of the chosen dtype."""
+        return self.reg_float32 if self.dtype == "float32" else self.reg
