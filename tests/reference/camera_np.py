@@ -89,7 +89,7 @@ def _ray_hits_sphere(t, s, b, r):
     return float(np.sum((b - along * d) ** 2)) <= r * r
 
 
-def _outline(b, r, fu, fv, n=20000):
+def _outline(b, r, fu, fv):
     """Points (n, 2) px of the sphere's image outline: the projected tangent circle."""
     dist = np.linalg.norm(b)
     centre = b * (1.0 - r * r / dist**2)
@@ -108,7 +108,7 @@ def _outline(b, r, fu, fv, n=20000):
     return at
 
 
-def _ball_extent_1d(at, axis, lo_box, hi_box, hit, fu, fv, n=4000):
+def _ball_extent_1d(at, axis, lo_box, hi_box, hit, fu, fv, n=2000):
     """Extent along ``axis`` (0 = u, 1 = v) of the outline-enclosed region inside the box."""
     phis = np.linspace(0.0, 2 * math.pi, n, endpoint=False)
     pts = at(phis)
@@ -118,7 +118,7 @@ def _ball_extent_1d(at, axis, lo_box, hi_box, hit, fu, fv, n=4000):
     for sign in (-1.0, 1.0):
         i = int(np.argmin(sign * pts[:, axis]))
         a, b = phis[i] - 2 * math.pi / n, phis[i] + 2 * math.pi / n
-        for _ in range(100):
+        for _ in range(50):
             m1, m2 = a + (b - a) / 3, b - (b - a) / 3
             if sign * at([m1])[0, axis] < sign * at([m2])[0, axis]:
                 b = m2
@@ -137,7 +137,7 @@ def _ball_extent_1d(at, axis, lo_box, hi_box, hit, fu, fv, n=4000):
                 if fa == 0 and fb_all[k] == 0:
                     continue
                 a, b = phis[k], phis[k] + 2 * math.pi / n
-                for _ in range(60):
+                for _ in range(40):
                     m = 0.5 * (a + b)
                     if (at([m])[0, ax] - edge) * fa > 0:
                         a = m

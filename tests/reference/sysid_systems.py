@@ -13,8 +13,21 @@ import numpy as np
 
 
 def random_poles(rng: np.random.Generator, n: int, radius=(0.5, 0.95),
-                 angle=(0.3, 2.8), p_complex: float = 0.5) -> np.ndarray:
-    """``n`` stable poles (conjugate pairs kept together), complex array (n,)."""
+                 angle=(0.3, 2.8), p_complex: float = 0.5,
+                 min_separation: float = 0.0) -> np.ndarray:
+    """``n`` stable poles (conjugate pairs kept together), complex array (n,).
+
+    Draws are rejected until every two poles are at least ``min_separation`` apart (an
+    order that finite data can resolve).
+    """
+    while True:
+        poles = _draw_poles(rng, n, radius, angle, p_complex)
+        d = np.abs(poles[:, None] - poles[None, :]) + np.eye(n) * 10.0
+        if d.min() >= min_separation:
+            return poles
+
+
+def _draw_poles(rng, n, radius, angle, p_complex) -> np.ndarray:
     poles: list[complex] = []
     while len(poles) < n:
         r = rng.uniform(*radius)

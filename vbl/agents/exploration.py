@@ -139,23 +139,32 @@ def to_optax(p: ScheduleParams) -> optax.Schedule:
     raise ParamError(f"schedule kind {p.kind!r} unknown; choose one of {list(SCHEDULE_KINDS)}")
 
 
+def _greedy_from_uniform(u: jax.Array, q_rows: jax.Array) -> jax.Array:
+    """argmax of q_rows (..., A); among k tied maxima pick number floor(u * k), u in [0, 1)."""
+    is_max = q_rows >= jnp.max(q_rows, axis=-1, keepdims=True)
+    count = jnp.sum(is_max, axis=-1, dtype=jnp.int32)
+    k = jnp.minimum((u * count).astype(jnp.int32), count - 1)
+    rank = jnp.cumsum(is_max, axis=-1, dtype=jnp.int32) - 1
+    return jnp.argmax(is_max & (rank == k[..., None]), axis=-1).astype(jnp.int32)
+
+
 def greedy_action(key: jax.Array, q_rows: jax.Array) -> jax.Array:
     """argmax over the last axis of ``q_rows`` (..., A), ties broken uniformly at random.
 
     Returns int32 (...)."""
-    best = jnp.max(q_rows, axis=-1, keepdims=True)
-    logits = jnp.where(q_rows >= best, 0.0, -jnp.inf).astype(jnp.float32)
-    return jax.random.categorical(key, logits, axis=-1).astype(jnp.int32)
+    u = jax.random.uniform(key, q_rows.shape[:-1], jnp.float32)
+    return _greedy_from_uniform(u, q_rows)
 
 
 def epsilon_greedy_action(key: jax.Array, q_rows: jax.Array, epsilon: Any) -> jax.Array:
-    """With probability ``epsilon`` a uniform action (any of the A), else greedy. int32 (...)."""
-    k_explore, k_rand, k_greedy = jax.random.split(key, 3)
+    """With probability ``epsilon`` a uniform action (any of the A), else greedy. int32 (...).
+
+    Draws three uniforms per row in one call (explore?, random action, tie-break)."""
     shape, n_act = q_rows.shape[:-1], q_rows.shape[-1]
-    explore = jax.random.uniform(k_explore, shape, jnp.float32) < jnp.asarray(epsilon,
-                                                                              jnp.float32)
-    rand = jax.random.randint(k_rand, shape, 0, n_act, jnp.int32)
-    return jnp.where(explore, rand, greedy_action(k_greedy, q_rows))
+    u = jax.random.uniform(key, (3, *shape), jnp.float32)
+    explore = u[0] < jnp.asarray(epsilon, jnp.float32)
+    rand = jnp.minimum((u[1] * n_act).astype(jnp.int32), n_act - 1)
+    return jnp.where(explore, rand, _greedy_from_uniform(u[2], q_rows))
 
 
 def boltzmann_probs(q_rows: jax.Array, temperature: Any) -> jax.Array:

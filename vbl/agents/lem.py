@@ -42,7 +42,7 @@ class LEMParams:
     threshold: float = param(1e-3, doc="Q counts as converged when its change over a window "
                              "is below this", unit="Q", gt=0.0)
     statistic: str = param("max", doc="change statistic over the table: max or mean of "
-                           "|delta Q|", static=True, choices=("max", "mean"))
+                           "abs(delta Q)", static=True, choices=("max", "mean"))
 
     def check(self) -> None:
         import numpy as np

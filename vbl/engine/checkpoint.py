@@ -34,6 +34,12 @@ def _to_storable(tree: Any) -> tuple[dict[str, np.ndarray], Any]:
     return out, treedef
 
 
+def _corrupt(where: Path, e: Exception) -> CheckpointError:
+    return CheckpointError(f"checkpoint {where} is corrupt or unreadable ({type(e).__name__}: "
+                           f"{str(e)[:300]}); delete that step folder to resume from an "
+                           f"earlier one, or start again with --overwrite")
+
+
 class Checkpoints:
     """Save/restore the engine state under ``directory`` (``run/checkpoints``)."""
 
@@ -71,8 +77,7 @@ class Checkpoints:
             meta = self._mngr.restore(step, args=ocp.args.Composite(
                 meta=ocp.args.JsonRestore()))["meta"]
         except Exception as e:  # noqa: BLE001
-            raise CheckpointError(f"checkpoint {where} is corrupt or unreadable ({type(e).__name__}:"
-                                  f" {e}); delete it or start again with --overwrite") from e
+            raise _corrupt(where, e) from e
         if not isinstance(meta, dict) or meta.get("fingerprint") != self.fingerprint:
             got = meta.get("fingerprint") if isinstance(meta, dict) else None
             raise CheckpointError(
@@ -83,9 +88,7 @@ class Checkpoints:
             state = self._mngr.restore(step, args=ocp.args.Composite(
                 state=ocp.args.StandardRestore(target)))["state"]
         except Exception as e:  # noqa: BLE001
-            raise CheckpointError(f"checkpoint {where} is corrupt or unreadable ({type(e).__name__}:"
-                                  f" {str(e)[:500]}); delete it or start again with --overwrite"
-                                  ) from e
+            raise _corrupt(where, e) from e
         leaves = []
         for k in sorted(target):
             got, want = np.asarray(state[k]), target[k]

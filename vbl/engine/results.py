@@ -84,7 +84,8 @@ def prepare_run_dir(out: str | Path | None, name: str, *, resume: bool, overwrit
     """
     if resume and overwrite:
         raise EngineError("--resume and --overwrite exclude each other")
-    path = Path(out) if out is not None else Path("runs") / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}"
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    path = Path(out) if out is not None else Path("runs") / f"{name}-{stamp}"
     if not primary:  # process 0 checks and creates the folder
         return path
     if path.exists() and not path.is_dir():

@@ -174,8 +174,7 @@ def _run_group(plan: SweepPlan, group: Group, sharding, ckpts: Checkpoints, log:
         host = [to_host(t) for t in trees]
         return jax.tree.map(lambda *xs: np.concatenate(xs)[:n], *host)
 
-    init_fn = jax.jit(jax.vmap(prog.init), out_shardings=sharding)
-    step_fn = jax.jit(jax.vmap(prog.step), out_shardings=(sharding, sharding))
+    init_fn, step_fn, final_fn = _compiled(prog, sharding)
     cfgs = batches(group.configs)
     done = max(0, start - group.step_offset)
     if done > 0:
@@ -199,12 +198,26 @@ def _run_group(plan: SweepPlan, group: Group, sharding, ckpts: Checkpoints, log:
         progress.update(metrics, dt)
         last = chunk + 1 == prog.num_chunks
         if last and prog.final is not None:
-            final_fn = jax.jit(jax.vmap(prog.final), out_shardings=sharding)
             fin = gather([final_fn(c, cfg, k) for c, cfg, k in
                           zip(carries, cfgs, batches(final_keys), strict=True)])
             log.append(_rows(plan, group, step, "final", fin))
         if last or (chunk + 1) % every == 0:
             ckpts.save(step, gather(carries), {"group": group.index, "chunk": chunk + 1})
+
+
+_JITTED: dict[tuple, tuple] = {}
+
+
+def _compiled(prog, sharding) -> tuple:
+    """jit(vmap(...)) of a program's functions, cached per (program, sharding)."""
+    key = (id(prog), sharding)
+    if key not in _JITTED:
+        final = (jax.jit(jax.vmap(prog.final), out_shardings=sharding)
+                 if prog.final is not None else None)
+        _JITTED[key] = (jax.jit(jax.vmap(prog.init), out_shardings=sharding),
+                        jax.jit(jax.vmap(prog.step), out_shardings=(sharding, sharding)),
+                        final, prog)  # keeps prog alive so its id stays unique
+    return _JITTED[key][:3]
 
 
 def _rows(plan: SweepPlan, group: Group, step: int, chunk: int | str,

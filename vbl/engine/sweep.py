@@ -18,9 +18,27 @@ import numpy as np
 
 from vbl.engine.config import apply_overrides, stack_traced
 from vbl.engine.experiment import Experiment, Program
-from vbl.params import ParamError, replace_path, static_paths
+from vbl.params import ParamError, get_path, replace_path, static_paths
 
-__all__ = ["Group", "SweepPlan", "make_plan", "learner_keys"]
+__all__ = ["Group", "SweepPlan", "make_plan", "learner_keys", "program_for"]
+
+# (make_program, static values) -> Program: repeated runs in one process (tests, notebooks,
+# `vbl reproduce`) reuse the same functions, hence jax's compilation cache.
+_PROGRAMS: dict[tuple, Program] = {}
+
+
+def program_for(experiment: Experiment, config: Any) -> Program:
+    """``experiment.make_program(config)``, cached on the static values of ``config``."""
+    key = (experiment.make_program,
+           tuple((p, repr(get_path(config, p))) for p in static_paths(config)))
+    prog = _PROGRAMS.get(key)
+    if prog is None:
+        prog = experiment.make_program(config)
+        if not isinstance(prog, Program):
+            raise TypeError(f"{experiment.name}: make_program must return a Program, got "
+                            f"{type(prog).__name__}")
+        _PROGRAMS[key] = prog
+    return prog
 
 
 def learner_keys(base_seed: int, seeds: int) -> tuple[np.ndarray, np.ndarray]:
@@ -113,10 +131,7 @@ def make_plan(experiment: Experiment, config: Any, sweep: Mapping[str, Sequence[
         static_values = {p: v for p, v in points[ids[0]].items() if p in statics}
         base = apply_overrides(config, static_values)
         cfgs = [apply_overrides(config, points[i]) for i in ids]
-        program = experiment.make_program(base)
-        if not isinstance(program, Program):
-            raise TypeError(f"{experiment.name}: make_program must return a Program, got "
-                            f"{type(program).__name__}")
+        program = program_for(experiment, base)
         groups.append(Group(gi, static_values, ids, base, program,
                             stack_traced(cfgs, seeds), offset, seeds))
         offset += program.num_chunks

@@ -247,24 +247,27 @@ def apply_kicks(key: jax.Array, world: WorldState, touch: jax.Array, actions: ja
     return world.replace(ball_vel=vel.astype(F32)), jnp.stack(kicked)
 
 
-def observe(world: WorldState, me: int, cam: CameraParams, params: ShootPassParams,
-            phase: jax.Array, key: jax.Array) -> jax.Array:
+def observe(world: WorldState, me: int, cam: CameraParams, world_params: WorldParams,
+            noise: NoiseParams, robot_height: jax.Array, phase: jax.Array,
+            key: jax.Array) -> jax.Array:
     """Section 3 features (26,) float32 of robot ``me`` (static int) seeing the ball, the
-    goal and the other robot, with image noise and centroid eccentricity from
-    ``params.noise``. ``cam``: that robot's camera (before noise)."""
+    goal and the other robot ``1 - me`` (seen as a box of length and width = the robot's
+    diameter and height ``robot_height``),
+    with image noise and ball centroid eccentricity from ``noise``.
+    ``cam``: that robot's camera (before noise); ``phase``: the ball's rolling phase, rad."""
     from vbl.vision.features import flatten_section3, section3_features
 
     other = 1 - me
-    cam = noisy_camera(cam, params.noise)
-    other_size = jnp.stack([jnp.asarray(params.world.robot.radius, F32),
-                            jnp.asarray(params.robot_height, F32)])
+    cam = noisy_camera(cam, noise)
+    d = 2 * jnp.asarray(world_params.robot.radius, F32)
+    other_size = jnp.stack([d, d, jnp.asarray(robot_height, F32)])
     obs = section3_features(world.robots[me], world.ball,
-                            jnp.asarray(params.world.ball.radius, F32),
-                            goal_corners(params.world), world.robots[other], other_size,
+                            jnp.asarray(world_params.ball.radius, F32),
+                            goal_corners(world_params), world.robots[other], other_size,
                             cam, key=key)
     flat = flatten_section3(obs).astype(F32)
     ball = eccentric_centroid(flat[OBS_SLICES["ball"]], flat[OBS_SLICES["visible"]][0], phase,
-                              params.noise)
+                              noise)
     return flat.at[OBS_SLICES["ball"]].set(ball)
 
 
@@ -400,8 +403,8 @@ class ShootPassEnv:
     def get_obs(self, state: ShootPassState, params: ShootPassParams,
                 key: jax.Array) -> jax.Array:
         """The learner's Section 3 features (26,) float32."""
-        return observe(state.world, self.learner, self.learner_camera(params), params,
-                       state.phase, key)
+        return observe(state.world, self.learner, self.learner_camera(params), params.world,
+                       params.noise, params.robot_height, state.phase, key)
 
     def reset(self, key: jax.Array, params: ShootPassParams | None = None
               ) -> tuple[jax.Array, ShootPassState]:

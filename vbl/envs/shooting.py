@@ -218,8 +218,8 @@ class ShootingEnv:
                 key: jax.Array | None = None) -> jax.Array:
         """Section 2 features (9,) float32 of the robot's camera.
 
-        Pixel noise (``camera.pixel_noise_std > 0``) is drawn from ``key``; with the noise
-        off the noise-free branch runs (no random draws).
+        Pixel noise (``camera.pixel_noise_std > 0``) is drawn from ``fold_in(key, 1)``; with
+        the noise off the noise-free branch runs (no random draws).
         """
         def features(k):
             return section2_features(world.robots[0], world.ball,
@@ -229,7 +229,8 @@ class ShootingEnv:
         if key is None:
             return features(None)
         noisy = jnp.asarray(params.camera.pixel_noise_std, F32) > 0
-        return jax.lax.cond(noisy, features, lambda k: features(None), key)
+        return jax.lax.cond(noisy, lambda k: features(jax.random.fold_in(k, 1)),
+                            lambda k: features(None), key)
 
     def reset(self, key: jax.Array, params: ShootingParams | None = None
               ) -> tuple[jax.Array, ShootingState]:
@@ -265,10 +266,8 @@ class ShootingEnv:
         """One primitive without auto-reset: (obs, state, reward, terminated, truncated, info)."""
         params = self._default_params if params is None else params
         self._check_inputs(state, action, params)
-        k_world, k_obs = jax.random.split(key)
-        state, reward, terminated, truncated, info = self._transition(k_world, state, action,
-                                                                      params)
-        return self.get_obs(state.world, params, k_obs), state, reward, terminated, truncated, info
+        state, reward, terminated, truncated, info = self._transition(key, state, action, params)
+        return self.get_obs(state.world, params, key), state, reward, terminated, truncated, info
 
     def step(self, key: jax.Array, state: ShootingState, action: jax.Array,
              params: ShootingParams | None = None):
@@ -280,14 +279,16 @@ class ShootingEnv:
         """
         params = self._default_params if params is None else params
         self._check_inputs(state, action, params)
-        k_world, k_reset, k_obs = jax.random.split(key, 3)
-        nstate, reward, terminated, truncated, info = self._transition(k_world, state, action,
+        # random streams: k_reset -> start draw; k_aux -> tire slip (world_step) and pixel
+        # noise (fold_in(k_aux, 1)); both are drawn only when switched on
+        k_reset, k_aux = jax.random.split(key)
+        nstate, reward, terminated, truncated, info = self._transition(k_aux, state, action,
                                                                        params)
         done = info["episode_done"]
         fresh = ShootingState(world=self.sample_start(k_reset, params),
                               step=jnp.zeros((), jnp.int32))
         nstate = jax.tree_util.tree_map(lambda a, b: jnp.where(done, a, b), fresh, nstate)
-        return (self.get_obs(nstate.world, params, k_obs), nstate, reward, terminated,
+        return (self.get_obs(nstate.world, params, k_aux), nstate, reward, terminated,
                 truncated, info)
 
     def __repr__(self) -> str:

@@ -251,16 +251,25 @@ def structure_update(lr: Learner, p: IncrementalParams) -> tuple[Learner, jax.Ar
     ridge = jnp.asarray(p.ridge, F64)
     szz, szy, syy, cnt = _stats(seg, lr.buf, n_act, nb, p.outcome_weight)
     # whole boxes: sum the bins of axis 0
-    t_zz, t_zy, t_yy, t_n = (a[:, :, 0].sum(axis=2) for a in (szz, szy, syy, cnt))
-    sse_box = _sse(t_zz, t_zy, t_yy, t_n, ridge).sum(axis=1)                      # (L,)
+    tots = [a[:, :, 0].sum(axis=2) for a in (szz, szy, syy, cnt)]                # (L, A, ...)
+    t_n = tots[3]
     n_box = t_n.sum(axis=1)
-    # candidate cuts: left = bins < c, c = 1..B-1
+    # candidate cuts: left = bins < c, c = 1..B-1; unions of two boxes
     cum = [jnp.cumsum(a, axis=3)[:, :, :, :-1] for a in (szz, szy, syy, cnt)]
-    tot = [jnp.expand_dims(a, 2) for a in (t_zz, t_zy, t_yy, t_n)]
-    tot = [jnp.expand_dims(a, 3) for a in tot]
-    right = [t - c for t, c in zip(tot, cum, strict=True)]
-    sse_l = _sse(*cum, ridge).sum(axis=1)                                         # (L, D, B-1)
-    sse_r = _sse(*right, ridge).sum(axis=1)
+    right = [jnp.expand_dims(t, (2, 3)) - c for t, c in zip(tots, cum, strict=True)]
+    u = [a[:, None] + a[None] for a in tots]                                      # (L, L, A, ...)
+    # one batched residual computation for boxes, cut sides and unions
+    groups = (tots, cum, right, u)
+    lead = [g[3].shape for g in groups]
+    flat = [jnp.concatenate([g[i].reshape((-1,) + g[i].shape[len(lead[k]):])
+                             for k, g in enumerate(groups)]) for i in range(4)]
+    sse_all = _sse(*flat, ridge)
+    sizes = [int(np.prod(sh)) for sh in lead]
+    parts = jnp.split(sse_all, np.cumsum(sizes)[:-1])
+    sse_box, sse_l, sse_r, sse_u = (pt.reshape(sh) for pt, sh in zip(parts, lead, strict=True))
+    sse_box = sse_box.sum(axis=1)                                                 # (L,)
+    sse_l, sse_r = sse_l.sum(axis=1), sse_r.sum(axis=1)                           # (L, D, B-1)
+    sse_u = sse_u.sum(axis=2)                                                     # (L, L)
     n_l, n_r = cum[3].sum(axis=1), right[3].sum(axis=1)
     gain = (sse_box[:, None, None] - sse_l - sse_r) / jnp.maximum(n_box, 1.0)[:, None, None]
     width = (seg.hi - seg.lo)[:, :, None]                                        # (L, D, 1)
@@ -291,8 +300,6 @@ def structure_update(lr: Learner, p: IncrementalParams) -> tuple[Learner, jax.Ar
     n_same = jnp.sum(same, axis=-1)
     adj = (n_same == dim - 1) & jnp.any(touch & ~same, axis=-1)
     adj = adj & seg.active[:, None] & seg.active[None]
-    u = [a[:, None] + a[None] for a in (t_zz, t_zy, t_yy, t_n)]
-    sse_u = _sse(*u, ridge).sum(axis=2)                                           # (L, L)
     n_u = n_box[:, None] + n_box[None]
     rise = (sse_u - sse_box[:, None] - sse_box[None]) / jnp.maximum(n_u, 1.0)
     m_ok = (adj & (rise <= p.merge_tol) & (n_box[:, None] >= p.min_samples)

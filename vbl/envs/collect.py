@@ -1,0 +1,252 @@
+"""Batched identification-data collection (Section 3.1, step 1 of Figure 11).
+
+A learner (robot 0, 4-wheel steering, the *observer*) moves with random actions while
+its camera observes the goal, the ball and another robot (robot 1, a scripted
+behaviour of :mod:`vbl.envs.other_agents`). One data set is the sequence of its motor
+commands ``u(t) = FOUR_WHEEL_U[a(t)]`` (N, 2) and the Section 3 features of each object
+(ball (N, 4), goal (N, 11), other robot (N, 5), in px / px^2), with ``y(t)`` observed
+*before* ``u(t)`` is applied. :func:`collect` vmaps a ``lax.scan`` over B data sets.
+
+Observer policy (random, view-keeping, documented in ``docs/two_robot_task.md``): each
+step an action is drawn uniformly from the 7 primitives, restricted so that the
+``focus`` object stays in view and at a useful distance:
+
+* if the focus bearing ``|b| > keep_bearing_deg``, only the two actions that turn
+  towards it (FL/BR when it is on the left, FR/BL on the right) are allowed;
+* if its centre distance exceeds ``max_dist`` backward actions are removed, below
+  ``min_dist`` forward actions are removed.
+
+The restriction is a feedback from y to u (as in any closed-loop data); it keeps the
+objects in the image, which the features need (a lost object's features are 0).
+
+The ball is kicked by an invisible third party (the "rolling ball" of Table 1 (b)):
+whenever its speed is below ``kick_below_speed``, with probability ``kick_prob`` per step
+it gets a speed uniform in ``[kick_speed_min, kick_speed_max]`` towards a point drawn
+uniformly in a disc of radius ``aim_radius`` around the point ``aim_ahead`` in front of
+the observer, so it rolls through the observer's view.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from vbl.envs.noise import NoiseParams, advance_phase, noisy_world, perturb_ball_velocity
+from vbl.envs.other_agents import OtherAgentParams, act, init_memory
+from vbl.envs.shoot_pass import OBS_SLICES, default_world, observe
+from vbl.params import ParamError, param, section, validate
+from vbl.vision.camera import CameraParams
+from vbl.world.params import WorldParams
+from vbl.world.physics import WorldState, world_step, wrap_angle
+from vbl.world.robots import FOUR_WHEEL_U
+
+__all__ = ["FOCUS", "OTHER_BEHAVIOURS", "CollectParams", "CollectData", "collect_one",
+           "collect", "observer_action"]
+
+F32 = jnp.float32
+I32 = jnp.int32
+
+FOCUS = ("goal", "ball", "other")
+OTHER_BEHAVIOURS = ("stationary", "random_walk", "move_to_ball")
+
+
+@struct.dataclass
+class CollectParams:
+    """What one identification run looks like (robot 0 observes, robot 1 is scripted)."""
+
+    world: WorldParams = section(default_world, doc="physics; world.four_wheel is the "
+                                 "observer's body (and the other robot's)")
+    camera: CameraParams = section(CameraParams, doc="the observer's camera")
+    noise: NoiseParams = section(NoiseParams, doc="Section 3.4.2 noise model (default off)")
+    other: OtherAgentParams = section(OtherAgentParams, doc="the scripted other robot")
+    other_behaviour: str = param("random_walk", doc="behaviour of the other robot",
+                                 static=True, choices=OTHER_BEHAVIOURS)
+    focus: str = param("goal", doc="object the observer keeps in view", static=True,
+                       choices=FOCUS)
+    num_steps: int = param(500, doc="N: samples per data set", static=True, ge=2)
+    keep_bearing_deg: float = param(20.0, doc="observer turns towards the focus object when "
+                                    "its bearing exceeds this", unit="deg", gt=0.0, le=180.0)
+    min_dist: float = param(0.8, doc="observer does not drive forward when the focus centre "
+                            "is closer than this", unit="m", ge=0.0)
+    max_dist: float = param(2.5, doc="observer does not drive backward when the focus centre "
+                            "is farther than this", unit="m", gt=0.0)
+    start_x_min: float = param(-0.5, doc="observer start x range, lower end", unit="m")
+    start_x_max: float = param(1.5, doc="observer start x range, upper end", unit="m")
+    start_y_max: float = param(1.0, doc="observer start |y| range", unit="m", ge=0.0)
+    start_jitter_deg: float = param(10.0, doc="observer start heading: towards the focus "
+                                    "+- this", unit="deg", ge=0.0, le=180.0)
+    other_dist_min: float = param(1.2, doc="other robot start distance ahead of the observer,"
+                                  " lower end", unit="m", gt=0.0)
+    other_dist_max: float = param(2.0, doc="same, upper end", unit="m", gt=0.0)
+    other_bearing_deg: float = param(20.0, doc="other robot start bearing from the observer "
+                                     "heading, uniform +- this", unit="deg", ge=0.0, le=180.0)
+    ball_dist: float = param(1.2, doc="ball start distance ahead of the observer", unit="m",
+                             gt=0.0)
+    kick_prob: float = param(0.1, doc="probability per step of a kick of a slow ball",
+                             ge=0.0, le=1.0)
+    kick_below_speed: float = param(0.2, doc="only a ball slower than this is kicked",
+                                    unit="m/s", ge=0.0)
+    kick_speed_min: float = param(0.4, doc="kick speed, lower end", unit="m/s", ge=0.0)
+    kick_speed_max: float = param(1.0, doc="kick speed, upper end", unit="m/s", ge=0.0)
+    aim_ahead: float = param(1.2, doc="kicks aim around this point ahead of the observer",
+                             unit="m", ge=0.0)
+    aim_radius: float = param(0.8, doc="radius of the disc of kick aim points", unit="m",
+                              ge=0.0)
+    robot_height: float = param(0.3, doc="height of the other robot's body", unit="m", gt=0.0)
+
+    def check(self) -> None:
+        for lo, hi in (("start_x_min", "start_x_max"), ("other_dist_min", "other_dist_max"),
+                       ("kick_speed_min", "kick_speed_max"), ("min_dist", "max_dist")):
+            if np.any(np.asarray(getattr(self, lo)) > np.asarray(getattr(self, hi))):
+                raise ParamError(f"{lo}={getattr(self, lo)} must be <= {hi}={getattr(self, hi)}")
+        if self.world.robot_kinds != ("four_wheel", "four_wheel"):
+            raise ParamError(f"world.robot_kinds={self.world.robot_kinds!r} must be "
+                             "('four_wheel', 'four_wheel') (observer, other)")
+        for name in ("world", "camera", "noise", "other"):
+            validate(getattr(self, name), prefix=f"{name}.")
+
+
+@struct.dataclass
+class CollectData:
+    """One data set (leading (B,) axis when batched), float32, time axis N.
+
+    u (N, 2) motor commands [v, phi]; ball (N, 4), goal (N, 11), other (N, 5) features
+    (px, px^2); visible (N, 3) flags (ball, goal, other)."""
+
+    u: jax.Array
+    ball: jax.Array
+    goal: jax.Array
+    other: jax.Array
+    visible: jax.Array
+
+    def y(self, obj: str) -> jax.Array:
+        """Features of ``obj`` in ("goal", "ball", "other")."""
+        if obj not in FOCUS:
+            raise ValueError(f"object {obj!r} unknown; choose one of {list(FOCUS)}")
+        return getattr(self, obj)
+
+
+def _focus_point(world: WorldState, params: CollectParams) -> jax.Array:
+    if params.focus == "goal":
+        return jnp.stack([jnp.asarray(params.world.field.length, F32) / 2, jnp.zeros((), F32)])
+    if params.focus == "ball":
+        return world.ball
+    return world.robots[1, :2]
+
+
+def observer_action(key: jax.Array, world: WorldState, params: CollectParams) -> jax.Array:
+    """The observer's random view-keeping action () int32 (see the module docstring)."""
+    pose = world.robots[0]
+    d = _focus_point(world, params) - pose[:2]
+    b = wrap_angle(jnp.arctan2(d[1], d[0]) - pose[2])
+    dist = jnp.sqrt(jnp.sum(d * d))
+    tab = jnp.asarray(FOUR_WHEEL_U, I32)
+    v, turn = tab[:, 0], tab[:, 0] * tab[:, 1]
+    lim = jnp.deg2rad(jnp.asarray(params.keep_bearing_deg, F32))
+    ok = jnp.where(b > lim, turn > 0, jnp.where(b < -lim, turn < 0, True))
+    ok = ok & jnp.where(dist > jnp.asarray(params.max_dist, F32), v >= 0, True)
+    ok = ok & jnp.where(dist < jnp.asarray(params.min_dist, F32), v <= 0, True)
+    ok = jnp.where(jnp.any(ok), ok, True)
+    return jax.random.categorical(key, jnp.where(ok, 0.0, -jnp.inf)).astype(I32)
+
+
+def _start(key: jax.Array, params: CollectParams) -> WorldState:
+    u = jax.random.uniform(key, (6,), F32)
+    half = jnp.stack([jnp.asarray(params.world.field.length, F32),
+                      jnp.asarray(params.world.field.width, F32)]) / 2
+    lim = half - jnp.asarray(params.world.robot.radius, F32) - 0.05
+    xy = jnp.stack([params.start_x_min + (params.start_x_max - params.start_x_min) * u[0],
+                    params.start_y_max * (2 * u[1] - 1)]).astype(F32)
+    goal = jnp.stack([half[0], jnp.zeros((), F32)])
+    th = jnp.arctan2(goal[1] - xy[1], goal[0] - xy[0]) + jnp.deg2rad(
+        jnp.asarray(params.start_jitter_deg, F32)) * (2 * u[2] - 1)
+    od = params.other_dist_min + (params.other_dist_max - params.other_dist_min) * u[3]
+    ob = th + jnp.deg2rad(jnp.asarray(params.other_bearing_deg, F32)) * (2 * u[4] - 1)
+    oxy = jnp.clip(xy + od * jnp.stack([jnp.cos(ob), jnp.sin(ob)]), -lim, lim)
+    oth = jnp.pi * (2 * u[5] - 1)
+    bd = jnp.asarray(params.ball_dist, F32)
+    bxy = jnp.clip(xy + bd * jnp.stack([jnp.cos(th), jnp.sin(th)]), -lim, lim)
+    robots = jnp.stack([jnp.concatenate([xy, th[None]]),
+                        jnp.concatenate([oxy, jnp.reshape(oth, (1,))])]).astype(F32)
+    return WorldState(robots=robots, ball=bxy.astype(F32), ball_vel=jnp.zeros(2, F32),
+                      scored=jnp.zeros((), bool), ball_out=jnp.zeros((), bool))
+
+
+def _kick(key: jax.Array, world: WorldState, params: CollectParams) -> WorldState:
+    k_p, k_s, k_r, k_a = jax.random.split(key, 4)
+    speed = jnp.sqrt(jnp.sum(world.ball_vel ** 2))
+    go = (speed < jnp.asarray(params.kick_below_speed, F32)) & (
+        jax.random.uniform(k_p, (), F32) < jnp.asarray(params.kick_prob, F32))
+    pose = world.robots[0]
+    head = jnp.stack([jnp.cos(pose[2]), jnp.sin(pose[2])])
+    r = jnp.asarray(params.aim_radius, F32) * jnp.sqrt(jax.random.uniform(k_r, (), F32))
+    a = 2 * jnp.pi * jax.random.uniform(k_a, (), F32)
+    target = pose[:2] + jnp.asarray(params.aim_ahead, F32) * head + r * jnp.stack(
+        [jnp.cos(a), jnp.sin(a)])
+    d = target - world.ball
+    n = d / jnp.maximum(jnp.sqrt(jnp.sum(d * d)), 1e-6)
+    s = params.kick_speed_min + (params.kick_speed_max - params.kick_speed_min) * \
+        jax.random.uniform(k_s, (), F32)
+    vel = jnp.where(go, s * n, world.ball_vel).astype(F32)
+    return world.replace(ball_vel=vel)
+
+
+def _net(world: WorldState, params: CollectParams) -> WorldState:
+    """No goals while collecting: a ball past the goal line bounces back off the net."""
+    edge = jnp.asarray(params.world.field.length, F32) / 2 - jnp.asarray(
+        params.world.ball.radius, F32)
+    out = world.ball[0] > edge
+    ball = jnp.where(out, jnp.stack([edge, world.ball[1]]), world.ball)
+    vel = jnp.where(out, world.ball_vel * jnp.array([-0.5, 1.0], F32), world.ball_vel)
+    return world.replace(ball=ball.astype(F32), ball_vel=vel.astype(F32),
+                         scored=jnp.zeros((), bool), ball_out=jnp.zeros((), bool))
+
+
+def collect_one(key: jax.Array, params: CollectParams) -> CollectData:
+    """One data set of ``params.num_steps`` samples (pure; jit/vmap-able)."""
+    k_start, k_mem, k_run = jax.random.split(key, 3)
+    world0 = _start(k_start, params)
+    mem0 = init_memory(k_mem, params.other)
+    wp = noisy_world(params.world, params.noise)
+    rb = jnp.asarray(params.world.ball.radius, F32)
+
+    def body(carry, k):
+        world, mem, phase = carry
+        k_obs, k_me, k_other, k_world, k_kick, k_ecc = jax.random.split(k, 6)
+        y = observe(world, 0, params.camera, params.world, params.noise,
+                    params.robot_height, phase, k_obs)
+        a_me = observer_action(k_me, world, params)
+        a_other, mem = act(params.other_behaviour, k_other, world, mem, 1, params.other)
+        new, _ = world_step(k_world, world, jnp.stack([a_me, a_other]), wp)
+        new = _net(new, params)
+        rolled = jnp.sqrt(jnp.sum((new.ball - world.ball) ** 2))
+        new = new.replace(ball_vel=perturb_ball_velocity(k_ecc, new.ball_vel, rolled, rb,
+                                                         params.noise))
+        phase = advance_phase(phase, world.ball, new.ball, rb)
+        new = _kick(k_kick, new, params)
+        u = jnp.asarray(FOUR_WHEEL_U, F32)[a_me]
+        return (new, mem, phase), (u, y)
+
+    _, (u, y) = jax.lax.scan(body, (world0, mem0, jnp.zeros((), F32)),
+                             jax.random.split(k_run, params.num_steps))
+    return CollectData(u=u, ball=y[:, OBS_SLICES["ball"]], goal=y[:, OBS_SLICES["goal"]],
+                       other=y[:, OBS_SLICES["other"]], visible=y[:, OBS_SLICES["visible"]])
+
+
+@jax.jit
+def _collect_jit(keys, params):
+    return jax.vmap(collect_one, in_axes=(0, None))(keys, params)
+
+
+def collect(key: jax.Array, params: CollectParams, batch: int) -> CollectData:
+    """B = ``batch`` independent data sets: u (B, N, 2), ball (B, N, 4), goal (B, N, 11),
+    other (B, N, 5), visible (B, N, 3), float32. Validates ``params`` (ParamError)."""
+    if not isinstance(params, CollectParams):
+        raise ParamError(f"params must be CollectParams, got {type(params).__name__}")
+    validate(params)
+    if not isinstance(batch, int | np.integer) or isinstance(batch, bool) or batch < 1:
+        raise ValueError(f"batch must be an int >= 1, got {batch!r}")
+    keys = jax.random.split(key, int(batch))
+    return _collect_jit(keys, params)
