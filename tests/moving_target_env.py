@@ -5,7 +5,9 @@ on a line with a hidden constant speed ``|v|`` in ``[speed_min, speed_max]`` (pe
 random direction. The learner observes the target position only (obs (1,)). Actions:
 ``0`` wait, ``1`` strike. A strike lands ``delay + 1`` steps after it is made (actions in between do
 nothing); the episode ends when it lands, with reward 1 iff the target is then within ``tol``
-of the centre. An episode without a strike is truncated after ``max_steps`` steps (reward 0).
+of the centre. An episode without a strike is truncated after ``max_steps`` steps (reward 0). ``reset`` draws a fresh target; the automatic
+reset of ``step`` keeps the target's position and direction and draws a new speed (so the
+data collected over many episodes are continuous, as a ball rolling on).
 
 From the position alone the direction of motion is unknown, so a memoryless policy succeeds
 in at most about half of the episodes (``delay * speed_min > tol``); the last two positions
@@ -93,7 +95,10 @@ class MovingTargetEnv:
         done = terminated | truncated
         nxt = MovingTargetState(pos_next.astype(jnp.float32), vel_next.astype(jnp.float32), t,
                                 countdown.astype(jnp.int32))
+        # the next episode continues the target's motion (a new speed, same direction), so
+        # the collected y(t) has no jumps at episode starts
         fresh = self._start(k_reset, params)
+        fresh = fresh.replace(pos=nxt.pos, vel=jnp.sign(nxt.vel) * jnp.abs(fresh.vel))
         new = jax.tree.map(lambda a, b: jnp.where(done, a, b), fresh, nxt)
         obs = self._obs(k_o, new, params)
         reward = success.astype(jnp.float32)

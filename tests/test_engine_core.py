@@ -203,4 +203,24 @@ def test_cli_resume_with_another_config_is_refused(toy, swept, capsys):
     assert main(args) == 0  # the same options resume (here: nothing left to run)
 
 
-assert TINY_SETS  # shared tiny config (used by the subprocess tests)
+
+
+
+def test_reproduce_writes_one_report(toy, tmp_path):
+    from vbl.engine import ReportSection, register
+    from vbl.engine.report import reproduce
+
+    def report(res):
+        ours = float(res.final["greedy_is_best"].mean())
+        return ReportSection(f"| | paper | ours |\n|---|---|---|\n| best arm | 1.0 | {ours:.2f} |",
+                             figures=("success_rate.png",))
+
+    register(Experiment(name="toy_paper", description="toy stand-in for a paper result",
+                        default_config=toy.default_config, make_program=toy.make_program,
+                        quick={**TINY_SETS, "train.num_chunks": 2}, quick_seeds=2,
+                        paper_result=True, paper={"best arm": 1.0}, report=report))
+    path, ok = reproduce(tmp_path / "rep", quick=True, quiet=True, names=["toy_paper"])
+    text = path.read_text()
+    assert ok and "## toy_paper" in text and "| best arm | 1.0 |" in text
+    assert "![success_rate](toy_paper/success_rate.png)" in text
+    assert (tmp_path / "rep" / "toy_paper" / "success_rate.png").exists()

@@ -25,6 +25,10 @@ TOL3 = np.r_[[512] * 4, [512] * 10, 512 * 480, [512] * 4, 512 * 480, [1] * 6] * 
 
 sec2 = jax.jit(section2_features)
 sec3 = jax.jit(lambda *a: flatten_section3(section3_features(*a)))
+# batched versions (one compilation each, shared by the reference, vmap and noise tests)
+sec2_batch = jax.jit(jax.vmap(section2_features, in_axes=(0, 0, None, None, None, 0)))
+sec3_batch = jax.jit(jax.vmap(lambda p, b, o: flatten_section3(section3_features(
+    p, b, R, jnp.asarray(GOAL, jnp.float32), o, jnp.asarray(SIZE, jnp.float32), CAM))))
 
 
 def f32(x):
@@ -181,37 +185,43 @@ def _random_scenes(n, seed):
     return out
 
 
+def _batch(scenes):
+    return [f32(np.stack([sc[i] for sc in scenes])) for i in range(3)]
+
+
 def test_section2_matches_numpy_reference():
-    for pose, ball, _ in _random_scenes(45, 1):
-        got, want = s2(pose, ball), section2_features_np(pose, ball, R, GOAL, CAM)
-        assert np.all(np.abs(got - want) <= TOL2), (pose, ball, got, want)
+    scenes = _random_scenes(45, 1)
+    poses, balls, _ = _batch(scenes)
+    keys = jax.random.split(jax.random.key(0), len(scenes))   # std 0: exact
+    got = np.asarray(sec2_batch(poses, balls, R, f32(GOAL), CAM, keys))
+    for g, (pose, ball, _) in zip(got, scenes, strict=True):
+        want = section2_features_np(pose, ball, R, GOAL, CAM)
+        assert np.all(np.abs(g - want) <= TOL2), (pose, ball, g, want)
 
 
 def test_section3_matches_numpy_reference():
-    for pose, ball, other in _random_scenes(24, 2):
-        got = s3(pose, ball, other)
+    scenes = _random_scenes(24, 2)
+    got = np.asarray(sec3_batch(*_batch(scenes)))
+    for g, (pose, ball, other) in zip(got, scenes, strict=True):
         want = section3_features_np(pose, ball, R, GOAL, other, SIZE, CAM)
-        assert np.all(np.abs(got - want) <= TOL3), (pose, ball, other, got, want)
+        assert np.all(np.abs(g - want) <= TOL3), (pose, ball, other, g, want)
 
 
 # ----------------------------------------------------------------------------- jax
 
 def test_vmap_equals_loop_and_dtypes():
-    scenes = _random_scenes(8, 3)
-    poses = f32([s[0] for s in scenes])
-    balls = f32([s[1] for s in scenes])
-    others = f32([s[2] for s in scenes])
-    b2 = jax.vmap(section2_features, in_axes=(0, 0, None, None, None))(
-        poses, balls, R, f32(GOAL), CAM)
-    b3 = jax.vmap(lambda p, b, o: flatten_section3(section3_features(
-        p, b, R, f32(GOAL), o, f32(SIZE), CAM)))(poses, balls, others)
+    poses, balls, others = _batch(_random_scenes(8, 3))
+    keys = jax.random.split(jax.random.key(0), 8)
+    b2 = sec2_batch(poses, balls, R, f32(GOAL), CAM, keys)
+    b3 = sec3_batch(poses, balls, others)
     assert b2.dtype == jnp.float32 and b3.dtype == jnp.float32
     assert b2.shape == (8, F.SEC2_DIM) and b3.shape == (8, F.SEC3_DIM)
     for i in range(8):
         np.testing.assert_allclose(np.asarray(b2[i]), s2(poses[i], balls[i]), atol=1e-3)
         np.testing.assert_allclose(np.asarray(b3[i]), s3(poses[i], balls[i], others[i]),
                                    rtol=1e-5, atol=1e-2)
-    obs = section3_features(poses[0], balls[0], R, f32(GOAL), others[0], f32(SIZE), CAM)
+    obs = jax.eval_shape(section3_features, poses[0], balls[0], R, f32(GOAL), others[0],
+                         f32(SIZE), CAM)
     for leaf in jax.tree_util.tree_leaves(obs):
         assert leaf.dtype == jnp.float32
 
@@ -222,9 +232,10 @@ def test_pixel_noise():
     np.testing.assert_array_equal(s2(pose, ball, key=jax.random.key(0)), exact)  # std 0
     std = 2.0
     cam = CameraParams(pixel_noise_std=std)
-    keys = jax.random.split(jax.random.key(1), 4000)
-    xs = np.asarray(jax.jit(jax.vmap(section2_features, in_axes=(None,) * 5 + (0,)))(
-        f32(pose), f32(ball), R, f32(GOAL), cam, keys))
+    n = 4000
+    keys = jax.random.split(jax.random.key(1), n)
+    xs = np.asarray(sec2_batch(jnp.tile(f32(pose), (n, 1)), jnp.tile(f32(ball), (n, 1)), R,
+                               f32(GOAL), cam, keys))
     for idx, want in ((F.SEC2_BALL_SIZE, std), (F.SEC2_BALL_POS, std),
                       (F.SEC2_GOAL_POS, std / math.sqrt(2)),
                       (F.SEC2_GOAL_SIZE, std / math.sqrt(2))):

@@ -103,8 +103,8 @@ def test_matches_reference_camera_every_step(env):
                               n_cam=10**6, seed=20 + i)
 
 
-def test_reset_step_shapes_dtypes(env, jitted):
-    p = env.default_params
+def test_reset_step_shapes_dtypes(env, short, jitted):
+    p = short
     obs, st = jitted["reset"](jax.random.key(0), p)
     assert obs.shape == (9,) and obs.dtype == jnp.float32
     assert st.world.robots.shape == (1, 3) and st.world.robots.dtype == jnp.float32
@@ -175,9 +175,9 @@ def test_auto_reset_draws_fresh_start(env, short, jitted):
     assert len({tuple(s.ravel().round(5)) for s in starts}) == len(starts)  # all different
 
 
-def test_goal_gives_reward_and_ends_episode(env, jitted):
-    p = env.default_params
-    world = make_state([[3.0, 1.0, 0.0]], [3.6, 0.0], [2.0, 0.0])
+def test_goal_gives_reward_and_ends_episode(short, jitted):
+    p = short
+    world = make_state([[3.0, 1.0, 0.0]], [3.95, 0.0], [2.0, 0.0])
     st = ShootingState(world=world, step=jnp.int32(5))
     _, st1, r, te, tr, info = jitted["step_env"](jax.random.key(0), st, jnp.int32(4), p)
     assert float(r) == 1.0 and bool(te) and not bool(tr) and bool(info["success"])

@@ -34,7 +34,7 @@ import numpy as np
 from flax import struct
 
 from vbl.envs.noise import NoiseParams, advance_phase, noisy_world, perturb_ball_velocity
-from vbl.envs.other_agents import OtherAgentParams, act, init_memory
+from vbl.envs.other_agents import BEHAVIOURS, OtherAgentParams, act_by_id, init_memory
 from vbl.envs.shoot_pass import OBS_SLICES, default_world, observe
 from vbl.params import ParamError, param, section, validate
 from vbl.vision.camera import CameraParams
@@ -43,7 +43,7 @@ from vbl.world.physics import WorldState, world_step, wrap_angle
 from vbl.world.robots import FOUR_WHEEL_U
 
 __all__ = ["FOCUS", "OTHER_BEHAVIOURS", "CollectParams", "CollectData", "collect_one",
-           "collect", "observer_action"]
+           "collect", "collect_many", "observer_action"]
 
 F32 = jnp.float32
 I32 = jnp.int32
@@ -128,18 +128,25 @@ class CollectData:
         return getattr(self, obj)
 
 
-def _focus_point(world: WorldState, params: CollectParams) -> jax.Array:
-    if params.focus == "goal":
-        return jnp.stack([jnp.asarray(params.world.field.length, F32) / 2, jnp.zeros((), F32)])
-    if params.focus == "ball":
-        return world.ball
-    return world.robots[1, :2]
+def _focus_point(world: WorldState, params: CollectParams, focus_id: jax.Array) -> jax.Array:
+    goal = jnp.stack([jnp.asarray(params.world.field.length, F32) / 2, jnp.zeros((), F32)])
+    pts = jnp.stack([goal, world.ball, world.robots[1, :2]])
+    return pts[jnp.asarray(focus_id, I32)]
 
 
-def observer_action(key: jax.Array, world: WorldState, params: CollectParams) -> jax.Array:
-    """The observer's random view-keeping action () int32 (see the module docstring)."""
+def _ids(params: CollectParams) -> tuple[jax.Array, jax.Array]:
+    return (jnp.asarray(BEHAVIOURS.index(params.other_behaviour), I32),
+            jnp.asarray(FOCUS.index(params.focus), I32))
+
+
+def observer_action(key: jax.Array, world: WorldState, params: CollectParams,
+                    focus_id: jax.Array | None = None) -> jax.Array:
+    """The observer's random view-keeping action () int32 (see the module docstring);
+    ``focus_id`` (traced index into :data:`FOCUS`) overrides ``params.focus``."""
+    if focus_id is None:
+        focus_id = _ids(params)[1]
     pose = world.robots[0]
-    d = _focus_point(world, params) - pose[:2]
+    d = _focus_point(world, params, focus_id) - pose[:2]
     b = wrap_angle(jnp.arctan2(d[1], d[0]) - pose[2])
     dist = jnp.sqrt(jnp.sum(d * d))
     tab = jnp.asarray(FOUR_WHEEL_U, I32)
@@ -204,8 +211,17 @@ def _net(world: WorldState, params: CollectParams) -> WorldState:
                          scored=jnp.zeros((), bool), ball_out=jnp.zeros((), bool))
 
 
-def collect_one(key: jax.Array, params: CollectParams) -> CollectData:
-    """One data set of ``params.num_steps`` samples (pure; jit/vmap-able)."""
+def collect_one(key: jax.Array, params: CollectParams, behaviour_id: jax.Array | None = None,
+                focus_id: jax.Array | None = None) -> CollectData:
+    """One data set of ``params.num_steps`` samples (pure; jit/vmap-able).
+
+    ``behaviour_id`` (index into :data:`vbl.envs.other_agents.BEHAVIOURS`) and ``focus_id``
+    (index into :data:`FOCUS`), when given as traced () int32, override the static
+    ``params.other_behaviour`` / ``params.focus`` (one compilation serves every scenario).
+    """
+    b_id, f_id = _ids(params)
+    behaviour_id = b_id if behaviour_id is None else behaviour_id
+    focus_id = f_id if focus_id is None else focus_id
     k_start, k_mem, k_run = jax.random.split(key, 3)
     world0 = _start(k_start, params)
     mem0 = init_memory(k_mem, params.other)
@@ -217,8 +233,8 @@ def collect_one(key: jax.Array, params: CollectParams) -> CollectData:
         k_obs, k_me, k_other, k_world, k_kick, k_ecc = jax.random.split(k, 6)
         y = observe(world, 0, params.camera, params.world, params.noise,
                     params.robot_height, phase, k_obs)
-        a_me = observer_action(k_me, world, params)
-        a_other, mem = act(params.other_behaviour, k_other, world, mem, 1, params.other)
+        a_me = observer_action(k_me, world, params, focus_id)
+        a_other, mem = act_by_id(behaviour_id, k_other, world, mem, 1, params.other)
         new, _ = world_step(k_world, world, jnp.stack([a_me, a_other]), wp)
         new = _net(new, params)
         rolled = jnp.sqrt(jnp.sum((new.ball - world.ball) ** 2))
@@ -236,17 +252,58 @@ def collect_one(key: jax.Array, params: CollectParams) -> CollectData:
 
 
 @jax.jit
-def _collect_jit(keys, params):
-    return jax.vmap(collect_one, in_axes=(0, None))(keys, params)
+def _collect_jit(keys, params, behaviour_ids, focus_ids):
+    """keys (S, B, 2); params with a leading (S,) axis on traced leaves; ids (S,)."""
+    per_set = jax.vmap(collect_one, in_axes=(0, None, None, None))
+    return jax.vmap(per_set, in_axes=(0, 0, 0, 0))(keys, params, behaviour_ids, focus_ids)
+
+
+def _check_batch(batch) -> int:
+    if not isinstance(batch, int | np.integer) or isinstance(batch, bool) or batch < 1:
+        raise ValueError(f"batch must be an int >= 1, got {batch!r}")
+    return int(batch)
+
+
+def collect_many(key: jax.Array, scenarios: list[CollectParams], batch: int
+                 ) -> list[CollectData]:
+    """B = ``batch`` data sets for each of S scenarios, in one compiled computation.
+
+    The scenarios may differ in any traced value (cameras, bodies, noise, ...) and in
+    ``other_behaviour`` / ``focus``; every other static field (``num_steps``,
+    ``world.robot_kinds``, ...) must be equal. Scenario s uses keys
+    ``split(fold_in(key, s), batch)``. Returns one :class:`CollectData` (leading (B,)
+    axis) per scenario. Validates every scenario (ParamError).
+    """
+    batch = _check_batch(batch)
+    if not scenarios:
+        raise ValueError("scenarios must be a non-empty list of CollectParams")
+    canon = []
+    for i, sc in enumerate(scenarios):
+        if not isinstance(sc, CollectParams):
+            raise ParamError(f"scenarios[{i}] must be CollectParams, got {type(sc).__name__}")
+        validate(sc)
+        canon.append(sc.replace(other_behaviour="random_walk", focus="goal"))
+    struct0 = jax.tree_util.tree_structure(canon[0])
+    for i, c in enumerate(canon[1:], 1):
+        if jax.tree_util.tree_structure(c) != struct0:
+            raise ParamError(f"scenarios[{i}] differs from scenarios[0] in a static field "
+                             "other than other_behaviour/focus (e.g. num_steps); collect them "
+                             "separately")
+    stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]),
+                                     *canon)
+    ids = [_ids(sc) for sc in scenarios]
+    b_ids = jnp.stack([i[0] for i in ids])
+    f_ids = jnp.stack([i[1] for i in ids])
+    keys = jnp.stack([jax.random.split(jax.random.fold_in(key, s), batch)
+                      for s in range(len(scenarios))])
+    out = _collect_jit(keys, stacked, b_ids, f_ids)
+    return [jax.tree_util.tree_map(lambda x, s=s: x[s], out) for s in range(len(scenarios))]
 
 
 def collect(key: jax.Array, params: CollectParams, batch: int) -> CollectData:
     """B = ``batch`` independent data sets: u (B, N, 2), ball (B, N, 4), goal (B, N, 11),
-    other (B, N, 5), visible (B, N, 3), float32. Validates ``params`` (ParamError)."""
+    other (B, N, 5), visible (B, N, 3), float32. Validates ``params`` (ParamError).
+    Equals ``collect_many(key, [params], batch)[0]``."""
     if not isinstance(params, CollectParams):
         raise ParamError(f"params must be CollectParams, got {type(params).__name__}")
-    validate(params)
-    if not isinstance(batch, int | np.integer) or isinstance(batch, bool) or batch < 1:
-        raise ValueError(f"batch must be an int >= 1, got {batch!r}")
-    keys = jax.random.split(key, int(batch))
-    return _collect_jit(keys, params)
+    return collect_many(key, [params], batch)[0]

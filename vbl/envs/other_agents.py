@@ -32,7 +32,7 @@ from flax import struct
 from vbl.params import param
 from vbl.world.physics import WorldState, wrap_angle
 
-__all__ = ["BEHAVIOURS", "OtherAgentParams", "AgentMemory", "init_memory", "act",
+__all__ = ["BEHAVIOURS", "OtherAgentParams", "AgentMemory", "init_memory", "act", "act_by_id",
            "ball_bearing", "STOP", "FORWARD", "FORWARD_LEFT", "FORWARD_RIGHT"]
 
 F32 = jnp.float32
@@ -125,4 +125,13 @@ def act(behaviour: str, key: jax.Array, world: WorldState, memory: AgentMemory, 
     else:
         raise ValueError(f"unknown behaviour {behaviour!r}; choose one of {list(BEHAVIOURS)}")
     a = jnp.asarray(a, I32)
+    return a, memory.replace(action=a, t=memory.t + 1)
+
+
+def act_by_id(behaviour_id: jax.Array, key: jax.Array, world: WorldState, memory: AgentMemory,
+              me: int, params: OtherAgentParams) -> tuple[jax.Array, AgentMemory]:
+    """:func:`act` with a *traced* behaviour index into :data:`BEHAVIOURS` (() int32), so
+    several behaviours run in one compiled computation (all are evaluated, one is kept)."""
+    outs = [act(b, key, world, memory, me, params)[0] for b in BEHAVIOURS]
+    a = jnp.stack(outs)[jnp.asarray(behaviour_id, I32)]
     return a, memory.replace(action=a, t=memory.t + 1)

@@ -82,12 +82,13 @@ class FeatureParams:
         return 7 if self.lost_sides else 5
 
 
-def sec2_features(obs: jax.Array, p: FeatureParams = FeatureParams()) -> jax.Array:
+def sec2_features(obs: jax.Array, p: FeatureParams | None = None) -> jax.Array:
     """Section-2 observation (..., 9) -> normalised features (..., p.dim) float32 in [0, 1].
 
     x1 / max, (x2 + max) / 2max, x3 / max, (x4 + max) / 2max, (x5 + 1) / 2, and when
     ``lost_sides``: (ball_lost_side + 1) / 2, (goal_lost_side + 1) / 2; clipped to [0, 1].
     """
+    p = FeatureParams() if p is None else p
     o = jnp.asarray(obs, F32)
     f = [o[..., 0] / p.ball_size_max, (o[..., 1] + p.ball_pos_max) / (2 * p.ball_pos_max),
          o[..., 2] / p.goal_size_max, (o[..., 3] + p.goal_pos_max) / (2 * p.goal_pos_max),
@@ -173,8 +174,12 @@ class StateMap:
 
 def collect_experience(env: Any, env_params: Any, key: jax.Array,
                        feature_fn: Callable[[jax.Array], jax.Array], num_actions: int,
-                       p: CollectParams = CollectParams()) -> Experience:
-    """Run ``episodes_per_action`` episodes per primitive, each holding it (jit-able)."""
+                       p: CollectParams | None = None) -> Experience:
+    """Run ``episodes_per_action`` episodes per primitive, each holding it (jit-able).
+
+    ``feature_fn(obs) -> (D,) float32`` normalises an observation; ``p`` defaults to
+    ``CollectParams()``. Returns :class:`Experience` with A = ``num_actions`` groups."""
+    p = CollectParams() if p is None else p
     n, t_len = p.episodes_per_action, p.horizon
     has_diff = hasattr(env_params, "start_difficulty")
 

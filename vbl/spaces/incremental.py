@@ -407,7 +407,7 @@ def run_updates(carry: RunCarry, env: Any, params_fn: Callable[[jax.Array], Any]
     ``params_fn(trials) -> env params`` lets the environment change with the number of
     finished trials (Figure 9's ball-size changes). Returns (carry, per-step dict with
     ``success``, ``done`` (U * K,) bool and ``trial`` (U * K,) int32 index of the trial
-    the step belonged to, and ``states`` (U,) int32 after each update).
+    the step belonged to, ``states`` (U * K,) int32 number of boxes during the step).
     """
     def prim(c, _):
         key, k = jax.random.split(c.key)
@@ -415,15 +415,15 @@ def run_updates(carry: RunCarry, env: Any, params_fn: Callable[[jax.Array], Any]
         lr, opt, st, obs, info = learner_step(k, c.lr, c.opt, env, c.env_state, c.obs, ep, p,
                                               feature_fn)
         done = info["terminated"] | info["truncated"]
-        out = dict(success=info["success"] & done, done=done, trial=c.trials)
+        out = dict(success=info["success"] & done, done=done, trial=c.trials,
+                   states=num_states(lr.seg))
         opt = opt.replace(active=opt.active & ~done)
         return RunCarry(key, lr, opt, st, obs, c.trials + done.astype(I32)), out
 
     def block(c, _):
         c, out = jax.lax.scan(prim, c, None, length=p.update_every)
         lr, _, _ = structure_update(c.lr, p)
-        return c.replace(lr=lr), (out, num_states(lr.seg))
+        return c.replace(lr=lr), out
 
-    carry, (out, states) = jax.lax.scan(block, carry, None, length=num_updates)
-    out = jax.tree_util.tree_map(lambda a: a.reshape((-1,) + a.shape[2:]), out)
-    return carry, dict(out, states=states)
+    carry, out = jax.lax.scan(block, carry, None, length=num_updates)
+    return carry, jax.tree_util.tree_map(lambda a: a.reshape((-1,) + a.shape[2:]), out)

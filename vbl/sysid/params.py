@@ -24,7 +24,8 @@ class CVAParams:
                      "lag rule of Sec. 3.1.2 (l = 1 .. lag_max)", source="P/C",
                      static=True, ge=0)
     lag_max: int = param(6, doc="largest lag the lag rule tries", static=True, ge=1)
-    horizon: int = param(0, doc="future horizon k of the stack f(t); 0 means k = l",
+    horizon: int = param(0, doc="future horizon k of the stack f(t); 0 means k = 2l "
+                         "(measured: recovers the order more often than k = l)",
                          static=True, ge=0)
     n_max: int = param(0, doc="largest state order n swept; 0 means all identifiable orders "
                        "min(l(m+q), kq)", static=True, ge=0)
@@ -67,7 +68,7 @@ class CVAParams:
 
     def horizon_for(self, lag: int) -> int:
         """Future horizon k used with past lag ``lag``."""
-        return self.horizon if self.horizon > 0 else lag
+        return self.horizon if self.horizon > 0 else 2 * lag
 
     def floor(self) -> float:
         """Regularisation floor of the chosen dtype."""

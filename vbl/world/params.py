@@ -111,7 +111,7 @@ class WorldParams:
                                static=True)
     action_dt: float = param(0.1, doc="duration of one action primitive", unit="s",
                              source="P/C", gt=0.0)
-    substeps: int = param(4, doc="physics sub-steps per action primitive", static=True,
+    substeps: int = param(2, doc="physics sub-steps per action primitive", static=True,
                           ge=1, le=1000)
 
     def check(self) -> None:

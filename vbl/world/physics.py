@@ -27,7 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from vbl.world.params import ROBOT_KINDS, WorldParams
+from vbl.world.params import WorldParams
 from vbl.world.robots import FOUR_WHEEL_U, TWO_MOTOR_MOTORS, num_actions
 
 __all__ = [

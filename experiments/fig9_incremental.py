@@ -1,0 +1,275 @@
+"""Figures 8 and 9: on-line incremental state-space segmentation (paper Section 2.2).
+
+One robot per learner learns to shoot with :mod:`vbl.spaces.incremental` (boxes in the
+normalised Section-2 feature cube, local linear models, split/merge, Q-learning with
+Boltzmann selection) for ``train.num_trials`` trials; the ball radius changes suddenly
+at trials ``change_trial_1`` and ``change_trial_2`` (Figure 9). Per trial the learner
+records success and its number of states; the report plots their running means over
+seeds (mean and 95% band) and Figure 8's projection of a final state space onto (ball
+size, goal size) with ball and goal centred and the goal frontal.
+
+Run: ``vbl run fig9_incremental --quick`` or ``python experiments/fig9_incremental.py``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from vbl.engine import Experiment, Program, ReportSection, register
+from vbl.envs.shooting import ShootingEnv, ShootingParams
+from vbl.params import ParamError, param, section
+from vbl.spaces.action_based import FeatureParams, rollout_success, sec2_features
+from vbl.spaces.incremental import (
+    IncrementalParams,
+    RunCarry,
+    greedy_action,
+    init_run,
+    run_updates,
+)
+
+F32 = jnp.float32
+
+
+@struct.dataclass
+class ChangeParams:
+    """Figure 9's sudden ball-size changes (trial = finished episodes of the learner)."""
+
+    radius_0: float = param(0.11, doc="ball radius before the first change", unit="m", gt=0.0)
+    radius_1: float = param(0.16, doc="ball radius after the first change", unit="m", gt=0.0)
+    radius_2: float = param(0.08, doc="ball radius after the second change", unit="m", gt=0.0)
+    change_trial_1: int = param(500, doc="trial of the first change (paper: about 500)",
+                                source="P/C", ge=0)
+    change_trial_2: int = param(700, doc="trial of the second change", ge=0)
+
+    def check(self) -> None:
+        if np.any(np.asarray(self.change_trial_2) < np.asarray(self.change_trial_1)):
+            raise ParamError(f"change.change_trial_2={self.change_trial_2} must be >= "
+                             f"change.change_trial_1={self.change_trial_1}")
+
+
+@struct.dataclass
+class Fig9Train:
+    num_trials: int = param(1110, doc="trials recorded per learner (Figure 9's x axis)",
+                            source="P", static=True, ge=1)
+    num_chunks: int = param(20, doc="chunks (progress/checkpoint units) per run", static=True,
+                            ge=1)
+    updates_per_chunk: int = param(80, doc="structure updates per chunk (each after "
+                                   "learner.update_every primitives)", static=True, ge=1)
+    eval_episodes: int = param(200, doc="greedy evaluation episodes on fresh starts",
+                               static=True, ge=1)
+
+
+def _default_env() -> ShootingParams:
+    p = ShootingParams(max_steps=150)
+    return p.replace(start_difficulty=0.3)
+
+
+@struct.dataclass
+class Fig9Config:
+    env: ShootingParams = section(_default_env, doc="shooting task (start difficulty 0.3, "
+                                  "150-primitive episodes)")
+    features: FeatureParams = section(FeatureParams, doc="feature normalisation")
+    learner: IncrementalParams = section(IncrementalParams, doc="incremental segmentation + Q")
+    change: ChangeParams = section(ChangeParams, doc="ball-size changes")
+    train: Fig9Train = section(Fig9Train, doc="run length")
+
+
+@struct.dataclass
+class Carry:
+    run: RunCarry
+    trial_success: jax.Array     # (num_trials,) float32
+    trial_states: jax.Array      # (num_trials,) float32
+
+
+ENV = ShootingEnv()
+
+
+def _params_at(c: Fig9Config, trials: jax.Array) -> ShootingParams:
+    ch = c.change
+    r = jnp.where(trials >= ch.change_trial_2, ch.radius_2,
+                  jnp.where(trials >= ch.change_trial_1, ch.radius_1, ch.radius_0))
+    ball = c.env.world.ball.replace(radius=jnp.asarray(r, F32))
+    return c.env.replace(world=c.env.world.replace(ball=ball))
+
+
+def make_program(cfg: Fig9Config) -> Program:
+    n_tr = cfg.train.num_trials
+    dim, n_act = cfg.features.dim, ENV.num_actions
+
+    def feat_of(c):
+        return lambda o: sec2_features(o, c.features)
+
+    def init(key, c):
+        run = init_run(key, ENV, _params_at(c, jnp.zeros((), jnp.int32)), c.learner, dim, n_act)
+        return Carry(run=run, trial_success=jnp.zeros((n_tr,), F32),
+                     trial_states=jnp.zeros((n_tr,), F32))
+
+    def step(carry, c):
+        t0 = carry.run.trials
+        run, out = run_updates(carry.run, ENV, lambda t: _params_at(c, t), c.learner,
+                               feat_of(c), cfg.train.updates_per_chunk)
+        idx = jnp.where(out["done"] & (out["trial"] < n_tr), out["trial"], n_tr)
+        ts = carry.trial_success.at[idx].set(out["success"].astype(F32), mode="drop")
+        st = carry.trial_states.at[idx].set(out["states"].astype(F32), mode="drop")
+        n_ep = (run.trials - t0).astype(F32)
+        return Carry(run, ts, st), {
+            "episodes": n_ep,
+            "success_rate": jnp.sum(out["success"].astype(F32)) / jnp.maximum(n_ep, 1.0),
+            "states": out["states"][-1].astype(F32),
+            "trials": run.trials.astype(F32),
+            "splits": run.lr.splits.astype(F32), "merges": run.lr.merges.astype(F32)}
+
+    def final(carry, c, key):
+        lr = carry.run.lr
+        ep = _params_at(c, carry.run.trials)
+        feat = feat_of(c)
+        ok, _ = rollout_success(ENV, ep, key, lambda o, _: greedy_action(lr, feat(o)),
+                                cfg.train.eval_episodes, cfg.env.max_steps)
+        return {"greedy_success": jnp.mean(ok.astype(F32)),
+                "states": jnp.sum(lr.seg.active).astype(F32),
+                "trials_done": carry.run.trials.astype(F32),
+                "trial_success": carry.trial_success, "trial_states": carry.trial_states,
+                "box_lo": lr.seg.lo, "box_hi": lr.seg.hi,
+                "box_active": lr.seg.active.astype(F32),
+                "box_action": jnp.argmax(lr.q, axis=-1).astype(F32)}
+
+    return Program(init=init, step=step, num_chunks=cfg.train.num_chunks, final=final)
+
+
+def _running(a: np.ndarray, w: int) -> np.ndarray:
+    """Trailing moving average over the last axis (window w, shorter at the start)."""
+    c = np.cumsum(np.pad(a, [(0, 0)] * (a.ndim - 1) + [(1, 0)]), axis=-1)
+    n = np.arange(1, a.shape[-1] + 1)
+    lo = np.maximum(n - w, 0)
+    return (c[..., n] - c[..., lo]) / (n - lo)
+
+
+def _band(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    from vbl.engine.results import t_quantile_975
+    m = x.mean(0)
+    if x.shape[0] < 2:
+        return m, np.zeros_like(m)
+    return m, t_quantile_975(x.shape[0] - 1) * x.std(0, ddof=1) / np.sqrt(x.shape[0])
+
+
+def plot_fig9(final: dict, cfg: Fig9Config, out: Path, window: int = 50) -> Path:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    succ = _running(np.asarray(final["trial_success"], float), window)
+    states = np.asarray(final["trial_states"], float)
+    fig, ax = plt.subplots(figsize=(7, 4))
+    x = np.arange(1, succ.shape[-1] + 1)
+    m, h = _band(succ)
+    ax.plot(x, m, color="C0", label=f"success rate (last {window} trials)")
+    ax.fill_between(x, m - h, m + h, color="C0", alpha=0.25)
+    ax.set_xlabel("trial")
+    ax.set_ylabel("success rate")
+    ax.set_ylim(0, 1)
+    ax2 = ax.twinx()
+    m, h = _band(states)
+    ax2.plot(x, m, color="C3", label="number of states")
+    ax2.fill_between(x, m - h, m + h, color="C3", alpha=0.2)
+    ax2.set_ylabel("number of states")
+    for t in (cfg.change.change_trial_1, cfg.change.change_trial_2):
+        ax.axvline(t, color="k", ls="--", lw=0.8)
+    h1, l1 = ax.get_legend_handles_labels()
+    h2, l2 = ax2.get_legend_handles_labels()
+    ax.legend(h1 + h2, l1 + l2, loc="upper left", fontsize=8)
+    ax.set_title(f"Figure 9: on-line segmentation, mean and 95% band over {succ.shape[0]} seeds")
+    fig.tight_layout()
+    path = out / "fig9_success_states.png"
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def plot_fig8(final: dict, cfg: Fig9Config, out: Path, seed: int = 0) -> Path:
+    """Boxes of one learner cut by the slice x2 = x4 = 0 px, x5 = 0 (features 0.5), both
+    objects visible (lost-side features 0.5), drawn on (ball size, goal size)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Rectangle
+
+    from vbl.world.robots import action_labels
+    lo, hi = np.asarray(final["box_lo"])[seed], np.asarray(final["box_hi"])[seed]
+    act = np.asarray(final["box_active"])[seed] > 0.5
+    acts = np.asarray(final["box_action"])[seed].astype(int)
+    labels = action_labels("two_motor")
+    fp = cfg.features
+    sl = np.full(lo.shape[1], 0.5)
+    other = [d for d in range(lo.shape[1]) if d not in (0, 2)]
+    cut = act & np.all((lo[:, other] <= sl[other]) & (sl[other] <= hi[:, other]), axis=1)
+    fig, ax = plt.subplots(figsize=(5.5, 5))
+    cmap = plt.get_cmap("tab10")
+    for i in np.flatnonzero(cut):
+        x0, y0 = lo[i, 0] * fp.ball_size_max, lo[i, 2] * fp.goal_size_max
+        w = (hi[i, 0] - lo[i, 0]) * fp.ball_size_max
+        h = (hi[i, 2] - lo[i, 2]) * fp.goal_size_max
+        ax.add_patch(Rectangle((x0, y0), w, h, fc=cmap(acts[i] % 10), alpha=0.35, ec="k"))
+        ax.text(x0 + w / 2, y0 + h / 2, labels[acts[i]], ha="center", va="center", fontsize=7)
+    ax.set_xlim(0, fp.ball_size_max)
+    ax.set_ylim(0, fp.goal_size_max)
+    ax.set_xlabel("ball size x1 [px]")
+    ax.set_ylabel("goal size x3 [px]")
+    ax.set_title(f"Figure 8: final boxes (seed {seed}), {int(act.sum())} states in all")
+    fig.tight_layout()
+    path = out / "fig8_state_space.png"
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def report(res) -> ReportSection:
+    cfg = res.config
+    fin = {k: np.asarray(v)[0] for k, v in res.final.items()}         # first sweep point
+    figs = [plot_fig9(fin, cfg, Path(res.out_dir)), plot_fig8(fin, cfg, Path(res.out_dir))]
+    succ = fin["trial_success"]
+    st = fin["trial_states"]
+    c1, c2, n = cfg.change.change_trial_1, cfg.change.change_trial_2, succ.shape[1]
+    w = 50
+
+    def rate(a, b):
+        a, b = max(0, min(a, n)), max(0, min(b, n))
+        return float(succ[:, a:b].mean()) if b > a else float("nan")
+
+    rows = [("before change 1", rate(c1 - w, c1), float(st[:, max(c1 - 1, 0)].mean())),
+            ("just after change 1", rate(c1, c1 + w), float(st[:, min(c1 + w, n - 1)].mean())),
+            ("before change 2", rate(c2 - w, c2), float(st[:, max(c2 - 1, 0)].mean())),
+            ("just after change 2", rate(c2, c2 + w), float(st[:, min(c2 + w, n - 1)].mean())),
+            ("end", rate(n - w, n), float(st[:, -1].mean()))]
+    md = [f"On-line segmentation, {succ.shape[0]} seeds, {n} trials, ball radius "
+          f"{cfg.change.radius_0} -> {cfg.change.radius_1} m (trial {c1}) -> "
+          f"{cfg.change.radius_2} m (trial {c2}).", "",
+          f"| window ({w} trials) | success rate | states |", "|---|---|---|"]
+    md += [f"| {a} | {b:.3f} | {c:.1f} |" for a, b, c in rows]
+    md += ["", f"Greedy success on {cfg.train.eval_episodes} fresh starts (last radius): "
+           f"{float(fin['greedy_success'].mean()):.3f}; final states "
+           f"{float(fin['states'].mean()):.1f} (grid: 319)."]
+    return ReportSection(markdown="\n".join(md), figures=tuple(figs))
+
+
+EXPERIMENT = register(Experiment(
+    name="fig9_incremental",
+    description="Figs 8-9: on-line incremental state segmentation, ball size changed twice",
+    default_config=Fig9Config(),
+    make_program=make_program,
+    quick={"train.num_trials": 300, "change.change_trial_1": 120, "change.change_trial_2": 210,
+           "train.num_chunks": 4, "train.updates_per_chunk": 60, "train.eval_episodes": 64},
+    seeds=8,
+    quick_seeds=2,
+    paper_result=True,
+    paper={"trials": 1110, "ball size change": "twice, around trial 500"},
+    report=report,
+))
+
+if __name__ == "__main__":
+    from vbl.engine import main_for
+
+    main_for(EXPERIMENT)
