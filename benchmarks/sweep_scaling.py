@@ -86,7 +86,8 @@ def hardware() -> dict:
     except OSError:
         pass
     return {"cpu": cpu, "cores": os.cpu_count(), "jax": jax.__version__,
-            "python": platform.python_version()}
+            "python": platform.python_version(),
+            "load_avg_1min": round(os.getloadavg()[0], 2)}  # other jobs share the machine
 
 
 def main() -> None:
@@ -125,7 +126,8 @@ def main() -> None:
     (res_dir / "sweep_scaling.json").write_text(json.dumps(result, indent=1) + "\n")
     lines = [f"Sweep scaling: toy bandit program ({PULLS} pulls per chunk), {chunks} compiled "
              f"chunks after warm-up, best of {REPEATS}. {hw['cpu']}, {hw['cores']} cores, "
-             f"jax {hw['jax']}. Ratios: learner-chunks/s against 1 learner on 1 device, and "
+             f"jax {hw['jax']}, load average {hw['load_avg_1min']} (shared machine: absolute "
+             f"numbers are noisy). Ratios: learner-chunks/s against 1 learner on 1 device, and "
              f"against 1 device at the same size.", "",
              "| devices | learners | wall time (s) | learners x chunks / s | pulls / s | "
              "vs 1 learner | vs 1 device |", "|---|---|---|---|---|---|---|"]

@@ -3,9 +3,9 @@
 "Strike a moving target with a delay": a target bounces between walls at ``-1`` and ``+1``
 on a line with a hidden constant speed ``|v|`` in ``[speed_min, speed_max]`` (per step) and a
 random direction. The learner observes the target position only (obs (1,)). Actions:
-``0`` wait, ``1`` strike. A strike lands ``delay + 1`` steps after it is made (actions in between do
-nothing); the episode ends when it lands, with reward 1 iff the target is then within ``tol``
-of the centre. An episode without a strike is truncated after ``max_steps`` steps (reward 0). ``reset`` draws a fresh target; the automatic
+``0`` wait, ``1`` strike. A strike lands ``delay`` steps later; the episode ends at the strike with
+reward 1 iff the target will then be within ``tol`` of the centre (the env computes the
+future position analytically, including wall bounces). An episode without a strike is truncated after ``max_steps`` steps (reward 0). ``reset`` draws a fresh target; the automatic
 reset of ``step`` keeps the target's position and direction and draws a new speed (so the
 data collected over many episodes are continuous, as a ball rolling on).
 
@@ -45,7 +45,6 @@ class MovingTargetState:
     pos: jax.Array  # float32 ()
     vel: jax.Array  # float32 ()
     t: jax.Array  # int32 () steps since the episode start
-    countdown: jax.Array  # int32 () steps until a pending strike lands (0: none pending)
 
 
 def fold(x: jax.Array) -> jax.Array:
@@ -71,7 +70,7 @@ class MovingTargetEnv:
         pos = jax.random.uniform(k_p, (), jnp.float32, -1.0, 1.0)
         speed = jax.random.uniform(k_s, (), jnp.float32, params.speed_min, params.speed_max)
         sign = jnp.where(jax.random.bernoulli(k_d), 1.0, -1.0).astype(jnp.float32)
-        return MovingTargetState(pos, speed * sign, jnp.int32(0), jnp.int32(0))
+        return MovingTargetState(pos, speed * sign, jnp.int32(0))
 
     def reset(self, key, params):
         k_s, k_o = jax.random.split(key)
@@ -80,21 +79,17 @@ class MovingTargetEnv:
 
     def step(self, key, state, action, params):
         k_reset, k_o = jax.random.split(key)
-        pending = state.countdown > 0
-        strike = (action == 1) & ~pending
-        countdown = jnp.where(strike, params.delay, jnp.maximum(state.countdown - 1, 0))
-        # position after one step with bounces: fold the unconstrained coordinate
-        pos_next = fold(state.pos + state.vel)
+        strike = action == 1
+        landing = fold(state.pos + state.vel * params.delay)
+        success = strike & (jnp.abs(landing) <= params.tol)
+        pos_next = fold(state.pos + state.vel)  # one step with bounces
         crossed = jnp.abs(state.pos + state.vel) > 1.0
         vel_next = jnp.where(crossed, -state.vel, state.vel)
         t = state.t + 1
-        landed = (pending | strike) & (countdown == 0)
-        success = landed & (jnp.abs(pos_next) <= params.tol)
-        terminated = landed
-        truncated = (~landed) & (t >= params.max_steps)
+        terminated = strike
+        truncated = (~strike) & (t >= params.max_steps)
         done = terminated | truncated
-        nxt = MovingTargetState(pos_next.astype(jnp.float32), vel_next.astype(jnp.float32), t,
-                                countdown.astype(jnp.int32))
+        nxt = MovingTargetState(pos_next.astype(jnp.float32), vel_next.astype(jnp.float32), t)
         # the next episode continues the target's motion (a new speed, same direction), so
         # the collected y(t) has no jumps at episode starts
         fresh = self._start(k_reset, params)
@@ -103,5 +98,5 @@ class MovingTargetEnv:
         obs = self._obs(k_o, new, params)
         reward = success.astype(jnp.float32)
         info = {"success": success, "episode_length": t,
-                "u": jnp.where(action == 1, 1.0, -1.0).astype(jnp.float32)[None]}
+                "u": jnp.where(strike, 1.0, -1.0).astype(jnp.float32)[None]}
         return obs, new, reward, terminated, truncated, info

@@ -224,3 +224,14 @@ def test_reproduce_writes_one_report(toy, tmp_path):
     assert ok and "## toy_paper" in text and "| best arm | 1.0 |" in text
     assert "![success_rate](toy_paper/success_rate.png)" in text
     assert (tmp_path / "rep" / "toy_paper" / "success_rate.png").exists()
+
+
+def test_progress_is_quiet_in_ci(monkeypatch, capsys):
+    from vbl.engine.progress import Progress, auto_quiet
+
+    monkeypatch.setenv("CI", "true")
+    assert auto_quiet()
+    p = Progress(2, quiet=False)
+    p.update({"episodes": np.full(3, 10.0), "success_rate": np.full(3, 0.5)}, 0.5)
+    p.close()
+    assert "episodes/s=60" in capsys.readouterr().err  # 3 learners x 10 episodes / 0.5 s

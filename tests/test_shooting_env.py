@@ -190,7 +190,7 @@ def test_ball_leaving_the_field_ends_episode_without_reward():
     env = ShootingEnv()
     p = env.default_params
     p = p.replace(world=p.world.replace(field=p.world.field.replace(walls=False)))
-    world = make_state([[0.0, 0.0, 0.0]], [3.9, 1.5], [2.0, 0.0])
+    world = make_state([[0.0, 0.0, 0.0]], [4.05, 1.5], [2.0, 0.0])
     st = ShootingState(world=world, step=jnp.int32(0))
     _, _, r, te, tr, info = jax.jit(env.step_env)(jax.random.key(0), st, jnp.int32(4), p)
     assert float(r) == 0.0 and bool(te) and bool(info["ball_out"]) and not bool(info["success"])

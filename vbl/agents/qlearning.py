@@ -347,8 +347,9 @@ def make_qlearning_runner(env: Any, state_fn: Callable, params: QRunnerParams,
 
     def evaluate(key, q, params: QRunnerParams, env_params, num_steps: int = 200):
         """Greedy policy from fresh starts (``env_params`` as given: set the env's start
-        difficulty yourself) for ``num_steps`` actions (static); each env's first
-        finished episode counts."""
+        difficulty yourself) for at most ``num_steps`` actions (static); each env's first
+        finished episode counts. Stops as soon as every env has finished one episode
+        (later steps could not change the result)."""
         c = init(key, params, env_params).replace(q=jnp.asarray(q, jnp.float32))
         if lp.enabled:  # the evaluation uses env_params' own difficulty
             c = c.replace(lem=c.lem.replace(difficulty=jnp.asarray(
@@ -360,16 +361,20 @@ def make_qlearning_runner(env: Any, state_fn: Callable, params: QRunnerParams,
         first = dict(finished=jnp.zeros((n_envs,), bool), success=jnp.zeros((n_envs,), bool),
                      primitives=jnp.zeros((n_envs,), jnp.int32))
 
-        def body(carry, _):
-            c, f = carry
+        def body(carry):
+            i, c, f = carry
             c, _, done, success, ep_prim = one_step(c, params, env_params, learn=False)
             new_first = done & ~f["finished"]
             f = dict(finished=f["finished"] | done,
                      success=jnp.where(new_first, success, f["success"]),
                      primitives=jnp.where(new_first, ep_prim, f["primitives"]))
-            return (c, f), None
+            return i + 1, c, f
 
-        (_, f), _ = jax.lax.scan(body, (c, first), None, length=num_steps)
+        def cond(carry):  # stop early once every env finished (later steps change nothing)
+            i, _, f = carry
+            return (i < num_steps) & ~jnp.all(f["finished"])
+
+        _, _, f = jax.lax.while_loop(cond, body, (jnp.int32(0), c, first))
         fin = f["finished"].astype(jnp.float32)
         n_fin = jnp.sum(fin)
         return dict(success_rate=jnp.sum(f["success"].astype(jnp.float32)) / n_envs,

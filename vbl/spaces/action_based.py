@@ -42,7 +42,7 @@ import numpy as np
 from flax import struct
 
 from vbl.params import ParamError, param, validate
-from vbl.spaces.ellipsoids import fit_ellipsoids, kmeans, mahalanobis2
+from vbl.spaces.ellipsoids import fit_ellipsoids, kmeans, mahalanobis2, mahalanobis2_chunked
 
 __all__ = [
     "FeatureParams",
@@ -246,7 +246,7 @@ def build_state_map(exp: Experience, p: ActionBasedParams, key: jax.Array) -> St
     def cluster(kk, pa, cand, starts, reach, tgt):
         _, assign = kmeans(kk, pa, cand, k, p.kmeans_iters)
         c, m, cnt = fit_ellipsoids(pa, cand, assign, k, p.coverage, p.ridge)
-        inside = (mahalanobis2(pa, c, m) <= 1.0) & starts[:, None]              # (P, k)
+        inside = (mahalanobis2_chunked(pa, c, m) <= 1.0) & starts[:, None]      # (P, k)
         n_in = jnp.sum(inside, axis=0).astype(F32)
         n_ok = jnp.sum(inside & reach[:, None], axis=0).astype(F32)
         rel = n_ok / jnp.maximum(n_in, 1.0)
@@ -297,7 +297,7 @@ def build_state_map(exp: Experience, p: ActionBasedParams, key: jax.Array) -> St
             ell_state=upd(sm.ell_state, ell_state.reshape(-1), (base,)),
             transitions=transitions, active=active, iterations=it + 1)
         # label the points that fall inside the new ellipsoids (fewest transitions wins)
-        d2 = mahalanobis2(exp.x, c.reshape(-1, dim), m.reshape(-1, dim, dim))      # (A,N,T1,Ak)
+        d2 = mahalanobis2_chunked(exp.x, c.reshape(-1, dim), m.reshape(-1, dim, dim))  # (A,N,T1,Ak)
         e_st = ell_state.reshape(-1)
         score = jnp.where((d2 <= 1.0) & ok.reshape(-1), transitions[e_st].astype(F32) * 4.0
                           + d2, jnp.inf)

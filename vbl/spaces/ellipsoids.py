@@ -13,7 +13,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-__all__ = ["mahalanobis2", "kmeans", "fit_ellipsoids"]
+__all__ = ["mahalanobis2", "mahalanobis2_chunked", "kmeans", "fit_ellipsoids"]
 
 F32 = jnp.float32
 
@@ -23,6 +23,21 @@ def mahalanobis2(x: jax.Array, centre: jax.Array, shape: jax.Array) -> jax.Array
     -> (..., E) float32."""
     d = x[..., None, :] - centre
     return jnp.einsum("...ei,eij,...ej->...e", d, shape, d).astype(F32)
+
+
+def mahalanobis2_chunked(x: jax.Array, centre: jax.Array, shape: jax.Array,
+                         chunk: int = 4096) -> jax.Array:
+    """:func:`mahalanobis2` for many points, ``chunk`` points at a time (bounded memory:
+    the (chunk, E, D) difference array instead of (P, E, D)). x (..., D) -> (..., E)."""
+    lead, d = x.shape[:-1], x.shape[-1]
+    flat = x.reshape(-1, d)
+    n = flat.shape[0]
+    if n <= chunk:
+        return mahalanobis2(x, centre, shape)
+    pad = (-n) % chunk
+    blocks = jnp.pad(flat, ((0, pad), (0, 0))).reshape(-1, chunk, d)
+    out = jax.lax.map(lambda b: mahalanobis2(b, centre, shape), blocks)
+    return out.reshape(-1, centre.shape[0])[:n].reshape(lead + (centre.shape[0],))
 
 
 def kmeans(key: jax.Array, pts: jax.Array, mask: jax.Array, k: int, iters: int

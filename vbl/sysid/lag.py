@@ -45,7 +45,7 @@ class Identification:
 
 def n_cap_for(params: CVAParams, m: int, q: int) -> int:
     """Largest order swept: n_max, or the most any tried lag can identify."""
-    ident = max(n_identifiable(l, params.horizon_for(l), m, q) for l in params.lags())
+    ident = max(n_identifiable(lg, params.horizon_for(lg), m, q) for lg in params.lags())
     return min(params.n_max, ident) if params.n_max else ident
 
 
@@ -122,33 +122,34 @@ def identify(u, y, params: CVAParams | None = None, *, model_dtype=jnp.float32
         chosen = np.zeros(b, int)
 
     def pick(get):
-        stack = np.stack([np.asarray(get(f)) for f in fits])
+        stack = np.stack([np.asarray(get(j, f)) for j, f in enumerate(fits)])
         return stack[chosen, np.arange(b)]
 
     lag_arr = np.asarray(lags, np.int32)[chosen]
-    n = pick(lambda f: f.n).astype(np.int32)
-    umat = pick(lambda f: _pad_u(np.asarray(f.U), lags[fits.index(f)], h, m, q))
+    n = pick(lambda j, f: f.n).astype(np.int32)
+    umat = pick(lambda j, f: _pad_u(np.asarray(f.U), lags[j], h, m, q))
+    umat = umat * (np.arange(c)[None, :, None] < n[:, None, None])   # mu masked beyond n*
     md = model_dtype
 
     def cast(a):
         return jnp.asarray(a, md)
 
-    model = CVAModel(U=cast(umat), A=cast(pick(lambda f: f.A)), B=cast(pick(lambda f: f.B)),
-                     C=cast(pick(lambda f: f.C)), D=cast(pick(lambda f: f.D)),
-                     R=cast(pick(lambda f: f.R)), n=jnp.asarray(n), lag=jnp.asarray(lag_arr),
-                     u_mean=cast(pick(lambda f: f.u_mean)),
-                     u_scale=cast(pick(lambda f: f.u_scale)),
-                     y_mean=cast(pick(lambda f: f.y_mean)),
-                     y_scale=cast(pick(lambda f: f.y_scale)))
-    n_samples = np.asarray([u.shape[1] - params.horizon_for(int(l)) - int(l) + 1
-                            for l in lag_arr], np.int32) if b else np.zeros(0, np.int32)
+    model = CVAModel(U=cast(umat), A=cast(pick(lambda j, f: f.A)), B=cast(pick(lambda j, f: f.B)),
+                     C=cast(pick(lambda j, f: f.C)), D=cast(pick(lambda j, f: f.D)),
+                     R=cast(pick(lambda j, f: f.R)), n=jnp.asarray(n), lag=jnp.asarray(lag_arr),
+                     u_mean=cast(pick(lambda j, f: f.u_mean)),
+                     u_scale=cast(pick(lambda j, f: f.u_scale)),
+                     y_mean=cast(pick(lambda j, f: f.y_mean)),
+                     y_scale=cast(pick(lambda j, f: f.y_scale)))
+    n_samples = np.asarray([u.shape[1] - params.horizon_for(int(lg)) - int(lg) + 1
+                            for lg in lag_arr], np.int32)
     res = Identification(
         lag=jnp.asarray(lag_arr), n=jnp.asarray(n),
         logdet_R=jnp.asarray(ld[np.arange(b), chosen]), aic=jnp.asarray(ai[np.arange(b), chosen]),
         n_samples=jnp.asarray(n_samples),
-        aic_curve=jnp.asarray(pick(lambda f: f.aic)),
-        logdet_curve=jnp.asarray(pick(lambda f: f.logdet)),
-        cancor=jnp.asarray(pick(lambda f: f.cancor)),
+        aic_curve=jnp.asarray(pick(lambda j, f: f.aic)),
+        logdet_curve=jnp.asarray(pick(lambda j, f: f.logdet)),
+        cancor=jnp.asarray(pick(lambda j, f: f.cancor)),
         lag_aic=jnp.asarray(ai), lag_logdet=jnp.asarray(ld), model=model)
     if not batched:
         res = jax.tree_util.tree_map(lambda a: a[0], res)

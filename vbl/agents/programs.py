@@ -1,0 +1,169 @@
+"""Engine programs from the Q-learning runner: train tabular Q-learners on any env + state map.
+
+:func:`make_q_program` turns :func:`vbl.agents.qlearning.make_qlearning_runner` into a
+:class:`vbl.engine.Program` (one learner's run, chunked; the engine vmaps it over seeds x
+sweep values). The experiment's config is a ``flax.struct`` dataclass with at least the
+sections
+
+* ``env``: the env's params (e.g. :class:`vbl.envs.shooting.ShootingParams`),
+* ``agent``: :class:`vbl.agents.QRunnerParams` (Q-learning, macro actions, LEM, E envs,
+  learner steps per chunk),
+* ``train``: :class:`QTrainParams` (chunks, evaluation),
+
+plus whatever the state function reads (e.g. a ``grid`` section for
+:func:`vbl.spaces.grid.grid_state`). ``state_fn(obs, config) -> int32`` gets one
+learner's config, so its parameters are traced and sweepable.
+
+Per chunk (metrics per learner, scalars):
+
+* ``episodes``: training episodes (trials) finished in the chunk; ``successes``: of those,
+  how many scored; ``train_success_rate``: successes / episodes (0 when none finished),
+  under the start distribution in effect (with LEM: the curriculum's).
+* ``success_rate``: the greedy policy (no exploration, no learning) after the chunk on
+  ``train.eval_envs`` fresh starts at ``train.eval_difficulty``: fraction whose first
+  episode scores (with ``train.eval_curve`` off: equal to ``train_success_rate``).
+* ``mean_primitives``: mean primitives per finished training episode (0 when none).
+* ``difficulty``: LEM start difficulty at the end of the chunk; ``lem_raises``: raises so
+  far; ``epsilon``: exploration rate (epsilon or temperature) at the end of the chunk;
+  ``td_abs``: mean absolute TD error over the chunk.
+
+``final`` (once, independent key): ``greedy_success`` and ``random_success`` (the greedy
+policy of the learned table and the uniformly random policy, i.e. an all-zero table with
+random tie-breaking, in the same action space: macro actions if on) on
+``train.final_eval_rounds x train.eval_envs`` fresh starts at ``train.eval_difficulty``,
+``greedy_primitives`` (mean episode length of the greedy policy, primitives),
+``num_states`` (S) and ``states_with_value`` (states whose Q row moved from ``q_init``).
+
+The evaluation key of chunk k is ``fold_in(carry.key, EVAL_STREAM)``: it does not advance
+the training stream, so switching the evaluation curve on or off leaves training
+unchanged.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from vbl.agents.qlearning import QRunnerState, make_qlearning_runner
+from vbl.params import ParamError, param, validate
+
+__all__ = ["QTrainParams", "make_q_program", "EVAL_STREAM"]
+
+F32 = jnp.float32
+EVAL_STREAM = 0x5EED  #: fold_in tag of the evaluation keys (kept off the training stream)
+
+
+@struct.dataclass
+class QTrainParams:
+    """Run length and evaluation of a Q-learning program (one chunk = ``agent.chunk_steps``
+    learner steps of ``agent.num_envs`` environments)."""
+
+    num_chunks: int = param(40, doc="chunks per run (one metrics line and curve point each)",
+                            static=True, ge=1)
+    eval_curve: bool = param(True, doc="evaluate the greedy policy after every chunk (the "
+                             "success_rate curve); off: success_rate = training success",
+                             static=True)
+    eval_envs: int = param(32, doc="fresh starts per greedy evaluation (one episode each)",
+                           static=True, ge=1)
+    eval_steps: int = param(300, doc="cap on actions per evaluation episode (an episode not "
+                            "finished by then counts as a failure)", unit="actions",
+                            static=True, ge=1)
+    eval_difficulty: float = param(1.0, doc="start difficulty of evaluation episodes (1: fully "
+                                   "random starts)", ge=0.0, le=1.0)
+    final_eval_rounds: int = param(4, doc="final evaluation: rounds of eval_envs fresh starts "
+                                   "for the greedy and for the random policy", static=True,
+                                   ge=1)
+
+
+def _require(cfg: Any, names: tuple[str, ...]) -> None:
+    missing = [n for n in names if not hasattr(cfg, n)]
+    if missing:
+        raise ParamError(f"a Q-learning program config needs sections {list(names)}; "
+                         f"{type(cfg).__name__} lacks {missing}")
+
+
+def make_q_program(env: Any, state_fn: Callable[[jax.Array, Any], jax.Array], cfg: Any,
+                   *, num_states: int | None = None):
+    """An engine :class:`~vbl.engine.Program` training one Q-learner on ``env``.
+
+    Args:
+      env: gymnax-style env (``reset``/``step`` with auto-reset and ``info["success"]``;
+        with LEM its params need ``start_difficulty``; the evaluation sets it too).
+      state_fn: ``(obs (obs_dim,), config) -> int32`` discrete state in [0, S) of one
+        observation, reading one learner's (traced) config.
+      cfg: the experiment's resolved config (sections ``env``, ``agent``, ``train``); only
+        its static fields shape the program.
+      num_states: if given, must equal ``cfg.agent.agent.num_states`` (a clear error
+        otherwise).
+
+    Returns ``Program(init, step, num_chunks=cfg.train.num_chunks, final)``; metrics in the
+    module docstring. Raises ParamError for a bad config.
+    """
+    from vbl.engine import Program  # lazy: keep vbl.agents importable without the engine
+
+    _require(cfg, ("env", "agent", "train"))
+    validate(cfg.agent)
+    train = validate(cfg.train, "train.")
+    if num_states is not None and int(num_states) != cfg.agent.agent.num_states:
+        raise ParamError(f"agent.agent.num_states={cfg.agent.agent.num_states} but the state "
+                         f"function has {num_states} states")
+    if not hasattr(cfg.env, "start_difficulty"):
+        raise ParamError(f"the evaluation sets env.start_difficulty; {type(cfg.env).__name__} "
+                         "has no such field")
+    eval_params = cfg.agent.replace(num_envs=train.eval_envs)
+
+    def runners(c):
+        """Training and evaluation runners whose state map reads the learner's config ``c``."""
+        fn = lambda o: state_fn(o, c)  # noqa: E731
+        return (make_qlearning_runner(env, fn, cfg.agent, cfg.env),
+                make_qlearning_runner(env, fn, eval_params, cfg.env))
+
+    def eval_env(c):
+        return c.env.replace(start_difficulty=jnp.asarray(c.train.eval_difficulty, F32))
+
+    def init(key, c) -> QRunnerState:
+        return runners(c)[0].init(key, c.agent, c.env)
+
+    def step(carry: QRunnerState, c):
+        run, ev = runners(c)
+        carry, m = run.run_chunk(carry, c.agent, c.env)
+        episodes = jnp.sum(m["episodes"]).astype(F32)
+        successes = jnp.sum(m["successes"]).astype(F32)
+        n = jnp.maximum(episodes, 1.0)
+        train_rate = successes / n
+        out = dict(episodes=episodes, successes=successes, train_success_rate=train_rate,
+                   mean_primitives=jnp.sum(m["primitives"]).astype(F32) / n,
+                   difficulty=carry.lem.difficulty.astype(F32),
+                   lem_raises=carry.lem.raises.astype(F32),
+                   epsilon=m["rate"][-1].astype(F32), td_abs=jnp.mean(m["td_abs"]).astype(F32))
+        if train.eval_curve:
+            res = ev.evaluate(jax.random.fold_in(carry.key, EVAL_STREAM), carry.q,
+                              c.agent, eval_env(c), train.eval_steps)
+            out["success_rate"] = res["success_rate"].astype(F32)
+        else:
+            out["success_rate"] = train_rate
+        return carry, out
+
+    def final(carry: QRunnerState, c, key):
+        _, ev = runners(c)
+        keys = jax.random.split(key, 2 * train.final_eval_rounds).reshape(
+            2, train.final_eval_rounds, 2)
+        ep = eval_env(c)
+
+        def rounds(q, ks):  # the eval runner's static num_envs = train.eval_envs
+            return jax.vmap(lambda k: ev.evaluate(k, q, c.agent, ep, train.eval_steps))(ks)
+
+        greedy = rounds(carry.q, keys[0])
+        rand = rounds(jnp.zeros_like(carry.q), keys[1])
+        moved = jnp.any(carry.q != jnp.asarray(c.agent.agent.q_init, F32), axis=1)
+        return dict(greedy_success=jnp.mean(greedy["success_rate"]).astype(F32),
+                    random_success=jnp.mean(rand["success_rate"]).astype(F32),
+                    greedy_primitives=jnp.mean(greedy["mean_primitives"]).astype(F32),
+                    num_states=jnp.asarray(cfg.agent.agent.num_states, F32),
+                    states_with_value=jnp.sum(moved).astype(F32))
+
+    return Program(init=init, step=step, num_chunks=train.num_chunks, final=final)
