@@ -28,9 +28,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
-import vbl  # noqa: E402,F401
 from reference.cva_np import cva_reference  # noqa: E402
 from reference.sysid_systems import simulate_batch  # noqa: E402
+
+import vbl  # noqa: E402,F401
 from vbl.sysid import CVAParams, identify  # noqa: E402
 
 N, Q, M, LAG, SIPPY_F = 500, 4, 2, 3, 6

@@ -47,7 +47,7 @@ ENV = ShootingEnv()
 
 @struct.dataclass
 class EvalParams:
-    difficulty: float = param(0.3, doc="start difficulty of the evaluation episodes (both "
+    difficulty: float = param(0.1, doc="start difficulty of the evaluation episodes (both "
                               "methods)", ge=0.0, le=1.0)
     episodes: int = param(256, doc="evaluation episodes of the map policy", static=True, ge=1)
     grid_steps: int = param(1500, doc="greedy grid-baseline evaluation: learner steps (macro "

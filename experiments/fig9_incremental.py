@@ -66,12 +66,12 @@ class Fig9Train:
 
 def _default_env() -> ShootingParams:
     p = ShootingParams(max_steps=150)
-    return p.replace(start_difficulty=0.3)
+    return p.replace(start_difficulty=0.1)
 
 
 @struct.dataclass
 class Fig9Config:
-    env: ShootingParams = section(_default_env, doc="shooting task (start difficulty 0.3, "
+    env: ShootingParams = section(_default_env, doc="shooting task (start difficulty 0.1, "
                                   "150-primitive episodes)")
     features: FeatureParams = section(FeatureParams, doc="feature normalisation")
     learner: IncrementalParams = section(IncrementalParams, doc="incremental segmentation + Q")

@@ -21,7 +21,7 @@ import numpy as np
 from flax import struct
 
 from vbl.agents import QRunnerParams
-from vbl.agents.programs import QTrainParams, make_q_program
+from vbl.agents.programs import QTrainParams, make_q_program, trials_to_level
 from vbl.engine import Experiment, ReportSection, RunResult, register
 from vbl.envs.shooting import ShootingEnv, ShootingParams
 from vbl.params import param, section
@@ -74,15 +74,6 @@ def _ci(x: np.ndarray) -> tuple[float, float]:
     x = np.asarray(x, float)
     h = t_quantile_975(len(x) - 1) * x.std(ddof=1) / np.sqrt(len(x)) if len(x) > 1 else 0.0
     return float(x.mean()), float(h)
-
-
-def trials_to_level(success: np.ndarray, episodes: np.ndarray, level: float) -> np.ndarray:
-    """Per seed: cumulative training trials at the first chunk whose greedy success >= level
-    (NaN if never). ``success``, ``episodes``: (chunks, seeds)."""
-    cum = np.cumsum(episodes, axis=0)
-    hit = success >= level
-    first = np.argmax(hit, axis=0)
-    return np.where(hit.any(axis=0), cum[first, np.arange(cum.shape[1])], np.nan)
 
 
 def plot(res: RunResult, level: float) -> Path:

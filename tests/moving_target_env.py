@@ -3,11 +3,12 @@
 "Strike a moving target with a delay": a target bounces between walls at ``-1`` and ``+1``
 on a line with a hidden constant speed ``|v|`` in ``[speed_min, speed_max]`` (per step) and a
 random direction. The learner observes the target position only (obs (1,)). Actions:
-``0`` wait, ``1`` strike. A strike lands ``delay`` steps later; the episode ends at the strike with
-reward 1 iff the target will then be within ``tol`` of the centre (the env computes the
-future position analytically, including wall bounces). An episode without a strike is truncated after ``max_steps`` steps (reward 0). ``reset`` draws a fresh target; the automatic
-reset of ``step`` keeps the target's position and direction and draws a new speed (so the
-data collected over many episodes are continuous, as a ball rolling on).
+``0`` wait, ``1`` strike. A strike lands ``delay`` steps later; the episode ends at the
+strike with reward 1 iff the target will then be within ``tol`` of the centre (the env
+computes the future position analytically, including wall bounces). An episode without a
+strike is truncated after ``max_steps`` steps (reward 0). ``reset`` draws a fresh target;
+the automatic reset of ``step`` keeps the target's position and direction and draws a new
+speed (so data collected over many episodes are continuous, like a ball rolling on).
 
 From the position alone the direction of motion is unknown, so a memoryless policy succeeds
 in at most about half of the episodes (``delay * speed_min > tol``); the last two positions

@@ -22,11 +22,20 @@ def data():
     return u, y, orders
 
 
+def _fit(data, method):
+    u, y, _ = data
+    p = CVAParams(lag=LAG, horizon=HOR, method=method)
+    return method, p, identify(u, y, p, model_dtype=jnp.float64)
+
+
 @pytest.fixture(scope="module", params=["projected", "paper"])
 def fitted(request, data):
-    u, y, _ = data
-    p = CVAParams(lag=LAG, horizon=HOR, method=request.param)
-    return request.param, p, identify(u, y, p, model_dtype=jnp.float64)
+    return _fit(data, request.param)
+
+
+@pytest.fixture(scope="module")
+def projected(data):
+    return _fit(data, "projected")
 
 
 def test_param_count_analytic():
@@ -66,11 +75,9 @@ def _unpad(umat, lag, h, m, q):
     return np.concatenate([umat[:, :lag * m], umat[:, h * m:h * m + lag * q]], axis=1)
 
 
-def test_batched_equals_single(data, fitted):
+def test_batched_equals_single(data, projected):
     u, y, _ = data
-    method, p, res = fitted
-    if method == "paper":
-        pytest.skip("one method suffices (saves a compilation)")
+    _, p, res = projected
     one = identify(u[2], y[2], p, model_dtype=jnp.float64)
     assert int(one.n) == int(res.n[2]) and int(one.lag) == int(res.lag[2])
     np.testing.assert_allclose(np.asarray(one.aic_curve), np.asarray(res.aic_curve[2]),
@@ -79,11 +86,9 @@ def test_batched_equals_single(data, fitted):
                                atol=1e-10)
 
 
-def test_float32_agrees_with_float64(data, fitted):
+def test_float32_agrees_with_float64(data, projected):
     u, y, _ = data
-    method, p, res = fitted
-    if method == "paper":
-        pytest.skip("one method suffices (saves a compilation)")
+    _, p, res = projected
     r32 = identify(u, y, p.replace(dtype="float32"))
     np.testing.assert_allclose(np.asarray(r32.cancor), np.asarray(res.cancor), atol=2e-4)
     np.testing.assert_array_equal(np.asarray(r32.n), np.asarray(res.n))

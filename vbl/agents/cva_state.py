@@ -40,8 +40,11 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from vbl.agents.qlearning import QRunnerParams, make_qlearning_runner
+from vbl.agents.exploration import ExplorationParams, ScheduleParams
+from vbl.agents.lem import LEMParams
+from vbl.agents.qlearning import QLearningParams, QRunnerParams, make_qlearning_runner
 from vbl.params import ParamError, param, section, validate
+from vbl.spaces.macro_action import MacroActionParams
 from vbl.spaces.quantize import (
     Quantizer,
     QuantizerParams,
@@ -71,6 +74,18 @@ __all__ = [
 STATE_KINDS = ("cva", "current")
 
 
+def default_runner() -> QRunnerParams:
+    """Runner defaults of this pipeline: primitive actions (no macro actions), no LEM,
+    epsilon-greedy with epsilon 1.0 -> 0.05 over 2000 learner steps (agent.num_states is
+    set from the quantiser)."""
+    return QRunnerParams(
+        agent=QLearningParams(num_states=1, num_actions=7, exploration=ExplorationParams(
+            schedule=ScheduleParams(kind="linear", init_value=1.0, end_value=0.05,
+                                    transition_steps=2000.0))),
+        macro=MacroActionParams(enabled=False), lem=LEMParams(enabled=False),
+        num_envs=64, chunk_steps=100)
+
+
 @struct.dataclass
 class CVAStateParams:
     """The Figure 11 pipeline of one learner (data collection, CVA, quantiser, Q-learning)."""
@@ -90,7 +105,8 @@ class CVAStateParams:
                                static=True, ge=10)
     cva: CVAParams = section(CVAParams, doc="CVA identification (order by AIC, lag rule)")
     quantizer: QuantizerParams = section(QuantizerParams, doc="state vector -> Q-table index")
-    runner: QRunnerParams = section(QRunnerParams, doc="batched Q-learning runner")
+    runner: QRunnerParams = section(default_runner, doc="batched Q-learning runner "
+                                    "(agent.num_states is overridden by the quantiser's size)")
 
     def check(self) -> None:
         if not self.objects:
@@ -311,6 +327,7 @@ class CVALearner(struct.PyTreeNode):
     runner: Any = struct.field(pytree_node=False)   # QLearningRunner on the FilteredEnv
     env: Any = struct.field(pytree_node=False)      # the FilteredEnv
     num_states: int = struct.field(pytree_node=False)
+    runner_params: Any = struct.field(pytree_node=False)  # p -> QRunnerParams with S set
 
 
 def make_cva_learner(env: Any, p: CVAStateParams, m: int | None = None) -> CVALearner:
@@ -322,7 +339,7 @@ def make_cva_learner(env: Any, p: CVAStateParams, m: int | None = None) -> CVALe
 
     ``prepare(key, p, env_params)``: collect, identify, fit the quantiser; returns the
     :class:`FilteredParams` for the runner. The runner's ``agent.num_states`` must equal
-    the quantiser's number of states (checked here).
+    the quantiser's number of states: use ``learner.runner_params(p)`` (sets it).
     """
     validate(p)
     if m is None:
@@ -335,16 +352,13 @@ def make_cva_learner(env: Any, p: CVAStateParams, m: int | None = None) -> CVALe
     d = state_dim(env, p)
     make_quantizer(p.quantizer, d)
     s = num_states(p.quantizer, d)
-    if p.runner.agent.num_states != s:
-        raise ParamError(f"runner.agent.num_states={p.runner.agent.num_states} but the "
-                         f"quantiser gives {s} states ({p.quantizer.method}, d={d}); set them "
-                         "equal")
     lags = p.cva.lags()
-    need = p.cva.min_samples_factor * 2 * max(lags) * (m + 11)
+    q_max = max(sl.stop - sl.start for sl in fenv.slices)
+    need = p.cva.min_samples_factor * 2 * max(lags) * (m + q_max) + 2 * max(lags)
     if p.state == "cva" and p.collect_steps < need:
         raise ParamError(f"collect_steps={p.collect_steps} is too few for CVA up to lag "
                          f"{max(lags)}; use >= {int(need)}")
-    runner = make_qlearning_runner(fenv, lambda o: o["index"], p.runner, env_params=None)
+    runner = make_qlearning_runner(fenv, lambda o: o["index"], runner_params(p, s))
 
     def prepare(key, pp: CVAStateParams, env_params) -> FilteredParams:
         k_col, k_q = jax.random.split(key)
@@ -357,4 +371,10 @@ def make_cva_learner(env: Any, p: CVAStateParams, m: int | None = None) -> CVALe
         qz = fit_quantizer(k_q, xs, pp.quantizer)
         return FilteredParams(inner=env_params, models=models, quantizer=qz)
 
-    return CVALearner(prepare=prepare, runner=runner, env=fenv, num_states=s)
+    return CVALearner(prepare=prepare, runner=runner, env=fenv, num_states=s,
+                      runner_params=lambda pp: runner_params(pp, s))
+
+
+def runner_params(p: CVAStateParams, s: int) -> QRunnerParams:
+    """``p.runner`` with ``agent.num_states = s`` (the quantiser's number of states)."""
+    return p.runner.replace(agent=p.runner.agent.replace(num_states=int(s)))

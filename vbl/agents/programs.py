@@ -51,7 +51,7 @@ from flax import struct
 from vbl.agents.qlearning import QRunnerState, make_qlearning_runner
 from vbl.params import ParamError, param, validate
 
-__all__ = ["QTrainParams", "make_q_program", "EVAL_STREAM"]
+__all__ = ["QTrainParams", "make_q_program", "trials_to_level", "EVAL_STREAM"]
 
 F32 = jnp.float32
 EVAL_STREAM = 0x5EED  #: fold_in tag of the evaluation keys (kept off the training stream)
@@ -150,20 +150,34 @@ def make_q_program(env: Any, state_fn: Callable[[jax.Array, Any], jax.Array], cf
 
     def final(carry: QRunnerState, c, key):
         _, ev = runners(c)
-        keys = jax.random.split(key, 2 * train.final_eval_rounds).reshape(
-            2, train.final_eval_rounds, 2)
-        ep = eval_env(c)
-
-        def rounds(q, ks):  # the eval runner's static num_envs = train.eval_envs
-            return jax.vmap(lambda k: ev.evaluate(k, q, c.agent, ep, train.eval_steps))(ks)
-
-        greedy = rounds(carry.q, keys[0])
-        rand = rounds(jnp.zeros_like(carry.q), keys[1])
+        rounds = train.final_eval_rounds
+        keys = jax.random.split(key, 2 * rounds)
+        # one traced evaluation for both policies: tables (2 * rounds, S, A), learned then zero
+        qs = jnp.concatenate([jnp.broadcast_to(carry.q, (rounds, *carry.q.shape)),
+                              jnp.zeros((rounds, *carry.q.shape), F32)])
+        res = jax.vmap(lambda k, q: ev.evaluate(k, q, c.agent, eval_env(c), train.eval_steps))(
+            keys, qs)
         moved = jnp.any(carry.q != jnp.asarray(c.agent.agent.q_init, F32), axis=1)
-        return dict(greedy_success=jnp.mean(greedy["success_rate"]).astype(F32),
-                    random_success=jnp.mean(rand["success_rate"]).astype(F32),
-                    greedy_primitives=jnp.mean(greedy["mean_primitives"]).astype(F32),
+        return dict(greedy_success=jnp.mean(res["success_rate"][:rounds]).astype(F32),
+                    random_success=jnp.mean(res["success_rate"][rounds:]).astype(F32),
+                    greedy_primitives=jnp.mean(res["mean_primitives"][:rounds]).astype(F32),
                     num_states=jnp.asarray(cfg.agent.agent.num_states, F32),
                     states_with_value=jnp.sum(moved).astype(F32))
 
     return Program(init=init, step=step, num_chunks=train.num_chunks, final=final)
+
+
+def trials_to_level(success: Any, episodes: Any, level: float) -> Any:
+    """Per seed: cumulative training trials at the first chunk whose ``success`` >= ``level``
+    (NaN if never). ``success``, ``episodes``: (chunks, seeds) host arrays (a run's
+    ``curves["success_rate"][point]`` and ``curves["episodes"][point]``) -> (seeds,) float."""
+    import numpy as np
+
+    success, episodes = np.asarray(success, float), np.asarray(episodes, float)
+    if success.shape != episodes.shape or success.ndim != 2:
+        raise ValueError(f"success {success.shape} and episodes {episodes.shape} must both be "
+                         "(chunks, seeds)")
+    cum = np.cumsum(episodes, axis=0)
+    hit = success >= level
+    first = np.argmax(hit, axis=0)
+    return np.where(hit.any(axis=0), cum[first, np.arange(cum.shape[1])], np.nan)

@@ -43,7 +43,7 @@ from vbl.world.physics import WorldState, world_step, wrap_angle
 from vbl.world.robots import FOUR_WHEEL_U
 
 __all__ = ["FOCUS", "OTHER_BEHAVIOURS", "CollectParams", "CollectData", "collect_one",
-           "collect", "collect_many", "observer_action"]
+           "collect", "collect_many", "observer_action", "id_outputs", "AREA_COLUMN"]
 
 F32 = jnp.float32
 I32 = jnp.int32
@@ -307,3 +307,23 @@ def collect(key: jax.Array, params: CollectParams, batch: int) -> CollectData:
     if not isinstance(params, CollectParams):
         raise ParamError(f"params must be CollectParams, got {type(params).__name__}")
     return collect_many(key, [params], batch)[0]
+
+
+#: Column of the visible-area feature (px^2) of each object, or None.
+AREA_COLUMN = {"ball": None, "goal": 10, "other": 4}
+
+
+def id_outputs(data: CollectData, obj: str, y_unit: float) -> np.ndarray:
+    """Identification outputs (B, N, q) float64 of ``obj`` in units of ``y_unit`` px.
+
+    Areas (px^2) become side lengths ``sqrt(area)`` (px) first, so every channel is in px
+    and one unit makes ``log det R`` comparable between objects (``log det R < 0`` means
+    a geometric-mean residual below ``y_unit`` px).
+    """
+    if not y_unit > 0:
+        raise ValueError(f"y_unit={y_unit!r} must be > 0 (px)")
+    y = np.asarray(data.y(obj), np.float64).copy()
+    col = AREA_COLUMN[obj]
+    if col is not None:
+        y[..., col] = np.sqrt(np.maximum(y[..., col], 0.0))
+    return y / float(y_unit)

@@ -126,13 +126,13 @@ class ActionBasedParams:
     clusters_per_action: int = param(6, doc="k-means clusters per primitive and iteration",
                                      static=True, ge=1)
     kmeans_iters: int = param(10, doc="Lloyd iterations of the k-means", static=True, ge=1)
-    start_window: int = param(40, doc="first points of each episode used as start points "
+    start_window: int = param(50, doc="first points of each episode used as start points "
                               "(the rest only serve as look-ahead)", unit="steps",
                               static=True, ge=1)
-    coverage: float = param(0.9, doc="fraction of a cluster's members inside its ellipsoid",
+    coverage: float = param(0.95, doc="fraction of a cluster's members inside its ellipsoid",
                             gt=0.0, le=1.0)
     min_points: float = param(20.0, doc="fewest members of a kept cluster", ge=1.0)
-    min_reliability: float = param(0.7, doc="least fraction of the primitive's start points "
+    min_reliability: float = param(0.6, doc="least fraction of the primitive's start points "
                                    "inside the ellipsoid that reach the goal/built states",
                                    gt=0.0, le=1.0)
     ridge: float = param(1e-4, doc="added to cluster covariances", unit="(norm. units)^2",

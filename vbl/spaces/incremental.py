@@ -68,7 +68,7 @@ I32 = jnp.int32
 class IncrementalParams:
     """Segmentation thresholds (normalised feature units) and the Q-learner."""
 
-    max_states: int = param(48, doc="capacity: most boxes (states, the goal not counted)",
+    max_states: int = param(64, doc="capacity: most boxes (states, the goal not counted)",
                             static=True, ge=1)
     bins: int = param(4, doc="candidate cuts per axis: bin edges of this many equal bins",
                       static=True, ge=2)
@@ -76,18 +76,18 @@ class IncrementalParams:
                              static=True, ge=8)
     update_every: int = param(100, doc="steps between model refits / split / merge",
                               unit="steps", static=True, ge=1)
-    split_error: float = param(2e-4, doc="a box may split when its model residual per "
+    split_error: float = param(1e-2, doc="a box may split when its model residual per "
                                "transition exceeds this", unit="(norm. units)^2", gt=0.0)
-    split_gain: float = param(5e-5, doc="least residual reduction per transition of a split",
+    split_gain: float = param(3e-3, doc="least residual reduction per transition of a split",
                               unit="(norm. units)^2", gt=0.0)
-    merge_tol: float = param(1e-5, doc="merge two boxes when their joint model raises the "
+    merge_tol: float = param(5e-4, doc="merge two boxes when their joint model raises the "
                              "residual per transition by at most this (< split_gain)",
                              unit="(norm. units)^2", ge=0.0)
-    min_samples: float = param(30.0, doc="least transitions on each side of a split / in "
+    min_samples: float = param(50.0, doc="least transitions on each side of a split / in "
                                "each box of a merge", ge=1.0)
     min_width: float = param(1.0 / 64, doc="narrowest box side a split may create",
                              unit="norm. units", gt=0.0, lt=0.5)
-    outcome_weight: float = param(0.01, doc="weight of the 'scored' output in the residual "
+    outcome_weight: float = param(0.1, doc="weight of the 'scored' output in the residual "
                                   "(outcome disagreement)", ge=0.0)
     ridge: float = param(1e-4, doc="ridge of the least-squares fits", gt=0.0)
     inherit_q: bool = param(True, doc="a new box starts from its parent's Q-values (else "

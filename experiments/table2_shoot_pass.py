@@ -1,0 +1,135 @@
+"""Table 2: shooting and passing success with current features vs CVA state vectors.
+
+Each learner (one seed) runs the Figure 11 pipeline of :mod:`vbl.agents.cva_state` in the
+two-robot env (:class:`vbl.envs.shoot_pass.ShootPassEnv`): random-action data collection,
+one CVA model per observed object (ball, goal, other robot), filtering inside the env loop,
+vector quantisation of the state vector, tabular Q-learning; then a greedy evaluation on
+fresh starts. The baseline (``learner.state="current"``) quantises the current features
+of the same objects instead. The default sweep is task x state vector (4 rows of the table).
+
+Run: ``vbl run table2_shoot_pass --quick`` or ``python experiments/table2_shoot_pass.py``.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from vbl.agents.cva_state import CVAStateParams, make_cva_learner
+from vbl.engine import Experiment, Program, register
+from vbl.engine.experiment import ReportSection
+from vbl.envs.shoot_pass import TASKS, ShootPassEnv, ShootPassParams
+from vbl.params import param, section
+from vbl.spaces.quantize import QuantizerParams
+from vbl.sysid.params import CVAParams
+
+PAPER = {"shoot": {"current": 10.2, "cva": 78.5}, "pass": {"current": 9.8, "cva": 53.2}}
+
+
+def default_learner() -> CVAStateParams:
+    """Pipeline defaults for the two-robot task (choices, see docs/cva_learning.md)."""
+    return CVAStateParams(
+        objects=("ball", "goal", "other"), n_used=2, extra=("lost_side",),
+        collect_steps=3000,
+        cva=CVAParams(lag=0, lag_max=3, logdet_stop=-100.0),
+        quantizer=QuantizerParams(method="vq", num_codes=256, kmeans_iters=20))
+
+
+@struct.dataclass
+class Table2Train:
+    num_chunks: int = param(30, doc="chunks (progress units) per run", static=True, ge=1)
+    eval_steps: int = param(120, doc="greedy evaluation: primitives run from fresh starts in "
+                            "each of the runner's envs (first finished episode counts)",
+                            static=True, ge=1)
+
+
+@struct.dataclass
+class Table2Config:
+    task: str = param("shoot", doc="learner role: shooter or passer", static=True,
+                      choices=TASKS)
+    learner: CVAStateParams = section(default_learner, doc="the Figure 11 pipeline")
+    env: ShootPassParams = section(ShootPassParams, doc="the two-robot task")
+    train: Table2Train = section(Table2Train, doc="run length and evaluation")
+
+
+@struct.dataclass
+class Carry:
+    runner: object
+    fparams: object
+
+
+def make_program(cfg: Table2Config) -> Program:
+    env = ShootPassEnv(cfg.task)
+    lrn = make_cva_learner(env, cfg.learner, m=2)
+    ev_steps = cfg.train.eval_steps
+
+    def init(key, c):
+        k_prep, k_run = jax.random.split(key)
+        fp = lrn.prepare(k_prep, c.learner, c.env)
+        rs = lrn.runner.init(k_run, lrn.runner_params(c.learner), fp)
+        return Carry(rs, fp)
+
+    def step(carry, c):
+        rs, m = lrn.runner.run_chunk(carry.runner, lrn.runner_params(c.learner), carry.fparams)
+        eps = jnp.sum(m["episodes"]).astype(jnp.float32)
+        sr = jnp.sum(m["successes"]).astype(jnp.float32) / jnp.maximum(eps, 1.0)
+        return Carry(rs, carry.fparams), {"episodes": eps, "success_rate": sr,
+                                          "epsilon": m["rate"][-1]}
+
+    def final(carry, c, key):
+        ev = lrn.runner.evaluate(key, carry.runner.q, lrn.runner_params(c.learner),
+                                 carry.fparams, ev_steps)
+        out = {"greedy_success_rate": ev["success_rate"], "greedy_finished": ev["finished"]}
+        for name, mod in zip(cfg.learner.objects, carry.fparams.models, strict=False):
+            out[f"lag_{name}"] = mod.lag.astype(jnp.float32)
+            out[f"n_{name}"] = mod.n.astype(jnp.float32)
+        return out
+
+    return Program(init=init, step=step, num_chunks=cfg.train.num_chunks, final=final)
+
+
+def _ci(x: np.ndarray) -> tuple[float, float]:
+    from scipy import stats
+
+    x = np.asarray(x, float)
+    if x.size < 2:
+        return float(x.mean()), float("nan")
+    half = stats.t.ppf(0.975, x.size - 1) * x.std(ddof=1) / np.sqrt(x.size)
+    return float(x.mean()), float(half)
+
+
+def report(res) -> ReportSection:
+    rows = ["| task | state vector | ours: greedy success % (mean +- 95% CI) | ours: last "
+            "training chunk % | paper % |", "|---|---|---|---|---|"]
+    for i, pt in enumerate(res.points):
+        task = pt.get("task", res.config.task)
+        state = pt.get("learner.state", res.config.learner.state)
+        g, gh = _ci(100 * np.asarray(res.final["greedy_success_rate"][i]))
+        t, th = _ci(100 * np.asarray(res.curves["success_rate"][i][-1]))
+        rows.append(f"| {task} | {state} | {g:.1f} +- {gh:.1f} | {t:.1f} +- {th:.1f} | "
+                    f"{PAPER[task][state]} |")
+    md = ("Table 2 (success rates, %), " + f"{res.seeds} seeds per row.\n\n" + "\n".join(rows))
+    return ReportSection(markdown=md, figures=tuple(res.figures))
+
+
+EXPERIMENT = register(Experiment(
+    name="table2_shoot_pass",
+    description="Table 2: shoot/pass success, current features vs CVA state vectors",
+    default_config=Table2Config(),
+    make_program=make_program,
+    quick={"train.num_chunks": 8, "learner.collect_steps": 1500,
+           "learner.runner.num_envs": 32, "learner.quantizer.num_codes": 128},
+    seeds=16,
+    quick_seeds=4,
+    paper_result=True,
+    paper=PAPER,
+    report=report,
+    sweep={"task": ["shoot", "pass"], "learner.state": ["current", "cva"]},
+))
+
+if __name__ == "__main__":
+    from vbl.engine import main_for
+
+    main_for(EXPERIMENT)

@@ -1,0 +1,113 @@
+"""Tests of vbl.agents.cva_state on the moving-target env (tests/moving_target_env.py).
+
+The target's position alone is not Markov (its direction is hidden); a two-step history is.
+The CVA-state learner must identify a 2-dimensional state at lag >= 2 and beat the
+current-feature learner clearly.
+"""
+
+import sys
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import vbl  # noqa: F401
+from vbl.agents.cva_state import (
+    CVAStateParams,
+    collect,
+    default_runner,
+    filter_state,
+    identify_object,
+    make_cva_learner,
+)
+from vbl.params import ParamError
+from vbl.spaces.quantize import QuantizerParams
+from vbl.sysid.params import CVAParams
+
+sys.path.insert(0, str(Path(__file__).parent))
+from moving_target_env import MovingTargetEnv  # noqa: E402
+
+SEEDS = 4
+CHUNKS = 30
+
+
+def params(state: str) -> CVAStateParams:
+    r = default_runner()
+    r = r.replace(agent=r.agent.replace(num_actions=2, exploration=r.agent.exploration.replace(
+        schedule=r.agent.exploration.schedule.replace(init_value=0.5, transition_steps=3000.0))),
+        num_envs=32, chunk_steps=200)
+    bins = 12 if state == "cva" else 24
+    return CVAStateParams(state=state, objects=("target",), n_used=2, collect_steps=800,
+                          cva=CVAParams(lag=0, lag_max=2, logdet_stop=-100.0),
+                          quantizer=QuantizerParams(method="bins", bins=bins), runner=r)
+
+
+def train_and_evaluate(env, p):
+    """One jit: prepare (collect, CVA, quantiser), CHUNKS chunks of Q-learning, greedy eval."""
+    lrn = make_cva_learner(env, p)
+    rp = lrn.runner_params(p)
+
+    def one(key):
+        k1, k2, k3 = jax.random.split(key, 3)
+        fp = lrn.prepare(k1, p, env.default_params)
+        c = lrn.runner.init(k2, rp, fp)
+        c, _ = jax.lax.scan(lambda c, _: (lrn.runner.run_chunk(c, rp, fp)[0], None), c, None,
+                            length=CHUNKS)
+        ev = lrn.runner.evaluate(k3, c.q, rp, fp, 60)  # 32 first episodes
+        return ev["success_rate"], fp
+
+    return jax.jit(jax.vmap(one))(jax.random.split(jax.random.PRNGKey(0), SEEDS))
+
+
+@pytest.fixture(scope="module")
+def results():
+    env = MovingTargetEnv()
+    return {s: train_and_evaluate(env, params(s)) for s in ("cva", "current")}
+
+
+def test_cva_learner_beats_current_features(results):
+    cva, fp = results["cva"]
+    cur, _ = results["current"]
+    model = fp.models[0]
+    # the identification finds position + velocity: n* = 2 at a lag >= 2
+    assert np.all(np.asarray(model.n) == 2)
+    assert np.all(np.asarray(model.lag) >= 2)
+    cva, cur = np.asarray(cva), np.asarray(cur)
+    # position only is at best ~50 % (direction unknown); CVA state near the oracle's 100 %
+    assert cva.mean() >= 0.6, cva
+    assert cva.mean() >= cur.mean() + 0.15, (cva, cur)
+
+
+def test_filter_matches_cva_state_on_data():
+    """Decision-time state equals U p(t+1) with u(t) at its mean, from an independent stack."""
+    env = MovingTargetEnv()
+    d = collect(env, jax.random.PRNGKey(3), env.default_params, 600)
+    cva = CVAParams(lag=2)
+    mod = identify_object(d["u"], d["obs"], cva, 2)
+    u = np.asarray(d["u"], float)
+    y = np.asarray(d["obs"], float)
+    un = (u - u.mean(0)) / u.std(0)
+    yn = (y - y.mean(0)) / y.std(0)
+    t = 100
+    # p(t+1) = [u(t), u(t-1); y(t), y(t-1)] with u(t) -> 0 (its mean)
+    p = np.concatenate([[0.0], un[t - 1], yn[t], yn[t - 1]])
+    U = np.concatenate([np.asarray(mod.Uu).reshape(2, -1), np.asarray(mod.Uy).reshape(2, -1)],
+                       axis=1)
+    ref = U @ p
+    got = filter_state(mod, jnp.asarray(u[[t, t - 1]]), jnp.asarray(y[[t, t - 1]]))
+    np.testing.assert_allclose(np.asarray(got), ref, rtol=1e-4, atol=1e-4)
+
+
+def test_bad_inputs():
+    env = MovingTargetEnv()
+    with pytest.raises(ParamError, match="obs_slices"):
+        make_cva_learner(env, params("cva").replace(objects=("ball",)))
+    with pytest.raises(ParamError, match="collect_steps"):
+        make_cva_learner(env, params("cva").replace(collect_steps=20))
+    with pytest.raises(ParamError, match="state"):
+        make_cva_learner(env, params("cva").replace(state="history"))
+    with pytest.raises(ParamError, match="max_states"):
+        make_cva_learner(env, params("current").replace(
+            quantizer=QuantizerParams(method="bins", bins=10, max_states=5)))
