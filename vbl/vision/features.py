@@ -54,13 +54,14 @@ _TINY = 1e-12
 
 def _safe_div(a, b):
     """a / b with b == 0 replaced by a tiny number of the same sign (finite, no NaN)."""
-    b = jnp.where(jnp.abs(b) < _TINY, jnp.where(b < 0, -_TINY, _TINY), b)
+    tiny = jnp.asarray(_TINY, jnp.result_type(b))
+    b = jnp.where(jnp.abs(b) < tiny, jnp.where(b < 0, -tiny, tiny), b)
     return a / b
 
 
 def _lost_side(x_cam):
     """-1 when the reference point is left of the camera mid-plane (X < 0), else +1."""
-    return jnp.where(x_cam < 0, -1.0, 1.0).astype(F32)
+    return jnp.where(x_cam < 0, jnp.float32(-1.0), jnp.float32(1.0))
 
 
 # ----------------------------------------------------------------------------- ball (sphere)
@@ -454,7 +455,7 @@ def _poly_in_rect(poly, ok, lo, hi) -> Region:
     elen = jnp.sqrt(jnp.sum(e * e, axis=-1))
     real = elen > 1e-6
     signed = 0.5 * jnp.sum(poly[:, 0] * nxt[:, 1] - nxt[:, 0] * poly[:, 1])
-    o = jnp.where(signed < 0, -1.0, 1.0)
+    o = jnp.where(signed < 0, jnp.float32(-1.0), jnp.float32(1.0))
     box_ok = ok & jnp.all(hi > lo) & (jnp.abs(signed) > 1e-6)
     # polygon edges clipped to the box
     q0, q1, qok = _clip_rect(poly, nxt, lo, hi)
