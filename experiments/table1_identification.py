@@ -148,6 +148,10 @@ def run(ctx: RunContext) -> dict:
     for i, (m, t) in enumerate(tables.items()):
         ctx.log(i, {f"{m}/{k}/{q}": t[k][q]["mean"] for k in ROWS
                     for q in ("l", "n", "logdet_R", "aic")})
+    for t in tables.values():
+        for s in t.values():
+            for v in s.values():
+                v.pop("per_seed", None)
     return {"tables": tables, "checks": {m: checks(t) for m, t in tables.items()},
             "markdown": md}
 

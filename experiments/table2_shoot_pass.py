@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from vbl.agents.cva_state import CVAStateParams, make_cva_learner
+from vbl.agents.cva_state import CVAStateParams, default_runner, make_cva_learner
 from vbl.engine import Experiment, Program, register
 from vbl.engine.experiment import ReportSection
 from vbl.envs.shoot_pass import TASKS, ShootPassEnv, ShootPassParams
@@ -34,12 +34,22 @@ def default_learner() -> CVAStateParams:
         objects=("ball", "goal", "other"), n_used=2, extra=("lost_side",),
         collect_steps=3000,
         cva=CVAParams(lag=0, lag_max=3, logdet_stop=-100.0),
-        quantizer=QuantizerParams(method="vq", num_codes=256, kmeans_iters=20))
+        quantizer=QuantizerParams(method="vq", num_codes=256, kmeans_iters=20),
+        runner=_runner(transition_steps=4800.0))
+
+
+def _runner(transition_steps: float):
+    """Runner defaults with epsilon 1.0 -> 0.05 over ``transition_steps`` learner steps
+    (about 80 % of a run: num_chunks x chunk_steps)."""
+    r = default_runner()
+    sch = r.agent.exploration.schedule.replace(transition_steps=transition_steps)
+    return r.replace(agent=r.agent.replace(exploration=r.agent.exploration.replace(
+        schedule=sch)))
 
 
 @struct.dataclass
 class Table2Train:
-    num_chunks: int = param(30, doc="chunks (progress units) per run", static=True, ge=1)
+    num_chunks: int = param(60, doc="chunks (progress units) per run", static=True, ge=1)
     eval_steps: int = param(120, doc="greedy evaluation: primitives run from fresh starts in "
                             "each of the runner's envs (first finished episode counts)",
                             static=True, ge=1)
@@ -120,7 +130,8 @@ EXPERIMENT = register(Experiment(
     default_config=Table2Config(),
     make_program=make_program,
     quick={"train.num_chunks": 8, "learner.collect_steps": 1500,
-           "learner.runner.num_envs": 32, "learner.quantizer.num_codes": 128},
+           "learner.runner.num_envs": 32, "learner.quantizer.num_codes": 128,
+           "learner.runner.agent.exploration.schedule.transition_steps": 600.0},
     seeds=16,
     quick_seeds=4,
     paper_result=True,

@@ -105,7 +105,7 @@ def test_bad_inputs():
     with pytest.raises(ParamError, match="obs_slices"):
         make_cva_learner(env, params("cva").replace(objects=("ball",)))
     with pytest.raises(ParamError, match="collect_steps"):
-        make_cva_learner(env, params("cva").replace(collect_steps=20))
+        make_cva_learner(env, params("cva").replace(collect_steps=10))
     with pytest.raises(ParamError, match="state"):
         make_cva_learner(env, params("cva").replace(state="history"))
     with pytest.raises(ParamError, match="max_states"):

@@ -46,7 +46,7 @@ from flax import struct
 
 from vbl.params import ParamError, param, section, validate
 from vbl.vision.camera import CameraParams
-from vbl.vision.features import SEC2_DIM, section2_features
+from vbl.vision.features import SEC2_DIM, _section2, section2_features  # noqa: F401
 from vbl.world.params import ROBOT_KINDS, WorldParams
 from vbl.world.physics import WorldState, goal_corners, world_step, wrap_angle
 from vbl.world.robots import action_labels, num_actions
@@ -219,18 +219,12 @@ class ShootingEnv:
         """Section 2 features (9,) float32 of the robot's camera.
 
         Pixel noise (``camera.pixel_noise_std > 0``) is drawn from ``fold_in(key, 1)``; with
-        the noise off the noise-free branch runs (no random draws).
+        the noise off no random numbers are drawn (a ``lax.cond`` around the draw only, so
+        the feature geometry is compiled once).
         """
-        def features(k):
-            return section2_features(world.robots[0], world.ball,
-                                     jnp.asarray(params.world.ball.radius, F32),
-                                     goal_corners(params.world), params.camera, key=k)
-
-        if key is None:
-            return features(None)
-        noisy = jnp.asarray(params.camera.pixel_noise_std, F32) > 0
-        return jax.lax.cond(noisy, lambda k: features(jax.random.fold_in(k, 1)),
-                            lambda k: features(None), key)
+        return _section2(world.robots[0], world.ball, jnp.asarray(params.world.ball.radius, F32),
+                         goal_corners(params.world), params.camera, key,
+                         fold_in=None if key is None else 1)
 
     def reset(self, key: jax.Array, params: ShootingParams | None = None
               ) -> tuple[jax.Array, ShootingState]:

@@ -1,0 +1,102 @@
+"""Batched identification-data collection (vbl.envs.collect)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import vbl  # noqa: F401
+from vbl.envs.collect import (
+    CollectData,
+    CollectParams,
+    collect,
+    collect_many,
+    id_outputs,
+    observer_action,
+)
+from vbl.params import ParamError
+from vbl.world.physics import make_state
+from vbl.world.robots import FOUR_WHEEL_U
+
+N = 30
+BATCH = 3
+
+
+@pytest.fixture(scope="module")
+def scen():
+    base = CollectParams(num_steps=N)
+    return [base.replace(focus="goal", other_behaviour="stationary"),
+            base.replace(focus="other", other_behaviour="random_walk")]
+
+
+@pytest.fixture(scope="module")
+def data(scen):
+    return collect_many(jax.random.PRNGKey(0), scen, BATCH)
+
+
+def test_shapes_dtypes(data):
+    for d in data:
+        assert d.u.shape == (BATCH, N, 2) and d.ball.shape == (BATCH, N, 4)
+        assert d.goal.shape == (BATCH, N, 11) and d.other.shape == (BATCH, N, 5)
+        assert d.visible.shape == (BATCH, N, 3)
+        for x in (d.u, d.ball, d.goal, d.other, d.visible):
+            assert x.dtype == jnp.float32 and np.all(np.isfinite(np.asarray(x)))
+        rows = {tuple(r) for r in np.asarray(d.u).reshape(-1, 2).astype(int).tolist()}
+        assert rows <= {tuple(r) for r in FOUR_WHEEL_U.tolist()}
+
+
+def test_deterministic_and_keyed(scen, data):
+    again = collect_many(jax.random.PRNGKey(0), scen, BATCH)
+    for a, b in zip(data, again, strict=True):
+        np.testing.assert_array_equal(a.goal, b.goal)
+        np.testing.assert_array_equal(a.u, b.u)
+    other = collect_many(jax.random.PRNGKey(1), scen, BATCH)
+    assert not np.array_equal(np.asarray(other[0].u), np.asarray(data[0].u))
+    # data sets within a batch differ
+    assert not np.array_equal(np.asarray(data[0].u[0]), np.asarray(data[0].u[1]))
+
+
+def test_focus_kept_in_view(data):
+    assert np.asarray(data[0].visible)[..., 1].mean() > 0.9     # goal row: goal visible
+    assert np.asarray(data[1].visible)[..., 2].mean() > 0.9     # other row: robot visible
+
+
+def test_observer_action_keeps_view():
+    p = CollectParams(focus="goal", keep_bearing_deg=20.0)
+    # goal far on the left (bearing ~ +60 deg): only FL (2) or BR (6) turn towards it
+    w = make_state([[4.11 - 1.0, -np.sqrt(3.0), 0.0], [0.0, 0.0, 0.0]], [0.0, 1.0])
+    acts = {int(observer_action(jax.random.PRNGKey(i), w, p)) for i in range(40)}
+    assert acts <= {2, 6} and len(acts) == 2
+    # goal ahead and too close: no forward action
+    w = make_state([[3.5, 0.0, 0.0], [0.0, 0.0, 0.0]], [0.0, 1.0])
+    acts = {int(observer_action(jax.random.PRNGKey(i), w, p)) for i in range(60)}
+    assert acts and all(FOUR_WHEEL_U[a][0] <= 0 for a in acts)
+
+
+def test_id_outputs():
+    y = np.zeros((1, 2, 5), np.float32)
+    y[..., 4] = 400.0
+    y[..., 0] = 8.0
+    d = CollectData(u=np.zeros((1, 2, 2)), ball=np.zeros((1, 2, 4)), goal=np.zeros((1, 2, 11)),
+                    other=y, visible=np.ones((1, 2, 3)))
+    out = id_outputs(d, "other", 4.0)
+    assert out.dtype == np.float64
+    np.testing.assert_allclose(out[0, 0], [2.0, 0, 0, 0, 5.0])
+    with pytest.raises(ValueError, match="object"):
+        id_outputs(d, "referee", 1.0)
+    with pytest.raises(ValueError, match="y_unit"):
+        id_outputs(d, "other", 0.0)
+
+
+def test_bad_inputs(scen):
+    k = jax.random.PRNGKey(0)
+    with pytest.raises(ValueError, match="batch"):
+        collect(k, scen[0], 0)
+    with pytest.raises(ParamError, match="CollectParams"):
+        collect(k, {"num_steps": 3}, 2)
+    with pytest.raises(ParamError, match="static"):
+        collect_many(k, [scen[0], scen[1].replace(num_steps=N + 1)], 2)
+    with pytest.raises(ParamError, match="focus"):
+        collect(k, scen[0].replace(focus="referee"), 2)
+    with pytest.raises(ParamError, match="min_dist"):
+        collect(k, scen[0].replace(min_dist=5.0, max_dist=1.0), 2)

@@ -1,0 +1,233 @@
+"""Two-robot shooting/passing env, scripted agents, kicks and the noise model."""
+
+import chex
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import vbl  # noqa: F401  (x64 on)
+from vbl.envs.noise import NoiseParams, eccentric_centroid, noisy_camera, perturb_ball_velocity
+from vbl.envs.other_agents import OtherAgentParams, act, init_memory
+from vbl.envs.shoot_pass import (
+    OBS_SLICES,
+    ShootPassEnv,
+    ShootPassState,
+    apply_kicks,
+)
+from vbl.params import ParamError
+from vbl.vision.camera import CameraParams
+from vbl.vision.features import flatten_section3, section3_features
+from vbl.world.physics import goal_corners, make_state
+
+B = 24
+T = 40
+
+
+@pytest.fixture(scope="module")
+def env():
+    return ShootPassEnv("shoot")
+
+
+@pytest.fixture(scope="module")
+def step_jit(env):
+    @jax.jit
+    @chex.assert_max_traces(n=1)
+    def step(key, state, action, params):
+        return env.step(key, state, action, params)
+    return step
+
+
+@pytest.fixture(scope="module")
+def batch_run(env):
+    """T steps of B envs, learner stands still (action 0), via jit(vmap(step))."""
+    p = env.default_params
+    vreset = jax.jit(jax.vmap(env.reset, in_axes=(0, None)))
+    vstep = jax.jit(jax.vmap(env.step, in_axes=(0, 0, 0, None)))
+    obs, st = vreset(jax.random.split(jax.random.PRNGKey(0), B), p)
+    keys = jax.random.split(jax.random.PRNGKey(1), T * B).reshape(T, B, 2)
+    acts = jax.random.randint(jax.random.PRNGKey(2), (T, B), 0, 7, jnp.int32)
+    states, infos, obss = [st], [], [obs]
+    for t in range(T):
+        obs, st, r, te, tr, info = vstep(keys[t], st, jnp.zeros(B, jnp.int32), p)
+        states.append(st)
+        infos.append(info)
+        obss.append(obs)
+    return dict(states=states, infos=infos, obs=obss, keys=keys, acts=acts, vstep=vstep)
+
+
+def test_reset_shapes_dtypes(env, batch_run):
+    obs = batch_run["obs"][0]
+    st = batch_run["states"][0]
+    assert obs.shape == (B, 26) and obs.dtype == jnp.float32
+    assert st.world.robots.shape == (B, 2, 3) and st.world.robots.dtype == jnp.float32
+    assert st.step.dtype == jnp.int32 and st.phase.dtype == jnp.float32
+    info = batch_run["infos"][0]
+    assert info["u"].shape == (B, 2) and info["u"].dtype == jnp.float32
+    assert info["success"].dtype == jnp.bool_
+    assert env.num_actions == 7 and env.obs_slices == OBS_SLICES
+    assert np.all(np.isfinite(np.asarray(batch_run["obs"])))
+
+
+def test_jit_vmap_equals_loop(env, step_jit, batch_run):
+    p = env.default_params
+    st0 = batch_run["states"][0]
+    keys, acts = batch_run["keys"], batch_run["acts"]
+    vstep = batch_run["vstep"]
+    st_b = st0
+    for t in range(4):
+        obs_b, st_b, r_b, *_ = vstep(keys[t], st_b, acts[t], p)
+    for i in range(3):
+        st = jax.tree_util.tree_map(lambda x, i=i: x[i], st0)
+        for t in range(4):
+            obs, st, r, *_ = step_jit(keys[t, i], st, acts[t, i], p)
+        np.testing.assert_allclose(obs, obs_b[i], rtol=1e-5, atol=1e-3)
+        np.testing.assert_allclose(st.world.ball, st_b.world.ball[i], rtol=1e-5, atol=1e-6)
+
+
+def test_step_compiles_once(env, step_jit, batch_run):
+    p = env.default_params
+    st = jax.tree_util.tree_map(lambda x: x[5], batch_run["states"][3])
+    p2 = p.replace(shooter_kick_speed=1.5, noise=p.noise.replace(image_std=1.0))
+    for a in (0, 3):
+        step_jit(jax.random.PRNGKey(a), st, jnp.int32(a), p2)  # no retrace (max_traces=1)
+
+
+def test_obs_equals_section3_features(env, batch_run):
+    """The learner's obs is section3_features of the shooter's camera (noise off)."""
+    p = env.default_params
+    for t in (0, 10, 25):
+        st = batch_run["states"][t]
+        obs = batch_run["obs"][t]
+        for i in (0, 7):
+            w = jax.tree_util.tree_map(lambda x, i=i: x[i], st.world)
+            ref = flatten_section3(section3_features(
+                w.robots[0], w.ball, p.world.ball.radius, goal_corners(p.world), w.robots[1],
+                jnp.array([0.4, 0.4, p.robot_height], jnp.float32), p.shooter_camera))
+            np.testing.assert_allclose(obs[i], ref, rtol=1e-5, atol=1e-3)
+
+
+def test_scripted_passer_delivers(batch_run):
+    """With the shooter standing still, the passer kicks and the ball comes within 0.45 m of
+    the shooter in most first episodes."""
+    reached = np.zeros(B, bool)
+    kicked = np.zeros(B, bool)
+    alive = np.ones(B, bool)
+    for st_prev, info in zip(batch_run["states"][:-1], batch_run["infos"], strict=True):
+        d = np.linalg.norm(np.asarray(st_prev.world.ball - st_prev.world.robots[:, 0, :2]), axis=1)
+        reached |= alive & (d < 0.45)
+        kicked |= alive & np.asarray(info["kicked"])
+        alive &= ~np.asarray(info["episode_done"])
+    assert kicked.mean() >= 0.8
+    assert reached.mean() >= 0.8
+    # a shooter standing still never scores
+    assert not any(np.asarray(i["success"]).any() for i in batch_run["infos"])
+
+
+def _hand_state(robots, ball, vel, touched):
+    w = make_state(robots, ball, vel)
+    mem = init_memory(jax.random.PRNGKey(0), OtherAgentParams())
+    return ShootPassState(world=w, step=jnp.int32(3), memory=mem.replace(kicked=jnp.bool_(True)),
+                          touched=jnp.bool_(touched), kicked=jnp.bool_(True),
+                          phase=jnp.float32(0.0))
+
+
+def test_success_detection_shoot(env, step_jit):
+    p = env.default_params
+    half = p.world.field.length / 2
+    robots = [[0.0, 0.0, 0.0], [-2.0, 1.5, 0.0]]
+    ball = [half - 0.05, 0.0]
+    for touched in (True, False):
+        st = _hand_state(robots, ball, [1.0, 0.0], touched)
+        _, _, r, te, tr, info = step_jit(jax.random.PRNGKey(0), st, jnp.int32(0), p)
+        assert bool(info["goal"]) and bool(te) and not bool(tr)
+        assert bool(info["success"]) == touched and float(r) == float(touched)
+    # ball rolling in the field, not touched: no success, not done
+    st = _hand_state(robots, [0.0, 1.5], [0.5, 0.0], False)
+    _, _, r, te, tr, info = step_jit(jax.random.PRNGKey(0), st, jnp.int32(0), p)
+    assert not bool(info["success"]) and not bool(te)
+
+
+def test_success_detection_pass():
+    env = ShootPassEnv("pass")
+    p = env.default_params
+    # ball rolling towards the (waiting) shooter, 0.5 m away at 1 m/s: inside 0.45 m next step
+    st = _hand_state([[0.0, 0.0, 0.0], [2.0, 1.0, 3.0]], [0.5, 0.0], [-1.0, 0.0], False)
+    _, _, r, te, _, info = env.step_env(jax.random.PRNGKey(0), st, jnp.int32(0), p)
+    assert bool(info["success"]) and bool(te) and float(r) == 1.0
+    # pass starts: ball rolling, nothing decided at reset
+    _, st = env.reset(jax.random.PRNGKey(3), p)
+    assert float(jnp.linalg.norm(st.world.ball_vel)) >= p.start.pass_ball_speed_min - 1e-6
+
+
+def test_kicks_reference():
+    w = make_state([[0.0, 0.0, 0.0], [2.0, 2.0, 0.0]], [0.3, 0.0])
+    touch = jnp.array([True, False])
+    speeds = jnp.array([2.0, 1.0], jnp.float32)
+    aim = jnp.array([-1, -1], jnp.int32)
+    zero = jnp.zeros(2, jnp.float32)
+    k = jax.random.PRNGKey(0)
+    w2, kicked = apply_kicks(k, w, touch, jnp.array([1, 0], jnp.int32), speeds, aim, zero, 30.0)
+    np.testing.assert_allclose(w2.ball_vel, [2.0, 0.0], atol=1e-6)
+    assert kicked.tolist() == [True, False]
+    # driving backwards or ball behind: no kick
+    w3, kicked = apply_kicks(k, w, touch, jnp.array([4, 0], jnp.int32), speeds, aim, zero, 30.0)
+    assert not kicked.any() and np.allclose(w3.ball_vel, 0)
+    # aimed kick towards robot 1 at (2, 2) from the ball at (0.3, 0)
+    w4, _ = apply_kicks(k, w, touch, jnp.array([1, 0], jnp.int32), speeds,
+                        jnp.array([1, -1], jnp.int32), zero, 30.0)
+    d = np.array([1.7, 2.0]) / np.linalg.norm([1.7, 2.0])
+    np.testing.assert_allclose(w4.ball_vel, 2.0 * d, atol=1e-5)
+
+
+def test_scripted_behaviours():
+    p = OtherAgentParams(max_delay=0)
+    mem = init_memory(jax.random.PRNGKey(0), p)
+    k = jax.random.PRNGKey(1)
+    # robot 1 at the origin facing +x; ball ahead / to the left / to the right
+    for ball, want in (([1.0, 0.0], 1), ([1.0, 1.0], 2), ([1.0, -1.0], 3)):
+        w = make_state([[5.0, 5.0, 0.0], [0.0, 0.0, 0.0]], ball)
+        assert int(act("move_to_ball", k, w, mem, 1, p)[0]) == want
+        assert int(act("passer", k, w, mem, 1, p)[0]) == want
+        assert int(act("passer", k, w, mem.replace(kicked=jnp.bool_(True)), 1, p)[0]) == 0
+        assert int(act("stationary", k, w, mem, 1, p)[0]) == 0
+    waiting = mem.replace(delay=jnp.int32(5))
+    assert int(act("passer", k, w, waiting, 1, p)[0]) == 0
+    keep = OtherAgentParams(walk_switch_prob=0.0)
+    a, m2 = act("random_walk", k, w, mem.replace(action=jnp.int32(4)), 1, keep)
+    assert int(a) == 4 and int(m2.t) == 1
+    with pytest.raises(ValueError, match="behaviour"):
+        act("dance", k, w, mem, 1, p)
+
+
+def test_noise_model_pieces():
+    obs = jnp.array([10.0, 20.0, 40.0, 30.0], jnp.float32)
+    n = NoiseParams(ecc_centroid=0.5)
+    out = eccentric_centroid(obs, jnp.float32(1.0), jnp.float32(np.pi / 2), n)
+    np.testing.assert_allclose(out, [10.0, 27.5, 40.0, 30.0], atol=1e-5)
+    assert np.allclose(eccentric_centroid(obs, jnp.float32(0.0), jnp.float32(1.0), n), obs)
+    v = perturb_ball_velocity(jax.random.PRNGKey(0), jnp.array([0.6, 0.8], jnp.float32),
+                              jnp.float32(0.1), jnp.float32(0.11), NoiseParams(ecc_turn_std=1.0))
+    assert abs(float(jnp.linalg.norm(v)) - 1.0) < 1e-5
+    cam = noisy_camera(CameraParams(pixel_noise_std=3.0), NoiseParams(image_std=4.0))
+    assert abs(float(cam.pixel_noise_std) - 5.0) < 1e-5
+
+
+def test_bad_inputs(env, batch_run):
+    with pytest.raises(ValueError, match="task"):
+        ShootPassEnv("dribble")
+    p = env.default_params
+    with pytest.raises(ParamError, match="shooter_x_min"):
+        env.validate(p.replace(start=p.start.replace(shooter_x_min=3.0)))
+    with pytest.raises(ParamError, match="receive_distance"):
+        ShootPassEnv("pass", p.replace(receive_distance=1.0))
+    with pytest.raises(ParamError):
+        env.validate(p.replace(kick_cone_deg=-1.0))
+    st = jax.tree_util.tree_map(lambda x: x[0], batch_run["states"][0])
+    k = jax.random.PRNGKey(0)
+    for bad, msg in ((7, "out of range"), (-1, "out of range"), (1.0, "integer"),
+                     (np.array([1, 2]), "scalar")):
+        with pytest.raises(ValueError, match=msg):
+            env.step(k, st, bad, p)
+    with pytest.raises(ValueError, match="vmap"):
+        env.step(k, batch_run["states"][0], 0, p)
