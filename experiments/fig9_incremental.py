@@ -58,8 +58,10 @@ class Fig9Train:
                             source="P", static=True, ge=1)
     num_chunks: int = param(20, doc="chunks (progress/checkpoint units) per run", static=True,
                             ge=1)
-    updates_per_chunk: int = param(80, doc="structure updates per chunk (each after "
-                                   "learner.update_every primitives)", static=True, ge=1)
+    updates_per_chunk: int = param(90, doc="structure updates per chunk (each after "
+                                   "learner.update_every primitives); chunks x this x "
+                                   "update_every should exceed num_trials x env.max_steps",
+                                   static=True, ge=1)
     eval_episodes: int = param(200, doc="greedy evaluation episodes on fresh starts",
                                static=True, ge=1)
 
@@ -205,7 +207,8 @@ def plot_fig8(final: dict, cfg: Fig9Config, out: Path, seed: int = 0) -> Path:
     fp = cfg.features
     sl = np.full(lo.shape[1], 0.5)
     other = [d for d in range(lo.shape[1]) if d not in (0, 2)]
-    cut = act & np.all((lo[:, other] <= sl[other]) & (sl[other] <= hi[:, other]), axis=1)
+    up = (sl[other] < hi[:, other]) | (hi[:, other] >= 1.0)          # as vbl's leaf_of
+    cut = act & np.all((lo[:, other] <= sl[other]) & up, axis=1)
     fig, ax = plt.subplots(figsize=(5.5, 5))
     cmap = plt.get_cmap("tab10")
     for i in np.flatnonzero(cut):
@@ -229,22 +232,29 @@ def plot_fig8(final: dict, cfg: Fig9Config, out: Path, seed: int = 0) -> Path:
 def report(res) -> ReportSection:
     cfg = res.config
     fin = {k: np.asarray(v)[0] for k, v in res.final.items()}         # first sweep point
+    n = int(min(fin["trials_done"].min(), fin["trial_success"].shape[1]))  # done by all seeds
+    fin["trial_success"] = fin["trial_success"][:, :n]
+    fin["trial_states"] = fin["trial_states"][:, :n]
     figs = [plot_fig9(fin, cfg, Path(res.out_dir)), plot_fig8(fin, cfg, Path(res.out_dir))]
     succ = fin["trial_success"]
     st = fin["trial_states"]
-    c1, c2, n = cfg.change.change_trial_1, cfg.change.change_trial_2, succ.shape[1]
+    c1, c2 = cfg.change.change_trial_1, cfg.change.change_trial_2
     w = 50
 
     def rate(a, b):
         a, b = max(0, min(a, n)), max(0, min(b, n))
         return float(succ[:, a:b].mean()) if b > a else float("nan")
 
-    rows = [("before change 1", rate(c1 - w, c1), float(st[:, max(c1 - 1, 0)].mean())),
-            ("just after change 1", rate(c1, c1 + w), float(st[:, min(c1 + w, n - 1)].mean())),
-            ("before change 2", rate(c2 - w, c2), float(st[:, max(c2 - 1, 0)].mean())),
-            ("just after change 2", rate(c2, c2 + w), float(st[:, min(c2 + w, n - 1)].mean())),
-            ("end", rate(n - w, n), float(st[:, -1].mean()))]
-    md = [f"On-line segmentation, {succ.shape[0]} seeds, {n} trials, ball radius "
+    def states_at(t):
+        return float(st[:, min(max(t, 0), n - 1)].mean()) if n else float("nan")
+
+    rows = [("before change 1", rate(c1 - w, c1), states_at(c1 - 1)),
+            ("just after change 1", rate(c1, c1 + w), states_at(c1 + w)),
+            ("before change 2", rate(c2 - w, c2), states_at(c2 - 1)),
+            ("just after change 2", rate(c2, c2 + w), states_at(c2 + w)),
+            ("end", rate(n - w, n), states_at(n - 1))]
+    md = [f"On-line segmentation, {succ.shape[0]} seeds, {n} trials (finished by every seed "
+          f"of {cfg.train.num_trials}), ball radius "
           f"{cfg.change.radius_0} -> {cfg.change.radius_1} m (trial {c1}) -> "
           f"{cfg.change.radius_2} m (trial {c2}).", "",
           f"| window ({w} trials) | success rate | states |", "|---|---|---|"]
@@ -260,7 +270,7 @@ EXPERIMENT = register(Experiment(
     description="Figs 8-9: on-line incremental state segmentation, ball size changed twice",
     default_config=Fig9Config(),
     make_program=make_program,
-    quick={"train.num_trials": 300, "change.change_trial_1": 120, "change.change_trial_2": 210,
+    quick={"train.num_trials": 150, "change.change_trial_1": 60, "change.change_trial_2": 105,
            "train.num_chunks": 4, "train.updates_per_chunk": 60, "train.eval_episodes": 64},
     seeds=8,
     quick_seeds=2,

@@ -34,6 +34,7 @@ def data(scen):
     return collect_many(jax.random.PRNGKey(0), scen, BATCH)
 
 
+@pytest.mark.slow  # compiles the collection scan (minutes on a loaded 2-core box)
 def test_shapes_dtypes(data):
     for d in data:
         assert d.u.shape == (BATCH, N, 2) and d.ball.shape == (BATCH, N, 4)
@@ -45,6 +46,7 @@ def test_shapes_dtypes(data):
         assert rows <= {tuple(r) for r in FOUR_WHEEL_U.tolist()}
 
 
+@pytest.mark.slow  # compiles the collection scan (minutes on a loaded 2-core box)
 def test_deterministic_and_keyed(scen, data):
     again = collect_many(jax.random.PRNGKey(0), scen, BATCH)
     for a, b in zip(data, again, strict=True):
@@ -56,6 +58,7 @@ def test_deterministic_and_keyed(scen, data):
     assert not np.array_equal(np.asarray(data[0].u[0]), np.asarray(data[0].u[1]))
 
 
+@pytest.mark.slow  # compiles the collection scan (minutes on a loaded 2-core box)
 def test_focus_kept_in_view(data):
     assert np.asarray(data[0].visible)[..., 1].mean() > 0.9     # goal row: goal visible
     assert np.asarray(data[1].visible)[..., 2].mean() > 0.9     # other row: robot visible

@@ -20,7 +20,7 @@ from vbl.params import ParamError
 # 40 learner steps x 16 robots. Training and evaluation start easy (difficulty 0: robot 1 m
 # in front of the goal facing it, ball just ahead), so a few thousand macro actions suffice
 # to learn "push forward" while a random policy often turns away.
-TINY = {"agent.num_envs": 16, "agent.chunk_steps": 40, "train.num_chunks": 3,
+TINY = {"agent.num_envs": 32, "agent.chunk_steps": 40, "train.num_chunks": 3,
         "train.eval_envs": 32, "train.eval_steps": 60, "train.final_eval_rounds": 2,
         "env.max_steps": 60, "env.start_difficulty": 0.0, "train.eval_difficulty": 0.0,
         "agent.agent.exploration.schedule.transition_steps": 60.0,
@@ -52,7 +52,8 @@ def test_engine_run_writes_metrics(result):
     # and cannot rise within one 1000-step window
     assert np.all(result.curves["difficulty"][0] == 1.0)
     assert np.all(result.curves["difficulty"][1] == 0.0)
-    # the epsilon schedule (linear 1 -> 0.1 over 60 steps) has ended after 40 + 40 steps
+    # epsilon: linear 1 -> 0.1 over 60 steps; the last step of chunk 0 acts at count 39
+    np.testing.assert_allclose(result.curves["epsilon"][:, 0], 1 - 0.9 * 39 / 60, atol=1e-6)
     np.testing.assert_allclose(result.curves["epsilon"][:, 1:], 0.1, atol=1e-6)
     assert (out / "summary.json").exists()
 

@@ -148,6 +148,7 @@ def test_success_detection_shoot(env, step_jit):
     assert not bool(info["success"]) and not bool(te)
 
 
+@pytest.mark.slow  # compiles the pass env
 def test_success_detection_pass():
     env = ShootPassEnv("pass")
     p = env.default_params

@@ -51,14 +51,18 @@ def _rollout_env(env, params, state, actions):
     return jax.lax.scan(body, state, actions)[1]
 
 
+# params are a traced argument: episodes with different start_difficulty share one compile
+_rollout_env_jit = jax.jit(_rollout_env, static_argnums=0)
+_reset_jit = jax.jit(lambda env, key, params: env.reset(key, params), static_argnums=0)
+
+
 def _episode_vs_reference(env, params, key, n_cam, seed):
     p = params
-    obs0, st = env.reset(key, p)
+    obs0, st = _reset_jit(env, key, p)
     rng = np.random.default_rng(seed)
     acts = np.where(rng.random(p.max_steps) < 0.5, 8, rng.integers(0, 9, p.max_steps))
     obs, states, rew, term, trunc = jax.tree_util.tree_map(
-        np.asarray, jax.jit(lambda s, a: _rollout_env(env, p, s, a))(st, jnp.asarray(
-            acts, jnp.int32)))
+        np.asarray, _rollout_env_jit(env, p, st, jnp.asarray(acts, jnp.int32)))
     corners = world_np.goal_corners_np(p.world)
 
     def cam(s):

@@ -350,14 +350,10 @@ def make_qlearning_runner(env: Any, state_fn: Callable, params: QRunnerParams,
         difficulty yourself) for at most ``num_steps`` actions (static); each env's first
         finished episode counts. Stops as soon as every env has finished one episode
         (later steps could not change the result)."""
+        if lp.enabled:  # start (and stay) at env_params' own difficulty: one reset only
+            d = jnp.asarray(env_params.start_difficulty, jnp.float32)
+            params = params.replace(lem=params.lem.replace(initial_difficulty=d))
         c = init(key, params, env_params).replace(q=jnp.asarray(q, jnp.float32))
-        if lp.enabled:  # the evaluation uses env_params' own difficulty
-            c = c.replace(lem=c.lem.replace(difficulty=jnp.asarray(
-                env_params.start_difficulty, jnp.float32)))
-            ep0 = env_params.replace(start_difficulty=c.lem.difficulty)
-            obs, env_state = jax.vmap(env.reset, in_axes=(0, None))(
-                jax.random.split(jax.random.fold_in(key, 1), n_envs), ep0)
-            c = c.replace(obs=obs, env_state=env_state, s=states_of(obs))
         first = dict(finished=jnp.zeros((n_envs,), bool), success=jnp.zeros((n_envs,), bool),
                      primitives=jnp.zeros((n_envs,), jnp.int32))
 

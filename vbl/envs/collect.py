@@ -74,7 +74,7 @@ class CollectParams:
                             "is farther than this", unit="m", gt=0.0)
     start_x_min: float = param(-0.5, doc="observer start x range, lower end", unit="m")
     start_x_max: float = param(1.5, doc="observer start x range, upper end", unit="m")
-    start_y_max: float = param(1.0, doc="observer start |y| range", unit="m", ge=0.0)
+    start_y_max: float = param(1.0, doc="observer start range of abs(y)", unit="m", ge=0.0)
     start_jitter_deg: float = param(10.0, doc="observer start heading: towards the focus "
                                     "+- this", unit="deg", ge=0.0, le=180.0)
     other_dist_min: float = param(1.2, doc="other robot start distance ahead of the observer,"

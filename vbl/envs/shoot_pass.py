@@ -97,7 +97,7 @@ class StartParams:
 
     shooter_x_min: float = param(0.5, doc="shooter x range, lower end", unit="m")
     shooter_x_max: float = param(1.8, doc="shooter x range, upper end", unit="m")
-    shooter_y_max: float = param(0.6, doc="shooter |y| range", unit="m", ge=0.0)
+    shooter_y_max: float = param(0.6, doc="shooter start range of abs(y)", unit="m", ge=0.0)
     shooter_jitter_deg: float = param(10.0, doc="uniform +- jitter of the shooter heading "
                                       "around the goal/passer bisector", unit="deg", ge=0.0,
                                       le=180.0)
