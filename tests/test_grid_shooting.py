@@ -1,110 +1,226 @@
-"""grid_shooting experiment: the Q-learning program runs through the engine at tiny size and
-writes its metrics; the learned grid policy beats the random policy on easy starts; the
-report's trials-to-level helper against hand-computed values; bad configs fail clearly."""
+"""The Q-learning engine program (`vbl.agents.programs`) and the grid_shooting experiment.
+
+* Fast: `make_q_program` runs through the engine on a tiny chain task with a start
+  difficulty (LEM off / on in one compiled group, 2 seeds): metrics are written with the
+  right shapes, the epsilon schedule and LEM difficulty follow their definitions, the
+  greedy policy solves the chain and the random policy's success matches an exact
+  dynamic-programming value; the grid_shooting report renders from that result;
+  trials-to-level against hand-computed values; bad configs fail clearly.
+* Slow (`-m slow`, compiles the shooting env, ~1-2 min CPU): the registered grid_shooting
+  experiment at tiny size through the engine; its greedy policy beats the random policy
+  on easy starts.
+"""
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
+from flax import struct
 
 import vbl  # noqa: F401
 from vbl.agents import QRunnerParams
 from vbl.agents.programs import QTrainParams, make_q_program, trials_to_level
-from vbl.engine import discover, get, run_experiment
-from vbl.params import ParamError
+from vbl.engine import Experiment, discover, get, run_experiment
+from vbl.params import ParamError, param, section
 
-# Tiny run: both sweep points (LEM off / on) in one compiled group, 2 seeds, 3 chunks of
-# 40 learner steps x 16 robots. Training and evaluation start easy (difficulty 0: robot 1 m
-# in front of the goal facing it, ball just ahead), so a few thousand macro actions suffice
-# to learn "push forward" while a random policy often turns away.
-TINY = {"agent.num_envs": 32, "agent.chunk_steps": 40, "train.num_chunks": 3,
-        "train.eval_envs": 32, "train.eval_steps": 60, "train.final_eval_rounds": 2,
-        "env.max_steps": 60, "env.start_difficulty": 0.0, "train.eval_difficulty": 0.0,
-        "agent.agent.exploration.schedule.transition_steps": 60.0,
-        "agent.lem.window": 1000}
+# ------------------------------------------------------------------ a chain with a start difficulty
+N = 6  # positions 0..5; reaching 5 scores and ends the episode
+
+
+@struct.dataclass
+class ChainParams:
+    start_difficulty: float = param(1.0, doc="0: start next to the goal (4), 1: at 0", ge=0.0,
+                                    le=1.0)
+    max_steps: int = param(8, doc="time limit", static=True, ge=1)
+
+
+@struct.dataclass
+class ChainState:
+    s: jax.Array
+    t: jax.Array
+
+
+def start_position(d) -> jax.Array:
+    """Start N-2 at difficulty 0, 0 at difficulty 1 (rounded down in between)."""
+    return jnp.floor((1.0 - jnp.asarray(d, jnp.float32)) * (N - 2)).astype(jnp.int32)
+
+
+class ChainEnv:
+    """Action 0 left (a wall at 0), 1 right; obs = [position] float32; auto-reset."""
+
+    num_actions = 2
+    default_params = ChainParams()
+
+    def reset(self, key, params):
+        s = start_position(params.start_difficulty)
+        return jnp.array([s], jnp.float32), ChainState(s=s, t=jnp.int32(0))
+
+    def step(self, key, state, action, params):
+        s2 = jnp.clip(state.s + jnp.where(action == 1, 1, -1), 0, N - 1).astype(jnp.int32)
+        term = s2 == N - 1
+        t = state.t + 1
+        trunc = (t >= params.max_steps) & ~term
+        done = term | trunc
+        obs_r, st_r = self.reset(key, params)
+        st = jax.tree.map(lambda a, b: jnp.where(done, a, b), st_r, ChainState(s=s2, t=t))
+        obs = jnp.where(done, obs_r, jnp.array([s2], jnp.float32))
+        return obs, st, term.astype(jnp.float32), term, trunc, {"success": term}
+
+
+def random_success_exact(start: int, steps: int) -> float:
+    """P(reach N-1 within `steps` uniformly random moves from `start`; wall at 0): DP."""
+    p = np.zeros(N)
+    p[start] = 1.0
+    hit = 0.0
+    for _ in range(steps):
+        q = np.zeros(N)
+        for s in range(N - 1):
+            q[max(s - 1, 0)] += 0.5 * p[s]
+            q[s + 1] += 0.5 * p[s]
+        hit += q[N - 1]
+        q[N - 1] = 0.0
+        p = q
+    return hit
+
+
+@struct.dataclass
+class ReportP:
+    success_level: float = param(0.5, doc="level", gt=0.0, le=1.0)
+
+
+def _agent() -> QRunnerParams:
+    a = QRunnerParams()
+    sched = a.agent.exploration.schedule.replace(transition_steps=40.0)
+    agent = a.agent.replace(num_states=N, num_actions=2, discount=0.9,
+                            exploration=a.agent.exploration.replace(schedule=sched))
+    return a.replace(agent=agent, macro=a.macro.replace(enabled=False),
+                     lem=a.lem.replace(statistic="mean", window=10, threshold=1e-3, step=0.5),
+                     num_envs=8, chunk_steps=30)
+
+
+def _train() -> QTrainParams:
+    return QTrainParams(num_chunks=4, eval_envs=64, eval_steps=8, final_eval_rounds=4)
+
+
+@struct.dataclass
+class ChainConfig:
+    env: ChainParams = section(ChainParams)
+    agent: QRunnerParams = section(_agent)
+    train: QTrainParams = section(_train)
+    report: ReportP = section(ReportP)
+
+
+def chain_state(obs, c):
+    return obs[0].astype(jnp.int32)
+
+
+CHAIN_EXP = Experiment(
+    name="chain_q_test", description="chain test", default_config=ChainConfig(),
+    make_program=lambda cfg: make_q_program(ChainEnv(), chain_state, cfg, num_states=N),
+    sweep={"agent.lem.initial_difficulty": [1.0, 0.0]}, seeds=2)
 
 
 @pytest.fixture(scope="module")
-def result(tmp_path_factory):
-    discover()
-    out = tmp_path_factory.mktemp("grid_shooting") / "run"
-    return run_experiment(get("grid_shooting"), sets=TINY, seeds=2, out=out, quiet=True)
+def chain_result(tmp_path_factory):
+    out = tmp_path_factory.mktemp("chain") / "run"
+    return run_experiment(CHAIN_EXP, out=out, quiet=True, plots=False)
 
 
-def test_engine_run_writes_metrics(result):
-    out = Path(result.out_dir)
-    lines = [json.loads(x) for x in (out / "metrics.jsonl").read_text().splitlines()]
-    chunks = [r for r in lines if r["chunk"] != "final"]
-    finals = [r for r in lines if r["chunk"] == "final"]
-    assert len(chunks) == 3 * 2 and len(finals) == 2          # 3 chunks x 2 points, 2 finals
-    for name in ("episodes", "success_rate", "train_success_rate", "difficulty", "epsilon"):
-        assert result.curves[name].shape == (2, 3, 2)          # points, chunks, seeds
-    assert np.all(result.curves["episodes"] > 0)
+def test_program_runs_through_engine(chain_result):
+    res = chain_result
+    lines = [json.loads(x) for x in (Path(res.out_dir) / "metrics.jsonl").read_text()
+             .splitlines()]
+    assert sum(r["chunk"] != "final" for r in lines) == 4 * 2       # chunks x points
+    assert sum(r["chunk"] == "final" for r in lines) == 2
+    for name in ("episodes", "successes", "success_rate", "train_success_rate", "difficulty",
+                 "epsilon", "td_abs", "lem_raises", "mean_primitives"):
+        assert res.curves[name].shape == (2, 4, 2), name           # points, chunks, seeds
+    assert np.all(res.curves["episodes"] > 0)
     for name in ("success_rate", "train_success_rate"):
-        v = result.curves[name]
-        assert np.all((v >= 0) & (v <= 1))
-    assert np.all(result.final["num_states"] == 319)
-    assert np.all(result.final["states_with_value"] <= 319)
-    # LEM off (point 0: initial difficulty 1) keeps the difficulty at 1; LEM on starts at 0
-    # and cannot rise within one 1000-step window
-    assert np.all(result.curves["difficulty"][0] == 1.0)
-    assert np.all(result.curves["difficulty"][1] == 0.0)
-    # epsilon: linear 1 -> 0.1 over 60 steps; the last step of chunk 0 acts at count 39
-    np.testing.assert_allclose(result.curves["epsilon"][:, 0], 1 - 0.9 * 39 / 60, atol=1e-6)
-    np.testing.assert_allclose(result.curves["epsilon"][:, 1:], 0.1, atol=1e-6)
-    assert (out / "summary.json").exists()
+        assert np.all((res.curves[name] >= 0) & (res.curves[name] <= 1))
+    # epsilon: linear 1 -> 0.1 over 40 steps; the last step of chunk 0 acts at count 29
+    np.testing.assert_allclose(res.curves["epsilon"][:, 0], 1 - 0.9 * 29 / 40, atol=1e-6)
+    np.testing.assert_allclose(res.curves["epsilon"][:, 1:], 0.1, atol=1e-6)
+    # LEM off (initial difficulty 1 = max) stays at 1; on: starts at 0, rises by 0.5 steps
+    d = res.curves["difficulty"]
+    assert np.all(d[0] == 1.0)
+    assert np.all(np.isin(d[1], [0.0, 0.5, 1.0])) and np.all(np.diff(d[1], axis=0) >= 0)
+    np.testing.assert_allclose(res.curves["lem_raises"][1], d[1] / 0.5)
+    assert np.all(res.final["num_states"] == N)
 
 
-def test_greedy_beats_random_on_easy_starts(result):
-    # point 1 trained on easy starts from the beginning (LEM at difficulty 0)
-    greedy = result.final["greedy_success"][1]
-    rand = result.final["random_success"][1]
-    assert np.all((rand >= 0) & (rand <= 1))
-    assert np.all(greedy >= rand + 0.2), (greedy, rand)
-    assert np.mean(greedy) >= 0.7, greedy
+def test_greedy_solves_chain_random_matches_dp(chain_result):
+    fin = chain_result.final
+    np.testing.assert_array_equal(fin["greedy_success"], 1.0)       # optimal: right x5
+    np.testing.assert_allclose(fin["greedy_primitives"], N - 1)
+    exact = random_success_exact(0, 8)                              # eval at difficulty 1
+    n = 4 * 64                                                      # rounds x eval envs
+    tol = 4 * np.sqrt(exact * (1 - exact) / n)
+    assert np.all(np.abs(fin["random_success"] - exact) <= tol), (fin["random_success"], exact)
 
 
-def test_report(result):
-    sec = get("grid_shooting").report(result)
-    assert "with LEM" in sec.markdown and "without LEM" in sec.markdown
-    assert "random policy" in sec.markdown
+def test_grid_report_renders(chain_result):
+    discover()
+    sec = get("grid_shooting").report(chain_result)
+    assert "| with LEM |" in sec.markdown and "| without LEM |" in sec.markdown
+    assert "| random policy |" in sec.markdown
     assert all(Path(f).exists() for f in sec.figures)
 
 
 def test_trials_to_level_hand_computed():
     success = np.array([[0.0, 0.1], [0.5, 0.2], [0.2, 0.3], [0.9, 0.4]])   # (chunks, seeds)
     episodes = np.array([[10, 20], [10, 20], [5, 20], [5, 20]])
-    got = trials_to_level(success, episodes, 0.5)
-    np.testing.assert_array_equal(got, [20.0, np.nan])         # seed 0 at chunk 1; seed 1 never
-    got = trials_to_level(success, episodes, 0.3)
-    np.testing.assert_array_equal(got, [20.0, 60.0])
+    np.testing.assert_array_equal(trials_to_level(success, episodes, 0.5), [20.0, np.nan])
+    np.testing.assert_array_equal(trials_to_level(success, episodes, 0.3), [20.0, 60.0])
+    with pytest.raises(ValueError, match="chunks, seeds"):
+        trials_to_level(success[:, 0], episodes[:, 0], 0.5)
 
 
 def test_bad_config_errors():
-    from flax import struct
-
-    from vbl.envs.shooting import ShootingEnv, ShootingParams
-    from vbl.params import section
-
     @struct.dataclass
     class NoTrain:
-        env: ShootingParams = section(ShootingParams)
-        agent: QRunnerParams = section(QRunnerParams)
+        env: ChainParams = section(ChainParams)
+        agent: QRunnerParams = section(_agent)
 
     with pytest.raises(ParamError, match="train"):
-        make_q_program(ShootingEnv(), lambda o, c: 0, NoTrain())
-
-    @struct.dataclass
-    class Cfg:
-        env: ShootingParams = section(ShootingParams)
-        agent: QRunnerParams = section(QRunnerParams)
-        train: QTrainParams = section(QTrainParams)
-
+        make_q_program(ChainEnv(), chain_state, NoTrain())
     with pytest.raises(ParamError, match="num_states"):
-        make_q_program(ShootingEnv(), lambda o, c: 0, Cfg(), num_states=10)
-    bad = Cfg().replace(train=QTrainParams(eval_difficulty=1.5))
+        make_q_program(ChainEnv(), chain_state, ChainConfig(), num_states=10)
+    bad = ChainConfig().replace(train=QTrainParams(eval_difficulty=1.5))
     with pytest.raises(ParamError, match="eval_difficulty"):
-        make_q_program(ShootingEnv(), lambda o, c: 0, bad)
+        make_q_program(ChainEnv(), chain_state, bad)
+    bad = ChainConfig().replace(agent=_agent().replace(num_envs=0))
+    with pytest.raises(ParamError, match="num_envs"):
+        make_q_program(ChainEnv(), chain_state, bad)
+
+
+# ------------------------------------------------------------------ the real experiment (slow)
+
+# Both sweep points in one compiled group, 2 seeds, 3 chunks of 40 learner steps x 32
+# robots, training and evaluation on easy starts (robot 1 m in front of the goal facing it,
+# ball just ahead; 6 s episodes); LEM never raises within its 1000-step window.
+TINY = {"agent.num_envs": 32, "agent.chunk_steps": 40, "train.num_chunks": 3,
+        "train.eval_envs": 32, "train.eval_steps": 60, "train.final_eval_rounds": 2,
+        "env.max_steps": 60, "train.eval_difficulty": 0.0,
+        "agent.agent.exploration.schedule.transition_steps": 60.0, "agent.lem.window": 1000}
+
+
+@pytest.mark.slow
+def test_grid_shooting_tiny_run(tmp_path):
+    discover()
+    res = run_experiment(get("grid_shooting"), sets=TINY, seeds=2, out=tmp_path / "run",
+                         quiet=True)
+    assert res.curves["success_rate"].shape == (2, 3, 2)
+    assert np.all(res.curves["episodes"] > 0)
+    assert np.all(res.final["num_states"] == 319)
+    assert np.all(res.curves["difficulty"][0] == 1.0) and np.all(res.curves["difficulty"][1]
+                                                                  == 0.0)
+    # point 1 trained on easy starts (LEM at difficulty 0) and is evaluated on them
+    greedy, rand = res.final["greedy_success"][1], res.final["random_success"][1]
+    assert np.all(greedy >= rand + 0.2), (greedy, rand)
+    assert (Path(res.out_dir) / "summary.json").exists()
