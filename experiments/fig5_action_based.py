@@ -49,15 +49,26 @@ ENV = ShootingEnv()
 class EvalParams:
     difficulty: float = param(0.1, doc="start difficulty of the evaluation episodes (both "
                               "methods)", ge=0.0, le=1.0)
-    episodes: int = param(256, doc="evaluation episodes of the map policy", static=True, ge=1)
+    episodes: int = param(256, doc="evaluation episodes (fresh starts) of each policy",
+                          static=True, ge=1)
     grid_steps: int = param(1500, doc="greedy grid-baseline evaluation: learner steps (macro "
                             "actions) for each of its envs' first episode", static=True, ge=1)
 
 
 @struct.dataclass
 class Fig5Train:
-    num_chunks: int = param(20, doc="chunks = grid-baseline training chunks (the map is built "
+    num_chunks: int = param(40, doc="chunks = grid-baseline training chunks (the map is built "
                             "at init)", static=True, ge=1)
+
+
+def _grid_agent() -> QRunnerParams:
+    """The grid baseline exactly as ``experiments/grid_shooting.py`` trains it (its
+    ``_agent()``): discount 0.98 per primitive, LEM judging convergence by the mean |dQ| over
+    100 learner steps (threshold 4e-3, difficulty steps 0.05), 64 envs x 100 steps a chunk."""
+    a = QRunnerParams()
+    agent = a.agent.replace(discount=0.98)
+    lem = a.lem.replace(statistic="mean", window=100, threshold=4e-3, step=0.05)
+    return a.replace(agent=agent, lem=lem, num_envs=64, chunk_steps=100)
 
 
 @struct.dataclass
@@ -66,7 +77,8 @@ class Fig5Config:
     features: FeatureParams = section(FeatureParams, doc="feature normalisation")
     collect: CollectParams = section(CollectParams, doc="experience collection")
     build: ActionBasedParams = section(ActionBasedParams, doc="construction thresholds")
-    grid: QRunnerParams = section(QRunnerParams, doc="grid baseline (Q-learning on 319 states)")
+    grid: QRunnerParams = section(_grid_agent, doc="grid baseline (Q-learning on 319 states, "
+                                  "grid_shooting's settings)")
     grid_bounds: GridParams = section(GridParams, doc="grid category boundaries")
     eval: EvalParams = section(EvalParams, doc="evaluation")
     train: Fig5Train = section(Fig5Train, doc="run length")
@@ -82,6 +94,9 @@ def make_program(cfg: Fig5Config) -> Program:
     n_act = ENV.num_actions
     runner = make_qlearning_runner(ENV, lambda o: grid_state(o, cfg.grid_bounds), cfg.grid,
                                    cfg.env)
+    # the grid's greedy evaluation on as many fresh starts as the map's (one env each)
+    ev_runner = make_qlearning_runner(ENV, lambda o: grid_state(o, cfg.grid_bounds),
+                                      cfg.grid.replace(num_envs=cfg.eval.episodes), cfg.env)
 
     def init(key, c):
         k_col, k_build, k_grid = jax.random.split(key, 3)
@@ -106,7 +121,8 @@ def make_program(cfg: Fig5Config) -> Program:
         sm = carry.smap
         ok, n = rollout_success(ENV, ep, k_map, lambda o, _: policy_action(sm, feat(o)),
                                 cfg.eval.episodes, cfg.env.max_steps)
-        g = runner.evaluate(k_grid, carry.grid.q, c.grid, ep, cfg.eval.grid_steps)
+        g = ev_runner.evaluate(k_grid, carry.grid.q, c.grid.replace(num_envs=cfg.eval.episodes),
+                               ep, cfg.eval.grid_steps)
         return {"map_success": jnp.mean(ok.astype(F32)),
                 "grid_success": g["success_rate"].astype(F32),
                 "map_states": num_states(sm).astype(F32),

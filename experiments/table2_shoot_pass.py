@@ -17,11 +17,17 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from vbl.agents.cva_state import CVAStateParams, default_runner, make_cva_learner
+from vbl.agents.cva_state import (
+    CVAStateParams,
+    default_runner,
+    first_episode_stats,
+    greedy_params,
+    make_cva_learner,
+)
 from vbl.engine import Experiment, Program, register
 from vbl.engine.experiment import ReportSection
 from vbl.envs.shoot_pass import TASKS, ShootPassEnv, ShootPassParams
-from vbl.params import param, section
+from vbl.params import ParamError, param, section
 from vbl.spaces.quantize import QuantizerParams
 from vbl.sysid.params import CVAParams
 
@@ -31,7 +37,7 @@ PAPER = {"shoot": {"current": 10.2, "cva": 78.5}, "pass": {"current": 9.8, "cva"
 def default_learner() -> CVAStateParams:
     """Pipeline defaults for the two-robot task (choices, see docs/cva_learning.md)."""
     return CVAStateParams(
-        objects=("ball", "goal", "other"), n_used=2, extra=("lost_side",),
+        state="select", objects=("ball", "goal", "other"), n_used=2, extra=("lost_side",),
         collect_steps=3000,
         cva=CVAParams(lag=0, lag_max=3, logdet_stop=-100.0),
         quantizer=QuantizerParams(method="vq", num_codes=256, kmeans_iters=20),
@@ -49,10 +55,12 @@ def _runner(transition_steps: float):
 
 @struct.dataclass
 class Table2Train:
-    num_chunks: int = param(60, doc="chunks (progress units) per run", static=True, ge=1)
-    eval_steps: int = param(120, doc="greedy evaluation: primitives run from fresh starts in "
-                            "each of the runner's envs (first finished episode counts)",
-                            static=True, ge=1)
+    num_chunks: int = param(60, doc="training chunks per run (each learner.runner.chunk_steps "
+                            "learner steps)", static=True, ge=1)
+    eval_chunks: int = param(1, doc="greedy evaluation chunks after training: all envs restart "
+                             "fresh, no learning, no exploration; each env's first finished "
+                             "episode counts (chunks x chunk_steps must be >= env.max_steps)",
+                             static=True, ge=1)
 
 
 @struct.dataclass
@@ -66,38 +74,57 @@ class Table2Config:
 
 @struct.dataclass
 class Carry:
-    runner: object
-    fparams: object
+    runner: object       # QRunnerState of the learner
+    fparams: object      # FilteredParams (CVA models, quantiser)
+    chunk: jax.Array     # () int32 chunks done
+    eval_key: jax.Array  # uint32[2] key of the evaluation restarts
 
 
 def make_program(cfg: Table2Config) -> Program:
+    """Training chunks, then ``eval_chunks`` greedy chunks through the same compiled step."""
     env = ShootPassEnv(cfg.task)
     lrn = make_cva_learner(env, cfg.learner, m=2)
-    ev_steps = cfg.train.eval_steps
+    n_train, n_eval = cfg.train.num_chunks, cfg.train.eval_chunks
+    if n_eval * cfg.learner.runner.chunk_steps < cfg.env.max_steps:
+        raise ParamError(f"train.eval_chunks={n_eval} x learner.runner.chunk_steps="
+                         f"{cfg.learner.runner.chunk_steps} must be >= env.max_steps="
+                         f"{cfg.env.max_steps} (every evaluation episode must finish)")
 
     def init(key, c):
-        k_prep, k_run = jax.random.split(key)
+        k_prep, k_run, k_eval = jax.random.split(key, 3)
         fp = lrn.prepare(k_prep, c.learner, c.env)
         rs = lrn.runner.init(k_run, lrn.runner_params(c.learner), fp)
-        return Carry(rs, fp)
+        return Carry(rs, fp, jnp.int32(0), k_eval)
 
     def step(carry, c):
-        rs, m = lrn.runner.run_chunk(carry.runner, lrn.runner_params(c.learner), carry.fparams)
+        rp = lrn.runner_params(c.learner)
+        rs = carry.runner
+        # at the first evaluation chunk every env restarts fresh (counters reset), Q kept
+        fresh = lrn.runner.init(carry.eval_key, rp, carry.fparams).replace(
+            key=rs.key, q=rs.q, steps=rs.steps, episodes=rs.episodes)
+        rs = jax.tree.map(lambda a, b: jnp.where(carry.chunk == n_train, a, b), fresh, rs)
+        rs, m = lrn.runner.run_chunk(rs, greedy_params(rp, carry.chunk >= n_train),
+                                     carry.fparams)
         eps = jnp.sum(m["episodes"]).astype(jnp.float32)
         sr = jnp.sum(m["successes"]).astype(jnp.float32) / jnp.maximum(eps, 1.0)
-        return Carry(rs, carry.fparams), {"episodes": eps, "success_rate": sr,
-                                          "epsilon": m["rate"][-1]}
+        return Carry(rs, carry.fparams, carry.chunk + 1, carry.eval_key), {
+            "episodes": eps, "success_rate": sr, "epsilon": m["rate"][-1]}
 
     def final(carry, c, key):
-        ev = lrn.runner.evaluate(key, carry.runner.q, lrn.runner_params(c.learner),
-                                 carry.fparams, ev_steps)
+        ev = first_episode_stats(carry.runner.env_state)
         out = {"greedy_success_rate": ev["success_rate"], "greedy_finished": ev["finished"]}
         for name, mod in zip(cfg.learner.objects, carry.fparams.models, strict=False):
             out[f"lag_{name}"] = mod.lag.astype(jnp.float32)
             out[f"n_{name}"] = mod.n.astype(jnp.float32)
         return out
 
-    return Program(init=init, step=step, num_chunks=cfg.train.num_chunks, final=final)
+    return Program(init=init, step=step, num_chunks=n_train + n_eval, final=final)
+
+
+def _state_label(pt: dict, config) -> str:
+    if "learner.use_cva" in pt or config.learner.state == "select":
+        return "cva" if pt.get("learner.use_cva", config.learner.use_cva) else "current"
+    return pt.get("learner.state", config.learner.state)
 
 
 def _ci(x: np.ndarray) -> tuple[float, float]:
@@ -115,9 +142,10 @@ def report(res) -> ReportSection:
             "training chunk % | paper % |", "|---|---|---|---|---|"]
     for i, pt in enumerate(res.points):
         task = pt.get("task", res.config.task)
-        state = pt.get("learner.state", res.config.learner.state)
+        state = _state_label(pt, res.config)
         g, gh = _ci(100 * np.asarray(res.final["greedy_success_rate"][i]))
-        t, th = _ci(100 * np.asarray(res.curves["success_rate"][i][-1]))
+        n_ev = res.config.train.eval_chunks  # the last curve points are the greedy chunks
+        t, th = _ci(100 * np.asarray(res.curves["success_rate"][i][-1 - n_ev]))
         rows.append(f"| {task} | {state} | {g:.1f} +- {gh:.1f} | {t:.1f} +- {th:.1f} | "
                     f"{PAPER[task][state]} |")
     md = ("Table 2 (success rates, %), " + f"{res.seeds} seeds per row.\n\n" + "\n".join(rows))
@@ -131,13 +159,14 @@ EXPERIMENT = register(Experiment(
     make_program=make_program,
     quick={"train.num_chunks": 8, "learner.collect_steps": 1500,
            "learner.runner.num_envs": 32, "learner.quantizer.num_codes": 128,
-           "learner.runner.agent.exploration.schedule.transition_steps": 600.0},
+           "learner.runner.agent.exploration.schedule.transition_steps": 600.0,
+           "learner.cva.lag_max": 2},
     seeds=16,
     quick_seeds=4,
     paper_result=True,
     paper=PAPER,
     report=report,
-    sweep={"task": ["shoot", "pass"], "learner.state": ["current", "cva"]},
+    sweep={"task": ["shoot", "pass"], "learner.use_cva": [False, True]},
 ))
 
 if __name__ == "__main__":

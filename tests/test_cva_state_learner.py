@@ -111,3 +111,40 @@ def test_bad_inputs():
     with pytest.raises(ParamError, match="max_states"):
         make_cva_learner(env, params("current").replace(
             quantizer=QuantizerParams(method="bins", bins=10, max_states=5)))
+
+
+def test_select_state_and_first_episode_counters():
+    """state='select' gives the padded CVA or current vector by the traced use_cva; the
+    wrapper's first-episode counters follow the episodes; greedy_params stops learning."""
+    from vbl.agents.cva_state import first_episode_stats, greedy_params
+
+    env = MovingTargetEnv()
+    vq = QuantizerParams(method="vq", num_codes=4, kmeans_iters=2)
+    p = params("cva").replace(state="select", quantizer=vq, collect_steps=200)
+    lrn = make_cva_learner(env, p)
+    fp = lrn.prepare(jax.random.PRNGKey(1), p, env.default_params)
+    fenv = lrn.env
+    obs, st = fenv.reset(jax.random.PRNGKey(2), fp)
+    hu, hy = st.hist_u, st.hist_y
+    y0 = hy[0][0]                      # the raw first observation (1,) fills the history
+    x_cva = fenv.state_vector(hu, hy, y0, fp.models, True)
+    ref_cva = filter_state(fp.models[0], hu[0], hy[0])    # (2,): d = max(2, 1)
+    np.testing.assert_allclose(np.asarray(x_cva), np.asarray(ref_cva), rtol=1e-6)
+    x_cur = fenv.state_vector(hu, hy, y0, fp.models, False)
+    np.testing.assert_allclose(np.asarray(x_cur), [float(y0[0]), 0.0])  # zero-padded
+    # counters: strike at once (action 1) ends the episode after one step
+    succ = []
+    for i in range(3):
+        obs, st, r, term, trunc, info = fenv.step(jax.random.PRNGKey(10 + i), st,
+                                                  jnp.int32(1), fp)
+        succ.append(bool(info["success"]))
+    assert int(st.episodes) == 3 and bool(st.first_success) == succ[0]
+    stats = first_episode_stats(jax.tree.map(lambda a: a[None], st))
+    assert float(stats["finished"]) == 1.0 and float(stats["success_rate"]) == float(succ[0])
+    g = greedy_params(lrn.runner_params(p), jnp.bool_(True))
+    assert float(g.agent.learning_rate) == 0.0
+    assert float(g.agent.exploration.schedule.init_value) == 0.0
+    g = greedy_params(lrn.runner_params(p), jnp.bool_(False))
+    assert float(g.agent.learning_rate) == p.runner.agent.learning_rate
+    with pytest.raises(ParamError, match="select"):
+        make_cva_learner(env, params("cva").replace(state="select"))

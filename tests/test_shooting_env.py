@@ -30,7 +30,9 @@ def short(env):
 
 @pytest.fixture(scope="module")
 def jitted(env):
-    return dict(reset=jax.jit(env.reset), step=jax.jit(env.step),
+    """One compilation of each entry point for the module; ``step`` may be traced once
+    (checked by test_step_compiles_once: every test calls it with the same static params)."""
+    return dict(reset=jax.jit(env.reset), step=jax.jit(chex.assert_max_traces(env.step, n=1)),
                 step_env=jax.jit(env.step_env))
 
 
@@ -148,13 +150,9 @@ def test_vmapped_batch_equals_loop_of_single_episodes(env, short, jitted):
             assert bool(info["episode_done"]) == bool(b_done[t, i]) and r == b_r[t, i]
 
 
-def test_step_compiles_once(env, short):
-    @jax.jit
-    @chex.assert_max_traces(n=1)
-    def step(key, state, action, params):
-        return env.step(key, state, action, params)
-
-    _, st = env.reset(jax.random.key(0), short)
+def test_step_compiles_once(env, short, jitted):
+    step = jitted["step"]  # jit(chex.assert_max_traces(env.step, n=1)), shared by the module
+    _, st = jitted["reset"](jax.random.key(0), short)
     for i, d in enumerate([0.0, 0.5, 1.0]):
         p = short.replace(start_difficulty=d)
         out = step(jax.random.key(i), st, jnp.int32(i), p)

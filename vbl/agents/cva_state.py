@@ -68,10 +68,14 @@ __all__ = [
     "filter_state",
     "state_dim",
     "make_cva_learner",
+    "greedy_params",
+    "first_episode_stats",
 ]
 
-#: What the Q-learner sees (static choice).
-STATE_KINDS = ("cva", "current")
+#: What the Q-learner sees (static choice). "select": both state vectors are built (zero-padded
+#: to one length) and the traced ``use_cva`` picks one per learner, so one compilation serves
+#: both rows of Table 2.
+STATE_KINDS = ("cva", "current", "select")
 
 
 def default_runner() -> QRunnerParams:
@@ -91,8 +95,12 @@ class CVAStateParams:
     """The Figure 11 pipeline of one learner (data collection, CVA, quantiser, Q-learning)."""
 
     state: str = param("cva", doc="'cva': CVA state vectors [mu_obj...]; 'current': the "
-                       "current features y(t) of the same objects (Table 2 baseline)",
+                       "current features y(t) of the same objects (Table 2 baseline); "
+                       "'select': both, zero-padded to one length, use_cva picks one per "
+                       "learner (one compilation for both; needs quantizer.method='vq')",
                        static=True, choices=STATE_KINDS)
+    use_cva: bool = param(True, doc="state='select' only: True = CVA state vector, False = "
+                          "current features (traced, so a sweep over it is one compilation)")
     objects: tuple = param(("ball", "goal", "other"), doc="observed objects (keys of the "
                            "env's obs_slices), one CVA model each", static=True)
     n_used: int = param(2, doc="canonical states used per object (the first n_used, ordered "
@@ -113,6 +121,9 @@ class CVAStateParams:
             raise ParamError("objects must name at least one observed object")
         if self.cva.lag == 0 and self.cva.lag_max < 1:
             raise ParamError("cva.lag_max must be >= 1")
+        if self.state == "select" and self.quantizer.method != "vq":
+            raise ParamError("state='select' zero-pads the shorter state vector; it needs "
+                             f"quantizer.method='vq', got {self.quantizer.method!r}")
 
 
 @struct.dataclass
@@ -224,13 +235,21 @@ class FilteredParams:
     inner: Any                      # the wrapped env's params
     models: tuple                   # one ObjectModel per object (empty for 'current')
     quantizer: Quantizer
+    use_cva: jax.Array              # () bool, state 'select' only
 
 
 @struct.dataclass
 class FilteredState:
+    """inner: the wrapped env's state; hist_u/hist_y: per object (lag_max, m) / (lag_max, q)
+    raw histories, row 0 = newest; episodes () int32: episodes finished since this state was
+    reset; first_success () bool: the first of them succeeded (a first-episode evaluation
+    reads these two after a greedy run from fresh resets)."""
+
     inner: Any
-    hist_u: tuple   # per object (lag_max, m) raw u, row 0 = newest
-    hist_y: tuple   # per object (lag_max, q) raw y, row 0 = newest
+    hist_u: tuple
+    hist_y: tuple
+    episodes: jax.Array
+    first_success: jax.Array
 
 
 class FilteredEnv:
@@ -248,14 +267,21 @@ class FilteredEnv:
         self.extra = [slices[o] for o in p.extra]
         self.lag_max = max(p.cva.lags())
 
-    def state_vector(self, hist_u, hist_y, obs, models) -> jax.Array:
+    def state_vector(self, hist_u, hist_y, obs, models, use_cva=True) -> jax.Array:
+        """(d,) float32; state 'select': both vectors zero-padded to d, ``use_cva`` picks."""
+        extra = [obs[s] for s in self.extra]
+        cur = jnp.concatenate([obs[s] for s in self.slices] + extra).astype(jnp.float32)
+        if self.p.state == "current":
+            return cur
+        cva = jnp.concatenate([filter_state(mod, hu, hy) for mod, hu, hy in
+                               zip(models, hist_u, hist_y, strict=True)] + extra
+                              ).astype(jnp.float32)
         if self.p.state == "cva":
-            parts = [filter_state(mod, hu, hy) for mod, hu, hy in zip(models, hist_u, hist_y,
-                                                                        strict=True)]
-        else:
-            parts = [obs[s] for s in self.slices]
-        parts += [obs[s] for s in self.extra]
-        return jnp.concatenate(parts).astype(jnp.float32)
+            return cva
+        d = max(cva.shape[0], cur.shape[0])
+        cva = jnp.pad(cva, (0, d - cva.shape[0]))
+        cur = jnp.pad(cur, (0, d - cur.shape[0]))
+        return jnp.where(jnp.asarray(use_cva, bool), cva, cur)
 
     def _fresh_hist(self, obs):
         hu = tuple(jnp.zeros((self.lag_max, self.m), jnp.float32) for _ in self.slices)
@@ -264,13 +290,14 @@ class FilteredEnv:
         return hu, hy
 
     def _out(self, obs, hu, hy, params: FilteredParams):
-        x = self.state_vector(hu, hy, obs, params.models)
+        x = self.state_vector(hu, hy, obs, params.models, params.use_cva)
         return {"index": quantize(params.quantizer, x), "state": x}
 
     def reset(self, key, params: FilteredParams):
         obs, st = self.env.reset(key, params.inner)
         hu, hy = self._fresh_hist(obs)
-        return self._out(obs, hu, hy, params), FilteredState(st, hu, hy)
+        return self._out(obs, hu, hy, params), FilteredState(st, hu, hy, jnp.int32(0),
+                                                             jnp.bool_(False))
 
     def step(self, key, state: FilteredState, action, params: FilteredParams):
         obs, st, r, term, trunc, info = self.env.step(key, state.inner, action, params.inner)
@@ -285,21 +312,22 @@ class FilteredEnv:
         fu, fy = self._fresh_hist(obs)
         hu = tuple(jnp.where(done, a, b) for a, b in zip(fu, hu_new, strict=True))
         hy = tuple(jnp.where(done, a, b) for a, b in zip(fy, hy_new, strict=True))
-        return (self._out(obs, hu, hy, params), FilteredState(st, hu, hy), r, term, trunc,
-                info)
+        success = jnp.asarray(info["success"], bool) & done
+        first = jnp.where(done & (state.episodes == 0), success, state.first_success)
+        new = FilteredState(st, hu, hy, state.episodes + done.astype(jnp.int32), first)
+        return self._out(obs, hu, hy, params), new, r, term, trunc, info
 
 
 def state_dim(env: Any, p: CVAStateParams) -> int:
     """Dimension d of the state vector that is quantised."""
     sl = env.obs_slices
-    if p.state == "cva":
-        d = p.n_used * len(p.objects)
-    else:
-        d = sum(sl[o].stop - sl[o].start for o in p.objects)
+    d_cva = p.n_used * len(p.objects)
+    d_cur = sum(sl[o].stop - sl[o].start for o in p.objects)
+    d = {"cva": d_cva, "current": d_cur, "select": max(d_cva, d_cur)}[p.state]
     return int(d + sum(sl[o].stop - sl[o].start for o in p.extra))
 
 
-def _history_states(fenv: FilteredEnv, data, models) -> jax.Array:
+def _history_states(fenv: FilteredEnv, data, models, use_cva=True) -> jax.Array:
     """State vectors (N, d) of the collected data, with the same history rule as the env loop."""
     obs, u, start = data["obs"], data["u"], data["start"]
 
@@ -312,7 +340,7 @@ def _history_states(fenv: FilteredEnv, data, models) -> jax.Array:
         fu, fy = fenv._fresh_hist(o)
         hu = tuple(jnp.where(st, a, b) for a, b in zip(fu, rolled_u, strict=True))
         hy = tuple(jnp.where(st, a, b) for a, b in zip(fy, rolled_y, strict=True))
-        return (hu, hy), fenv.state_vector(hu, hy, o, models)
+        return (hu, hy), fenv.state_vector(hu, hy, o, models, use_cva)
 
     u_prev = jnp.concatenate([jnp.zeros_like(u[:1]), u[:-1]])
     init = fenv._fresh_hist(obs[0])
@@ -355,7 +383,7 @@ def make_cva_learner(env: Any, p: CVAStateParams, m: int | None = None) -> CVALe
     lags = p.cva.lags()
     q_max = max(sl.stop - sl.start for sl in fenv.slices)
     need = p.cva.min_samples_factor * 2 * max(lags) * (m + q_max) + 2 * max(lags)
-    if p.state == "cva" and p.collect_steps < need:
+    if p.state != "current" and p.collect_steps < need:
         raise ParamError(f"collect_steps={p.collect_steps} is too few for CVA up to lag "
                          f"{max(lags)}; use >= {int(need)}")
     runner = make_qlearning_runner(fenv, lambda o: o["index"], runner_params(p, s))
@@ -364,12 +392,13 @@ def make_cva_learner(env: Any, p: CVAStateParams, m: int | None = None) -> CVALe
         k_col, k_q = jax.random.split(key)
         data = collect(env, k_col, env_params, p.collect_steps)
         models = ()
-        if p.state == "cva":
+        if p.state != "current":
             models = tuple(identify_object(data["u"], data["obs"][:, sl], pp.cva, p.n_used)
                            for sl in fenv.slices)
-        xs = _history_states(fenv, data, models)
+        use_cva = jnp.asarray(pp.use_cva, bool)
+        xs = _history_states(fenv, data, models, use_cva)
         qz = fit_quantizer(k_q, xs, pp.quantizer)
-        return FilteredParams(inner=env_params, models=models, quantizer=qz)
+        return FilteredParams(inner=env_params, models=models, quantizer=qz, use_cva=use_cva)
 
     return CVALearner(prepare=prepare, runner=runner, env=fenv, num_states=s,
                       runner_params=lambda pp: runner_params(pp, s))
@@ -378,3 +407,26 @@ def make_cva_learner(env: Any, p: CVAStateParams, m: int | None = None) -> CVALe
 def runner_params(p: CVAStateParams, s: int) -> QRunnerParams:
     """``p.runner`` with ``agent.num_states = s`` (the quantiser's number of states)."""
     return p.runner.replace(agent=p.runner.agent.replace(num_states=int(s)))
+
+
+def greedy_params(rp: QRunnerParams, greedy: jax.Array) -> QRunnerParams:
+    """``rp`` with learning switched off (learning_rate 0) and exploration rate 0 where the
+    traced bool ``greedy`` is set: a greedy evaluation runs through the same compiled
+    ``run_chunk`` as training (no separate compilation of the env loop)."""
+    g = jnp.asarray(greedy, bool)
+    sch = rp.agent.exploration.schedule
+    sch = sch.replace(init_value=jnp.where(g, 0.0, sch.init_value).astype(jnp.float32),
+                      end_value=jnp.where(g, 0.0, sch.end_value).astype(jnp.float32))
+    agent = rp.agent.replace(
+        learning_rate=jnp.where(g, 0.0, rp.agent.learning_rate).astype(jnp.float32),
+        exploration=rp.agent.exploration.replace(schedule=sch))
+    return rp.replace(agent=agent)
+
+
+def first_episode_stats(env_state: FilteredState) -> dict[str, jax.Array]:
+    """First-episode evaluation from the counters of a batch (E,) of :class:`FilteredState`
+    (reset at the start of the evaluation): ``success_rate`` = fraction of the E envs whose
+    first episode succeeded, ``finished`` = fraction that finished one."""
+    fin = (env_state.episodes > 0).astype(jnp.float32)
+    ok = (env_state.first_success & (env_state.episodes > 0)).astype(jnp.float32)
+    return {"success_rate": jnp.mean(ok), "finished": jnp.mean(fin)}

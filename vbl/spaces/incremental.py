@@ -57,6 +57,7 @@ __all__ = [
     "num_states",
     "greedy_action",
     "learner_step",
+    "temperature_at",
 ]
 
 F32 = jnp.float32
@@ -99,6 +100,12 @@ class IncrementalParams:
     temperature: float = param(0.05, doc="Boltzmann temperature", unit="Q units", gt=0.0)
     max_repeat: int = param(50, doc="most primitives one action holds in an unchanged box",
                             unit="steps", ge=1)
+    temperature_final: float = param(0.05, doc="Boltzmann temperature reached after "
+                                     "anneal_trials trials (geometric schedule)",
+                                     unit="Q units", gt=0.0)
+    anneal_trials: int = param(0, doc="trials over which the temperature goes from "
+                               "temperature to temperature_final (0: constant temperature)",
+                               ge=0)
 
     def check(self) -> None:
         if np.any(np.asarray(self.merge_tol) >= np.asarray(self.split_gain)):
@@ -341,18 +348,31 @@ def init_option() -> Option:
                   jnp.zeros((), bool))
 
 
+def temperature_at(p: IncrementalParams, trials: jax.Array) -> jax.Array:
+    """Boltzmann temperature after ``trials`` finished trials (float32 ()): geometric from
+    ``temperature`` to ``temperature_final`` over ``anneal_trials`` (constant if 0)."""
+    n = jnp.asarray(p.anneal_trials, F32)
+    frac = jnp.where(n > 0, jnp.minimum(jnp.asarray(trials, F32) / jnp.maximum(n, 1.0), 1.0),
+                     0.0)
+    t0 = jnp.asarray(p.temperature, F32)
+    return t0 * (jnp.asarray(p.temperature_final, F32) / t0) ** frac
+
+
 def learner_step(key: jax.Array, lr: Learner, opt: Option, env: Any, env_state: Any,
                  obs: jax.Array, env_params: Any, p: IncrementalParams,
-                 feature_fn: Callable[[jax.Array], jax.Array]):
+                 feature_fn: Callable[[jax.Array], jax.Array],
+                 temperature: jax.Array | None = None):
     """One primitive of the on-line learner (Q-learning + buffer; no structure change).
 
-    Returns (learner, option, env_state, obs, info) with info from the env plus
-    ``reward``, ``terminated``, ``truncated``.
+    ``temperature`` (Q units) defaults to ``p.temperature``. Returns (learner, option,
+    env_state, obs, info) with info from the env plus ``reward``, ``terminated``,
+    ``truncated``.
     """
     k_act, k_env = jax.random.split(key)
     x = feature_fn(obs)
     s = leaf_of(lr.seg, x)
-    a_new = boltzmann_action(k_act, lr.q[s], p.temperature)
+    temp = p.temperature if temperature is None else temperature
+    a_new = boltzmann_action(k_act, lr.q[s], temp)
     a = jnp.where(opt.active, opt.a, a_new)
     s0 = jnp.where(opt.active, opt.s0, s)
     n = jnp.where(opt.active, opt.n, 0) + 1
@@ -413,7 +433,7 @@ def run_updates(carry: RunCarry, env: Any, params_fn: Callable[[jax.Array], Any]
         key, k = jax.random.split(c.key)
         ep = params_fn(c.trials)
         lr, opt, st, obs, info = learner_step(k, c.lr, c.opt, env, c.env_state, c.obs, ep, p,
-                                              feature_fn)
+                                              feature_fn, temperature_at(p, c.trials))
         done = info["terminated"] | info["truncated"]
         out = dict(success=info["success"] & done, done=done, trial=c.trials,
                    states=num_states(lr.seg))
