@@ -23,6 +23,7 @@ from vbl.spaces.incremental import (
     num_states,
     run_updates,
     structure_update,
+    temperature_at,
 )
 
 ENV = TwoRegionWorld()
@@ -152,3 +153,11 @@ def test_bad_thresholds_raise_clear_errors():
         validate(IncrementalParams(split_gain=1e-3, split_error=1e-4, merge_tol=0.0))
     with pytest.raises(ParamError, match="temperature"):
         validate(IncrementalParams(temperature=0.0))
+
+
+def test_temperature_schedule_is_geometric_and_constant_without_annealing():
+    p = IncrementalParams(temperature=0.1, temperature_final=0.001, anneal_trials=100)
+    got = [float(temperature_at(p, jnp.int32(t))) for t in (0, 50, 100, 500)]
+    np.testing.assert_allclose(got, [0.1, 0.01, 0.001, 0.001], rtol=1e-5)
+    const = IncrementalParams(temperature=0.2, temperature_final=0.001, anneal_trials=0)
+    assert float(temperature_at(const, jnp.int32(1000))) == pytest.approx(0.2)

@@ -243,9 +243,9 @@ def test_easy_starts_are_easy(env):
     assert easy > 0.7 and full < 0.3, (easy, full)
 
 
-def test_bad_inputs_raise_clear_errors(env):
+def test_bad_inputs_raise_clear_errors(env, short, jitted):
     p = env.default_params
-    _, st = env.reset(jax.random.key(0), p)
+    _, st = jitted["reset"](jax.random.key(0), short)  # a valid state (jitted: fast)
     k = jax.random.key(1)
     with pytest.raises(ValueError, match=r"out of range.*\[0, 8\]"):
         env.step(k, st, 9, p)

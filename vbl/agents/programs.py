@@ -18,7 +18,8 @@ Per chunk (metrics per learner, scalars):
 
 * ``episodes``: training episodes (trials) finished in the chunk; ``successes``: of those,
   how many scored; ``train_success_rate``: successes / episodes (0 when none finished),
-  under the start distribution in effect (with LEM: the curriculum's).
+  under the start distribution in effect (with LEM: the curriculum's); per finished
+  episode, hence biased towards short (successful) episodes.
 * ``success_rate``: the greedy policy (no exploration, no learning) after the chunk on
   ``train.eval_envs`` fresh starts at ``train.eval_difficulty``: fraction whose first
   episode scores (with ``train.eval_curve`` off: equal to ``train_success_rate``).

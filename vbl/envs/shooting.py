@@ -46,7 +46,7 @@ from flax import struct
 
 from vbl.params import ParamError, param, section, validate
 from vbl.vision.camera import CameraParams
-from vbl.vision.features import SEC2_DIM, _section2, section2_features  # noqa: F401
+from vbl.vision.features import SEC2_DIM, _section2
 from vbl.world.params import ROBOT_KINDS, WorldParams
 from vbl.world.physics import WorldState, goal_corners, world_step, wrap_angle
 from vbl.world.robots import action_labels, num_actions

@@ -96,11 +96,14 @@ class IncrementalParams:
     q_init: float = param(0.0, doc="initial Q-value of new boxes (inherit_q off, and at "
                           "start)")
     alpha: float = param(0.25, doc="Q-learning rate", gt=0.0, le=1.0)
-    gamma: float = param(0.8, doc="discount per action (state change)", ge=0.0, lt=1.0)
-    temperature: float = param(0.05, doc="Boltzmann temperature", unit="Q units", gt=0.0)
+    gamma: float = param(0.95, doc="discount per action (state change)", ge=0.0, lt=1.0)
+    temperature: float = param(0.01, doc="Boltzmann temperature (at the start of the "
+                               "schedule)", unit="Q units", gt=0.0)
+    split_candidates: int = param(8, doc="boxes (largest residual per transition) whose cuts "
+                                  "are evaluated at each update", static=True, ge=1)
     max_repeat: int = param(50, doc="most primitives one action holds in an unchanged box",
                             unit="steps", ge=1)
-    temperature_final: float = param(0.05, doc="Boltzmann temperature reached after "
+    temperature_final: float = param(0.01, doc="Boltzmann temperature reached after "
                                      "anneal_trials trials (geometric schedule)",
                                      unit="Q units", gt=0.0)
     anneal_trials: int = param(0, doc="trials over which the temperature goes from "
@@ -249,47 +252,67 @@ def _stats(seg: Segmentation, buf: Buffer, num_actions: int, bins: int, weight_o
 def structure_update(lr: Learner, p: IncrementalParams) -> tuple[Learner, jax.Array, jax.Array]:
     """Refit the local models from the buffer; split one box, or else merge two.
 
+    Cost control (fixed shapes): cuts are evaluated for the ``split_candidates`` boxes with
+    the largest residual per transition only, and each box is tried for a merge with one
+    partner (the adjacent box, union a box, holding the most transitions).
+
     Returns (learner, split happened () bool, merge happened () bool).
     """
     seg = lr.seg
     cap, dim = seg.lo.shape
     n_act = lr.q.shape[1]
     nb = p.bins
+    k_c = min(p.split_candidates, cap)
     ridge = jnp.asarray(p.ridge, F64)
     szz, szy, syy, cnt = _stats(seg, lr.buf, n_act, nb, p.outcome_weight)
     # whole boxes: sum the bins of axis 0
     tots = [a[:, :, 0].sum(axis=2) for a in (szz, szy, syy, cnt)]                # (L, A, ...)
     t_n = tots[3]
-    n_box = t_n.sum(axis=1)
-    # candidate cuts: left = bins < c, c = 1..B-1; unions of two boxes
-    cum = [jnp.cumsum(a, axis=3)[:, :, :, :-1] for a in (szz, szy, syy, cnt)]
-    right = [jnp.expand_dims(t, (2, 3)) - c for t, c in zip(tots, cum, strict=True)]
-    u = [a[:, None] + a[None] for a in tots]                                      # (L, L, A, ...)
-    # one batched residual computation for boxes, cut sides and unions
-    groups = (tots, cum, right, u)
+    n_box = t_n.sum(axis=1)                                                       # (L,)
+    sse_box = _sse(*tots, ridge).sum(axis=1)                                      # (L,)
+    err = sse_box / jnp.maximum(n_box, 1.0)
+    # split candidates: the k_c boxes with the largest residual per transition
+    elig = seg.active & (err > p.split_error)
+    _, cand = jax.lax.top_k(jnp.where(elig, err, -jnp.inf), k_c)                  # (K,)
+    # candidate cuts of the candidates: left = bins < c, c = 1..B-1
+    cum = [jnp.cumsum(a[cand], axis=3)[:, :, :, :-1] for a in (szz, szy, syy, cnt)]
+    right = [jnp.expand_dims(t[cand], (2, 3)) - c for t, c in zip(tots, cum, strict=True)]
+    # merge partner of each box: adjacent, union a box, most transitions
+    lo_i, lo_j = seg.lo[:, None], seg.lo[None]
+    hi_i, hi_j = seg.hi[:, None], seg.hi[None]
+    same = (lo_i == lo_j) & (hi_i == hi_j)                                        # (L, L, D)
+    touch = (hi_i == lo_j) | (hi_j == lo_i)
+    n_same = jnp.sum(same, axis=-1)
+    adj = (n_same == dim - 1) & jnp.any(touch & ~same, axis=-1)
+    adj = (adj & seg.active[:, None] & seg.active[None] & (n_box[:, None] >= p.min_samples)
+           & (n_box[None] >= p.min_samples))
+    partner = jnp.argmax(jnp.where(adj, n_box[None], -1.0), axis=1)              # (L,)
+    has_partner = jnp.any(adj, axis=1)
+    u = [t + t[partner] for t in tots]                                            # (L, A, ...)
+    # one batched residual computation for cut sides and unions
+    groups = (cum, right, u)
     lead = [g[3].shape for g in groups]
     flat = [jnp.concatenate([g[i].reshape((-1,) + g[i].shape[len(lead[k]):])
                              for k, g in enumerate(groups)]) for i in range(4)]
     sse_all = _sse(*flat, ridge)
     sizes = [int(np.prod(sh)) for sh in lead]
     parts = jnp.split(sse_all, np.cumsum(sizes)[:-1])
-    sse_box, sse_l, sse_r, sse_u = (pt.reshape(sh) for pt, sh in zip(parts, lead, strict=True))
-    sse_box = sse_box.sum(axis=1)                                                 # (L,)
-    sse_l, sse_r = sse_l.sum(axis=1), sse_r.sum(axis=1)                           # (L, D, B-1)
-    sse_u = sse_u.sum(axis=2)                                                     # (L, L)
+    sse_l, sse_r, sse_u = (pt.reshape(sh) for pt, sh in zip(parts, lead, strict=True))
+    sse_l, sse_r = sse_l.sum(axis=1), sse_r.sum(axis=1)                           # (K, D, B-1)
+    sse_u = sse_u.sum(axis=1)                                                     # (L,)
     n_l, n_r = cum[3].sum(axis=1), right[3].sum(axis=1)
-    gain = (sse_box[:, None, None] - sse_l - sse_r) / jnp.maximum(n_box, 1.0)[:, None, None]
-    width = (seg.hi - seg.lo)[:, :, None]                                        # (L, D, 1)
+    gain = ((sse_box[cand][:, None, None] - sse_l - sse_r)
+            / jnp.maximum(n_box[cand], 1.0)[:, None, None])
+    width = (seg.hi - seg.lo)[cand][:, :, None]                                   # (K, D, 1)
     frac = jnp.arange(1, nb, dtype=F32)[None, None] / nb                          # cut position
-    err = sse_box / jnp.maximum(n_box, 1.0)
-    ok = (seg.active[:, None, None] & (err > p.split_error)[:, None, None]
+    ok = (elig[cand][:, None, None]
           & (gain >= p.split_gain) & (n_l >= p.min_samples) & (n_r >= p.min_samples)
           & (frac * width >= p.min_width) & ((1 - frac) * width >= p.min_width)
           & ~jnp.all(seg.active))
     score = jnp.where(ok, gain, -jnp.inf).reshape(-1)
     best = jnp.argmax(score)
     do_split = jnp.isfinite(score[best])
-    leaf, rem = best // (dim * (nb - 1)), best % (dim * (nb - 1))
+    leaf, rem = cand[best // (dim * (nb - 1))], best % (dim * (nb - 1))
     axis, c = rem // (nb - 1), rem % (nb - 1)
     cut = seg.lo[leaf, axis] + (c + 1).astype(F32) / nb * (seg.hi[leaf, axis] - seg.lo[leaf, axis])
     new = jnp.argmin(seg.active)                                                  # free slot
@@ -299,22 +322,14 @@ def structure_update(lr: Learner, p: IncrementalParams) -> tuple[Learner, jax.Ar
     split_seg = Segmentation(lo=s_lo, hi=s_hi, active=seg.active.at[new].set(True))
     split_q = lr.q.at[new].set(q_new)
 
-    # merges: face-adjacent pairs whose union is a box
-    lo_i, lo_j = seg.lo[:, None], seg.lo[None]
-    hi_i, hi_j = seg.hi[:, None], seg.hi[None]
-    same = (lo_i == lo_j) & (hi_i == hi_j)                                        # (L, L, D)
-    touch = (hi_i == lo_j)
-    n_same = jnp.sum(same, axis=-1)
-    adj = (n_same == dim - 1) & jnp.any(touch & ~same, axis=-1)
-    adj = adj & seg.active[:, None] & seg.active[None]
-    n_u = n_box[:, None] + n_box[None]
-    rise = (sse_u - sse_box[:, None] - sse_box[None]) / jnp.maximum(n_u, 1.0)
-    m_ok = (adj & (rise <= p.merge_tol) & (n_box[:, None] >= p.min_samples)
-            & (n_box[None] >= p.min_samples))
-    m_score = jnp.where(m_ok, -rise, -jnp.inf).reshape(-1)
-    m_best = jnp.argmax(m_score)
-    do_merge = jnp.isfinite(m_score[m_best]) & ~do_split
-    i, j = m_best // cap, m_best % cap
+    # merge: the box whose union with its partner raises the residual least
+    n_u = n_box + n_box[partner]
+    rise = (sse_u - sse_box - sse_box[partner]) / jnp.maximum(n_u, 1.0)
+    m_ok = has_partner & (rise <= p.merge_tol)
+    m_score = jnp.where(m_ok, -rise, -jnp.inf)
+    i = jnp.argmax(m_score)
+    do_merge = jnp.isfinite(m_score[i]) & ~do_split
+    j = partner[i]
     merge_seg = Segmentation(lo=seg.lo.at[i].set(jnp.minimum(seg.lo[i], seg.lo[j])),
                              hi=seg.hi.at[i].set(jnp.maximum(seg.hi[i], seg.hi[j])),
                              active=seg.active.at[j].set(False))
