@@ -226,8 +226,10 @@ def main(argv=None):
                      f"{r['compile_s']:.0f} |")
     lines += ["", f"NumPy baseline (`benchmarks/numpy_env.py`: closed-form world + Section 2 "
               f"features, episode by episode): {base['steps_per_s']:,.0f} steps/s; test oracle "
-              f"(`tests/reference`, brute-force camera): {oracle['steps_per_s']:,.1f} steps/s.",
-              ""]
+              f"(`tests/reference`, brute-force camera): {oracle['steps_per_s']:,.1f} steps/s. "
+              "`compile s` is the first call (trace + compile + one run); the persistent "
+              "compilation cache of `vbl` (`VBL_JAX_CACHE`) can shorten it. The machine is "
+              "shared: compare rows of one run, not absolute numbers across runs.", ""]
     out.with_suffix(".md").write_text("\n".join(lines))
     print("\n".join(lines))
 

@@ -139,16 +139,25 @@ def _ci(x: np.ndarray) -> tuple[float, float]:
 
 def report(res) -> ReportSection:
     rows = ["| task | state vector | ours: greedy success % (mean +- 95% CI) | ours: last "
-            "training chunk % | paper % |", "|---|---|---|---|---|"]
+            "training chunk % | paper % | CVA (l, n*) ball / goal / other |",
+            "|---|---|---|---|---|---|"]
+    n_ev = res.config.train.eval_chunks  # the last curve points are the greedy chunks
     for i, pt in enumerate(res.points):
         task = pt.get("task", res.config.task)
         state = _state_label(pt, res.config)
         g, gh = _ci(100 * np.asarray(res.final["greedy_success_rate"][i]))
-        n_ev = res.config.train.eval_chunks  # the last curve points are the greedy chunks
         t, th = _ci(100 * np.asarray(res.curves["success_rate"][i][-1 - n_ev]))
-        rows.append(f"| {task} | {state} | {g:.1f} +- {gh:.1f} | {t:.1f} +- {th:.1f} | "
-                    f"{PAPER[task][state]} |")
-    md = ("Table 2 (success rates, %), " + f"{res.seeds} seeds per row.\n\n" + "\n".join(rows))
+        ident = " / ".join(
+            f"{np.median(res.final[f'lag_{o}'][i]):.0f}, {np.median(res.final[f'n_{o}'][i]):.0f}"
+            for o in res.config.learner.objects if f"lag_{o}" in res.final)
+        more = ", ".join(f"{k}={v}" for k, v in pt.items()
+                         if k not in ("task", "learner.use_cva", "learner.state"))
+        label = f"{task} ({more})" if more else task
+        rows.append(f"| {label} | {state} | {g:.1f} +- {gh:.1f} | {t:.1f} +- {th:.1f} | "
+                    f"{PAPER[task][state]} | {ident if state == 'cva' else '-'} |")
+    md = ("Table 2 (success rates, %), " + f"{res.seeds} seeds per row; greedy success = "
+          "first episode from a fresh start of each of the learner's envs after training "
+          "(CVA column: median selected lag and AIC order).\n\n" + "\n".join(rows))
     return ReportSection(markdown=md, figures=tuple(res.figures))
 
 

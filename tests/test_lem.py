@@ -15,11 +15,18 @@ from vbl.params import ParamError, validate
 P = LEMParams(enabled=True, window=3, threshold=0.01, step=0.25)
 
 
-def _drive(p, qs):
-    def body(st, q):
-        st = lem_update(st, q, p)
+def _drive(p, qs, episodes=None, successes=None):
+    n = qs.shape[0]
+    eps = jnp.zeros(n, jnp.float32) if episodes is None else jnp.asarray(episodes, jnp.float32)
+    suc = jnp.zeros(n, jnp.float32) if successes is None else jnp.asarray(successes,
+                                                                           jnp.float32)
+
+    def body(st, x):
+        q, e, s = x
+        st = lem_update(st, q, p, e, s)
         return st, st.difficulty
-    st, d = jax.lax.scan(body, lem_init(p, jnp.zeros(qs.shape[1:], jnp.float32)), qs)
+    st, d = jax.lax.scan(body, lem_init(p, jnp.zeros(qs.shape[1:], jnp.float32)),
+                         (qs, eps, suc))
     return d, st
 
 
@@ -60,6 +67,28 @@ def test_repeated_learning_raises_to_the_cap():
     assert np.all(np.diff(d) >= 0) and int(st.raises) == 3  # 0.25, 0.5, 0.6
 
 
+def test_success_gate():
+    # Q settles after step 6 (as in the first test); windows end at steps 3, 6, 9, 12, 15.
+    # Episodes: 2 per step; successes 1 per step until step 9, then 2 per step. With
+    # success_level 0.75 the window ending at 9 (rate 0.5) may not raise, the one ending at
+    # 12 (rate 1.0) does. No finished episode in a window: no raise.
+    vals = [1, 2, 3, 4, 5, 6] + [6] * 9
+    eps = [2.0] * 15
+    suc = [1.0] * 9 + [2.0] * 6
+    p = P.replace(success_level=0.75)
+    d, st = _drive(p, tables(vals), eps, suc)
+    d = np.asarray(d)
+    np.testing.assert_allclose(d[:11], 0.0)
+    np.testing.assert_allclose(d[11:], 0.25)
+    assert int(st.raises) == 1
+    # level 0.5 is met by the window ending at 9 (rate exactly 0.5): as without the gate
+    d, _ = _drive(P.replace(success_level=0.5), tables(vals), eps, suc)
+    np.testing.assert_allclose(np.asarray(d)[8:], 0.25)
+    d, st = _drive(p, tables(vals), [0.0] * 15, [0.0] * 15)
+    np.testing.assert_allclose(np.asarray(d), 0.0)
+    assert int(st.raises) == 0
+
+
 def test_max_versus_mean_statistic():
     # one of 8 entries keeps moving by 0.02 per step: max sees it, the mean (0.0025 per
     # step, 0.0075 per window) does not
@@ -85,7 +114,8 @@ def test_disabled_and_batched():
 @pytest.mark.parametrize("kw,match", [
     (dict(initial_difficulty=0.5, max_difficulty=0.3), "initial_difficulty"),
     (dict(step=0.0), "step"), (dict(window=0), "window"), (dict(threshold=0.0), "threshold"),
-    (dict(initial_difficulty=1.5), "initial_difficulty")])
+    (dict(initial_difficulty=1.5), "initial_difficulty"),
+    (dict(success_level=1.5), "success_level")])
 def test_bad_params(kw, match):
     with pytest.raises(ParamError, match=match):
         validate(LEMParams(**kw))

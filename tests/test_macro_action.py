@@ -67,17 +67,17 @@ def block_of(obs):
 
 ENV = CounterEnv()
 MACRO = jax.jit(jax.vmap(make_macro_step(ENV.step, block_of),
-                         in_axes=(0, 0, 0, 0, None, None, None)))
+                         in_axes=(0, 0, 0, 0, None, None, None, None)))
 
 
-def run(counters, actions, max_repeats=20, gamma=0.5, t=0):
+def run(counters, actions, max_repeats=20, gamma=0.5, t=0, min_repeats=1):
     counters = np.asarray(counters)
     n = len(counters)
     st = CounterState(c=jnp.asarray(counters, jnp.int32), t=jnp.full((n,), t, jnp.int32))
     s0 = jnp.asarray(counters // BLOCK, jnp.int32)
     keys = jax.random.split(jax.random.PRNGKey(0), n)
     return MACRO(keys, st, s0, jnp.asarray(actions, jnp.int32), ENV.default_params,
-                 max_repeats, gamma)
+                 max_repeats, gamma, min_repeats)
 
 
 def test_repeat_until_state_changes_cap_and_episode_end():
@@ -106,9 +106,24 @@ def test_truncation_inside_the_repeat_and_traced_cap():
     np.testing.assert_array_equal(f(jnp.array([1, 2, 9], jnp.int32)), [1, 2, 9])
 
 
+def test_min_repeats():
+    # counter 2 (+1) leaves block 0 after 1 primitive; with min 4 it runs 4 (2->6, block 2);
+    # counter 5 (-1): 4 primitives end at 1 (block 0, changed); counter 4 (stay) hits cap 6;
+    # counter 8 (+1) ends the episode after 2 primitives, before the minimum
+    out = run([2, 5, 4, 8], [0, 2, 1, 0], max_repeats=6, gamma=1.0, min_repeats=4)
+    np.testing.assert_array_equal(out.num_primitives, [4, 4, 6, 2])
+    np.testing.assert_array_equal(out.next_state, [2, 0, 1, 0])
+    np.testing.assert_array_equal(out.terminated, [False, False, False, True])
+    # a minimum above the cap is capped: counter 4 (stay) with min 9, cap 3 -> 3
+    np.testing.assert_array_equal(run([4], [1], max_repeats=3, min_repeats=9).num_primitives,
+                                  [3])
+
+
 def test_macro_params_validation():
     with pytest.raises(ParamError, match="max_repeats"):
         validate(MacroActionParams(max_repeats=0))
+    with pytest.raises(ParamError, match="min_repeats"):
+        validate(MacroActionParams(min_repeats=0))
 
 
 def test_runner_with_macro_actions_learns_the_counter():

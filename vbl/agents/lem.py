@@ -9,13 +9,18 @@ Rule (checked once every ``window`` learner steps, pure functions on
 ``|Q - Q_snapshot|`` over all entries, where the snapshot was taken at the
 previous check. If ``change < threshold`` **and** Q has moved by at least
 ``threshold`` (same statistic) since the difficulty was last raised, the
-difficulty rises by ``step`` (capped at ``max_difficulty``). Then the snapshot
-is retaken and the window restarts. The second condition keeps an untouched table
-(for example all zeros because no reward has been seen yet) from counting as
-converged.
+difficulty rises by ``step`` (capped at ``max_difficulty``), provided also that the
+training episodes that finished within the window succeeded at a rate of at least
+``success_level`` (0: no such condition; at least one finished episode needed otherwise).
+Then the snapshot is retaken and the window restarts. The success gate keeps the
+curriculum from moving on merely because no reward arrives (Q then stops changing too).
+The "moved since the last raise" condition keeps an untouched table (for example all
+zeros because no reward has been seen yet) from counting as converged.
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -41,6 +46,9 @@ class LEMParams:
                         ge=1)
     threshold: float = param(1e-3, doc="Q counts as converged when its change over a window "
                              "is below this", unit="Q", gt=0.0)
+    success_level: float = param(0.0, doc="raise only if the training episodes finished in "
+                                 "the window succeeded at least at this rate (0: no success "
+                                 "condition)", ge=0.0, le=1.0)
     statistic: str = param("max", doc="change statistic over the table: max or mean of "
                            "abs(delta Q)", static=True, choices=("max", "mean"))
 
@@ -61,6 +69,8 @@ class LEMState:
     q_at_raise: jax.Array   #: float32 (S, A), Q when the difficulty was last raised (or init)
     steps: jax.Array        #: int32, steps since the previous check
     raises: jax.Array       #: int32, how many times the difficulty rose
+    win_episodes: jax.Array   #: float32, training episodes finished in the current window
+    win_successes: jax.Array  #: float32, of those, successes
 
 
 def q_change(q: jax.Array, ref: jax.Array, statistic: str) -> jax.Array:
@@ -80,13 +90,20 @@ def lem_init(p: LEMParams, q: jax.Array) -> LEMState:
     start = p.initial_difficulty if p.enabled else p.max_difficulty
     q = q.astype(jnp.float32)
     return LEMState(difficulty=jnp.asarray(start, jnp.float32), q_snapshot=q, q_at_raise=q,
-                    steps=jnp.int32(0), raises=jnp.int32(0))
+                    steps=jnp.int32(0), raises=jnp.int32(0), win_episodes=jnp.float32(0.0),
+                    win_successes=jnp.float32(0.0))
 
 
-def lem_update(state: LEMState, q: jax.Array, p: LEMParams) -> LEMState:
-    """Advance one learner step with the current table ``q``; raise difficulty on convergence."""
+def lem_update(state: LEMState, q: jax.Array, p: LEMParams, episodes: Any = 0,
+               successes: Any = 0) -> LEMState:
+    """Advance one learner step with the current table ``q`` and the numbers of training
+    episodes / successes that finished in this step; raise difficulty on convergence."""
     if not p.enabled:
         return state
+    win_eps = state.win_episodes + jnp.asarray(episodes, jnp.float32)
+    win_succ = state.win_successes + jnp.asarray(successes, jnp.float32)
+    level = jnp.asarray(p.success_level, jnp.float32)
+    succeeding = (level <= 0.0) | ((win_eps > 0.0) & (win_succ >= level * win_eps))
     steps = state.steps + 1
     check = steps >= jnp.asarray(p.window, jnp.int32)
     thr = jnp.asarray(p.threshold, jnp.float32)
@@ -95,7 +112,7 @@ def lem_update(state: LEMState, q: jax.Array, p: LEMParams) -> LEMState:
     learned = q_change(q, state.q_at_raise, p.statistic) >= thr
     cap = jnp.asarray(p.max_difficulty, jnp.float32)
     can_rise = state.difficulty < cap
-    raise_now = check & converged & learned & can_rise
+    raise_now = check & converged & learned & can_rise & succeeding
     difficulty = jnp.where(raise_now,
                            jnp.minimum(state.difficulty + jnp.asarray(p.step, jnp.float32), cap),
                            state.difficulty)
@@ -103,4 +120,6 @@ def lem_update(state: LEMState, q: jax.Array, p: LEMParams) -> LEMState:
                     q_snapshot=jnp.where(check, q, state.q_snapshot),
                     q_at_raise=jnp.where(raise_now, q, state.q_at_raise),
                     steps=jnp.where(check, 0, steps).astype(jnp.int32),
-                    raises=state.raises + raise_now.astype(jnp.int32))
+                    raises=state.raises + raise_now.astype(jnp.int32),
+                    win_episodes=jnp.where(check, 0.0, win_eps).astype(jnp.float32),
+                    win_successes=jnp.where(check, 0.0, win_succ).astype(jnp.float32))

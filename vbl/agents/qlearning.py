@@ -281,9 +281,10 @@ def make_qlearning_runner(env: Any, state_fn: Callable, params: QRunnerParams,
         ep = env_params_at(env_params, c.lem.difficulty)
         keys = jax.random.split(key, n_envs)
         if mp.enabled:
-            out = jax.vmap(macro_step, in_axes=(None, None, 0, 0, 0, 0, None, None, None))(
+            out = jax.vmap(macro_step,
+                           in_axes=(None, None, 0, 0, 0, 0, None, None, None, None))(
                 env.step, state_fn, keys, c.env_state, c.s, action, ep,
-                params.macro.max_repeats, params.agent.discount)
+                params.macro.max_repeats, params.agent.discount, params.macro.min_repeats)
             return (out.obs, out.env_state, out.reward, out.terminated, out.truncated,
                     out.info, out.num_primitives, out.next_state)
         obs, st, r, term, trunc, info = jax.vmap(env.step, in_axes=(0, 0, 0, None))(
@@ -321,10 +322,11 @@ def make_qlearning_runner(env: Any, state_fn: Callable, params: QRunnerParams,
                                 duplicates=ap.duplicates, weight=weight, num_primitives=n)
             wsum = jnp.float32(n_envs) if weight is None else jnp.sum(weight.astype(jnp.float32))
             td_abs = jnp.sum(jnp.abs(delta)) / jnp.maximum(wsum, 1.0)
-            lem = lem_update(c.lem, q, params.lem)
+        success = jnp.asarray(info["success"]).astype(bool) & done
+        if learn:
+            lem = lem_update(c.lem, q, params.lem, jnp.sum(done), jnp.sum(success))
         ep_prim = c.ep_primitives + n
         ep_act = c.ep_actions + 1
-        success = jnp.asarray(info["success"]).astype(bool) & done
         metrics = dict(
             episodes=jnp.sum(done, dtype=jnp.int32),
             successes=jnp.sum(success, dtype=jnp.int32),

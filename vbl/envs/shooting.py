@@ -220,7 +220,7 @@ class ShootingEnv:
 
         Pixel noise (``camera.pixel_noise_std > 0``) is drawn from ``fold_in(key, 1)``; with
         the noise off no random numbers are drawn (a ``lax.cond`` around the draw only, so
-        the feature geometry is compiled once).
+        the feature geometry is traced once).
         """
         return _section2(world.robots[0], world.ball, jnp.asarray(params.world.ball.radius, F32),
                          goal_corners(params.world), params.camera, key,

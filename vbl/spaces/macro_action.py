@@ -39,6 +39,10 @@ class MacroActionParams:
                           static=True)
     max_repeats: int = param(20, doc="cap on primitives per action (at the default 0.1 s "
                              "primitive: 2 s)", unit="primitives", ge=1)
+    min_repeats: int = param(1, doc="primitives every action runs even if the state changed "
+                             "earlier (unless the episode ends; capped at max_repeats); > 1 "
+                             "damps one-primitive flips between look-alike states",
+                             unit="primitives", ge=1)
 
 
 @struct.dataclass
@@ -61,7 +65,7 @@ def _zeros_like_struct(tree: Any) -> Any:
 
 def macro_step(step_fn: Callable, state_index_fn: Callable, key: jax.Array, env_state: Any,
                state_index: jax.Array, action: jax.Array, env_params: Any, max_repeats: Any,
-               discount: Any) -> MacroOutcome:
+               discount: Any, min_repeats: Any = 1) -> MacroOutcome:
     """Repeat ``action`` from ``env_state`` (whose discrete state is ``state_index``).
 
     Args:
@@ -74,13 +78,17 @@ def macro_step(step_fn: Callable, state_index_fn: Callable, key: jax.Array, env_
       env_params: the env's params pytree.
       max_repeats: cap on primitives (int >= 1, may be traced).
       discount: per-primitive discount of the summed reward (may be traced).
+      min_repeats: primitives run in any case (unless the episode ends first), capped at
+        ``max_repeats`` (int >= 1, may be traced; default 1).
 
-    Stops after the first primitive for which the discrete state differs from
-    ``state_index``, the episode ends, or ``max_repeats`` primitives ran.
+    Stops after the first primitive (at or after the ``min_repeats``-th) for which the
+    discrete state differs from ``state_index``, the episode ends, or ``max_repeats``
+    primitives ran.
     """
     s0 = jnp.asarray(state_index, jnp.int32)
     gamma = jnp.asarray(discount, jnp.float32)
     cap = jnp.asarray(max_repeats, jnp.int32)
+    least = jnp.minimum(jnp.asarray(min_repeats, jnp.int32), cap)
     out_shape = jax.eval_shape(step_fn, key, env_state, action, env_params)
     obs0, _, _, term0, trunc0, info0 = _zeros_like_struct(out_shape)
 
@@ -89,7 +97,8 @@ def macro_step(step_fn: Callable, state_index_fn: Callable, key: jax.Array, env_
                 truncated=trunc0.astype(bool), info=info0, s=s0)
 
     def cond(c):
-        moving = (c["s"] == s0) & ~(c["terminated"] | c["truncated"]) & (c["n"] < cap)
+        unchanged = (c["s"] == s0) | (c["n"] < least)
+        moving = unchanged & ~(c["terminated"] | c["truncated"]) & (c["n"] < cap)
         return (c["n"] == 0) | moving
 
     def body(c):
@@ -108,11 +117,13 @@ def macro_step(step_fn: Callable, state_index_fn: Callable, key: jax.Array, env_
 
 
 def make_macro_step(step_fn: Callable, state_index_fn: Callable) -> Callable:
-    """``f(key, env_state, state_index, action, env_params, max_repeats, discount) ->
-    MacroOutcome``: :func:`macro_step` bound to an env's ``step`` and a state function."""
+    """``f(key, env_state, state_index, action, env_params, max_repeats, discount,
+    min_repeats=1) -> MacroOutcome``: :func:`macro_step` bound to an env's ``step`` and a
+    state function."""
 
-    def f(key, env_state, state_index, action, env_params, max_repeats, discount):
+    def f(key, env_state, state_index, action, env_params, max_repeats, discount,
+          min_repeats=1):
         return macro_step(step_fn, state_index_fn, key, env_state, state_index, action,
-                          env_params, max_repeats, discount)
+                          env_params, max_repeats, discount, min_repeats)
 
     return f

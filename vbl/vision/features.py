@@ -316,7 +316,7 @@ def _sec2_noise(key, cam: CameraParams, fold_in=None):
 
     Drawn (from ``split(key)``, after ``fold_in(key, fold_in)`` when given) only when
     ``cam.pixel_noise_std > 0``; zeros otherwise. One graph of the features serves both
-    cases, which halves the compiled code compared with a cond around the features.
+    cases (the cond is around the draw only, not around the feature geometry).
     """
     def draw(k):
         if fold_in is not None:
