@@ -2,13 +2,19 @@
 Learning from Easy Missions (the earlier work the paper compares against, Figure 5's grid).
 
 Each learner trains one Q-table (319 states x 9 primitives, one action = repeat a
-primitive until the grid state changes) with ``agent.num_envs`` parallel robots. After
-every chunk its greedy policy is evaluated on fresh fully random starts (start
-difficulty 1): the ``success_rate`` curve against training trials (cumulative
-episodes). The default sweep compares LEM off (``agent.lem.initial_difficulty = 1``:
-every episode starts fully random, exactly as with the curriculum switched off, but in
-the same compiled program) with LEM on (episodes start easy, difficulty 0, and move out
-when Q stops changing). ``final``: greedy and random policy success on fresh random starts.
+primitive until the grid state changes, at least ``MIN_REPEATS`` primitives) with
+``agent.num_envs`` parallel robots. The task is shooting from starts at
+``TASK_DIFFICULTY`` (0.3 by default; 1 = fully random starts, out of reach of this
+baseline in the run length: numbers in docs/agents.md). After every chunk the greedy
+policy is evaluated on fresh starts at that difficulty: the ``success_rate`` curve against
+training trials (cumulative episodes). The default sweep compares LEM off
+(``agent.lem.initial_difficulty = max_difficulty``: every episode starts at the task
+difficulty, exactly as with the curriculum switched off, but in the same compiled
+program) with LEM on (episodes start easy, difficulty 0, and move out to the task
+difficulty when Q stops changing and the training episodes succeed). ``final``: greedy and
+random policy success on fresh starts at the task difficulty. For fully random starts:
+``--set train.eval_difficulty=1 --set agent.lem.max_difficulty=1 --sweep
+agent.lem.initial_difficulty=1,0``.
 
 Run: ``vbl run grid_shooting [--quick]`` or ``python experiments/grid_shooting.py``.
 """
@@ -36,23 +42,57 @@ class ReportParams:
                                  "crossing the report compares in trials", gt=0.0, le=1.0)
 
 
+TASK_DIFFICULTY = 0.3
+"""Start difficulty of the reported task (evaluation, and the cap of the curriculum). From
+fully random starts (1) the ball is in view at only ~20 % of starts and the goal at ~24 %,
+and no grid policy learned within this run length scores there (docs/agents.md has the
+difficulty-1 numbers); at 0.3 the robot starts within about a third of the field of the
+easy start, the goal in view at ~90 % of starts."""
+
+
 def _agent() -> QRunnerParams:
-    """Defaults of this experiment (the library's otherwise): discount 0.98 per primitive
-    (0.8 per primitive would make a goal more than ~3 s away worth < 0.8**30 = 1e-3);
-    LEM judges convergence by the mean |change| of Q over 100 learner steps (the max is
-    dominated by the noise of single entries) and raises the difficulty in steps of 0.05."""
+    """Defaults of this experiment (the library's otherwise):
+
+    * discount 0.98 per primitive (0.8 would make a goal more than ~3 s away worth
+      < 0.8**30 = 1e-3);
+    * macro actions run at least ``MIN_REPEATS`` primitives: with one, a turn in place
+      flipped the goal's orientation category every primitive and the greedy policy cycled
+      between two look-alike states until the time limit (measured);
+    * LEM: the curriculum runs from difficulty 0 to the task's ``TASK_DIFFICULTY`` (LEM off =
+      ``initial_difficulty = max_difficulty``: every episode at the task difficulty);
+      convergence = mean |change| of Q over 100 learner steps below 0.01, and the training
+      episodes of that window succeeded at >= 80 % (without the success gate the
+      curriculum moves on whenever no reward arrives, as Q then stops changing too);
+      raises in steps of 0.05.
+    """
     a = QRunnerParams()
     agent = a.agent.replace(discount=0.98)
-    lem = a.lem.replace(statistic="mean", window=100, threshold=4e-3, step=0.05)
-    return a.replace(agent=agent, lem=lem, num_envs=64, chunk_steps=100)
+    macro = a.macro.replace(min_repeats=MIN_REPEATS)
+    lem = a.lem.replace(statistic="mean", window=100, threshold=0.01, step=0.05,
+                        success_level=0.8, max_difficulty=TASK_DIFFICULTY)
+    return a.replace(agent=agent, macro=macro, lem=lem, num_envs=64, chunk_steps=100)
+
+
+MIN_REPEATS = 3  #: primitives per macro action at least (0.3 s)
+
+
+def _grid() -> GridParams:
+    """Orientation cut at +-0.3 (library: +-0.1): measured x5 quartiles are about +-0.13
+    both at easy starts (robot on the goal axis: truly frontal) and at random ones, so
+    +-0.1 split frontal views into left/right by noise of the projected post heights."""
+    return GridParams(orient_lower=-0.3, orient_upper=0.3)
+
+
+def _train() -> QTrainParams:
+    return QTrainParams(eval_difficulty=TASK_DIFFICULTY)
 
 
 @struct.dataclass
 class GridShootingConfig:
     env: ShootingParams = section(ShootingParams, doc="shooting task (Section 2)")
-    grid: GridParams = section(GridParams, doc="grid boundaries (319 states)")
+    grid: GridParams = section(_grid, doc="grid boundaries (319 states)")
     agent: QRunnerParams = section(_agent, doc="Q-learning, macro actions, LEM")
-    train: QTrainParams = section(QTrainParams, doc="run length and evaluation")
+    train: QTrainParams = section(_train, doc="run length and evaluation")
     report: ReportParams = section(ReportParams, doc="report settings")
 
 
@@ -64,9 +104,11 @@ def make_program(cfg: GridShootingConfig):
 LEM_PATH = "agent.lem.initial_difficulty"
 
 
-def _label(values: dict) -> str:
+def _label(values: dict, config=None) -> str:
+    """"with LEM" when the sweep point starts below the curriculum's cap, else "without"."""
     if LEM_PATH in values:
-        return "with LEM" if float(values[LEM_PATH]) < 1.0 else "without LEM"
+        cap = 1.0 if config is None else float(np.max(config.agent.lem.max_difficulty))
+        return "with LEM" if float(values[LEM_PATH]) < cap else "without LEM"
     return ", ".join(f"{k}={v}" for k, v in values.items()) or "run"
 
 
@@ -91,7 +133,7 @@ def plot(res: RunResult, level: float) -> Path:
     for p, values in enumerate(res.points):
         y, x = s_all[p], np.cumsum(e_all[p].mean(axis=1))
         m = y.mean(axis=1)
-        (line,) = ax.plot(x, m, label=_label(values))
+        (line,) = ax.plot(x, m, label=_label(values, res.config))
         if y.shape[1] > 1:
             h = t_quantile_975(y.shape[1] - 1) * y.std(axis=1, ddof=1) / np.sqrt(y.shape[1])
             ax.fill_between(x, m - h, m + h, color=line.get_color(), alpha=0.2, lw=0)
@@ -129,11 +171,11 @@ def report(res: RunResult) -> ReportSection:
         t = trials_to_level(res.curves["success_rate"][p], eps, level)
         ok = ~np.isnan(t)
         med = f"{np.median(t[ok]):.0f}" if ok.any() else "not reached"
-        greedy[_label(values)] = g
-        reach[_label(values)] = (float(np.median(t[ok])) if ok.any() else np.inf,
+        greedy[_label(values, res.config)] = g
+        reach[_label(values, res.config)] = (float(np.median(t[ok])) if ok.any() else np.inf,
                                  float(eps.sum(axis=0).mean()))
-        md.append(f"| {_label(values)} | {g[0]:.3f} ± {g[1]:.3f} | {med} | "
-                  f"{int(ok.sum())}/{len(t)} | {reach[_label(values)][1]:.0f} |")
+        md.append(f"| {_label(values, res.config)} | {g[0]:.3f} ± {g[1]:.3f} | {med} | "
+                  f"{int(ok.sum())}/{len(t)} | {reach[_label(values, res.config)][1]:.0f} |")
     # the random policy's evaluation uses the same keys at every sweep point (common random
     # numbers), so average over points per seed rather than pooling duplicates
     r = _ci(np.mean(rnd, axis=0))
@@ -156,7 +198,7 @@ EXPERIMENT = register(Experiment(
     description="grid-baseline Q-learning shooting (319 states), with and without LEM",
     default_config=GridShootingConfig(),
     make_program=make_program,
-    sweep={LEM_PATH: [1.0, 0.0]},
+    sweep={LEM_PATH: [TASK_DIFFICULTY, 0.0]},
     # --quick: a smoke run (one evaluation compiled, not two): the curve is the training
     # success, the final evaluation is as in the full run but on 32 starts
     quick={"train.num_chunks": 4, "agent.num_envs": 16, "agent.chunk_steps": 50,
