@@ -4,7 +4,7 @@ Learning from Easy Missions (the earlier work the paper compares against, Figure
 Each learner trains one Q-table (319 states x 9 primitives, one action = repeat a
 primitive until the grid state changes, at least ``MIN_REPEATS`` primitives) with
 ``agent.num_envs`` parallel robots. The task is shooting from starts at
-``TASK_DIFFICULTY`` (0.3 by default; 1 = fully random starts, out of reach of this
+``TASK_DIFFICULTY`` (0.1 by default; 1 = fully random starts, out of reach of this
 baseline in the run length: numbers in docs/agents.md). After every chunk the greedy
 policy is evaluated on fresh starts at that difficulty: the ``success_rate`` curve against
 training trials (cumulative episodes). The default sweep compares LEM off
@@ -38,16 +38,20 @@ ENV = ShootingEnv()
 
 @struct.dataclass
 class ReportParams:
-    success_level: float = param(0.3, doc="success rate (greedy, random starts) whose first "
+    success_level: float = param(0.1, doc="success rate (greedy, task starts) whose first "
                                  "crossing the report compares in trials", gt=0.0, le=1.0)
 
 
-TASK_DIFFICULTY = 0.3
-"""Start difficulty of the reported task (evaluation, and the cap of the curriculum). From
-fully random starts (1) the ball is in view at only ~20 % of starts and the goal at ~24 %,
-and no grid policy learned within this run length scores there (docs/agents.md has the
-difficulty-1 numbers); at 0.3 the robot starts within about a third of the field of the
-easy start, the goal in view at ~90 % of starts."""
+TASK_DIFFICULTY = 0.1
+"""Start difficulty of the reported task (evaluation, and the cap of the curriculum).
+From fully random starts (1) the ball is in view at only ~20 % of starts and the goal at
+~24 %, and no grid policy learned in this run length scores there (greedy 0.000); at 0.2
+and 0.3 the greedy policy scores only a few percent, within noise of the random policy;
+at 0.1 (ball in view at ~73 % of starts, goal at all) it is measurably above random
+(docs/agents.md has all numbers)."""
+
+
+MIN_REPEATS = 3  #: primitives per macro action at least (0.3 s)
 
 
 def _agent() -> QRunnerParams:
@@ -71,9 +75,6 @@ def _agent() -> QRunnerParams:
     lem = a.lem.replace(statistic="mean", window=100, threshold=0.01, step=0.05,
                         success_level=0.8, max_difficulty=TASK_DIFFICULTY)
     return a.replace(agent=agent, macro=macro, lem=lem, num_envs=64, chunk_steps=100)
-
-
-MIN_REPEATS = 3  #: primitives per macro action at least (0.3 s)
 
 
 def _grid() -> GridParams:
