@@ -2,7 +2,11 @@
 
 import os
 
-import jax
+# XLA's C++ logger prints a warning for every program loaded from the compilation cache
+# below ("Assume version compatibility"); keep errors only unless the user chose a level.
+os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
+
+import jax  # noqa: E402
 
 # Identification runs in float64 by default; hot paths (world, vision, envs, agents)
 # create float32 arrays explicitly (docs/architecture.md).
