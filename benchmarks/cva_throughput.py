@@ -17,7 +17,6 @@ import contextlib
 import io
 import json
 import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -27,24 +26,16 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT))
 
 from reference.cva_np import cva_reference  # noqa: E402
 from reference.sysid_systems import simulate_batch  # noqa: E402
 
 import vbl  # noqa: E402,F401
+from benchmarks.hardware import cpu_model  # noqa: E402
 from vbl.sysid import CVAParams, identify  # noqa: E402
 
 N, Q, M, LAG, SIPPY_F = 500, 4, 2, 3, 6
-
-
-def cpu_model() -> str:
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def time_vbl(u, y, params, repeats: int) -> float:

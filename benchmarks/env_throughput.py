@@ -41,19 +41,10 @@ import jax.numpy as jnp  # noqa: E402
 
 import vbl  # noqa: E402,F401
 from benchmarks import numpy_env  # noqa: E402
+from benchmarks.hardware import cpu_model  # noqa: E402
 from tests.reference import world_np  # noqa: E402
 from tests.reference.camera_np import section2_features_np  # noqa: E402
 from vbl.envs.shooting import ShootingEnv  # noqa: E402
-
-
-def cpu_model() -> str:
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def make_runner(env, params, batch: int, steps: int, n_dev: int = 1):

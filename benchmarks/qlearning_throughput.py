@@ -253,15 +253,9 @@ def bench_episodes(n_l: int, chunk: int, repeats: int, np_steps: int) -> dict:
 
 
 def hardware() -> dict:
-    model = platform.processor()
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return dict(cpu=model, cores=os.cpu_count(), jax=jax.__version__, numpy=np.__version__,
+    from benchmarks.hardware import cpu_model
+
+    return dict(cpu=cpu_model(), cores=os.cpu_count(), jax=jax.__version__, numpy=np.__version__,
                 backend=jax.default_backend(), python=platform.python_version())
 
 

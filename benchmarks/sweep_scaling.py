@@ -23,6 +23,8 @@ import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
+if str(HERE.parent) not in sys.path:
+    sys.path.insert(0, str(HERE.parent))  # for benchmarks.hardware
 SIZES = (1, 4, 16, 64, 256, 1024, 4096)
 QUICK_SIZES = (1, 64, 4096)
 DEVICES = (1, 2, 4)
@@ -77,15 +79,9 @@ def worker(sizes: list[int], chunks: int) -> list[dict]:
 def hardware() -> dict:
     import jax
 
-    cpu = platform.processor()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return {"cpu": cpu, "cores": os.cpu_count(), "jax": jax.__version__,
+    from benchmarks.hardware import cpu_model
+
+    return {"cpu": cpu_model(), "cores": os.cpu_count(), "jax": jax.__version__,
             "python": platform.python_version(),
             "load_avg_1min": round(os.getloadavg()[0], 2)}  # other jobs share the machine
 

@@ -44,6 +44,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from vbl.envs.checks import check_action_index
 from vbl.params import ParamError, param, section, validate
 from vbl.vision.camera import CameraParams
 from vbl.vision.features import SEC2_DIM, _section2
@@ -157,15 +158,7 @@ class ShootingEnv:
 
     def check_action(self, action: Any) -> None:
         """Raise ValueError unless ``action`` is a () integer in [0, num_actions)."""
-        a = np.asarray(action)
-        if a.shape != ():
-            raise ValueError(f"action must be a scalar index (shape ()), got shape {a.shape}; "
-                             "vmap the env for a batch")
-        if a.dtype.kind not in "iu":
-            raise ValueError(f"action must be an integer index, got dtype {a.dtype}")
-        if not 0 <= int(a) < self.num_actions:
-            raise ValueError(f"action {int(a)} out of range for {self.name}: must be in "
-                             f"[0, {self.num_actions - 1}] ({', '.join(self.action_labels)})")
+        check_action_index(action, self.num_actions, self.name, self.action_labels)
 
     def _check_state(self, state: ShootingState) -> None:
         if not isinstance(state, ShootingState):
