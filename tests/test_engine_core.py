@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -224,6 +225,27 @@ def test_reproduce_writes_one_report(toy, tmp_path):
     assert ok and "## toy_paper" in text and "| best arm | 1.0 |" in text
     assert "![success_rate](toy_paper/success_rate.png)" in text
     assert (tmp_path / "rep" / "toy_paper" / "success_rate.png").exists()
+
+
+def test_report_figure_links_resolve_with_a_relative_out_dir(toy, tmp_path, monkeypatch):
+    """Experiments return figure paths under their (relative) run folder; links must resolve."""
+    import re
+
+    from vbl.engine import ReportSection, register
+    from vbl.engine.report import reproduce
+
+    def report(res):  # a path as experiments build it: run_dir / name, run_dir relative
+        return ReportSection("fig", figures=(str(res.out_dir / "success_rate.png"),))
+
+    register(Experiment(name="toy_paper_rel", description="relative figure paths",
+                        default_config=toy.default_config, make_program=toy.make_program,
+                        quick={**TINY_SETS, "train.num_chunks": 2}, quick_seeds=2,
+                        paper_result=True, report=report))
+    monkeypatch.chdir(tmp_path)
+    path, ok = reproduce(Path("rel"), quick=True, quiet=True, names=["toy_paper_rel"])
+    links = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", path.read_text())
+    assert ok and links == ["toy_paper_rel/success_rate.png"]
+    assert all((path.parent / link).exists() for link in links)
 
 
 def test_progress_is_quiet_in_ci(monkeypatch, capsys):

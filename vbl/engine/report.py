@@ -83,7 +83,10 @@ def reproduce(out: Path, *, quick: bool, quiet: bool | None, resume: bool = Fals
         figs = []
         for f in section.figures:
             p = Path(f)
-            if not p.is_absolute() and result is not None:
+            # A relative figure path is taken from the working directory when it exists there
+            # (experiments usually return run_dir / name with a relative run_dir), else from
+            # the run folder.
+            if not p.is_absolute() and not p.exists() and result is not None:
                 p = result.out_dir / p
             figs.append(f"![{p.stem}]({os.path.relpath(p.absolute(), out.absolute())})")
         sections += [f"## {name}", "", exp.description, "", section.markdown, "",
