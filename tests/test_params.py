@@ -89,3 +89,24 @@ def test_vmap_over_a_traced_field():
     cfgs = jax.tree.map(lambda x: jnp.broadcast_to(x, (3,)), cfgs)  # static fields untouched
     out = jax.vmap(lambda c: c.rate * c.inner.radius)(cfgs)
     assert out.shape == (3,)
+
+
+@struct.dataclass
+class Checked:
+    low: float = param(0.0, doc="lower bound")
+    high: float = param(1.0, doc="upper bound")
+
+    def check(self):
+        if self.low > self.high:
+            raise ParamError("low must be <= high")
+
+
+@struct.dataclass
+class Holder:
+    bounds: Checked = section(Checked)
+
+
+def test_validate_runs_the_check_rules_of_nested_sections():
+    validate(Holder())
+    with pytest.raises(ParamError, match="low must be <= high"):
+        validate(Holder(bounds=Checked(low=2.0, high=1.0)))

@@ -153,7 +153,8 @@ def validate(obj: Any, prefix: str = "") -> Any:
     """Check every parameter's type and bounds; return ``obj`` unchanged or raise ParamError.
 
     Call it from non-jitted entry points (``make_*`` functions, the engine, the CLI).
-    Traced fields holding arrays (a sweep) are checked element-wise.
+    Traced fields holding arrays (a sweep) are checked element-wise. The ``check()``
+    rules of nested sections run too (innermost first).
     """
     for path, f, value in iter_params(obj, prefix):
         default = f.default
@@ -161,10 +162,19 @@ def validate(obj: Any, prefix: str = "") -> Any:
             default = None
         _check_type(path, value, default)
         _check_bounds(path, value, dict(f.metadata))
+    _run_checks(obj)
+    return obj
+
+
+def _run_checks(obj: Any) -> None:
+    """Call every ``check()`` cross-field rule, nested sections first."""
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        if _is_params(value):
+            _run_checks(value)
     post = getattr(obj, "check", None)
     if callable(post):
         post()
-    return obj
 
 
 def describe(obj_or_cls: Any, prefix: str = "") -> list[dict[str, Any]]:

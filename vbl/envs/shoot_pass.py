@@ -307,10 +307,7 @@ class ShootPassEnv:
         """Check parameter types, bounds and consistency; raise ParamError. Returns params."""
         if not isinstance(params, ShootPassParams):
             raise ParamError(f"params must be ShootPassParams, got {type(params).__name__}")
-        validate(params)
-        for name in ("world", "shooter_camera", "passer_camera", "passer_body", "noise",
-                     "other", "start"):
-            validate(getattr(params, name), prefix=f"{name}.")
+        validate(params)  # fields and every section's check() rule
         return params
 
     def check_action(self, action: Any) -> None:

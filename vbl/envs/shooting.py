@@ -147,10 +147,7 @@ class ShootingEnv:
         """Check parameter types, bounds and consistency; raise ParamError. Returns params."""
         if not isinstance(params, ShootingParams):
             raise ParamError(f"params must be ShootingParams, got {type(params).__name__}")
-        validate(params)
-        validate(params.world, prefix="world.")
-        validate(params.camera, prefix="camera.")
-        validate(params.start, prefix="start.")
+        validate(params)  # fields and every section's check() rule
         if params.world.robot_kinds != (self.robot_kind,):
             raise ParamError(f"world.robot_kinds={params.world.robot_kinds!r} must be "
                              f"({self.robot_kind!r},) for this {self.name} env")
