@@ -55,6 +55,8 @@ from vbl.world.robots import action_labels, num_actions
 __all__ = ["StartParams", "ShootingParams", "ShootingState", "ShootingEnv"]
 
 F32 = jnp.float32
+SLIP_STREAM = 1  #: tire slip of a step uses ``fold_in(step key, SLIP_STREAM)``
+OBS_STREAM = 2  #: pixel noise of an observation uses ``fold_in(key, OBS_STREAM)``
 
 
 @struct.dataclass
@@ -96,6 +98,17 @@ class ShootingState:
 
     world: WorldState
     step: jax.Array
+
+
+def _uniform16(key: jax.Array, n: int) -> jax.Array:
+    """(n,) float32 uniform in [-1, 1) with 16-bit resolution, two per 32-bit random word.
+
+    Half the hashing of ``jax.random.uniform`` (hashing dominates a start draw on CPU);
+    a resolution of 2**-15 of the field half-length is 0.1 mm, far below any start scale.
+    """
+    words = jax.random.bits(key, ((n + 1) // 2,), jnp.uint32)
+    halves = jnp.concatenate([words >> 16, words & 0xFFFF])[:n]
+    return halves.astype(F32) * np.float32(2.0 / 65536) - 1.0
 
 
 def _is_traced(tree: Any) -> bool:
@@ -173,7 +186,7 @@ class ShootingEnv:
         rr = jnp.asarray(wp.robot.radius, F32)
         rb = jnp.asarray(wp.ball.radius, F32)
         d = jnp.asarray(params.start_difficulty, F32)
-        u = jax.random.uniform(key, (10,), F32, -1.0, 1.0)
+        u = _uniform16(key, 10)
         # easy draw
         jit_xy = jnp.asarray(sp.easy_jitter_xy, F32)
         th_e = jnp.deg2rad(jnp.asarray(sp.easy_jitter_deg, F32)) * u[0]
@@ -208,13 +221,13 @@ class ShootingEnv:
                 key: jax.Array | None = None) -> jax.Array:
         """Section 2 features (9,) float32 of the robot's camera.
 
-        Pixel noise (``camera.pixel_noise_std > 0``) is drawn from ``fold_in(key, 1)``; with
+        Pixel noise (``camera.pixel_noise_std > 0``) is drawn from ``fold_in(key, OBS_STREAM)``; with
         the noise off no random numbers are drawn (a ``lax.cond`` around the draw only, so
         the feature geometry is traced once).
         """
         return _section2(world.robots[0], world.ball, jnp.asarray(params.world.ball.radius, F32),
                          goal_corners(params.world), params.camera, key,
-                         fold_in=None if key is None else 1)
+                         fold_in=None if key is None else OBS_STREAM)
 
     def reset(self, key: jax.Array, params: ShootingParams | None = None
               ) -> tuple[jax.Array, ShootingState]:
@@ -229,7 +242,7 @@ class ShootingEnv:
 
     def _transition(self, key, state: ShootingState, action, params: ShootingParams):
         world, events = world_step(key, state.world, jnp.reshape(action, (1,)).astype(jnp.int32),
-                                   params.world)
+                                   params.world, fold_in=SLIP_STREAM)
         step = state.step + 1
         terminated = events.goal | events.ball_out
         truncated = (step >= params.max_steps) & ~terminated
@@ -263,16 +276,17 @@ class ShootingEnv:
         """
         params = self._default_params if params is None else params
         self._check_inputs(state, action, params)
-        # random streams: k_reset -> start draw; k_aux -> tire slip (world_step) and pixel
-        # noise (fold_in(k_aux, 1)); both are drawn only when switched on
-        k_reset, k_aux = jax.random.split(key)
-        nstate, reward, terminated, truncated, info = self._transition(k_aux, state, action,
+        # random streams of one step key: the start draw uses ``key`` itself; tire slip
+        # fold_in(key, SLIP_STREAM) and pixel noise fold_in(key, OBS_STREAM), derived only
+        # when switched on (no split: hashing per env and step is the costliest part of a
+        # step on CPU, see benchmarks/env_throughput.py)
+        nstate, reward, terminated, truncated, info = self._transition(key, state, action,
                                                                        params)
         done = info["episode_done"]
-        fresh = ShootingState(world=self.sample_start(k_reset, params),
+        fresh = ShootingState(world=self.sample_start(key, params),
                               step=jnp.zeros((), jnp.int32))
         nstate = jax.tree_util.tree_map(lambda a, b: jnp.where(done, a, b), fresh, nstate)
-        return (self.get_obs(nstate.world, params, k_aux), nstate, reward, terminated,
+        return (self.get_obs(nstate.world, params, key), nstate, reward, terminated,
                 truncated, info)
 
     def __repr__(self) -> str:

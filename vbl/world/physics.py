@@ -139,10 +139,13 @@ def _reflect(p, v, lo, hi, e):
 
 
 def world_step(key: jax.Array, state: WorldState, actions: jax.Array,
-               params: WorldParams) -> tuple[WorldState, WorldEvents]:
+               params: WorldParams, fold_in: int | None = None
+               ) -> tuple[WorldState, WorldEvents]:
     """Advance one action primitive.
 
-    key: PRNG key (used only for tire slip when ``robot.slip_std > 0``);
+    key: PRNG key (used only for tire slip when ``robot.slip_std > 0``; with ``fold_in``
+    given the slip normals come from ``fold_in(key, fold_in)``, derived inside the slip
+    branch so that nothing is hashed while slip is off);
     actions: (R,) int32 action indices, robot i interpreted by ``params.robot_kinds[i]``.
     Returns the new state and the :class:`WorldEvents` of this primitive.
     """
@@ -162,8 +165,12 @@ def world_step(key: jax.Array, state: WorldState, actions: jax.Array,
     vmax = jnp.asarray(bp.max_speed, F32)
 
     slip = jnp.asarray(params.robot.slip_std, F32)
-    noise = jax.lax.cond(slip > 0, lambda k: jax.random.normal(k, (n_robots, 2), F32),
-                         lambda k: jnp.zeros((n_robots, 2), F32), key)
+
+    def draw_slip(k):
+        k = k if fold_in is None else jax.random.fold_in(k, fold_in)
+        return jax.random.normal(k, (n_robots, 2), F32)
+
+    noise = jax.lax.cond(slip > 0, draw_slip, lambda k: jnp.zeros((n_robots, 2), F32), key)
     vs, ws = [], []
     for i, kind in enumerate(kinds):
         v, w = robot_commands(kind, actions[i], params, noise[i])
@@ -245,8 +252,11 @@ def world_step(key: jax.Array, state: WorldState, actions: jax.Array,
 
     carry = (state.robots, state.ball, state.ball_vel, state.scored,
              jnp.zeros(n_robots, bool))
+    # a rolled loop on purpose: its outputs are materialised, so consumers of the new state
+    # (an auto-reset's per-leaf selects) read them instead of XLA re-deriving the last
+    # sub-step inside each consumer (measured 15-20% faster than unrolling on CPU)
     robots, ball, bvel, scored, touch = jax.lax.fori_loop(
-        0, params.substeps, substep, carry, unroll=min(params.substeps, 8))
+        0, params.substeps, substep, carry)
     outside = (jnp.abs(ball[0]) > half_l) | (jnp.abs(ball[1]) > half_w)
     out = (outside & ~scored) | state.ball_out
     new_state = WorldState(robots=robots, ball=ball, ball_vel=bvel, scored=scored,
