@@ -221,9 +221,9 @@ class ShootingEnv:
                 key: jax.Array | None = None) -> jax.Array:
         """Section 2 features (9,) float32 of the robot's camera.
 
-        Pixel noise (``camera.pixel_noise_std > 0``) is drawn from ``fold_in(key, OBS_STREAM)``; with
-        the noise off no random numbers are drawn (a ``lax.cond`` around the draw only, so
-        the feature geometry is traced once).
+        Pixel noise (``camera.pixel_noise_std > 0``) is drawn from ``fold_in(key,
+        OBS_STREAM)``; with the noise off no random numbers are drawn (a ``lax.cond`` around
+        the draw only, so the feature geometry is traced once).
         """
         return _section2(world.robots[0], world.ball, jnp.asarray(params.world.ball.radius, F32),
                          goal_corners(params.world), params.camera, key,
