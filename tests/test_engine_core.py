@@ -227,6 +227,45 @@ def test_reproduce_writes_one_report(toy, tmp_path):
     assert (tmp_path / "rep" / "toy_paper" / "success_rate.png").exists()
 
 
+_PAPER_TOY = """
+import importlib.util, sys
+spec = importlib.util.spec_from_file_location("_toy_src_{name}", {toy!r})
+toy = importlib.util.module_from_spec(spec); spec.loader.exec_module(toy)
+from vbl.engine import Experiment, register
+register(Experiment(name="{name}", description="toy paper result {name}",
+                    default_config=toy.BanditConfig(), make_program=toy.make_program,
+                    quick={quick!r}, quick_seeds=2, paper_result=True, cost={cost}))
+"""
+
+
+def test_reproduce_in_worker_processes_equals_in_process(tmp_path, monkeypatch):
+    """--jobs 2 runs experiments in spawned workers; the report's numbers are the same."""
+    import re
+
+    from tests.engine_helpers import TOY
+    from vbl.engine import registry
+    from vbl.engine.report import reproduce
+
+    d = tmp_path / "exps"
+    d.mkdir()
+    quick = {**TINY_SETS, "train.num_chunks": 2}
+    for name, cost in (("paper_a", 1.0), ("paper_b", 3.0)):
+        (d / f"{name}.py").write_text(_PAPER_TOY.format(name=name, toy=str(TOY), quick=quick,
+                                                        cost=cost))
+    monkeypatch.setenv("VBL_EXPERIMENTS_DIR", str(d))  # inherited by the workers
+    monkeypatch.setattr(registry, "_DISCOVERED", set())
+    reports = {}
+    for jobs in (1, 2):
+        path, ok = reproduce(tmp_path / f"rep{jobs}", quick=True, quiet=True, jobs=jobs,
+                             names=["paper_a", "paper_b"])
+        assert ok, path.read_text()
+        text = path.read_text()
+        assert "## paper_a" in text and "## paper_b" in text
+        reports[jobs] = re.sub(r"Generated .*|\| [0-9.]+ \|\n", "", text)
+    assert f"{jobs} worker processes" in path.read_text()
+    assert reports[1] == reports[2]
+
+
 def test_report_figure_links_resolve_with_a_relative_out_dir(toy, tmp_path, monkeypatch):
     """Experiments return figure paths under their (relative) run folder; links must resolve."""
     import re

@@ -57,6 +57,10 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--overwrite", action="store_true")
     p.add_argument("--only", action="append", default=None, metavar="NAME",
                    help="run only these paper experiments")
+    p.add_argument("--jobs", type=int, default=None, metavar="N",
+                   help="experiments run in N worker processes at once (default: one per "
+                        "CPU core; 1 = one after the other in this process, with progress "
+                        "bars)")
     p = sub.add_parser("bench", help="run benchmarks/*.py")
     p.add_argument("--quick", action="store_true")
     p.add_argument("names", nargs="*", help="benchmark names (default: all)")
@@ -157,8 +161,11 @@ def _dispatch(args) -> int:
         out = Path(args.out or f"runs/reproduce-{time.strftime('%Y%m%d-%H%M%S')}")
         if not paper_experiments():
             return _error("no paper experiments are registered (Experiment.paper_result)", 1)
+        if args.jobs is not None and args.jobs < 1:
+            return _error(f"--jobs must be >= 1, got {args.jobs}", 2)
         report, ok = reproduce(out, quick=args.quick, quiet=True if args.quiet else None,
-                               resume=args.resume, overwrite=args.overwrite, names=args.only)
+                               resume=args.resume, overwrite=args.overwrite, names=args.only,
+                               jobs=args.jobs)
         print(f"report: {report}")
         return 0 if ok else _error(f"some experiments failed; see {report}", 1)
     if args.command == "bench":

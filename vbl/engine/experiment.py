@@ -140,6 +140,8 @@ class Experiment:
       report: ``RunResult -> ReportSection`` for ``vbl reproduce``.
       sweep: default sweep ``{path: [values]}`` (e.g. the table rows a paper result needs);
         ``--sweep`` on the command line replaces it for the paths it names.
+      cost: rough relative wall time of a ``--quick`` run (any unit); ``vbl reproduce
+        --jobs N`` starts the costliest experiments first so the workers finish together.
     """
 
     name: str
@@ -154,6 +156,7 @@ class Experiment:
     paper: Mapping[str, Any] | None = None
     report: Callable[[RunResult], ReportSection] | None = None
     sweep: Mapping[str, tuple[Any, ...] | list[Any]] = field(default_factory=dict)
+    cost: float = 1.0
 
     def __post_init__(self) -> None:
         import re

@@ -11,7 +11,7 @@ from typing import Any
 from vbl.engine.experiment import Experiment, ReportSection, RunResult
 from vbl.engine.registry import all_experiments, discover, import_errors
 
-__all__ = ["default_section", "reproduce", "paper_experiments"]
+__all__ = ["default_section", "default_jobs", "reproduce", "paper_experiments"]
 
 
 def _fmt(st: dict[str, Any]) -> str:
@@ -41,15 +41,89 @@ def paper_experiments() -> dict[str, Experiment]:
     return {n: e for n, e in all_experiments().items() if e.paper_result}
 
 
+def default_jobs(n_experiments: int) -> int:
+    """Worker processes for ``vbl reproduce``: one per CPU core, at most one per experiment.
+
+    A quick run is dominated by XLA compilation, which uses one core per program, so
+    experiments in separate processes use every core while they compile.
+    """
+    return max(1, min(os.cpu_count() or 1, n_experiments))
+
+
+def _run_one(name: str, out: Path, quick: bool, quiet: bool | None, resume: bool,
+             overwrite: bool, exp: Experiment | None = None) -> dict[str, Any]:
+    """Run one paper experiment and build its report section; never raises.
+
+    In a worker process ``exp`` is None and the experiment is looked up in the registry
+    (the worker imports the experiment scripts itself). Returns a picklable dict.
+    """
+    from vbl.engine.runner import run_experiment
+
+    t0 = time.perf_counter()
+    result = None
+    try:
+        if exp is None:
+            exp = paper_experiments()[name]
+        result = run_experiment(exp, out=out / name, quick=quick, quiet=quiet,
+                                resume=resume and (out / name).exists(), overwrite=overwrite)
+        section = exp.report(result) if exp.report is not None else default_section(result)
+        status = "ok"
+    except Exception as e:  # noqa: BLE001 - report and continue with the others
+        status = f"failed: {type(e).__name__}: {e}"
+        section = ReportSection("**failed**\n\n```\n" + "".join(
+            traceback.format_exception(type(e), e, e.__traceback__))[-3000:] + "```")
+    figs = []
+    for f in section.figures:
+        p = Path(f)
+        # A relative figure path is taken from the working directory when it exists there
+        # (experiments usually return run_dir / name with a relative run_dir), else from
+        # the run folder.
+        if not p.is_absolute() and not p.exists() and result is not None:
+            p = result.out_dir / p
+        figs.append(str(p.absolute()))
+    return dict(status=status, markdown=section.markdown, figures=figs,
+                seconds=time.perf_counter() - t0)
+
+
+def _run_parallel(exps: dict[str, Experiment], jobs: int, out: Path, quick: bool,
+                  resume: bool, overwrite: bool, quiet: bool | None) -> dict[str, dict]:
+    """Run experiments in ``jobs`` spawned worker processes, costliest first."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    order = sorted(exps, key=lambda n: -exps[n].cost)
+    done: dict[str, dict] = {}
+    ctx = multiprocessing.get_context("spawn")  # jax is not fork-safe
+    with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
+        futures = {pool.submit(_run_one, n, out, quick, True, resume, overwrite): n
+                   for n in order}
+        for fut in as_completed(futures):
+            name = futures[fut]
+            try:
+                done[name] = fut.result()
+            except Exception as e:  # noqa: BLE001 - a worker died (killed, out of memory)
+                done[name] = dict(status=f"failed: worker process died: {e!r}",
+                                  markdown="**failed** (worker process died)", figures=[],
+                                  seconds=float("nan"))
+            if not quiet:
+                print(f"[{len(done)}/{len(exps)}] {name}: {done[name]['status'].splitlines()[0]}"
+                      f" ({done[name]['seconds']:.0f} s)", flush=True)
+    return done
+
+
 def reproduce(out: Path, *, quick: bool, quiet: bool | None, resume: bool = False,
-              overwrite: bool = False, names: list[str] | None = None) -> tuple[Path, bool]:
+              overwrite: bool = False, names: list[str] | None = None,
+              jobs: int | None = 1) -> tuple[Path, bool]:
     """Run the paper experiments into ``out/<name>/`` and write ``out/report.md``.
 
+    ``jobs``: worker processes (None: :func:`default_jobs`; 1: in this process, in
+    registry order). With ``jobs > 1`` every experiment runs quietly in a spawned process
+    that imports the experiment scripts itself, so only discoverable experiments (scripts
+    in the experiments folders) can run there. Results do not depend on ``jobs``.
     Returns ``(report path, all succeeded)``. A failing experiment is reported and the
     others still run.
     """
     from vbl.engine.results import prepare_run_dir
-    from vbl.engine.runner import run_experiment
 
     exps = paper_experiments()
     if names:
@@ -58,38 +132,30 @@ def reproduce(out: Path, *, quick: bool, quiet: bool | None, resume: bool = Fals
     if out.is_dir() and any(out.iterdir()) and not (resume or overwrite):
         prepare_run_dir(out, "reproduce", resume=False, overwrite=False)  # raises clearly
     out.mkdir(parents=True, exist_ok=True)
+    jobs = default_jobs(len(exps)) if jobs is None else max(1, min(int(jobs), len(exps) or 1))
+    t_start = time.perf_counter()
+    if jobs > 1:
+        done = _run_parallel(exps, jobs, out, quick, resume, overwrite, quiet)
+    else:
+        done = {n: _run_one(n, out, quick, quiet, resume, overwrite, exp=e)
+                for n, e in exps.items()}
+    wall = time.perf_counter() - t_start
     parts = [f"# vbl reproduction report{' (--quick)' if quick else ''}", "",
-             f"Generated {time.strftime('%Y-%m-%d %H:%M:%S')}. Each section puts our numbers "
-             "beside the paper's; intervals are 95% confidence intervals over seeds.", ""]
+             f"Generated {time.strftime('%Y-%m-%d %H:%M:%S')} in {wall:.0f} s wall "
+             f"({jobs} worker process{'es' if jobs > 1 else ''}). Each section puts our "
+             "numbers beside the paper's; intervals are 95% confidence intervals over seeds.",
+             ""]
     ok = True
     rows = []
     sections = []
     for name, exp in exps.items():
-        t0 = time.perf_counter()
-        try:
-            result = run_experiment(exp, out=out / name, quick=quick, quiet=quiet,
-                                    resume=resume and (out / name).exists(),
-                                    overwrite=overwrite)
-            section = exp.report(result) if exp.report is not None else default_section(result)
-            status = "ok"
-        except Exception as e:  # noqa: BLE001 - report and continue with the others
-            ok = False
-            status = f"failed: {type(e).__name__}: {e}"
-            section = ReportSection("**failed**\n\n```\n" + "".join(
-                traceback.format_exception(type(e), e, e.__traceback__))[-3000:] + "```")
-            result = None
-        dt = time.perf_counter() - t0
-        rows.append(f"| {name} | {exp.description} | {status.splitlines()[0]} | {dt:.1f} |")
-        figs = []
-        for f in section.figures:
-            p = Path(f)
-            # A relative figure path is taken from the working directory when it exists there
-            # (experiments usually return run_dir / name with a relative run_dir), else from
-            # the run folder.
-            if not p.is_absolute() and not p.exists() and result is not None:
-                p = result.out_dir / p
-            figs.append(f"![{p.stem}]({os.path.relpath(p.absolute(), out.absolute())})")
-        sections += [f"## {name}", "", exp.description, "", section.markdown, "",
+        r = done[name]
+        ok &= r["status"] == "ok"
+        rows.append(f"| {name} | {exp.description} | {r['status'].splitlines()[0]} | "
+                    f"{r['seconds']:.1f} |")
+        figs = [f"![{Path(f).stem}]({os.path.relpath(f, out.absolute())})"
+                for f in r["figures"]]
+        sections += [f"## {name}", "", exp.description, "", r["markdown"], "",
                      *(f + "\n" for f in figs), ""]
     for path, err in import_errors().items():
         rows.append(f"| {Path(path).stem} | (script failed to import) | failed: {err} | |")
