@@ -2,27 +2,33 @@
 
 Each learner collects experience in parallel shooting environments (each episode holds
 one primitive), grows its state map backwards from the goal
-(:mod:`vbl.spaces.action_based`), and is compared with the grid baseline: tabular
-Q-learning on the programmer's 319-state grid (:mod:`vbl.spaces.grid`, macro actions,
-Learning from Easy Missions; :mod:`vbl.agents.qlearning`), trained in the chunks of the
-run. ``final`` evaluates both greedy policies on fresh starts at ``eval.difficulty``.
-The report draws Figure 5 (the map on (ball size, goal size) with ball and goal centred
-and the goal frontal, labels = action + transitions to the goal, darker = earlier
-division, the grid lines over it).
+(:mod:`vbl.spaces.action_based`), and is compared with the grid baseline exactly as the
+``grid_shooting`` experiment trains and evaluates it (its default config, used by reference
+through :func:`grid_shooting`: Q-learning on the programmer's 319-state grid with macro
+actions and Learning from Easy Missions), trained in the chunks of this run. ``final``
+evaluates the map's policy on fresh starts at the grid's task difficulty
+(``grid.train.eval_difficulty``) and takes the grid's own final evaluation (greedy and
+random policy) at the same difficulty. The report draws Figure 5 (the map on (ball size,
+goal size) with ball and goal centred and the goal frontal, labels = action + transitions
+to the goal, darker = earlier division, the grid lines over it).
 
 Run: ``vbl run fig5_action_based --quick`` or ``python experiments/fig5_action_based.py``.
 """
 
 from __future__ import annotations
 
+import importlib.util
+import sys
 from pathlib import Path
+from types import ModuleType
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from vbl.agents.qlearning import QRunnerParams, make_qlearning_runner
+from vbl.agents.programs import QTrainParams
+from vbl.agents.qlearning import QRunnerParams
 from vbl.engine import Experiment, Program, ReportSection, register
 from vbl.envs.shooting import ShootingEnv, ShootingParams
 from vbl.params import param, section
@@ -39,36 +45,69 @@ from vbl.spaces.action_based import (
     rollout_success,
     sec2_features,
 )
-from vbl.spaces.grid import GridParams, grid_state
+from vbl.spaces.grid import NUM_GRID_STATES, GridParams
 
 F32 = jnp.float32
 ENV = ShootingEnv()
+GRID_SHOOTING = "vbl_experiments.grid_shooting"
+
+
+def grid_shooting() -> ModuleType:
+    """``experiments/grid_shooting.py`` (the grid baseline experiment), imported once under
+    the module name the engine's registry uses, so that its settings are used by reference:
+    whatever that experiment trains is what Figures 5 and 9 compare with."""
+    if GRID_SHOOTING not in sys.modules:
+        path = Path(__file__).resolve().with_name("grid_shooting.py")
+        spec = importlib.util.spec_from_file_location(GRID_SHOOTING, path)
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[GRID_SHOOTING] = module
+        try:
+            spec.loader.exec_module(module)
+        except Exception:
+            sys.modules.pop(GRID_SHOOTING, None)
+            raise
+    return sys.modules[GRID_SHOOTING]
+
+
+def _gs_default(name: str):
+    return lambda: getattr(grid_shooting().EXPERIMENT.default_config, name)
+
+
+@struct.dataclass
+class GridBaseline:
+    """The grid baseline exactly as ``grid_shooting`` trains and evaluates it (its default
+    config: Q-learning on the 319-state grid, macro actions, Learning from Easy Missions up
+    to its task difficulty), on this experiment's ``env``."""
+
+    grid: GridParams = section(_gs_default("grid"), doc="grid boundaries (grid_shooting's)")
+    agent: QRunnerParams = section(_gs_default("agent"), doc="Q-learning, macro actions, LEM "
+                                   "(grid_shooting's)")
+    train: QTrainParams = section(_gs_default("train"), doc="run length and evaluation "
+                                  "(grid_shooting's); train.eval_difficulty is the start "
+                                  "difficulty of every comparison")
+
+
+def grid_config(env: ShootingParams, g: GridBaseline):
+    """``grid_shooting``'s config with these sections (traced or static)."""
+    gs = grid_shooting()
+    return gs.EXPERIMENT.default_config.replace(env=env, grid=g.grid, agent=g.agent,
+                                                train=g.train)
+
+
+def grid_program(env: ShootingParams, g: GridBaseline) -> Program:
+    """``grid_shooting``'s engine program for these settings (static fields of ``g``)."""
+    return grid_shooting().make_program(grid_config(env, g))
+
+
+def grid_quick() -> dict:
+    """``grid_shooting``'s ``--quick`` overrides, prefixed ``grid.``."""
+    return {f"grid.{k}": v for k, v in grid_shooting().EXPERIMENT.quick.items()}
 
 
 @struct.dataclass
 class EvalParams:
-    difficulty: float = param(0.1, doc="start difficulty of the evaluation episodes (both "
-                              "methods)", ge=0.0, le=1.0)
-    episodes: int = param(256, doc="evaluation episodes (fresh starts) of each policy",
-                          static=True, ge=1)
-    grid_steps: int = param(1500, doc="greedy grid-baseline evaluation: learner steps (macro "
-                            "actions) for each of its envs' first episode", static=True, ge=1)
-
-
-@struct.dataclass
-class Fig5Train:
-    num_chunks: int = param(40, doc="chunks = grid-baseline training chunks (the map is built "
-                            "at init)", static=True, ge=1)
-
-
-def _grid_agent() -> QRunnerParams:
-    """The grid baseline exactly as ``experiments/grid_shooting.py`` trains it (its
-    ``_agent()``): discount 0.98 per primitive, LEM judging convergence by the mean |dQ| over
-    100 learner steps (threshold 4e-3, difficulty steps 0.05), 64 envs x 100 steps a chunk."""
-    a = QRunnerParams()
-    agent = a.agent.replace(discount=0.98)
-    lem = a.lem.replace(statistic="mean", window=100, threshold=4e-3, step=0.05)
-    return a.replace(agent=agent, lem=lem, num_envs=64, chunk_steps=100)
+    episodes: int = param(256, doc="evaluation episodes (fresh starts) of the map's policy, at "
+                          "grid.train.eval_difficulty", static=True, ge=1)
 
 
 @struct.dataclass
@@ -77,11 +116,9 @@ class Fig5Config:
     features: FeatureParams = section(FeatureParams, doc="feature normalisation")
     collect: CollectParams = section(CollectParams, doc="experience collection")
     build: ActionBasedParams = section(ActionBasedParams, doc="construction thresholds")
-    grid: QRunnerParams = section(_grid_agent, doc="grid baseline (Q-learning on 319 states, "
-                                  "grid_shooting's settings)")
-    grid_bounds: GridParams = section(GridParams, doc="grid category boundaries")
-    eval: EvalParams = section(EvalParams, doc="evaluation")
-    train: Fig5Train = section(Fig5Train, doc="run length")
+    grid: GridBaseline = section(GridBaseline, doc="grid baseline (grid_shooting's settings; "
+                                 "its chunks are this run's chunks)")
+    eval: EvalParams = section(EvalParams, doc="evaluation of the map")
 
 
 @struct.dataclass
@@ -92,48 +129,40 @@ class Carry:
 
 def make_program(cfg: Fig5Config) -> Program:
     n_act = ENV.num_actions
-    runner = make_qlearning_runner(ENV, lambda o: grid_state(o, cfg.grid_bounds), cfg.grid,
-                                   cfg.env)
-    # the grid's greedy evaluation on as many fresh starts as the map's (one env each)
-    ev_runner = make_qlearning_runner(ENV, lambda o: grid_state(o, cfg.grid_bounds),
-                                      cfg.grid.replace(num_envs=cfg.eval.episodes), cfg.env)
+    gprog = grid_program(cfg.env, cfg.grid)
 
     def init(key, c):
         k_col, k_build, k_grid = jax.random.split(key, 3)
         feat = lambda o: sec2_features(o, c.features)  # noqa: E731
         exp = collect_experience(ENV, c.env, k_col, feat, n_act, c.collect)
         smap = build_state_map(exp, c.build, k_build)
-        return Carry(smap=smap, grid=runner.init(k_grid, c.grid, c.env))
+        return Carry(smap=smap, grid=gprog.init(k_grid, grid_config(c.env, c.grid)))
 
     def step(carry, c):
-        g, m = runner.run_chunk(carry.grid, c.grid, c.env)
-        eps = jnp.sum(m["episodes"]).astype(F32)
+        g, m = gprog.step(carry.grid, grid_config(c.env, c.grid))
         return carry.replace(grid=g), {
-            "episodes": eps,
-            "success_rate": jnp.sum(m["successes"]).astype(F32) / jnp.maximum(eps, 1.0),
-            "grid_difficulty": m["difficulty"][-1].astype(F32),
-            "map_states": num_states(carry.smap).astype(F32)}
+            "episodes": m["episodes"], "success_rate": m["success_rate"],
+            "grid_difficulty": m["difficulty"], "map_states": num_states(carry.smap).astype(F32)}
 
     def final(carry, c, key):
         k_map, k_grid = jax.random.split(key)
-        ep = c.env.replace(start_difficulty=c.eval.difficulty)
+        ep = c.env.replace(start_difficulty=jnp.asarray(c.grid.train.eval_difficulty, F32))
         feat = lambda o: sec2_features(o, c.features)  # noqa: E731
         sm = carry.smap
-        ok, n = rollout_success(ENV, ep, k_map, lambda o, _: policy_action(sm, feat(o)),
+        ok, _ = rollout_success(ENV, ep, k_map, lambda o, _: policy_action(sm, feat(o)),
                                 cfg.eval.episodes, cfg.env.max_steps)
-        g = ev_runner.evaluate(k_grid, carry.grid.q, c.grid.replace(num_envs=cfg.eval.episodes),
-                               ep, cfg.eval.grid_steps)
+        g = gprog.final(carry.grid, grid_config(c.env, c.grid), k_grid)
         return {"map_success": jnp.mean(ok.astype(F32)),
-                "grid_success": g["success_rate"].astype(F32),
+                "grid_success": g["greedy_success"], "random_success": g["random_success"],
                 "map_states": num_states(sm).astype(F32),
                 "map_iterations": sm.iterations.astype(F32),
-                "grid_states": jnp.float32(319.0),
+                "grid_states": jnp.float32(NUM_GRID_STATES),
                 "centre": sm.centre, "shape": sm.shape,
                 "ell_active": sm.ell_active.astype(F32), "ell_state": sm.ell_state.astype(F32),
                 "action": sm.action.astype(F32), "transitions": sm.transitions.astype(F32),
                 "order": sm.order.astype(F32), "active": sm.active.astype(F32)}
 
-    return Program(init=init, step=step, num_chunks=cfg.train.num_chunks, final=final)
+    return Program(init=init, step=step, num_chunks=gprog.num_chunks, final=final)
 
 
 def map_of(final: dict, seed: int) -> StateMap:
@@ -173,7 +202,7 @@ def plot_fig5(final: dict, cfg: Fig5Config, out: Path, seed: int = 0, n: int = 1
         ax.text((cc.mean() + 0.5) / n * fp.ball_size_max, (rr.mean() + 0.5) / n
                 * fp.goal_size_max, f"{labels[a]}$_{{{t}}}$", ha="center", va="center",
                 fontsize=8, color="red")
-    gp = cfg.grid_bounds
+    gp = cfg.grid.grid
     for v in (gp.ball_size_lower, gp.ball_size_upper):
         ax.axvline(v, color="C0", lw=1)
     for v in (gp.goal_size_lower, gp.goal_size_upper):
@@ -189,21 +218,44 @@ def plot_fig5(final: dict, cfg: Fig5Config, out: Path, seed: int = 0, n: int = 1
     return path
 
 
+def ci95(v) -> tuple[float, float]:
+    """Mean and half-width of the 95% t interval over seeds (0 for one seed)."""
+    from vbl.engine.results import t_quantile_975
+
+    v = np.asarray(v, float)
+    h = t_quantile_975(len(v) - 1) * v.std(ddof=1) / np.sqrt(len(v)) if len(v) > 1 else 0.0
+    return float(v.mean()), float(h)
+
+
 def report(res) -> ReportSection:
     cfg = res.config
     fin = {k: np.asarray(v)[0] for k, v in res.final.items()}
     fig = plot_fig5(fin, cfg, Path(res.out_dir))
 
-    def ms(k):
-        v = fin[k]
-        return f"{v.mean():.3f} +- {v.std(ddof=1) if len(v) > 1 else 0.0:.3f}"
+    def ms(k, f="{:.3f}"):
+        m, h = ci95(fin[k])
+        return f"{f.format(m)} ± {f.format(h)}"
 
-    md = ["| method | states | success rate (fresh starts, difficulty "
-          f"{cfg.eval.difficulty}) |", "|---|---|---|",
-          f"| action-based map | {ms('map_states')} | {ms('map_success')} |",
-          f"| grid baseline (Q-learning) | 319 | {ms('grid_success')} |", "",
-          f"Mean +- std over {len(fin['map_success'])} seeds; the map took "
-          f"{ms('map_iterations')} iterations."]
+    seeds = len(fin["map_success"])
+    gt = cfg.grid.train
+    map_m, grid_m = ci95(fin["map_success"]), ci95(fin["grid_success"])
+    st = ci95(fin["map_states"])
+    md = [f"Greedy policies on fresh starts at start difficulty {gt.eval_difficulty} (the grid "
+          f"baseline's task difficulty; 1 = fully random), {seeds} seeds, mean ± 95% CI. The "
+          f"map: {cfg.eval.episodes} starts per seed; the grid baseline: grid_shooting's own "
+          f"evaluation ({gt.final_eval_rounds} x {gt.eval_envs} starts per seed), after "
+          f"{gt.num_chunks} chunks of its training (with its LEM settings).", "",
+          "| method | states | success rate |", "|---|---|---|",
+          f"| action-based map | {ms('map_states', '{:.1f}')} | {ms('map_success')} |",
+          f"| grid baseline (Q-learning, grid_shooting) | {NUM_GRID_STATES} | "
+          f"{ms('grid_success')} |",
+          f"| random policy (grid's macro actions) | | {ms('random_success')} |", "",
+          f"The map took {ms('map_iterations', '{:.1f}')} iterations.", "",
+          "What must hold: success at least the grid baseline's with fewer states than "
+          f"{NUM_GRID_STATES}: success {'yes' if map_m[0] >= grid_m[0] else '**no**'} "
+          f"({map_m[0]:.3f} vs {grid_m[0]:.3f}"
+          f"{', intervals overlap' if abs(map_m[0] - grid_m[0]) <= map_m[1] + grid_m[1] else ''}"
+          f"); states {'yes' if st[0] < NUM_GRID_STATES else '**no**'} ({st[0]:.1f})."]
     return ReportSection(markdown="\n".join(md), figures=(fig,))
 
 
@@ -212,9 +264,9 @@ EXPERIMENT = register(Experiment(
     description="Fig 5: off-line action-based state map vs the 319-state grid baseline",
     default_config=Fig5Config(),
     make_program=make_program,
+    # --quick: a smaller collection and map; the grid baseline exactly as grid_shooting --quick
     quick={"collect.episodes_per_action": 300, "collect.horizon": 60, "build.start_window": 30,
-           "build.max_iterations": 6, "train.num_chunks": 3, "eval.episodes": 64,
-           "grid.num_envs": 16, "eval.grid_steps": 400},
+           "build.max_iterations": 6, "eval.episodes": 64, **grid_quick()},
     seeds=4,
     quick_seeds=2,
     paper_result=True,

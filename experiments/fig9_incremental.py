@@ -13,7 +13,10 @@ Run: ``vbl run fig9_incremental --quick`` or ``python experiments/fig9_increment
 
 from __future__ import annotations
 
+import importlib.util
+import sys
 from pathlib import Path
+from types import ModuleType
 
 import jax
 import jax.numpy as jnp
@@ -33,6 +36,23 @@ from vbl.spaces.incremental import (
 )
 
 F32 = jnp.float32
+FIG5 = "vbl_experiments.fig5_action_based"
+
+
+def fig5() -> ModuleType:
+    """``experiments/fig5_action_based.py`` (for its grid-baseline helpers, which use
+    ``grid_shooting``'s settings by reference), imported once under the registry's name."""
+    if FIG5 not in sys.modules:
+        path = Path(__file__).resolve().with_name("fig5_action_based.py")
+        spec = importlib.util.spec_from_file_location(FIG5, path)
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[FIG5] = module
+        try:
+            spec.loader.exec_module(module)
+        except Exception:
+            sys.modules.pop(FIG5, None)
+            raise
+    return sys.modules[FIG5]
 
 
 @struct.dataclass
@@ -64,6 +84,9 @@ class Fig9Train:
                                    static=True, ge=1)
     eval_episodes: int = param(200, doc="greedy evaluation episodes on fresh starts",
                                static=True, ge=1)
+    grid_baseline: bool = param(True, doc="final: also train and evaluate the grid baseline "
+                                "(grid_shooting's settings) on the final ball and the same "
+                                "starts", static=True)
 
 
 def _default_env() -> ShootingParams:
@@ -79,6 +102,9 @@ class Fig9Config:
     learner: IncrementalParams = section(IncrementalParams, doc="incremental segmentation + Q")
     change: ChangeParams = section(ChangeParams, doc="ball-size changes")
     train: Fig9Train = section(Fig9Train, doc="run length")
+    grid: object = section(lambda: fig5().GridBaseline(), doc="grid baseline (grid_shooting's "
+                           "settings); grid.train.eval_difficulty is the evaluation's start "
+                           "difficulty")
 
 
 @struct.dataclass
@@ -126,10 +152,18 @@ def make_program(cfg: Fig9Config) -> Program:
             "trials": run.trials.astype(F32),
             "splits": run.lr.splits.astype(F32), "merges": run.lr.merges.astype(F32)}
 
+    f5 = fig5()
+    # the grid baseline, trained inside `final` (no per-chunk evaluation curve)
+    gbase = cfg.grid.replace(train=cfg.grid.train.replace(eval_curve=False))
+    gprog = f5.grid_program(cfg.env, gbase) if cfg.train.grid_baseline else None
+
     def final(carry, c, key):
         lr = carry.run.lr
-        ep = _params_at(c, carry.run.trials)
+        ep = _params_at(c, carry.run.trials).replace(
+            start_difficulty=jnp.asarray(c.grid.train.eval_difficulty, F32))
         feat = feat_of(c)
+        k_eval, k_grid, k_gfin = jax.random.split(key, 3)
+
         def rollout(k, rand):
             """Greedy policy (rand False) or uniformly random primitives (rand True)."""
             def pol(o, ka):
@@ -139,15 +173,22 @@ def make_program(cfg: Fig9Config) -> Program:
                                    cfg.env.max_steps)[0]
 
         # one traced rollout for both policies (same fresh starts: same key)
-        ok = jax.vmap(rollout, in_axes=(None, 0))(key, jnp.array([False, True]))
-        return {"greedy_success": jnp.mean(ok[0].astype(F32)),
-                "random_success": jnp.mean(ok[1].astype(F32)),
-                "states": jnp.sum(lr.seg.active).astype(F32),
-                "trials_done": carry.run.trials.astype(F32),
-                "trial_success": carry.trial_success, "trial_states": carry.trial_states,
-                "box_lo": lr.seg.lo, "box_hi": lr.seg.hi,
-                "box_active": lr.seg.active.astype(F32),
-                "box_action": jnp.argmax(lr.q, axis=-1).astype(F32)}
+        ok = jax.vmap(rollout, in_axes=(None, 0))(k_eval, jnp.array([False, True]))
+        out = {"greedy_success": jnp.mean(ok[0].astype(F32)),
+               "random_success": jnp.mean(ok[1].astype(F32)),
+               "states": jnp.sum(lr.seg.active).astype(F32),
+               "trials_done": carry.run.trials.astype(F32),
+               "trial_success": carry.trial_success, "trial_states": carry.trial_states,
+               "box_lo": lr.seg.lo, "box_hi": lr.seg.hi,
+               "box_active": lr.seg.active.astype(F32),
+               "box_action": jnp.argmax(lr.q, axis=-1).astype(F32)}
+        if gprog is not None:
+            gc = f5.grid_config(ep, c.grid.replace(train=c.grid.train.replace(
+                eval_curve=False)))
+            g = jax.lax.fori_loop(0, gprog.num_chunks, lambda _, g: gprog.step(g, gc)[0],
+                                  gprog.init(k_grid, gc))
+            out["grid_success"] = gprog.final(g, gc, k_gfin)["greedy_success"]
+        return out
 
     return Program(init=init, step=step, num_chunks=cfg.train.num_chunks, final=final)
 
@@ -238,41 +279,82 @@ def plot_fig8(final: dict, cfg: Fig9Config, out: Path, seed: int = 0) -> Path:
     return path
 
 
+def change_windows(succ: np.ndarray, states: np.ndarray, changes: tuple[int, ...],
+                   window: int) -> list[dict]:
+    """Per change: success per seed (seeds, 3) in the ``window`` trials before it, right
+    after it and at the end of its recovery window (the ``window`` trials before the next
+    change, or before the last trial), and the states just before it and ``window`` trials
+    after it (seeds, 2). ``succ``, ``states``: (seeds, trials)."""
+    n = succ.shape[1]
+    out = []
+    for i, c in enumerate(changes):
+        end = changes[i + 1] if i + 1 < len(changes) else n
+        spans = [(c - window, c), (c, c + window), (end - window, end)]
+        rates = [succ[:, max(a, 0):min(b, n)].mean(axis=1) if min(b, n) > max(a, 0)
+                 else np.full(succ.shape[0], np.nan) for a, b in spans]
+        st = [states[:, min(max(t, 0), n - 1)] for t in (c - 1, c + window)]
+        out.append(dict(change=c, end=end, spans=spans, rates=np.stack(rates, 1),
+                        states=np.stack(st, 1)))
+    return out
+
+
 def report(res) -> ReportSection:
+    ci95 = fig5().ci95
     cfg = res.config
     fin = {k: np.asarray(v)[0] for k, v in res.final.items()}         # first sweep point
     n = int(min(fin["trials_done"].min(), fin["trial_success"].shape[1]))  # done by all seeds
     fin["trial_success"] = fin["trial_success"][:, :n]
     fin["trial_states"] = fin["trial_states"][:, :n]
     figs = [plot_fig9(fin, cfg, Path(res.out_dir)), plot_fig8(fin, cfg, Path(res.out_dir))]
-    succ = fin["trial_success"]
-    st = fin["trial_states"]
-    c1, c2 = cfg.change.change_trial_1, cfg.change.change_trial_2
+    succ, st = fin["trial_success"], fin["trial_states"]
+    ch = cfg.change
     w = 50
+    seeds = succ.shape[0]
 
-    def rate(a, b):
-        a, b = max(0, min(a, n)), max(0, min(b, n))
-        return float(succ[:, a:b].mean()) if b > a else float("nan")
+    def fmt(v):
+        m, h = ci95(v)
+        return f"{m:.3f} ± {h:.3f}"
 
-    def states_at(t):
-        return float(st[:, min(max(t, 0), n - 1)].mean()) if n else float("nan")
-
-    rows = [("before change 1", rate(c1 - w, c1), states_at(c1 - 1)),
-            ("just after change 1", rate(c1, c1 + w), states_at(c1 + w)),
-            ("before change 2", rate(c2 - w, c2), states_at(c2 - 1)),
-            ("just after change 2", rate(c2, c2 + w), states_at(c2 + w)),
-            ("end", rate(n - w, n), states_at(n - 1))]
-    md = [f"On-line segmentation, {succ.shape[0]} seeds, {n} trials (finished by every seed "
-          f"of {cfg.train.num_trials}), ball radius "
-          f"{cfg.change.radius_0} -> {cfg.change.radius_1} m (trial {c1}) -> "
-          f"{cfg.change.radius_2} m (trial {c2}).", "",
-          f"| window ({w} trials) | success rate | states |", "|---|---|---|"]
-    md += [f"| {a} | {b:.3f} | {c:.1f} |" for a, b, c in rows]
-    md += ["", f"Greedy success on {cfg.train.eval_episodes} fresh starts (start difficulty "
-           f"{cfg.env.start_difficulty}, last radius): "
-           f"{float(fin['greedy_success'].mean()):.3f} (uniformly random primitives on the "
-           f"same starts: {float(fin['random_success'].mean()):.3f}); final states "
-           f"{float(fin['states'].mean()):.1f} (grid: 319)."]
+    md = [f"On-line segmentation, {seeds} seeds, {n} trials (finished by every seed of "
+          f"{cfg.train.num_trials}), ball radius {ch.radius_0} -> {ch.radius_1} m (trial "
+          f"{ch.change_trial_1}) -> {ch.radius_2} m (trial {ch.change_trial_2}). Success rate "
+          f"over {w}-trial windows (training episodes, Boltzmann exploration included), mean ± "
+          "95% CI over seeds:", "",
+          "| change | before | right after | end of recovery window | states before -> "
+          f"{w} trials after |", "|---|---|---|---|---|"]
+    verdict = []
+    for i, cw in enumerate(change_windows(succ, st, (ch.change_trial_1, ch.change_trial_2),
+                                          w)):
+        r = cw["rates"]
+        (a0, a1), (b0, b1), (e0, e1) = cw["spans"]
+        md.append(f"| {i + 1} (trial {cw['change']}) | {fmt(r[:, 0])} ({a0}-{a1}) | "
+                  f"{fmt(r[:, 1])} ({b0}-{b1}) | {fmt(r[:, 2])} ({e0}-{e1}) | "
+                  f"{cw['states'][:, 0].mean():.1f} -> {cw['states'][:, 1].mean():.1f} |")
+        m = np.nanmean(r, axis=0)
+        verdict.append((m[1] < m[0], m[2] > m[1], m[2] >= m[0],
+                        cw["states"][:, 1].mean() > cw["states"][:, 0].mean()))
+    yn = lambda b: "yes" if b else "**no**"  # noqa: E731
+    md += ["", "What must hold: success drops after each change "
+           f"({', '.join(yn(v[0]) for v in verdict)}), rises again in the recovery window "
+           f"({', '.join(yn(v[1]) for v in verdict)}; back to the level before the change: "
+           f"{', '.join(yn(v[2]) for v in verdict)}), and the number of states grows after "
+           f"the change ({', '.join(yn(v[3]) for v in verdict)}).", ""]
+    gs = fin["greedy_success"]
+    line = (f"Greedy policy on {cfg.train.eval_episodes} fresh starts per seed (start "
+            f"difficulty {cfg.grid.train.eval_difficulty}, final ball, "
+            f"{cfg.env.max_steps}-primitive limit): {fmt(gs)} with "
+            f"{fmt(fin['states'])} states; uniformly random primitives on the same starts "
+            f"{fmt(fin['random_success'])}")
+    if "grid_success" in fin:
+        g = fin["grid_success"]
+        line += (f"; the grid baseline (grid_shooting's settings, {fig5().NUM_GRID_STATES} "
+                 f"states, trained on the final ball, same start difficulty and limit) "
+                 f"{fmt(g)}. At least the grid's success with fewer states: "
+                 f"{yn(gs.mean() >= g.mean() and fin['states'].mean() < 319)}.")
+    else:
+        line += ("; grid baseline not run (train.grid_baseline off, e.g. --quick): see "
+                 "fig5_action_based.")
+    md.append(line)
     return ReportSection(markdown="\n".join(md), figures=tuple(figs))
 
 

@@ -8,8 +8,8 @@ One learner (all functions are written for one learner and ``vmap``-ed over lear
    :func:`vbl.sysid.cva.fit_one`);
 3. **filter**: inside the env loop, each object's model turns the running history of its
    outputs and the learner's inputs into the canonical state ``mu`` (:func:`filter_state`);
-   the first ``n_used`` components of every object (CVA orders them by canonical
-   correlation, i.e. importance) are concatenated into the state vector
+   the first ``n_used`` components of every object (``n_used_objects``: one count per
+   object; CVA orders them by canonical correlation, i.e. importance) are concatenated into the state vector
    ``[mu_ball, mu_goal, mu_other]``;
 4. **quantise** the state vector into a Q-table index with a quantiser fitted to the states
    of the collected data (:mod:`vbl.spaces.quantize`);
@@ -106,6 +106,10 @@ class CVAStateParams:
     n_used: int = param(2, doc="canonical states used per object (the first n_used, ordered "
                         "by canonical correlation); components beyond the AIC order n* are 0",
                         static=True, ge=1)
+    n_used_objects: tuple = param((), doc="per-object override of n_used, one int per entry "
+                                  "of objects (e.g. (4, 2): ball 4 components (position and "
+                                  "velocity), goal 2); () = n_used for every object",
+                                  static=True)
     extra: tuple = param((), doc="extra obs_slices appended unfiltered to the state vector "
                          "(e.g. 'lost_side')", static=True)
     collect_steps: int = param(2000, doc="random-action steps collected per learner for the "
@@ -119,6 +123,20 @@ class CVAStateParams:
     def check(self) -> None:
         if not self.objects:
             raise ParamError("objects must name at least one observed object")
+        if self.n_used_objects:
+            if len(self.n_used_objects) != len(self.objects):
+                raise ParamError(f"n_used_objects={self.n_used_objects!r} must have one entry "
+                                 f"per object of objects={self.objects!r}, or be ()")
+            if not all(isinstance(k, int | np.integer) and not isinstance(k, bool) and k >= 1
+                       for k in self.n_used_objects):
+                raise ParamError(f"n_used_objects={self.n_used_objects!r} must hold integers "
+                                 ">= 1")
+
+    def n_used_per_object(self) -> tuple[int, ...]:
+        """Canonical components used for each object (``n_used_objects`` or ``n_used``)."""
+        if self.n_used_objects:
+            return tuple(int(k) for k in self.n_used_objects)
+        return (int(self.n_used),) * len(self.objects)
         if self.cva.lag == 0 and self.cva.lag_max < 1:
             raise ParamError("cva.lag_max must be >= 1")
         if self.state == "select" and self.quantizer.method != "vq":
@@ -321,7 +339,7 @@ class FilteredEnv:
 def state_dim(env: Any, p: CVAStateParams) -> int:
     """Dimension d of the state vector that is quantised."""
     sl = env.obs_slices
-    d_cva = p.n_used * len(p.objects)
+    d_cva = sum(p.n_used_per_object())
     d_cur = sum(sl[o].stop - sl[o].start for o in p.objects)
     d = {"cva": d_cva, "current": d_cur, "select": max(d_cva, d_cur)}[p.state]
     return int(d + sum(sl[o].stop - sl[o].start for o in p.extra))
@@ -393,8 +411,8 @@ def make_cva_learner(env: Any, p: CVAStateParams, m: int | None = None) -> CVALe
         data = collect(env, k_col, env_params, p.collect_steps)
         models = ()
         if p.state != "current":
-            models = tuple(identify_object(data["u"], data["obs"][:, sl], pp.cva, p.n_used)
-                           for sl in fenv.slices)
+            models = tuple(identify_object(data["u"], data["obs"][:, sl], pp.cva, k)
+                           for sl, k in zip(fenv.slices, p.n_used_per_object(), strict=True))
         use_cva = jnp.asarray(pp.use_cva, bool)
         xs = _history_states(fenv, data, models, use_cva)
         qz = fit_quantizer(k_q, xs, pp.quantizer)

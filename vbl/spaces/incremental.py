@@ -92,7 +92,7 @@ class IncrementalParams:
                                   "(outcome disagreement)", ge=0.0)
     ridge: float = param(1e-4, doc="ridge of the least-squares fits", gt=0.0)
     inherit_q: bool = param(True, doc="a new box starts from its parent's Q-values (else "
-                            "q_init)", static=True)
+                            "q_init)")
     q_init: float = param(0.0, doc="initial Q-value of new boxes (inherit_q off, and at "
                           "start)")
     alpha: float = param(0.25, doc="Q-learning rate", gt=0.0, le=1.0)
