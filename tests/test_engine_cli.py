@@ -5,10 +5,12 @@ checkpoint is refused, `vbl list`."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import signal
 import socket
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -139,3 +141,26 @@ def test_sigkill_then_resume_equals_uninterrupted(setup):
     assert [x["step"] for x in got if x["chunk"] != "final"] == list(range(1, 151))
     assert got == want
     assert json.loads((out / "summary.json").read_text())["resumed_from_step"] > 0
+
+
+def test_vbl_command_uses_every_core_as_a_host_device(monkeypatch):
+    from vbl.cli import use_all_cores
+
+    monkeypatch.delenv("XLA_FLAGS", raising=False)
+    monkeypatch.setenv("VBL_HOST_DEVICES", "3")
+    assert use_all_cores() == 3
+    assert "--xla_force_host_platform_device_count=3" in os.environ["XLA_FLAGS"]
+    monkeypatch.setenv("XLA_FLAGS", "--xla_force_host_platform_device_count=4")
+    assert use_all_cores() == 0 and os.environ["XLA_FLAGS"].endswith("count=4")  # user wins
+    monkeypatch.delenv("XLA_FLAGS")
+    monkeypatch.setenv("VBL_HOST_DEVICES", "two")
+    with pytest.raises(SystemExit, match="must be an integer"):
+        use_all_cores()
+    # in a fresh process the flag really gives that many JAX devices
+    env = dict(os.environ, VBL_HOST_DEVICES="2")
+    env.pop("XLA_FLAGS", None)
+    code = ("from vbl.cli import use_all_cores; use_all_cores(); import jax; "
+            "print(jax.device_count())")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                         timeout=TIMEOUT)
+    assert out.stdout.strip() == "2", out.stderr

@@ -187,11 +187,39 @@ def _guarded(fn, *a) -> int:
         return _error("interrupted", 130)
 
 
+def use_all_cores() -> int:
+    """Expose every CPU core as a JAX host device (call before JAX's first computation).
+
+    XLA:CPU leaves most of a second core idle for one device, while the engine shards the
+    learner axis over all devices (results do not depend on the count): the env benchmark
+    runs 2.3x faster on 2 devices than on one. ``VBL_HOST_DEVICES=N`` sets the count (1 =
+    off); an ``XLA_FLAGS`` that already sets it wins. Returns the count requested.
+    """
+    flags = os.environ.get("XLA_FLAGS", "")
+    if "xla_force_host_platform_device_count" in flags:
+        return 0
+    raw = os.environ.get("VBL_HOST_DEVICES", "")
+    try:
+        n = int(raw) if raw else (os.cpu_count() or 1)
+    except ValueError:
+        raise SystemExit(f"vbl: error: VBL_HOST_DEVICES={raw!r} must be an integer >= 1"
+                         ) from None
+    if n > 1:
+        os.environ["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={n}".strip()
+    return n
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``vbl`` console script; returns the exit code."""
     args = build_parser().parse_args(argv)
     os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
     return _guarded(_dispatch, args)
+
+
+def console_main() -> int:
+    """The installed ``vbl`` command: :func:`use_all_cores`, then :func:`main`."""
+    use_all_cores()
+    return main()
 
 
 def main_for(experiment, argv: list[str] | None = None) -> None:
