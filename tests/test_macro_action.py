@@ -149,3 +149,44 @@ def test_runner_with_macro_actions_learns_the_counter():
     # late in the chunk (epsilon 0) every finished episode succeeds in 4 macro actions
     late = slice(80, 100)
     assert np.all(np.asarray(m["successes"])[:, late] == np.asarray(m["episodes"])[:, late])
+
+
+def test_grid_search_key_hand_built_states():
+    from vbl.spaces.grid import NUM_GOAL_STATES as G
+    from vbl.spaces.macro_action import grid_search_key
+
+    def idx(ball, goal):
+        return G * ball + goal
+
+    # ball (centre, large) = 5; goal (centre, large, left/front/right) = 15, 16, 17
+    keys = np.asarray(grid_search_key(jnp.array([idx(5, 15), idx(5, 16), idx(5, 17)])))
+    assert len(set(keys.tolist())) == 1  # orientation ignored
+    # a goal position or size change, or a ball change, still counts
+    assert grid_search_key(idx(5, 16)) != grid_search_key(idx(5, 7))   # goal left third
+    assert grid_search_key(idx(5, 16)) != grid_search_key(idx(5, 13))  # goal medium
+    assert grid_search_key(idx(5, 16)) != grid_search_key(idx(4, 16))  # ball medium
+    # goal lost left (27) = lost right (28) while the ball is visible, but != goal seen
+    assert grid_search_key(idx(5, 27)) == grid_search_key(idx(5, 28))
+    assert grid_search_key(idx(5, 27)) != grid_search_key(idx(5, 16))
+    # ball lost: the goal is ignored; lost left (9) != lost right (10) != ball seen
+    lost_left = np.asarray(grid_search_key(jnp.array([idx(9, g) for g in range(G)])))
+    assert np.all(lost_left == lost_left[0])
+    assert grid_search_key(idx(9, 3)) != grid_search_key(idx(10, 3))
+    assert grid_search_key(idx(9, 3)) != grid_search_key(idx(2, 3))
+
+
+def test_stop_on_grid_search_in_macro_step():
+    from vbl.spaces.macro_action import macro_step
+
+    # counter blocks 0, 1, 2 read as goal states 0, 1, 2 (one goal cell, orientations
+    # left/front/right) of ball state 0: equal grid_search keys; block 3 is another cell.
+    st = CounterState(c=jnp.int32(0), t=jnp.int32(0))
+    out = {rule: macro_step(ENV.step, block_of, jax.random.PRNGKey(0), st, jnp.int32(0),
+                            jnp.int32(0), ENV.default_params, 20, 1.0, stop_on=rule)
+           for rule in ("state", "grid_search")}
+    assert int(out["state"].num_primitives) == 3     # 0 -> 3: block 1
+    assert int(out["grid_search"].num_primitives) == 9   # 0 -> 9: block 3
+    assert int(out["grid_search"].next_state) == 3
+    with pytest.raises(ValueError, match="stop_on"):
+        macro_step(ENV.step, block_of, jax.random.PRNGKey(0), st, jnp.int32(0), jnp.int32(0),
+                   ENV.default_params, 20, 1.0, stop_on="nope")

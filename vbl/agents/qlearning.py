@@ -30,6 +30,7 @@ parallel environments (act, env step or macro step, update, LEM, record episodes
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import partial
 from typing import Any, NamedTuple
 
 import jax
@@ -281,7 +282,7 @@ def make_qlearning_runner(env: Any, state_fn: Callable, params: QRunnerParams,
         ep = env_params_at(env_params, c.lem.difficulty)
         keys = jax.random.split(key, n_envs)
         if mp.enabled:
-            out = jax.vmap(macro_step,
+            out = jax.vmap(partial(macro_step, stop_on=mp.stop_on),
                            in_axes=(None, None, 0, 0, 0, 0, None, None, None, None))(
                 env.step, state_fn, keys, c.env_state, c.s, action, ep,
                 params.macro.max_repeats, params.agent.discount, params.macro.min_repeats)

@@ -27,7 +27,28 @@ from flax import struct
 
 from vbl.params import param
 
-__all__ = ["MacroActionParams", "MacroOutcome", "macro_step", "make_macro_step"]
+__all__ = ["MacroActionParams", "MacroOutcome", "STOP_RULES", "grid_search_key", "macro_step",
+           "make_macro_step"]
+
+
+def grid_search_key(index: jax.Array) -> jax.Array:
+    """Stop key of a 319-grid state index (int32, same shape): the index without the goal's
+    orientation (a turn flips it by noise at close range) and without a lost goal's side,
+    and, while the ball is lost, without the goal altogether. Two grid states with equal
+    keys do not end a macro action under ``stop_on="grid_search"``."""
+    from vbl.spaces.grid import NUM_BALL_STATES, NUM_GOAL_STATES
+
+    i = jnp.asarray(index, jnp.int32)
+    ball, goal = i // NUM_GOAL_STATES, i % NUM_GOAL_STATES
+    lost_goal, lost_ball = NUM_GOAL_STATES - 2, NUM_BALL_STATES - 2
+    goal = jnp.where(goal >= lost_goal, lost_goal, goal - goal % 3)  # drop orientation, side
+    goal = jnp.where(ball >= lost_ball, lost_goal, goal)  # ball lost: the goal does not matter
+    return (NUM_GOAL_STATES * ball + goal).astype(jnp.int32)
+
+
+#: ``stop_on`` choices: state index -> key; a macro action stops when the key changes.
+STOP_RULES: dict[str, Callable] = {"state": lambda i: jnp.asarray(i, jnp.int32),
+                                   "grid_search": grid_search_key}
 
 
 @struct.dataclass
@@ -43,6 +64,10 @@ class MacroActionParams:
                              "earlier (unless the episode ends; capped at max_repeats); > 1 "
                              "damps one-primitive flips between look-alike states",
                              unit="primitives", ge=1)
+    stop_on: str = param("state", doc="what ends an action: any change of the state index "
+                         "('state'), or for the 319-state grid 'grid_search': changes that "
+                         "matter (while the ball is lost only the ball reappearing; a lost "
+                         "goal's side ignored)", static=True, choices=tuple(STOP_RULES))
 
 
 @struct.dataclass
@@ -65,7 +90,7 @@ def _zeros_like_struct(tree: Any) -> Any:
 
 def macro_step(step_fn: Callable, state_index_fn: Callable, key: jax.Array, env_state: Any,
                state_index: jax.Array, action: jax.Array, env_params: Any, max_repeats: Any,
-               discount: Any, min_repeats: Any = 1) -> MacroOutcome:
+               discount: Any, min_repeats: Any = 1, stop_on: str = "state") -> MacroOutcome:
     """Repeat ``action`` from ``env_state`` (whose discrete state is ``state_index``).
 
     Args:
@@ -80,12 +105,17 @@ def macro_step(step_fn: Callable, state_index_fn: Callable, key: jax.Array, env_
       discount: per-primitive discount of the summed reward (may be traced).
       min_repeats: primitives run in any case (unless the episode ends first), capped at
         ``max_repeats`` (int >= 1, may be traced; default 1).
+      stop_on: static key of :data:`STOP_RULES` ("state": any change of the index).
 
     Stops after the first primitive (at or after the ``min_repeats``-th) for which the
-    discrete state differs from ``state_index``, the episode ends, or ``max_repeats``
-    primitives ran.
+    stop key of the discrete state differs from that of ``state_index``, the episode ends,
+    or ``max_repeats`` primitives ran.
     """
+    if stop_on not in STOP_RULES:
+        raise ValueError(f"stop_on={stop_on!r}; choose one of {list(STOP_RULES)}")
+    key_of = STOP_RULES[stop_on]
     s0 = jnp.asarray(state_index, jnp.int32)
+    k0 = key_of(s0)
     gamma = jnp.asarray(discount, jnp.float32)
     cap = jnp.asarray(max_repeats, jnp.int32)
     least = jnp.minimum(jnp.asarray(min_repeats, jnp.int32), cap)
@@ -97,7 +127,7 @@ def macro_step(step_fn: Callable, state_index_fn: Callable, key: jax.Array, env_
                 truncated=trunc0.astype(bool), info=info0, s=s0)
 
     def cond(c):
-        unchanged = (c["s"] == s0) | (c["n"] < least)
+        unchanged = (key_of(c["s"]) == k0) | (c["n"] < least)
         moving = unchanged & ~(c["terminated"] | c["truncated"]) & (c["n"] < cap)
         return (c["n"] == 0) | moving
 
@@ -118,12 +148,12 @@ def macro_step(step_fn: Callable, state_index_fn: Callable, key: jax.Array, env_
 
 def make_macro_step(step_fn: Callable, state_index_fn: Callable) -> Callable:
     """``f(key, env_state, state_index, action, env_params, max_repeats, discount,
-    min_repeats=1) -> MacroOutcome``: :func:`macro_step` bound to an env's ``step`` and a
-    state function."""
+    min_repeats=1, stop_on="state") -> MacroOutcome``: :func:`macro_step` bound to an env's
+    ``step`` and a state function."""
 
     def f(key, env_state, state_index, action, env_params, max_repeats, discount,
-          min_repeats=1):
+          min_repeats=1, stop_on="state"):
         return macro_step(step_fn, state_index_fn, key, env_state, state_index, action,
-                          env_params, max_repeats, discount, min_repeats)
+                          env_params, max_repeats, discount, min_repeats, stop_on)
 
     return f
