@@ -103,3 +103,17 @@ def test_bad_inputs(scen):
         collect(k, scen[0].replace(focus="referee"), 2)
     with pytest.raises(ParamError, match="min_dist"):
         collect(k, scen[0].replace(min_dist=5.0, max_dist=1.0), 2)
+
+
+@pytest.mark.slow  # compiles the collection scan once more (one scenario per call)
+def test_grouping_does_not_change_the_data(scen, data):
+    """Scenario s always uses fold_in(key, s): one call per scenario gives the same data."""
+    one_by_one = collect_many(jax.random.PRNGKey(0), scen, BATCH, group=1)
+    for a, b in zip(data, one_by_one, strict=True):
+        np.testing.assert_array_equal(a.u, b.u)
+        np.testing.assert_array_equal(a.goal, b.goal)
+
+
+def test_bad_group_is_refused(scen):
+    with pytest.raises(ValueError, match="group must be an int >= 1"):
+        collect_many(jax.random.PRNGKey(0), scen, BATCH, group=0)

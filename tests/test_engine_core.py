@@ -266,6 +266,18 @@ def test_reproduce_in_worker_processes_equals_in_process(tmp_path, monkeypatch):
     assert reports[1] == reports[2]
 
 
+def test_reproduce_chains_group_experiments_and_start_the_costliest(toy):
+    from vbl.engine.report import _chains
+
+    def exp(name, cost, group=None):
+        return Experiment(name=name, description="", default_config=toy.default_config,
+                          make_program=toy.make_program, cost=cost, group=group)
+
+    exps = {e.name: e for e in (exp("t1", 70, "ident"), exp("grid", 45), exp("t2", 90),
+                                exp("t3", 70, "ident"))}
+    assert _chains(exps) == [["t1", "t3"], ["t2"], ["grid"]]
+
+
 def test_report_figure_links_resolve_with_a_relative_out_dir(toy, tmp_path, monkeypatch):
     """Experiments return figure paths under their (relative) run folder; links must resolve."""
     import re

@@ -142,6 +142,10 @@ class Experiment:
         ``--sweep`` on the command line replaces it for the paths it names.
       cost: rough relative wall time of a ``--quick`` run (any unit); ``vbl reproduce
         --jobs N`` starts the costliest experiments first so the workers finish together.
+      group: experiments with the same group run one after the other in one worker of
+        ``vbl reproduce --jobs N`` (in registry order), so the later ones find the programs
+        the first one compiled in the persistent compilation cache (e.g. Tables 1 and 3
+        share the collection and CVA programs).
     """
 
     name: str
@@ -157,6 +161,7 @@ class Experiment:
     report: Callable[[RunResult], ReportSection] | None = None
     sweep: Mapping[str, tuple[Any, ...] | list[Any]] = field(default_factory=dict)
     cost: float = 1.0
+    group: str | None = None
 
     def __post_init__(self) -> None:
         import re

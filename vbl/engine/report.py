@@ -85,29 +85,44 @@ def _run_one(name: str, out: Path, quick: bool, quiet: bool | None, resume: bool
                 seconds=time.perf_counter() - t0)
 
 
+def _run_chain(names: list[str], out: Path, quick: bool, resume: bool, overwrite: bool
+               ) -> dict[str, dict]:
+    """Worker task: run experiments one after the other (one :attr:`Experiment.group`)."""
+    return {n: _run_one(n, out, quick, True, resume, overwrite) for n in names}
+
+
+def _chains(exps: dict[str, Experiment]) -> list[list[str]]:
+    """Experiments grouped by :attr:`Experiment.group` (registry order inside a group),
+    costliest chain first."""
+    chains: dict[str, list[str]] = {}
+    for n, e in exps.items():
+        chains.setdefault(e.group if e.group is not None else f"\0{n}", []).append(n)
+    return sorted(chains.values(), key=lambda c: -sum(exps[n].cost for n in c))
+
+
 def _run_parallel(exps: dict[str, Experiment], jobs: int, out: Path, quick: bool,
                   resume: bool, overwrite: bool, quiet: bool | None) -> dict[str, dict]:
-    """Run experiments in ``jobs`` spawned worker processes, costliest first."""
+    """Run experiments in ``jobs`` spawned worker processes, costliest chain first."""
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    order = sorted(exps, key=lambda n: -exps[n].cost)
     done: dict[str, dict] = {}
     ctx = multiprocessing.get_context("spawn")  # jax is not fork-safe
     with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
-        futures = {pool.submit(_run_one, n, out, quick, True, resume, overwrite): n
-                   for n in order}
+        futures = {pool.submit(_run_chain, c, out, quick, resume, overwrite): c
+                   for c in _chains(exps)}
         for fut in as_completed(futures):
-            name = futures[fut]
             try:
-                done[name] = fut.result()
+                results = fut.result()
             except Exception as e:  # noqa: BLE001 - a worker died (killed, out of memory)
-                done[name] = dict(status=f"failed: worker process died: {e!r}",
-                                  markdown="**failed** (worker process died)", figures=[],
-                                  seconds=float("nan"))
-            if not quiet:
-                print(f"[{len(done)}/{len(exps)}] {name}: {done[name]['status'].splitlines()[0]}"
-                      f" ({done[name]['seconds']:.0f} s)", flush=True)
+                results = {n: dict(status=f"failed: worker process died: {e!r}",
+                                   markdown="**failed** (worker process died)", figures=[],
+                                   seconds=float("nan")) for n in futures[fut]}
+            for name, r in results.items():
+                done[name] = r
+                if not quiet:
+                    print(f"[{len(done)}/{len(exps)}] {name}: {r['status'].splitlines()[0]}"
+                          f" ({r['seconds']:.0f} s)", flush=True)
     return done
 
 

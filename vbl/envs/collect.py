@@ -262,17 +262,27 @@ def _check_batch(batch) -> int:
     return int(batch)
 
 
-def collect_many(key: jax.Array, scenarios: list[CollectParams], batch: int
-                 ) -> list[CollectData]:
-    """B = ``batch`` data sets for each of S scenarios, in one compiled computation.
+COLLECT_GROUP = 4  #: scenarios per compiled collection call (see :func:`collect_many`)
+
+
+def collect_many(key: jax.Array, scenarios: list[CollectParams], batch: int,
+                 group: int = COLLECT_GROUP) -> list[CollectData]:
+    """B = ``batch`` data sets for each of S scenarios, ``group`` scenarios per call of one
+    compiled computation.
 
     The scenarios may differ in any traced value (cameras, bodies, noise, ...) and in
     ``other_behaviour`` / ``focus``; every other static field (``num_steps``,
     ``world.robot_kinds``, ...) must be equal. Scenario s uses keys
-    ``split(fold_in(key, s), batch)``. Returns one :class:`CollectData` (leading (B,)
-    axis) per scenario. Validates every scenario (ParamError).
+    ``split(fold_in(key, s), batch)`` whatever the grouping, so the data do not depend on
+    ``group``. A fixed group size (the last group padded with copies of its last scenario)
+    lets callers with different S share one compiled program (and the persistent
+    compilation cache): Table 1 (4 scenarios) and Table 3 (8) compile it once. Returns one
+    :class:`CollectData` (leading (B,) axis) per scenario. Validates every scenario
+    (ParamError).
     """
     batch = _check_batch(batch)
+    if not isinstance(group, int) or isinstance(group, bool) or group < 1:
+        raise ValueError(f"group must be an int >= 1, got {group!r}")
     if not scenarios:
         raise ValueError("scenarios must be a non-empty list of CollectParams")
     canon = []
@@ -287,15 +297,21 @@ def collect_many(key: jax.Array, scenarios: list[CollectParams], batch: int
             raise ParamError(f"scenarios[{i}] differs from scenarios[0] in a static field "
                              "other than other_behaviour/focus (e.g. num_steps); collect them "
                              "separately")
-    stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]),
-                                     *canon)
+    n = len(scenarios)
     ids = [_ids(sc) for sc in scenarios]
-    b_ids = jnp.stack([i[0] for i in ids])
-    f_ids = jnp.stack([i[1] for i in ids])
-    keys = jnp.stack([jax.random.split(jax.random.fold_in(key, s), batch)
-                      for s in range(len(scenarios))])
-    out = _collect_jit(keys, stacked, b_ids, f_ids)
-    return [jax.tree_util.tree_map(lambda x, s=s: x[s], out) for s in range(len(scenarios))]
+    keys = [jax.random.split(jax.random.fold_in(key, s), batch) for s in range(n)]
+    size = min(group, n)
+    pad = -n % size
+    canon, ids, keys = canon + canon[-1:] * pad, ids + ids[-1:] * pad, keys + keys[-1:] * pad
+    result = []
+    for g0 in range(0, n + pad, size):
+        sl = slice(g0, g0 + size)
+        stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]),
+                                         *canon[sl])
+        out = _collect_jit(jnp.stack(keys[sl]), stacked,
+                           jnp.stack([i[0] for i in ids[sl]]), jnp.stack([i[1] for i in ids[sl]]))
+        result += [jax.tree_util.tree_map(lambda x, s=s: x[s], out) for s in range(size)]
+    return result[:n]
 
 
 def collect(key: jax.Array, params: CollectParams, batch: int) -> CollectData:
