@@ -59,12 +59,15 @@ def fig5() -> ModuleType:
 class ChangeParams:
     """Figure 9's sudden ball-size changes (trial = finished episodes of the learner)."""
 
-    radius_0: float = param(0.11, doc="ball radius before the first change", unit="m", gt=0.0)
-    radius_1: float = param(0.16, doc="ball radius after the first change", unit="m", gt=0.0)
+    radius_0: float = param(0.16, doc="ball radius before the first change (a larger ball "
+                            "than the world's 0.11 m: easier, so learning starts sooner)",
+                            unit="m", gt=0.0)
+    radius_1: float = param(0.11, doc="ball radius after the first change (the world's "
+                            "default)", unit="m", gt=0.0)
     radius_2: float = param(0.08, doc="ball radius after the second change", unit="m", gt=0.0)
-    change_trial_1: int = param(500, doc="trial of the first change (paper: about 500)",
-                                source="P/C", ge=0)
-    change_trial_2: int = param(700, doc="trial of the second change", ge=0)
+    change_trial_1: int = param(400, doc="trial of the first change (paper: both changes "
+                                "'around trial 500')", source="P/C", ge=0)
+    change_trial_2: int = param(750, doc="trial of the second change", source="P/C", ge=0)
 
     def check(self) -> None:
         if np.any(np.asarray(self.change_trial_2) < np.asarray(self.change_trial_1)):
@@ -364,7 +367,8 @@ EXPERIMENT = register(Experiment(
     default_config=Fig9Config(),
     make_program=make_program,
     quick={"train.num_trials": 150, "change.change_trial_1": 60, "change.change_trial_2": 105,
-           "train.num_chunks": 4, "train.updates_per_chunk": 60, "train.eval_episodes": 64},
+           "train.num_chunks": 4, "train.updates_per_chunk": 60, "train.eval_episodes": 64,
+           "train.grid_baseline": False},
     seeds=8,
     quick_seeds=2,
     paper_result=True,

@@ -7,7 +7,8 @@ vector quantisation of the state vector, tabular Q-learning; then ``train.eval_c
 greedy chunks from fresh starts through the same compiled step (each env's first episode
 counts). The baseline (``learner.use_cva=False``) quantises the current features of the same
 objects instead; with ``learner.state="select"`` both state vectors share one compilation
-per task. The default sweep is task x state vector (4 rows of the table, 2 compilations).
+per task, and the env's ``task="select"`` lets the traced ``env.task_pass`` pick the role,
+so the default sweep task x state vector (4 rows of the table) is one compilation.
 
 Run: ``vbl run table2_shoot_pass --quick`` or ``python experiments/table2_shoot_pass.py``.
 """
@@ -28,7 +29,7 @@ from vbl.agents.cva_state import (
 )
 from vbl.engine import Experiment, Program, register
 from vbl.engine.experiment import ReportSection
-from vbl.envs.shoot_pass import TASKS, ShootPassEnv, ShootPassParams
+from vbl.envs.shoot_pass import ENV_TASKS, ShootPassEnv, ShootPassParams
 from vbl.params import ParamError, param, section
 from vbl.spaces.quantize import QuantizerParams
 from vbl.sysid.params import CVAParams
@@ -38,9 +39,11 @@ PAPER = {"shoot": {"current": 10.2, "cva": 78.5}, "pass": {"current": 9.8, "cva"
 
 def default_learner() -> CVAStateParams:
     """Pipeline defaults for the two-robot task (choices, see docs/cva_learning.md)."""
+    # ball 4 canonical components (AIC finds n* = 4-5: position and velocity), goal and other
+    # robot 2 each; no unfiltered lost-side flags (k-means spent codes on their jumps)
     return CVAStateParams(
-        state="select", objects=("ball", "goal", "other"), n_used=2, extra=("lost_side",),
-        collect_steps=3000,
+        state="select", objects=("ball", "goal", "other"), n_used=2,
+        n_used_objects=(4, 2, 2), extra=(), collect_steps=3000,
         cva=CVAParams(lag=0, lag_max=3, logdet_stop=-100.0),
         quantizer=QuantizerParams(method="vq", num_codes=256, kmeans_iters=20),
         runner=_runner(transition_steps=4800.0))
@@ -50,6 +53,9 @@ def _runner(transition_steps: float):
     """Runner defaults with discount 0.95 and epsilon 1.0 -> 0.05 over ``transition_steps``
     learner steps (about 80 % of a run: num_chunks x chunk_steps)."""
     r = default_runner()
+    # macro actions: repeat a primitive until the quantised state changes (state-action
+    # deviation; docs/cva_learning.md)
+    r = r.replace(macro=r.macro.replace(enabled=True))
     sch = r.agent.exploration.schedule.replace(transition_steps=transition_steps)
     # discount 0.95 per 0.1 s primitive: a goal 3-4 s after the start is still worth ~0.17
     # (0.8 gave ~4e-4); measured: CVA pass 9.0 % (0.95) vs 6.2 % (0.8), docs/cva_learning.md
@@ -69,8 +75,9 @@ class Table2Train:
 
 @struct.dataclass
 class Table2Config:
-    task: str = param("shoot", doc="learner role: shooter or passer", static=True,
-                      choices=TASKS)
+    task: str = param("select", doc="learner role: shooter, passer, or 'select': the traced "
+                      "env.task_pass picks the role per learner (one compilation for both "
+                      "tasks)", static=True, choices=ENV_TASKS)
     learner: CVAStateParams = section(default_learner, doc="the Figure 11 pipeline")
     env: ShootPassParams = section(ShootPassParams, doc="the two-robot task")
     train: Table2Train = section(Table2Train, doc="run length and evaluation")
@@ -125,6 +132,14 @@ def make_program(cfg: Table2Config) -> Program:
     return Program(init=init, step=step, num_chunks=n_train + n_eval, final=final)
 
 
+def _task_label(pt: dict, config) -> str:
+    if config.task != "select" and "task" not in pt:
+        return config.task
+    if "task" in pt and pt["task"] != "select":
+        return pt["task"]
+    return "pass" if pt.get("env.task_pass", config.env.task_pass) else "shoot"
+
+
 def _state_label(pt: dict, config) -> str:
     if "learner.use_cva" in pt or config.learner.state == "select":
         return "cva" if pt.get("learner.use_cva", config.learner.use_cva) else "current"
@@ -147,7 +162,7 @@ def report(res) -> ReportSection:
             "|---|---|---|---|---|---|"]
     n_ev = res.config.train.eval_chunks  # the last curve points are the greedy chunks
     for i, pt in enumerate(res.points):
-        task = pt.get("task", res.config.task)
+        task = _task_label(pt, res.config)
         state = _state_label(pt, res.config)
         g, gh = _ci(100 * np.asarray(res.final["greedy_success_rate"][i]))
         t, th = _ci(100 * np.asarray(res.curves["success_rate"][i][-1 - n_ev]))
@@ -155,7 +170,8 @@ def report(res) -> ReportSection:
             f"{np.median(res.final[f'lag_{o}'][i]):.0f}, {np.median(res.final[f'n_{o}'][i]):.0f}"
             for o in res.config.learner.objects if f"lag_{o}" in res.final)
         more = ", ".join(f"{k}={v}" for k, v in pt.items()
-                         if k not in ("task", "learner.use_cva", "learner.state"))
+                         if k not in ("task", "env.task_pass", "learner.use_cva",
+                                      "learner.state"))
         label = f"{task} ({more})" if more else task
         rows.append(f"| {label} | {state} | {g:.1f} +- {gh:.1f} | {t:.1f} +- {th:.1f} | "
                     f"{PAPER[task][state]} | {ident if state == 'cva' else '-'} |")
@@ -170,16 +186,17 @@ EXPERIMENT = register(Experiment(
     description="Table 2: shoot/pass success, current features vs CVA state vectors",
     default_config=Table2Config(),
     make_program=make_program,
-    quick={"train.num_chunks": 8, "learner.collect_steps": 1500,
-           "learner.runner.num_envs": 32, "learner.quantizer.num_codes": 128,
-           "learner.runner.agent.exploration.schedule.transition_steps": 600.0,
+    quick={"train.num_chunks": 6, "learner.collect_steps": 1000,
+           "learner.runner.num_envs": 16, "learner.quantizer.num_codes": 64,
+           "learner.quantizer.kmeans_iters": 10,
+           "learner.runner.agent.exploration.schedule.transition_steps": 450.0,
            "learner.cva.lag_max": 2},
     seeds=16,
     quick_seeds=4,
     paper_result=True,
     paper=PAPER,
     report=report,
-    sweep={"task": ["shoot", "pass"], "learner.use_cva": [False, True]},
+    sweep={"env.task_pass": [False, True], "learner.use_cva": [False, True]},
 ))
 
 if __name__ == "__main__":

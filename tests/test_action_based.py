@@ -123,3 +123,16 @@ def test_bad_thresholds_raise_clear_errors(flipped):
     from vbl.params import validate
     with pytest.raises(ParamError, match="difficulty_lo"):
         validate(CollectParams(difficulty_lo=0.8, difficulty_hi=0.2))
+
+
+def test_fig5_and_fig9_compare_with_grid_shootings_own_config():
+    """The grid baseline of Figures 5 and 9 is grid_shooting's default config by reference,
+    so all three experiments compare at the grid's task difficulty."""
+    from vbl.engine.registry import get
+
+    gs = get("grid_shooting").default_config
+    for name in ("fig5_action_based", "fig9_incremental"):
+        g = get(name).default_config.grid
+        assert g.agent == gs.agent and g.grid == gs.grid and g.train == gs.train, name
+    assert get("fig9_incremental").default_config.env.start_difficulty == pytest.approx(
+        gs.train.eval_difficulty)

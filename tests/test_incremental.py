@@ -109,6 +109,19 @@ def test_identical_regions_never_split(update):
     assert int(num_states(lr.seg)) == 1
 
 
+def test_new_box_inherits_parent_q_or_starts_at_q_init_traced():
+    """inherit_q is a traced switch (sweepable): one compiled update serves both values."""
+    upd = jax.jit(structure_update)
+    lr = fill(init_learner(P, 2, 4), jax.random.PRNGKey(0), ENV.default_params, noise=1e-4)
+    lr = lr.replace(q=lr.q.at[0].set(jnp.array([0.7, 0.1, 0.2, 0.3], jnp.float32)))
+    for inherit, want in ((True, [0.7, 0.1, 0.2, 0.3]), (False, [-0.3] * 4)):
+        out, split, _ = upd(lr, P.replace(inherit_q=inherit, q_init=-0.3))
+        assert bool(split)
+        new = int(np.flatnonzero(np.asarray(out.seg.active))[-1])      # the new box's slot
+        np.testing.assert_allclose(np.asarray(out.q[new]), want, rtol=1e-6)
+        np.testing.assert_allclose(np.asarray(out.q[0]), [0.7, 0.1, 0.2, 0.3], rtol=1e-6)
+
+
 UPDATES = 40
 P_RUN = P.replace(temperature=1.0, max_repeat=1)     # explore widely
 
@@ -161,3 +174,22 @@ def test_temperature_schedule_is_geometric_and_constant_without_annealing():
     np.testing.assert_allclose(got, [0.1, 0.01, 0.001, 0.001], rtol=1e-5)
     const = IncrementalParams(temperature=0.2, temperature_final=0.001, anneal_trials=0)
     assert float(temperature_at(const, jnp.int32(1000))) == pytest.approx(0.2)
+
+
+def test_fig9_change_windows_by_hand():
+    """Figure 9's report windows: before, right after and at the end of each recovery window."""
+    import sys
+
+    from vbl.engine.registry import get
+
+    get("fig9_incremental")
+    windows = sys.modules["vbl_experiments.fig9_incremental"].change_windows
+    succ = np.zeros((2, 40))
+    succ[:, 8:10] = 1.0                  # trials 8, 9 (before change 1 at 10) succeed
+    succ[0, 18:20] = 1.0                 # end of recovery window 1 (before change 2 at 20)
+    states = np.tile(np.arange(40.0), (2, 1))
+    w = windows(succ, states, (10, 20), 4)
+    np.testing.assert_allclose(w[0]["rates"], [[0.5, 0.0, 0.5], [0.5, 0.0, 0.0]])
+    np.testing.assert_allclose(w[1]["rates"], [[0.5, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    assert w[1]["spans"] == [(16, 20), (20, 24), (36, 40)]
+    np.testing.assert_allclose(w[0]["states"], [[9.0, 14.0]] * 2)

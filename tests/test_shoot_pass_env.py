@@ -232,3 +232,36 @@ def test_bad_inputs(env, batch_run):
             env.step(k, st, bad, p)
     with pytest.raises(ValueError, match="vmap"):
         env.step(k, batch_run["states"][0], 0, p)
+
+
+@pytest.mark.slow  # compiles the fixed pass env and the select env
+def test_select_task_matches_fixed_tasks():
+    """ShootPassEnv("select") with the traced task_pass reproduces the fixed-task envs
+    (same keys, same random actions: same observations, rewards, ends), in one compilation
+    for both roles."""
+    sel = ShootPassEnv("select")
+    n, steps = 8, 60
+    acts = jax.random.randint(jax.random.PRNGKey(5), (steps, n), 0, 7, jnp.int32)
+    keys = jax.random.split(jax.random.PRNGKey(6), steps * n).reshape(steps, n, 2)
+
+    def rollout(e, p):
+        def run(p):
+            obs, st = jax.vmap(e.reset, in_axes=(0, None))(
+                jax.random.split(jax.random.PRNGKey(4), n), p)
+
+            def body(st, x):
+                k, a = x
+                o, st, r, te, tr, info = jax.vmap(e.step, in_axes=(0, 0, 0, None))(k, st, a, p)
+                return st, (o, r, te, tr, info["success"], info["u"])
+
+            return obs, jax.lax.scan(body, st, (keys, acts))[1]
+        return run(p)
+
+    run_sel = jax.jit(chex.assert_max_traces(n=1)(lambda p: rollout(sel, p)))
+    for task, flag in (("shoot", False), ("pass", True)):
+        fixed = ShootPassEnv(task)
+        ref = rollout(fixed, fixed.default_params)
+        got = run_sel(sel.default_params.replace(task_pass=jnp.asarray(flag)))
+        for a, b in zip(jax.tree.leaves(ref), jax.tree.leaves(got), strict=True):
+            np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-5, atol=1e-3)
+        assert float(jnp.sum(ref[1][1])) >= 0.0

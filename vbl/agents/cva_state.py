@@ -9,8 +9,8 @@ One learner (all functions are written for one learner and ``vmap``-ed over lear
 3. **filter**: inside the env loop, each object's model turns the running history of its
    outputs and the learner's inputs into the canonical state ``mu`` (:func:`filter_state`);
    the first ``n_used`` components of every object (``n_used_objects``: one count per
-   object; CVA orders them by canonical correlation, i.e. importance) are concatenated into the state vector
-   ``[mu_ball, mu_goal, mu_other]``;
+   object; CVA orders them by canonical correlation, i.e. importance) are concatenated
+   into the state vector ``[mu_ball, mu_goal, mu_other]``;
 4. **quantise** the state vector into a Q-table index with a quantiser fitted to the states
    of the collected data (:mod:`vbl.spaces.quantize`);
 5. **Q-learning** with the batched runner of :mod:`vbl.agents.qlearning`.

@@ -28,9 +28,10 @@ Per chunk (metrics per learner, scalars):
   far; ``epsilon``: exploration rate (epsilon or temperature) at the end of the chunk;
   ``td_abs``: mean absolute TD error over the chunk.
 
-``final`` (once, independent key): ``greedy_success`` and ``random_success`` (the greedy
-policy of the learned table and the uniformly random policy, i.e. an all-zero table with
-random tie-breaking, in the same action space: macro actions if on) on
+``final`` (once, independent key): ``greedy_success``, ``near_greedy_success`` and
+``random_success`` (the greedy policy of the learned table, the same with a uniform action
+with probability ``train.eval_epsilon``, and the uniformly random policy, i.e. an all-zero
+table with random tie-breaking, in the same action space: macro actions if on) on
 ``train.final_eval_rounds x train.eval_envs`` fresh starts at ``train.eval_difficulty``,
 ``greedy_primitives`` (mean episode length of the greedy policy, primitives),
 ``num_states`` (S) and ``states_with_value`` (states whose Q row moved from ``q_init``).
@@ -75,6 +76,9 @@ class QTrainParams:
                             static=True, ge=1)
     eval_difficulty: float = param(1.0, doc="start difficulty of evaluation episodes (1: fully "
                                    "random starts)", ge=0.0, le=1.0)
+    eval_epsilon: float = param(0.05, doc="final evaluation: epsilon of the near-greedy "
+                                "policy (greedy, but a uniform action with this probability: "
+                                "breaks cycles between aliased states)", ge=0.0, le=1.0)
     final_eval_rounds: int = param(4, doc="final evaluation: rounds of eval_envs fresh starts "
                                    "for the greedy and for the random policy", static=True,
                                    ge=1)
@@ -152,15 +156,21 @@ def make_q_program(env: Any, state_fn: Callable[[jax.Array, Any], jax.Array], cf
     def final(carry: QRunnerState, c, key):
         _, ev = runners(c)
         rounds = train.final_eval_rounds
-        keys = jax.random.split(key, 2 * rounds)
-        # one traced evaluation for both policies: tables (2 * rounds, S, A), learned then zero
-        qs = jnp.concatenate([jnp.broadcast_to(carry.q, (rounds, *carry.q.shape)),
-                              jnp.zeros((rounds, *carry.q.shape), F32)])
-        res = jax.vmap(lambda k, q: ev.evaluate(k, q, c.agent, eval_env(c), train.eval_steps))(
-            keys, qs)
+        keys = jax.random.split(key, 3 * rounds)
+        # one traced evaluation for three policies: tables (3 * rounds, S, A) and epsilons:
+        # learned greedy, learned near-greedy (eval_epsilon), zero table (uniformly random)
+        learned = jnp.broadcast_to(carry.q, (2 * rounds, *carry.q.shape))
+        qs = jnp.concatenate([learned, jnp.zeros((rounds, *carry.q.shape), F32)])
+        eps = jnp.concatenate([jnp.zeros((rounds,), F32),
+                               jnp.full((rounds,), c.train.eval_epsilon, F32),
+                               jnp.zeros((rounds,), F32)])
+        res = jax.vmap(lambda k, q, e: ev.evaluate(k, q, c.agent, eval_env(c), train.eval_steps,
+                                                   e))(keys, qs, eps)
         moved = jnp.any(carry.q != jnp.asarray(c.agent.agent.q_init, F32), axis=1)
         return dict(greedy_success=jnp.mean(res["success_rate"][:rounds]).astype(F32),
-                    random_success=jnp.mean(res["success_rate"][rounds:]).astype(F32),
+                    near_greedy_success=jnp.mean(
+                        res["success_rate"][rounds:2 * rounds]).astype(F32),
+                    random_success=jnp.mean(res["success_rate"][2 * rounds:]).astype(F32),
                     greedy_primitives=jnp.mean(res["mean_primitives"][:rounds]).astype(F32),
                     num_states=jnp.asarray(cfg.agent.agent.num_states, F32),
                     states_with_value=jnp.sum(moved).astype(F32))

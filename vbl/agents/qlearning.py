@@ -293,15 +293,16 @@ def make_qlearning_runner(env: Any, state_fn: Callable, params: QRunnerParams,
         return (obs, st, jnp.asarray(r, jnp.float32), jnp.asarray(term, bool),
                 jnp.asarray(trunc, bool), info, jnp.ones((n_envs,), jnp.int32), states_of(obs))
 
-    def one_step(c: QRunnerState, params: QRunnerParams, env_params, learn: bool):
+    def one_step(c: QRunnerState, params: QRunnerParams, env_params, learn: bool,
+                 eval_epsilon: Any = 0.0):
         key, k_act, k_env = jax.random.split(c.key, 3)
         count = c.steps if expl.count_unit == "steps" else c.episodes
         if learn:
             rate = schedule_value(params.agent.exploration.schedule, count)
             action = select_action(k_act, c.q[c.s], rate, expl.kind)
         else:
-            rate = jnp.float32(0.0)
-            action = select_action(k_act, c.q[c.s], 0.0, "epsilon_greedy")
+            rate = jnp.asarray(eval_epsilon, jnp.float32)
+            action = select_action(k_act, c.q[c.s], rate, "epsilon_greedy")
         obs, st, r, term, trunc, info, n, s_next = env_transition(k_env, c, action, params,
                                                                   env_params)
         done = term | trunc
@@ -348,11 +349,14 @@ def make_qlearning_runner(env: Any, state_fn: Callable, params: QRunnerParams,
 
         return jax.lax.scan(body, carry, None, length=n_steps)
 
-    def evaluate(key, q, params: QRunnerParams, env_params, num_steps: int = 200):
+    def evaluate(key, q, params: QRunnerParams, env_params, num_steps: int = 200,
+                 epsilon: Any = 0.0):
         """Greedy policy from fresh starts (``env_params`` as given: set the env's start
         difficulty yourself) for at most ``num_steps`` actions (static); each env's first
         finished episode counts. Stops as soon as every env has finished one episode
-        (later steps could not change the result)."""
+        (later steps could not change the result). ``epsilon`` > 0 (may be traced)
+        evaluates the near-greedy policy instead: a uniform action with that probability
+        (the standard remedy for a deterministic policy cycling between aliased states)."""
         if lp.enabled:  # start (and stay) at env_params' own difficulty: one reset only
             d = jnp.asarray(env_params.start_difficulty, jnp.float32)
             params = params.replace(lem=params.lem.replace(initial_difficulty=d))
@@ -362,7 +366,8 @@ def make_qlearning_runner(env: Any, state_fn: Callable, params: QRunnerParams,
 
         def body(carry):
             i, c, f = carry
-            c, _, done, success, ep_prim = one_step(c, params, env_params, learn=False)
+            c, _, done, success, ep_prim = one_step(c, params, env_params, learn=False,
+                                                    eval_epsilon=epsilon)
             new_first = done & ~f["finished"]
             f = dict(finished=f["finished"] | done,
                      success=jnp.where(new_first, success, f["success"]),
@@ -382,8 +387,11 @@ def make_qlearning_runner(env: Any, state_fn: Callable, params: QRunnerParams,
 
     init_batch = jax.jit(jax.vmap(init, in_axes=(0, 0, 0)))
     run_chunk_batch = jax.jit(jax.vmap(run_chunk, in_axes=(0, 0, 0)))
-    evaluate_batch = jax.jit(jax.vmap(evaluate, in_axes=(0, 0, 0, 0, None)),
-                             static_argnums=(4,))
+    def evaluate_many(keys, q, params, env_params, num_steps: int = 200, epsilon: Any = 0.0):
+        return jax.vmap(evaluate, in_axes=(0, 0, 0, 0, None, None))(
+            keys, q, params, env_params, num_steps, epsilon)
+
+    evaluate_batch = jax.jit(evaluate_many, static_argnums=(4,))
     return QLearningRunner(init=init, run_chunk=run_chunk, evaluate=evaluate,
                            init_batch=init_batch, run_chunk_batch=run_chunk_batch,
                            evaluate_batch=evaluate_batch, params=params)

@@ -97,7 +97,7 @@ class IncrementalParams:
                           "start)")
     alpha: float = param(0.25, doc="Q-learning rate", gt=0.0, le=1.0)
     gamma: float = param(0.95, doc="discount per action (state change)", ge=0.0, lt=1.0)
-    temperature: float = param(0.01, doc="Boltzmann temperature (at the start of the "
+    temperature: float = param(0.02, doc="Boltzmann temperature (at the start of the "
                                "schedule)", unit="Q units", gt=0.0)
     split_candidates: int = param(8, doc="boxes (largest residual per transition) whose cuts "
                                   "are evaluated at each update", static=True, ge=1)
