@@ -72,16 +72,17 @@ class ChainEnv:
         return obs, st, term.astype(jnp.float32), term, trunc, {"success": term}
 
 
-def random_success_exact(start: int, steps: int) -> float:
-    """P(reach N-1 within `steps` uniformly random moves from `start`; wall at 0): DP."""
+def random_success_exact(start: int, steps: int, p_right: float = 0.5) -> float:
+    """P(reach N-1 within `steps` random moves (right with probability `p_right`) from
+    `start`; wall at 0): DP."""
     p = np.zeros(N)
     p[start] = 1.0
     hit = 0.0
     for _ in range(steps):
         q = np.zeros(N)
         for s in range(N - 1):
-            q[max(s - 1, 0)] += 0.5 * p[s]
-            q[s + 1] += 0.5 * p[s]
+            q[max(s - 1, 0)] += (1.0 - p_right) * p[s]
+            q[s + 1] += p_right * p[s]
         hit += q[N - 1]
         q[N - 1] = 0.0
         p = q
@@ -162,6 +163,12 @@ def test_greedy_solves_chain_random_matches_dp(chain_result):
     n = 4 * 64                                                      # rounds x eval envs
     tol = 4 * np.sqrt(exact * (1 - exact) / n)
     assert np.all(np.abs(fin["random_success"] - exact) <= tol), (fin["random_success"], exact)
+    # near-greedy (epsilon 0.05, default): the greedy move (right) unless a uniform action
+    # is drawn, i.e. right with probability 1 - 0.05 / 2
+    near = random_success_exact(0, 8, 1.0 - 0.05 / 2)
+    tol = 4 * np.sqrt(near * (1 - near) / n) + 1e-6
+    assert np.all(np.abs(fin["near_greedy_success"] - near) <= tol), (
+        fin["near_greedy_success"], near)
 
 
 def test_grid_report_renders(chain_result):
