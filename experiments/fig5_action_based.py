@@ -279,6 +279,7 @@ EXPERIMENT = register(Experiment(
     seeds=4,
     quick_seeds=2,
     paper_result=True,
+    cost=56.0,  # s of a cold --quick run on 2 shared cores (compile-dominated)
     paper={"figure": "5", "claim": "states differ from the programmer's grid; F/B labels"},
     report=report,
 ))
