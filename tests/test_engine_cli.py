@@ -143,10 +143,12 @@ def test_sigkill_then_resume_equals_uninterrupted(setup):
     assert json.loads((out / "summary.json").read_text())["resumed_from_step"] > 0
 
 
-def test_vbl_command_uses_every_core_as_a_host_device(monkeypatch):
+def test_vbl_host_devices_sets_the_jax_device_count(monkeypatch):
     from vbl.cli import use_all_cores
 
     monkeypatch.delenv("XLA_FLAGS", raising=False)
+    monkeypatch.delenv("VBL_HOST_DEVICES", raising=False)
+    assert use_all_cores() == 0 and "XLA_FLAGS" not in os.environ  # off by default
     monkeypatch.setenv("VBL_HOST_DEVICES", "3")
     assert use_all_cores() == 3
     assert "--xla_force_host_platform_device_count=3" in os.environ["XLA_FLAGS"]

@@ -188,24 +188,29 @@ def _guarded(fn, *a) -> int:
 
 
 def use_all_cores() -> int:
-    """Expose every CPU core as a JAX host device (call before JAX's first computation).
+    """Expose CPU cores as JAX host devices if asked (call before JAX's first computation).
 
-    XLA:CPU leaves most of a second core idle for one device, while the engine shards the
-    learner axis over all devices (results do not depend on the count): the env benchmark
-    runs 2.3x faster on 2 devices than on one. ``VBL_HOST_DEVICES=N`` sets the count (1 =
-    off); an ``XLA_FLAGS`` that already sets it wins. Returns the count requested.
+    ``VBL_HOST_DEVICES=N`` (N > 1) sets ``--xla_force_host_platform_device_count=N``: the
+    engine then shards the learner axis over N devices (results do not depend on N), and
+    the env benchmark runs 2.3x faster on 2 devices than on one on a 2-core machine. Off
+    by default: a Table 2 run (CVA fits inside the sharded program) was seen to hang on 2
+    forced devices on these machines (not yet isolated). An ``XLA_FLAGS`` that already
+    sets the count wins. Returns the count set (0 when nothing was changed).
     """
     flags = os.environ.get("XLA_FLAGS", "")
     if "xla_force_host_platform_device_count" in flags:
         return 0
-    raw = os.environ.get("VBL_HOST_DEVICES", "")
+    raw = os.environ.get("VBL_HOST_DEVICES", "1") or "1"
     try:
-        n = int(raw) if raw else (os.cpu_count() or 1)
+        n = int(raw)
     except ValueError:
         raise SystemExit(f"vbl: error: VBL_HOST_DEVICES={raw!r} must be an integer >= 1"
                          ) from None
-    if n > 1:
-        os.environ["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={n}".strip()
+    if n < 1:
+        raise SystemExit(f"vbl: error: VBL_HOST_DEVICES={raw!r} must be an integer >= 1")
+    if n == 1:
+        return 0
+    os.environ["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={n}".strip()
     return n
 
 
