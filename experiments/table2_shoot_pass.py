@@ -104,9 +104,6 @@ def make_program(cfg: Table2Config) -> Program:
     def init(key, c):
         k_prep, k_run, k_eval = jax.random.split(key, 3)
         fp = lrn.prepare(k_prep, c.learner, c.env)
-        # the env resets after the identification, not concurrently (XLA CPU hang, see
-        # docs/cva_learning.md "Serialised CVA fits")
-        k_run = jax.lax.optimization_barrier((fp, k_run))[1]
         rs = lrn.runner.init(k_run, lrn.runner_params(c.learner), fp)
         return Carry(rs, fp, jnp.int32(0), k_eval)
 

@@ -111,6 +111,26 @@ def test_bad_inputs():
     with pytest.raises(ParamError, match="max_states"):
         make_cva_learner(env, params("current").replace(
             quantizer=QuantizerParams(method="bins", bins=10, max_states=5)))
+    with pytest.raises(ParamError, match="one entry per object"):
+        make_cva_learner(env, params("cva").replace(n_used_objects=(2, 2)))
+    with pytest.raises(ParamError, match="integers >= 1"):
+        make_cva_learner(env, params("cva").replace(n_used_objects=(0,)))
+
+
+def test_n_used_per_object_sets_state_dim():
+    """n_used_objects overrides n_used per object: the CVA state has sum(n_used_objects)
+    components (the current-feature vector is unchanged)."""
+    from vbl.agents.cva_state import state_dim
+    from vbl.envs.shoot_pass import ShootPassEnv
+
+    env = ShootPassEnv("shoot")
+    p = CVAStateParams(state="cva", objects=("ball", "goal", "other"), n_used=2)
+    assert state_dim(env, p) == 6
+    assert state_dim(env, p.replace(n_used_objects=(4, 2, 1))) == 7
+    assert p.replace(n_used_objects=(4, 2, 1)).n_used_per_object() == (4, 2, 1)
+    assert state_dim(env, p.replace(state="current", n_used_objects=(4, 2, 1))) == 20
+    assert state_dim(env, p.replace(state="select", n_used_objects=(4, 2, 1),
+                                    extra=("lost_side",))) == 23
 
 
 def test_select_state_and_first_episode_counters():

@@ -131,17 +131,17 @@ class CVAStateParams:
                        for k in self.n_used_objects):
                 raise ParamError(f"n_used_objects={self.n_used_objects!r} must hold integers "
                                  ">= 1")
+        if self.cva.lag == 0 and self.cva.lag_max < 1:
+            raise ParamError("cva.lag_max must be >= 1")
+        if self.state == "select" and self.quantizer.method != "vq":
+            raise ParamError("state='select' zero-pads the shorter state vector; it needs "
+                             f"quantizer.method='vq', got {self.quantizer.method!r}")
 
     def n_used_per_object(self) -> tuple[int, ...]:
         """Canonical components used for each object (``n_used_objects`` or ``n_used``)."""
         if self.n_used_objects:
             return tuple(int(k) for k in self.n_used_objects)
         return (int(self.n_used),) * len(self.objects)
-        if self.cva.lag == 0 and self.cva.lag_max < 1:
-            raise ParamError("cva.lag_max must be >= 1")
-        if self.state == "select" and self.quantizer.method != "vq":
-            raise ParamError("state='select' zero-pads the shorter state vector; it needs "
-                             f"quantizer.method='vq', got {self.quantizer.method!r}")
 
 
 @struct.dataclass
