@@ -193,9 +193,10 @@ def use_all_cores() -> int:
     ``VBL_HOST_DEVICES=N`` (N > 1) sets ``--xla_force_host_platform_device_count=N``: the
     engine then shards the learner axis over N devices (results do not depend on N), and
     the env benchmark runs 2.3x faster on 2 devices than on one on a 2-core machine. Off
-    by default: a Table 2 run (CVA fits inside the sharded program) was seen to hang on 2
-    forced devices on these machines (not yet isolated). An ``XLA_FLAGS`` that already
-    sets the count wins. Returns the count set (0 when nothing was changed).
+    by default (one device) until multi-device runs of every experiment are measured; the
+    hang first seen there (concurrent batched SVDs, see ``vbl.sysid.linalg``) is fixed.
+    An ``XLA_FLAGS`` that already sets the count wins. Returns the count set (0 when
+    nothing was changed).
     """
     flags = os.environ.get("XLA_FLAGS", "")
     if "xla_force_host_platform_device_count" in flags:

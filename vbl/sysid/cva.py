@@ -26,6 +26,7 @@ from flax import struct
 from jax.scipy.linalg import cho_solve, solve_triangular
 
 from vbl.sysid.aic import aic as aic_fn
+from vbl.sysid.linalg import svd_thin
 from vbl.sysid.params import CVAParams
 
 __all__ = ["CVAFit", "fit_one", "fit_batch", "n_identifiable", "stack_indices"]
@@ -131,7 +132,7 @@ def fit_one(u: jnp.ndarray, y: jnp.ndarray, params: CVAParams, *, lag: int, hori
     lf = jnp.linalg.cholesky(_ridge(sff, floor))
     x = solve_triangular(lp, spf, lower=True)                 # L_p^-1 S_pf
     mw = solve_triangular(lf, x.T, lower=True).T              # ... L_f^-T
-    ua, s, _ = jnp.linalg.svd(mw, full_matrices=False)        # (dp, r), (r,)
+    ua, s, _ = svd_thin(mw)                                   # (dp, r), (r,)
     umat = solve_triangular(lp, ua, lower=True, trans="T").T  # U = U_aux^T L_p^-1, (r, dp)
     r = s.shape[0]
     dp = p.shape[0]
