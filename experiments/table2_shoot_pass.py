@@ -194,6 +194,7 @@ EXPERIMENT = register(Experiment(
     seeds=16,
     quick_seeds=4,
     paper_result=True,
+    cost=195.0,  # s of a cold --quick run on 2 cores (compile-dominated)
     paper=PAPER,
     report=report,
     sweep={"env.task_pass": [False, True], "learner.use_cva": [False, True]},
