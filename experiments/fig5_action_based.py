@@ -17,8 +17,6 @@ Run: ``vbl run fig5_action_based --quick`` or ``python experiments/fig5_action_b
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 from types import ModuleType
 
@@ -30,6 +28,7 @@ from flax import struct
 from vbl.agents.programs import QTrainParams
 from vbl.agents.qlearning import QRunnerParams
 from vbl.engine import Experiment, Program, ReportSection, register
+from vbl.engine.registry import load_script
 from vbl.envs.shooting import ShootingEnv, ShootingParams
 from vbl.params import param, section
 from vbl.spaces.action_based import (
@@ -49,24 +48,13 @@ from vbl.spaces.grid import NUM_GRID_STATES, GridParams
 
 F32 = jnp.float32
 ENV = ShootingEnv()
-GRID_SHOOTING = "vbl_experiments.grid_shooting"
 
 
 def grid_shooting() -> ModuleType:
-    """``experiments/grid_shooting.py`` (the grid baseline experiment), imported once under
-    the module name the engine's registry uses, so that its settings are used by reference:
-    whatever that experiment trains is what Figures 5 and 9 compare with."""
-    if GRID_SHOOTING not in sys.modules:
-        path = Path(__file__).resolve().with_name("grid_shooting.py")
-        spec = importlib.util.spec_from_file_location(GRID_SHOOTING, path)
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[GRID_SHOOTING] = module
-        try:
-            spec.loader.exec_module(module)
-        except Exception:
-            sys.modules.pop(GRID_SHOOTING, None)
-            raise
-    return sys.modules[GRID_SHOOTING]
+    """``experiments/grid_shooting.py`` (the grid baseline experiment) as the registry loads
+    it, so that its settings are used by reference: whatever that experiment trains is what
+    Figures 5 and 9 compare with."""
+    return load_script(Path(__file__).with_name("grid_shooting.py"))
 
 
 def _gs_default(name: str):

@@ -13,8 +13,6 @@ Run: ``vbl run fig9_incremental --quick`` or ``python experiments/fig9_increment
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 from types import ModuleType
 
@@ -24,6 +22,7 @@ import numpy as np
 from flax import struct
 
 from vbl.engine import Experiment, Program, ReportSection, register
+from vbl.engine.registry import load_script
 from vbl.envs.shooting import ShootingEnv, ShootingParams
 from vbl.params import ParamError, param, section
 from vbl.spaces.action_based import FeatureParams, rollout_success, sec2_features
@@ -36,23 +35,12 @@ from vbl.spaces.incremental import (
 )
 
 F32 = jnp.float32
-FIG5 = "vbl_experiments.fig5_action_based"
 
 
 def fig5() -> ModuleType:
     """``experiments/fig5_action_based.py`` (for its grid-baseline helpers, which use
-    ``grid_shooting``'s settings by reference), imported once under the registry's name."""
-    if FIG5 not in sys.modules:
-        path = Path(__file__).resolve().with_name("fig5_action_based.py")
-        spec = importlib.util.spec_from_file_location(FIG5, path)
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[FIG5] = module
-        try:
-            spec.loader.exec_module(module)
-        except Exception:
-            sys.modules.pop(FIG5, None)
-            raise
-    return sys.modules[FIG5]
+    ``grid_shooting``'s settings by reference), as the registry loads it."""
+    return load_script(Path(__file__).with_name("fig5_action_based.py"))
 
 
 @struct.dataclass

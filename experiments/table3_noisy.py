@@ -19,8 +19,6 @@ Run: ``vbl run table3_noisy [--quick]`` or ``python experiments/table3_noisy.py`
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import jax
@@ -28,7 +26,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from vbl.engine import Experiment, ReportSection, RunContext, RunResult, register
+from vbl.engine import Experiment, RunContext, register
+from vbl.engine.registry import load_script
 from vbl.envs.collect import CollectParams, collect_many, id_outputs
 from vbl.envs.noise import NOISE_ON, NoiseParams
 from vbl.envs.shoot_pass import ShootPassParams
@@ -36,11 +35,7 @@ from vbl.params import param, section
 from vbl.sysid.lag import identify
 from vbl.sysid.params import CVAParams
 
-_spec = importlib.util.spec_from_file_location(
-    "_vbl_table1_helpers", Path(__file__).with_name("table1_identification.py"))
-T1 = importlib.util.module_from_spec(_spec)
-sys.modules[_spec.name] = T1  # dataclasses look their module up
-_spec.loader.exec_module(T1)
+T1 = load_script(Path(__file__).with_name("table1_identification.py"))  # shared helpers
 
 PAPER = {"from the shooter": {"ball": (4, 4, 1.88, 284), "goal": (1, 3, -1.73, -817),
                               "passer": (5, 4, 3.43, 329)},
@@ -202,11 +197,6 @@ def run(ctx: RunContext) -> dict:
             "checks": checks(t, swap), "markdown": md}
 
 
-def report(res: RunResult) -> ReportSection:
-    r = res.extra or res.summary.get("result", {})
-    return ReportSection(markdown=r.get("markdown", "(no result)"))
-
-
 EXPERIMENT = register(Experiment(
     name="table3_noisy",
     description="Table 3 in simulation: identification with image noise, ball eccentricity "
@@ -220,7 +210,7 @@ EXPERIMENT = register(Experiment(
     group="identification",  # Tables 1 and 3 share the collection and CVA programs
     paper_result=True,
     paper={"table3": PAPER},
-    report=report,
+    report=T1.report,
 ))
 
 if __name__ == "__main__":

@@ -9,12 +9,13 @@ import os
 import sys
 import traceback
 from pathlib import Path
+from types import ModuleType
 
 from vbl.engine.config import EngineError
 from vbl.engine.experiment import Experiment
 
 __all__ = ["register", "get", "all_experiments", "discover", "experiment_dirs",
-           "import_errors"]
+           "import_errors", "load_script"]
 
 _REGISTRY: dict[str, Experiment] = {}
 _SOURCES: dict[str, str] = {}
@@ -64,17 +65,35 @@ def discover() -> dict[str, Experiment]:
                 _DISCOVERED.add(path)
                 continue
             _DISCOVERED.add(path)
-            mod_name = f"vbl_experiments.{path.stem}"
             try:
-                spec = importlib.util.spec_from_file_location(mod_name, path)
-                module = importlib.util.module_from_spec(spec)
-                sys.modules[mod_name] = module
-                spec.loader.exec_module(module)
+                load_script(path)
             except Exception as e:  # noqa: BLE001 - one broken script must not hide the others
-                sys.modules.pop(mod_name, None)
                 _IMPORT_ERRORS[str(path)] = "".join(
                     traceback.format_exception_only(type(e), e)).strip()
     return dict(_REGISTRY)
+
+
+def load_script(path: str | Path) -> ModuleType:
+    """Import the experiment script ``path`` once, as module ``vbl_experiments.<stem>`` (the
+    name :func:`discover` uses), and return it.
+
+    A script that builds on another's settings (Figures 5 and 9 on ``grid_shooting``, Table
+    3 on Table 1) loads it with ``load_script(Path(__file__).with_name("x.py"))`` and so
+    shares one module, and one registration, with the registry. An import error is
+    re-raised and the half-imported module forgotten.
+    """
+    path = Path(path).resolve()
+    name = f"vbl_experiments.{path.stem}"
+    if name not in sys.modules:
+        spec = importlib.util.spec_from_file_location(name, path)
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module  # dataclasses and pickling look their module up
+        try:
+            spec.loader.exec_module(module)
+        except Exception:
+            sys.modules.pop(name, None)
+            raise
+    return sys.modules[name]
 
 
 def import_errors() -> dict[str, str]:
