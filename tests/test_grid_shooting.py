@@ -23,6 +23,7 @@ import pytest
 from flax import struct
 
 import vbl  # noqa: F401
+from tests import toy_worlds
 from vbl.agents import QRunnerParams
 from vbl.agents.programs import QTrainParams, make_q_program, trials_to_level
 from vbl.engine import Experiment, discover, get, run_experiment
@@ -39,37 +40,19 @@ class ChainParams:
     max_steps: int = param(8, doc="time limit", static=True, ge=1)
 
 
-@struct.dataclass
-class ChainState:
-    s: jax.Array
-    t: jax.Array
-
-
 def start_position(d) -> jax.Array:
     """Start N-2 at difficulty 0, 0 at difficulty 1 (rounded down in between)."""
     return jnp.floor((1.0 - jnp.asarray(d, jnp.float32)) * (N - 2)).astype(jnp.int32)
 
 
-class ChainEnv:
-    """Action 0 left (a wall at 0), 1 right; obs = [position] float32; auto-reset."""
+class ChainEnv(toy_worlds.ChainEnv):
+    """The chain with a start difficulty; auto-reset."""
 
-    num_actions = 2
+    n = N
     default_params = ChainParams()
 
-    def reset(self, key, params):
-        s = start_position(params.start_difficulty)
-        return jnp.array([s], jnp.float32), ChainState(s=s, t=jnp.int32(0))
-
-    def step(self, key, state, action, params):
-        s2 = jnp.clip(state.s + jnp.where(action == 1, 1, -1), 0, N - 1).astype(jnp.int32)
-        term = s2 == N - 1
-        t = state.t + 1
-        trunc = (t >= params.max_steps) & ~term
-        done = term | trunc
-        obs_r, st_r = self.reset(key, params)
-        st = jax.tree.map(lambda a, b: jnp.where(done, a, b), st_r, ChainState(s=s2, t=t))
-        obs = jnp.where(done, obs_r, jnp.array([s2], jnp.float32))
-        return obs, st, term.astype(jnp.float32), term, trunc, {"success": term}
+    def start(self, key, params):
+        return start_position(params.start_difficulty)
 
 
 def random_success_exact(start: int, steps: int, p_right: float = 0.5) -> float:

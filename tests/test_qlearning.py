@@ -17,6 +17,7 @@ from reference.qlearning_np import (
 )
 
 import vbl  # noqa: F401  (x64 on, as in every vbl program)
+from tests import toy_worlds
 from vbl.agents import (
     ExplorationParams,
     QLearningParams,
@@ -58,33 +59,14 @@ class ChainParams:
     max_steps: int = 40
 
 
-@struct.dataclass
-class ChainState:
-    s: jax.Array
-    t: jax.Array
+class ChainEnv(toy_worlds.ChainEnv):
+    """gymnax-style chain: auto-reset to a uniform start in 0..3."""
 
-
-class ChainEnv:
-    """gymnax-style chain: obs = [s] float32, auto-reset to a uniform start in 0..3."""
-
-    num_actions = 2
+    n = N_CHAIN
     default_params = ChainParams()
 
-    def reset(self, key, params):
-        s = jax.random.randint(key, (), 0, N_CHAIN - 1, jnp.int32)
-        return jnp.array([s], jnp.float32), ChainState(s=s, t=jnp.int32(0))
-
-    def step(self, key, state, action, params):
-        s2 = jnp.clip(state.s + jnp.where(action == 1, 1, -1), 0, N_CHAIN - 1).astype(jnp.int32)
-        term = s2 == N_CHAIN - 1
-        t = state.t + 1
-        trunc = (t >= params.max_steps) & ~term
-        done = term | trunc
-        obs_r, st_r = self.reset(key, params)
-        st = jax.tree.map(lambda a, b: jnp.where(done, a, b), st_r, ChainState(s=s2, t=t))
-        obs = jnp.where(done, obs_r, jnp.array([s2], jnp.float32))
-        info = {"success": term}
-        return obs, st, term.astype(jnp.float32), term, trunc, info
+    def start(self, key, params):
+        return jax.random.randint(key, (), 0, N_CHAIN - 1, jnp.int32)
 
 
 def chain_state_fn(obs):

@@ -9,7 +9,11 @@
   ``gain = gain_left`` for ``x0 < boundary`` and ``gain_right`` otherwise (one affine
   model per region); the goal is the corner ``x0 >= goal_lo and x1 >= goal_lo``.
 
-Both follow the ``ShootingEnv`` API: ``reset(key, params) -> (obs, state)``,
+* :class:`ChainEnv` (Q-learning tests): a deterministic chain ``0 .. n-1``, action 0
+  left (a wall at 0), 1 right; reaching ``n - 1`` scores 1 and ends the episode; the
+  start position is a function of the key and params (a subclass chooses it).
+
+All follow the ``ShootingEnv`` API: ``reset(key, params) -> (obs, state)``,
 ``step(key, state, action, params) -> (obs, state, reward, terminated, truncated,
 info)`` with auto-reset and ``info["success"]``.
 """
@@ -112,3 +116,37 @@ class TwoRegionWorld:
                                      ToyState(x2.astype(F32), n))
         info = dict(success=success, episode_done=done, episode_length=n)
         return new.x, new, success.astype(F32), success, truncated, info
+
+
+@struct.dataclass
+class ChainState:
+    s: jax.Array  # () int32 position
+    t: jax.Array  # () int32 steps in the episode
+
+
+class ChainEnv:
+    """The chain (module docstring); ``params`` needs ``max_steps``; obs = [s] float32.
+
+    Subclasses set ``n``, ``default_params`` and :meth:`start`."""
+
+    num_actions = 2
+    n: int
+    default_params = None
+
+    def start(self, key, params) -> jax.Array:
+        raise NotImplementedError
+
+    def reset(self, key, params):
+        s = self.start(key, params)
+        return jnp.array([s], F32), ChainState(s=s, t=jnp.int32(0))
+
+    def step(self, key, state, action, params):
+        s2 = jnp.clip(state.s + jnp.where(action == 1, 1, -1), 0, self.n - 1).astype(jnp.int32)
+        term = s2 == self.n - 1
+        t = state.t + 1
+        trunc = (t >= params.max_steps) & ~term
+        done = term | trunc
+        obs_r, st_r = self.reset(key, params)
+        st = jax.tree.map(lambda a, b: jnp.where(done, a, b), st_r, ChainState(s=s2, t=t))
+        obs = jnp.where(done, obs_r, jnp.array([s2], F32))
+        return obs, st, term.astype(F32), term, trunc, {"success": term}
