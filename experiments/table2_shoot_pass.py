@@ -27,6 +27,7 @@ from vbl.agents.cva_state import (
     greedy_params,
     make_cva_learner,
 )
+from vbl.agents.exploration import ScheduleParams, schedule_value
 from vbl.engine import Experiment, Program, register
 from vbl.engine.experiment import ReportSection
 from vbl.envs.shoot_pass import ENV_TASKS, ShootPassEnv, ShootPassParams
@@ -39,23 +40,29 @@ PAPER = {"shoot": {"current": 10.2, "cva": 78.5}, "pass": {"current": 9.8, "cva"
 
 def default_learner() -> CVAStateParams:
     """Pipeline defaults for the two-robot task (choices, see docs/cva_learning.md)."""
-    # ball 4 canonical components (AIC finds n* = 4-5: position and velocity), goal and other
-    # robot 2 each; no unfiltered lost-side flags (k-means spent codes on their jumps)
+    # 4 canonical components per object: the AIC order of the ball is 4; with only 2, the
+    # goal's and the other robot's horizontal image position are lost (R^2 0.01-0.3 against
+    # 0.96 with 4, docs/cva_learning.md), and the shooter cannot aim. No unfiltered
+    # lost-side flags. One k-means codebook per object (product VQ): ball 16 x goal 8 x
+    # other robot 8 = 1,024 states for both state vectors.
     return CVAStateParams(
-        state="select", objects=("ball", "goal", "other"), n_used=2,
-        n_used_objects=(4, 2, 2), extra=(), collect_steps=3000,
+        state="select", objects=("ball", "goal", "other"), n_used=4,
+        n_used_objects=(4, 4, 4), extra=(), collect_steps=3000,
         cva=CVAParams(lag=0, lag_max=3, logdet_stop=-100.0),
-        quantizer=QuantizerParams(method="vq", num_codes=256, kmeans_iters=20),
-        runner=_runner(transition_steps=4800.0))
+        quantizer=QuantizerParams(method="product_vq", group_codes=(16, 8, 8),
+                                  kmeans_iters=20),
+        runner=_runner(transition_steps=30000.0))
 
 
 def _runner(transition_steps: float):
     """Runner defaults with discount 0.95 and epsilon 1.0 -> 0.05 over ``transition_steps``
-    learner steps (about 80 % of a run: num_chunks x chunk_steps)."""
+    learner steps (primitives, about 75 % of a run: num_chunks x chunk_steps)."""
     r = default_runner()
     # macro actions: repeat a primitive until the quantised state changes (state-action
     # deviation; docs/cva_learning.md)
-    r = r.replace(macro=r.macro.replace(enabled=True))
+    # (async: every runner step is one primitive of every env; an env decides when its
+    # action ends; ~1.4 primitives per action here, so sync mode wasted ~90 % of the work)
+    r = r.replace(macro=r.macro.replace(enabled=True, mode="async"))
     sch = r.agent.exploration.schedule.replace(transition_steps=transition_steps)
     # discount 0.95 per 0.1 s primitive: a goal 3-4 s after the start is still worth ~0.17
     # (0.8 gave ~4e-4); measured: CVA pass 9.0 % (0.95) vs 6.2 % (0.8), docs/cva_learning.md
@@ -63,14 +70,26 @@ def _runner(transition_steps: float):
         schedule=sch)))
 
 
+def default_lr_schedule() -> ScheduleParams:
+    """Learning rate per training chunk: 0.5 for the first 70 % of the default 400 chunks,
+    then linearly down to 0.05 over the next 10 % (a decreasing step size lets the tabular
+    Q estimates settle; on the oracle-state probe of docs/cva_learning.md greedy success
+    went from 0.29 to 0.52)."""
+    return ScheduleParams(kind="linear", init_value=0.5, end_value=0.05,
+                          transition_begin=280.0, transition_steps=40.0)
+
+
 @struct.dataclass
 class Table2Train:
-    num_chunks: int = param(60, doc="training chunks per run (each learner.runner.chunk_steps "
+    num_chunks: int = param(400, doc="training chunks per run (each learner.runner.chunk_steps "
                             "learner steps)", static=True, ge=1)
     eval_chunks: int = param(1, doc="greedy evaluation chunks after training: all envs restart "
                              "fresh, no learning, no exploration; each env's first finished "
                              "episode counts (chunks x chunk_steps must be >= env.max_steps)",
                              static=True, ge=1)
+    lr_schedule: ScheduleParams = section(default_lr_schedule, doc="Q-learning rate of each "
+                                          "training chunk, count = training chunks done "
+                                          "(overrides learner.runner.agent.learning_rate)")
 
 
 @struct.dataclass
@@ -109,6 +128,8 @@ def make_program(cfg: Table2Config) -> Program:
 
     def step(carry, c):
         rp = lrn.runner_params(c.learner)
+        lr = schedule_value(c.train.lr_schedule, carry.chunk)
+        rp = rp.replace(agent=rp.agent.replace(learning_rate=lr))
         rs = carry.runner
         # at the first evaluation chunk every env restarts fresh (counters reset), Q kept
         fresh = lrn.runner.init(carry.eval_key, rp, carry.fparams).replace(
@@ -186,10 +207,11 @@ EXPERIMENT = register(Experiment(
     description="Table 2: shoot/pass success, current features vs CVA state vectors",
     default_config=Table2Config(),
     make_program=make_program,
-    quick={"train.num_chunks": 6, "learner.collect_steps": 1000,
-           "learner.runner.num_envs": 16, "learner.quantizer.num_codes": 64,
+    quick={"train.num_chunks": 40, "learner.collect_steps": 1000,
+           "learner.runner.num_envs": 16, "learner.quantizer.group_codes": (8, 4, 4),
            "learner.quantizer.kmeans_iters": 10,
-           "learner.runner.agent.exploration.schedule.transition_steps": 450.0,
+           "learner.runner.agent.exploration.schedule.transition_steps": 3000.0,
+           "train.lr_schedule.transition_begin": 28.0, "train.lr_schedule.transition_steps": 4.0,
            "learner.cva.lag_max": 2},
     seeds=16,
     quick_seeds=4,

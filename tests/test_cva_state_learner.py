@@ -168,3 +168,41 @@ def test_select_state_and_first_episode_counters():
     assert float(g.agent.learning_rate) == p.runner.agent.learning_rate
     with pytest.raises(ParamError, match="select"):
         make_cva_learner(env, params("cva").replace(state="select"))
+
+
+def test_select_pads_each_object_block_for_a_per_object_quantiser():
+    """state='select': object g occupies the same components in the CVA and the current
+    vector (each block zero-padded to the larger size), so product VQ groups = objects."""
+    from vbl.agents.cva_state import FilteredEnv, ObjectModel, state_dim
+    from vbl.envs.shoot_pass import ShootPassEnv
+
+    env = ShootPassEnv("shoot")
+    pq = QuantizerParams(method="product_vq", group_codes=(4, 2, 2))
+    p = CVAStateParams(state="select", objects=("ball", "goal", "other"),
+                       n_used_objects=(4, 2, 1), quantizer=pq,
+                       cva=CVAParams(lag=0, lag_max=2))
+    fenv = FilteredEnv(env, p, 2)
+    assert fenv.block_dims() == (4, 11, 5) and state_dim(env, p) == 20
+    rng = np.random.default_rng(0)
+    models, hu, hy = [], [], []
+    for n, q in zip((4, 2, 1), (4, 11, 5), strict=True):
+        models.append(ObjectModel(
+            Uu=jnp.asarray(rng.normal(size=(n, 2, 2)), jnp.float32),
+            Uy=jnp.asarray(rng.normal(size=(n, 2, q)), jnp.float32),
+            u_mean=jnp.zeros(2, jnp.float32), u_scale=jnp.ones(2, jnp.float32),
+            y_mean=jnp.zeros(q, jnp.float32), y_scale=jnp.ones(q, jnp.float32),
+            lag=jnp.int32(2), n=jnp.int32(n), logdet=jnp.float32(0), aic=jnp.float32(0)))
+        hu.append(jnp.asarray(rng.normal(size=(2, 2)), jnp.float32))
+        hy.append(jnp.asarray(rng.normal(size=(2, q)), jnp.float32))
+    obs = jnp.asarray(rng.normal(size=(26,)), jnp.float32)
+    x_cva = np.asarray(fenv.state_vector(tuple(hu), tuple(hy), obs, tuple(models), True))
+    x_cur = np.asarray(fenv.state_vector(tuple(hu), tuple(hy), obs, tuple(models), False))
+    mus = [np.asarray(filter_state(m, a, b)) for m, a, b in zip(models, hu, hy, strict=True)]
+    np.testing.assert_allclose(x_cva[0:4], mus[0], rtol=1e-6)
+    np.testing.assert_allclose(x_cva[4:6], mus[1], rtol=1e-6)
+    np.testing.assert_array_equal(x_cva[6:15], 0.0)
+    np.testing.assert_allclose(x_cva[15:16], mus[2], rtol=1e-6)
+    np.testing.assert_array_equal(x_cva[16:20], 0.0)
+    np.testing.assert_array_equal(x_cur, np.asarray(obs[:20]))
+    with pytest.raises(ParamError, match="group_codes"):
+        make_cva_learner(env, p.replace(quantizer=pq.replace(group_codes=(4, 2))))

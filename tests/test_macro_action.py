@@ -190,3 +190,68 @@ def test_stop_on_grid_search_in_macro_step():
     with pytest.raises(ValueError, match="stop_on"):
         macro_step(ENV.step, block_of, jax.random.PRNGKey(0), st, jnp.int32(0), jnp.int32(0),
                    ENV.default_params, 20, 1.0, stop_on="nope")
+
+
+def test_async_macro_gives_the_same_transitions_as_macro_step():
+    """Async mode (one primitive per call, the env keeps its running action) ends each action
+    where macro_step ends it, with the same start state, reward, length and next state."""
+    from vbl.spaces.macro_action import async_macro_advance, macro_carry_init
+
+    counters = np.array([0, 4, 8, 2, 9, 5])
+    actions = np.array([0, 1, 0, 2, 0, 0])
+    cap, gamma = 5, 0.5
+    ref = run(counters, actions, max_repeats=cap, gamma=gamma, t=0)
+    n = len(counters)
+    st = CounterState(c=jnp.asarray(counters, jnp.int32), t=jnp.zeros((n,), jnp.int32))
+    s = jnp.asarray(counters // BLOCK, jnp.int32)
+    carry = macro_carry_init(n)
+    step = jax.vmap(ENV.step, in_axes=(None, 0, 0, None))
+    got = {k: np.full(n, -1.0) for k in ("start", "reward", "n", "next")}
+    for i in range(cap):
+        def step_out(a, st=st):
+            obs, st2, r, term, trunc, info = step(jax.random.PRNGKey(i), st, a,
+                                                  ENV.default_params)
+            return obs, st2, r, term, trunc, info, block_of(obs)
+        # the policy would choose something else: only the first call's choice may count
+        chosen = jnp.asarray(actions if i == 0 else (actions + 1) % 3, jnp.int32)
+        out, ended, (start, act, rew, cnt, decided), carry = async_macro_advance(
+            carry, s, chosen, step_out, cap, gamma)
+        assert np.all(np.asarray(decided) == (i == 0))
+        np.testing.assert_array_equal(np.asarray(act), actions)
+        first = np.asarray(ended) & (got["n"] < 0)
+        for k, v in (("start", start), ("reward", rew), ("n", cnt), ("next", out[6])):
+            got[k] = np.where(first, np.asarray(v, float), got[k])
+        st, s = out[1], out[6]
+        # an ended env would decide again: keep it frozen for this comparison
+        carry = carry.replace(count=jnp.where(jnp.asarray(got["n"] >= 0), 99, carry.count))
+    np.testing.assert_array_equal(got["start"], counters // BLOCK)
+    np.testing.assert_array_equal(got["n"], np.asarray(ref.num_primitives))
+    np.testing.assert_allclose(got["reward"], np.asarray(ref.reward), rtol=1e-6)
+    np.testing.assert_array_equal(got["next"], np.asarray(ref.next_state))
+
+
+def test_runner_with_async_macro_actions_learns_the_counter():
+    from vbl.agents import ExplorationParams, ScheduleParams
+
+    params = QRunnerParams(
+        agent=QLearningParams(num_states=GOAL // BLOCK + 1, num_actions=3, discount=0.9,
+                              exploration=ExplorationParams(schedule=ScheduleParams(
+                                  kind="linear", init_value=1.0, end_value=0.0,
+                                  transition_steps=200.0))),
+        macro=MacroActionParams(enabled=True, max_repeats=5, mode="async"),
+        lem=LEMParams(enabled=False), num_envs=8, chunk_steps=300)
+    runner = make_qlearning_runner(ENV, block_of, params)
+    bp = stack_for_learners(params, 2)
+    ep = stack_for_learners(CounterParams(step_reward=0.0, goal_reward=1.0), 2)
+    carry = runner.init_batch(learner_keys(3, 2), bp, ep)
+    carry, m = runner.run_chunk_batch(carry, bp, ep)
+    prim, act = np.asarray(m["primitives"]), np.asarray(m["actions"])
+    assert np.all(prim >= act) and prim.sum() > act.sum()
+    np.testing.assert_array_equal(np.argmax(np.asarray(carry.q)[:, :GOAL // BLOCK], -1), 0)
+    # greedy at the end: every finished episode succeeds in 10 primitives and 4 actions
+    late = slice(250, 300)
+    eps_, succ = np.asarray(m["episodes"])[:, late], np.asarray(m["successes"])[:, late]
+    assert eps_.sum() > 0 and np.all(succ == eps_)
+    done = eps_ > 0
+    np.testing.assert_array_equal(prim[:, late][done], 10 * eps_[done])
+    np.testing.assert_array_equal(act[:, late][done], 4 * eps_[done])

@@ -127,3 +127,41 @@ def test_bad_input_errors():
         make_quantizer(QuantizerParams(method="bins", bins=10, max_states=1000), 4)
     with pytest.raises(ParamError, match="dimension"):
         make_quantizer(QuantizerParams(), 0)
+
+
+def test_product_vq_is_mixed_radix_of_per_group_nearest_codes():
+    # two groups: 2-d blobs at 3 places (group 0) x a 1-d value at 2 places (group 1); a
+    # per-group NumPy nearest-code search on the fitted codebooks is the reference
+    rng = np.random.default_rng(0)
+    centres0 = np.array([[0.0, 0.0], [5.0, 0.0], [0.0, 5.0]])
+    centres1 = np.array([[-3.0], [3.0]])
+    i0, i1 = rng.integers(0, 3, 600), rng.integers(0, 2, 600)
+    x = np.concatenate([centres0[i0] + 0.1 * rng.normal(size=(600, 2)),
+                        centres1[i1] + 0.1 * rng.normal(size=(600, 1))], axis=1)
+    p = QuantizerParams(method="product_vq", group_codes=(3, 2), kmeans_iters=20)
+    qz = fit_quantizer(jax.random.PRNGKey(1), jnp.asarray(x), p, groups=(2, 1))
+    assert qz.num_states == 6 == num_states(p, 3)
+    z = (x - np.asarray(qz.mean)) / np.asarray(qz.scale)
+    book = np.asarray(qz.codebook)
+    b0, b1 = book[:3, :2], book[3:, 2:]
+    assert np.all(book[:3, 2:] == 0) and np.all(book[3:, :2] == 0)
+    c0 = ((z[:, None, :2] - b0[None]) ** 2).sum(-1).argmin(1)
+    c1 = ((z[:, None, 2:] - b1[None]) ** 2).sum(-1).argmin(1)
+    np.testing.assert_array_equal(np.asarray(quantize(qz, jnp.asarray(x))), c0 + 3 * c1)
+    # the blobs are well separated: each (blob, value) pair gets its own state
+    idx = np.asarray(quantize(qz, jnp.asarray(x)))
+    pairs = {(a, b): set(idx[(i0 == a) & (i1 == b)]) for a in range(3) for b in range(2)}
+    assert all(len(v) == 1 for v in pairs.values())
+    assert len({next(iter(v)) for v in pairs.values()}) == 6
+
+
+def test_product_vq_bad_groups():
+    p = QuantizerParams(method="product_vq", group_codes=(3, 2))
+    with pytest.raises(ParamError, match="groups"):
+        make_quantizer(p, 3)
+    with pytest.raises(ParamError, match="summing"):
+        make_quantizer(p, 3, groups=(1, 1))
+    with pytest.raises(ParamError, match="2 entries"):
+        make_quantizer(p, 3, groups=(1, 1, 1))
+    with pytest.raises(ParamError, match="group_codes"):
+        make_quantizer(QuantizerParams(method="product_vq"), 3, groups=(3,))

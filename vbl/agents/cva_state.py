@@ -133,9 +133,14 @@ class CVAStateParams:
                                  ">= 1")
         if self.cva.lag == 0 and self.cva.lag_max < 1:
             raise ParamError("cva.lag_max must be >= 1")
-        if self.state == "select" and self.quantizer.method != "vq":
+        if self.state == "select" and self.quantizer.method == "bins":
             raise ParamError("state='select' zero-pads the shorter state vector; it needs "
-                             f"quantizer.method='vq', got {self.quantizer.method!r}")
+                             "quantizer.method 'vq' or 'product_vq', got 'bins'")
+        groups = len(self.objects) + len(self.extra)
+        if self.quantizer.method == "product_vq" and len(self.quantizer.group_codes) != groups:
+            raise ParamError(f"quantizer.group_codes={self.quantizer.group_codes!r} needs one "
+                             f"codebook size per object of objects={self.objects!r} and per "
+                             f"extra slice of extra={self.extra!r} ({groups} entries)")
 
     def n_used_per_object(self) -> tuple[int, ...]:
         """Canonical components used for each object (``n_used_objects`` or ``n_used``)."""
@@ -285,20 +290,31 @@ class FilteredEnv:
         self.extra = [slices[o] for o in p.extra]
         self.lag_max = max(p.cva.lags())
 
+    def block_dims(self) -> tuple[int, ...]:
+        """Sizes of the state vector's blocks: one per object (CVA: its ``n_used``; current:
+        its features; 'select': the larger of the two), then one per ``extra`` slice."""
+        n_cva = self.p.n_used_per_object()
+        n_cur = [s.stop - s.start for s in self.slices]
+        per = {"cva": n_cva, "current": n_cur,
+               "select": [max(a, b) for a, b in zip(n_cva, n_cur, strict=True)]}[self.p.state]
+        return tuple(int(k) for k in per) + tuple(s.stop - s.start for s in self.extra)
+
     def state_vector(self, hist_u, hist_y, obs, models, use_cva=True) -> jax.Array:
-        """(d,) float32; state 'select': both vectors zero-padded to d, ``use_cva`` picks."""
-        extra = [obs[s] for s in self.extra]
-        cur = jnp.concatenate([obs[s] for s in self.slices] + extra).astype(jnp.float32)
+        """(d,) float32: the object blocks then the extra slices; state 'select': both
+        vectors with every object block zero-padded to :meth:`block_dims`, ``use_cva`` picks
+        (object g occupies the same components in both, so a per-object quantiser applies)."""
+        extra = [obs[s].astype(jnp.float32) for s in self.extra]
+        cur = [obs[s].astype(jnp.float32) for s in self.slices]
         if self.p.state == "current":
-            return cur
-        cva = jnp.concatenate([filter_state(mod, hu, hy) for mod, hu, hy in
-                               zip(models, hist_u, hist_y, strict=True)] + extra
-                              ).astype(jnp.float32)
+            return jnp.concatenate(cur + extra)
+        cva = [filter_state(mod, hu, hy).astype(jnp.float32) for mod, hu, hy in
+               zip(models, hist_u, hist_y, strict=True)]
         if self.p.state == "cva":
-            return cva
-        d = max(cva.shape[0], cur.shape[0])
-        cva = jnp.pad(cva, (0, d - cva.shape[0]))
-        cur = jnp.pad(cur, (0, d - cur.shape[0]))
+            return jnp.concatenate(cva + extra)
+        dims = self.block_dims()
+        pad = lambda v, k: jnp.pad(v, (0, k - v.shape[0]))  # noqa: E731
+        cva = jnp.concatenate([pad(v, k) for v, k in zip(cva, dims, strict=False)] + extra)
+        cur = jnp.concatenate([pad(v, k) for v, k in zip(cur, dims, strict=False)] + extra)
         return jnp.where(jnp.asarray(use_cva, bool), cva, cur)
 
     def _fresh_hist(self, obs):
@@ -339,10 +355,11 @@ class FilteredEnv:
 def state_dim(env: Any, p: CVAStateParams) -> int:
     """Dimension d of the state vector that is quantised."""
     sl = env.obs_slices
-    d_cva = sum(p.n_used_per_object())
-    d_cur = sum(sl[o].stop - sl[o].start for o in p.objects)
-    d = {"cva": d_cva, "current": d_cur, "select": max(d_cva, d_cur)}[p.state]
-    return int(d + sum(sl[o].stop - sl[o].start for o in p.extra))
+    n_cva = p.n_used_per_object()
+    n_cur = [sl[o].stop - sl[o].start for o in p.objects]
+    per = {"cva": n_cva, "current": n_cur,
+           "select": [max(a, b) for a, b in zip(n_cva, n_cur, strict=True)]}[p.state]
+    return int(sum(per) + sum(sl[o].stop - sl[o].start for o in p.extra))
 
 
 def _history_states(fenv: FilteredEnv, data, models, use_cva=True) -> jax.Array:
@@ -396,7 +413,8 @@ def make_cva_learner(env: Any, p: CVAStateParams, m: int | None = None) -> CVALe
         m = int(np.prod(out[5]["u"].shape))
     fenv = FilteredEnv(env, p, m)
     d = state_dim(env, p)
-    make_quantizer(p.quantizer, d)
+    groups = fenv.block_dims()
+    make_quantizer(p.quantizer, d, groups)
     s = num_states(p.quantizer, d)
     lags = p.cva.lags()
     q_max = max(sl.stop - sl.start for sl in fenv.slices)
@@ -415,7 +433,7 @@ def make_cva_learner(env: Any, p: CVAStateParams, m: int | None = None) -> CVALe
                            for sl, k in zip(fenv.slices, p.n_used_per_object(), strict=True))
         use_cva = jnp.asarray(pp.use_cva, bool)
         xs = _history_states(fenv, data, models, use_cva)
-        qz = fit_quantizer(k_q, xs, pp.quantizer)
+        qz = fit_quantizer(k_q, xs, pp.quantizer, groups=groups)
         return FilteredParams(inner=env_params, models=models, quantizer=qz, use_cva=use_cva)
 
     return CVALearner(prepare=prepare, runner=runner, env=fenv, num_states=s,

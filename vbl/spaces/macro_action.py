@@ -27,8 +27,12 @@ from flax import struct
 
 from vbl.params import param
 
-__all__ = ["MacroActionParams", "MacroOutcome", "STOP_RULES", "grid_search_key", "macro_step",
-           "make_macro_step"]
+__all__ = ["MacroActionParams", "MacroOutcome", "MacroCarry", "MACRO_MODES", "STOP_RULES",
+           "grid_search_key", "macro_step", "make_macro_step", "macro_carry_init",
+           "async_macro_advance"]
+
+#: How a batch of environments runs macro actions (static choice, see the module doc).
+MACRO_MODES = ("sync", "async")
 
 
 def grid_search_key(index: jax.Array) -> jax.Array:
@@ -68,6 +72,12 @@ class MacroActionParams:
                          "('state'), or for the 319-state grid 'grid_search': changes that "
                          "matter (while the ball is lost only the ball reappearing; a lost "
                          "goal's side ignored)", static=True, choices=tuple(STOP_RULES))
+    mode: str = param("sync", doc="'sync': each runner step runs every env's whole action "
+                      "(a vmapped loop as long as the longest action); 'async': each runner "
+                      "step advances every env by one primitive and an env decides again "
+                      "when its action ends (same transitions, ~max_repeats / mean action "
+                      "length times cheaper; the runner's steps then count primitives)",
+                      static=True, choices=MACRO_MODES)
 
 
 @struct.dataclass
@@ -157,3 +167,63 @@ def make_macro_step(step_fn: Callable, state_index_fn: Callable) -> Callable:
                           env_params, max_repeats, discount, min_repeats, stop_on)
 
     return f
+
+
+@struct.dataclass
+class MacroCarry:
+    """Per-environment state of the running macro actions (async mode), each (E,)."""
+
+    action: jax.Array  #: int32 primitive being repeated
+    start: jax.Array   #: int32 discrete state where the action started
+    reward: jax.Array  #: float32 discounted reward so far, sum_i discount**i r_i
+    weight: jax.Array  #: float32 discount**k
+    count: jax.Array   #: int32 primitives done so far (0: the env decides at this step)
+
+
+def macro_carry_init(num_envs: int) -> MacroCarry:
+    """No running action in any of ``num_envs`` environments."""
+    z = jnp.zeros((num_envs,), jnp.int32)
+    return MacroCarry(action=z, start=z, reward=jnp.zeros((num_envs,), jnp.float32),
+                      weight=jnp.ones((num_envs,), jnp.float32), count=z)
+
+
+def async_macro_advance(carry: MacroCarry, state_index: jax.Array, chosen: jax.Array,
+                        step_out: Callable, max_repeats: Any, discount: Any,
+                        min_repeats: Any = 1, stop_on: str = "state"):
+    """One primitive of every environment's running action (async mode).
+
+    Args:
+      carry: :class:`MacroCarry` (E,) before this primitive.
+      state_index: (E,) int32 discrete state now (before the primitive).
+      chosen: (E,) int32 actions the policy chose now; used only where ``carry.count == 0``
+        (the env decides), elsewhere the running action continues.
+      step_out: ``action (E,) -> (obs, env_state, reward, terminated, truncated, info,
+        next_state)`` of one primitive in every env (the caller's vmapped env step).
+      max_repeats, discount, min_repeats, stop_on: as :func:`macro_step`.
+
+    Returns ``(out, ended, transition, new_carry)``: ``out`` the step outputs; ``ended``
+    (E,) bool, the action ended at this primitive (state key changed after at least
+    ``min_repeats`` primitives, episode end, or ``max_repeats``); ``transition`` =
+    ``(start, action, reward, num_primitives, decided)`` (E,) each, valid where ``ended``
+    (``decided``: the env chose a new action at this step); ``new_carry`` reset where ended.
+    """
+    if stop_on not in STOP_RULES:
+        raise ValueError(f"stop_on={stop_on!r}; choose one of {list(STOP_RULES)}")
+    key_of = STOP_RULES[stop_on]
+    decided = carry.count == 0
+    action = jnp.where(decided, jnp.asarray(chosen, jnp.int32), carry.action)
+    start = jnp.where(decided, jnp.asarray(state_index, jnp.int32), carry.start)
+    out = step_out(action)
+    obs, env_state, r, term, trunc, info, s_next = out
+    reward = carry.reward + carry.weight * jnp.asarray(r, jnp.float32)
+    weight = carry.weight * jnp.asarray(discount, jnp.float32)
+    count = carry.count + 1
+    cap = jnp.asarray(max_repeats, jnp.int32)
+    least = jnp.minimum(jnp.asarray(min_repeats, jnp.int32), cap)
+    changed = key_of(jnp.asarray(s_next, jnp.int32)) != key_of(start)
+    ended = (jnp.asarray(term, bool) | jnp.asarray(trunc, bool) | (changed & (count >= least))
+             | (count >= cap))
+    fresh = macro_carry_init(action.shape[0])
+    new = MacroCarry(action=action, start=start, reward=reward, weight=weight, count=count)
+    new = jax.tree.map(lambda f, n: jnp.where(ended, f, n), fresh, new)
+    return out, ended, (start, action, reward, count, decided), new

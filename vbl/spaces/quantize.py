@@ -11,6 +11,11 @@ Two methods, chosen by the static :attr:`QuantizerParams.method`:
   standard deviation, then a codebook of ``num_codes`` vectors is fitted by k-means (k-means++
   seeding, Lloyd iterations, all in JAX); the index of a state is its nearest code
   (Euclidean, in z-scored units). ``num_codes`` states.
+* ``"product_vq"``: one such codebook per group of consecutive components (the caller says
+  which, e.g. one group per observed object: :mod:`vbl.agents.cva_state`), ``group_codes[g]``
+  codes for group ``g``; index = mixed-radix number of the per-group codes (group 0 fastest),
+  ``prod(group_codes)`` states. k-means cannot then spend one object's resolution on
+  another's: every group keeps its own number of cells.
 
 Everything is pure JAX on pytrees: :func:`fit_quantizer` and :func:`quantize` can be
 ``jit``-ed and ``vmap``-ed over learners (the fitted :class:`Quantizer` is a pytree whose
@@ -42,7 +47,7 @@ __all__ = [
 ]
 
 #: State-to-index methods (static choice).
-QUANTIZE_METHODS = ("bins", "vq")
+QUANTIZE_METHODS = ("bins", "vq", "product_vq")
 
 
 @struct.dataclass
@@ -55,13 +60,25 @@ class QuantizerParams:
     bins: int = param(4, doc="bins per component (method 'bins')", static=True, ge=1)
     num_codes: int = param(128, doc="codebook size = number of states (method 'vq')",
                            static=True, ge=1)
-    kmeans_iters: int = param(30, doc="Lloyd iterations of the k-means fit (method 'vq')",
-                              static=True, ge=0)
+    group_codes: tuple = param((), doc="method 'product_vq': codebook size of each group of "
+                               "components (groups given by the caller, e.g. one per observed "
+                               "object); states = the product", static=True)
+    kmeans_iters: int = param(30, doc="Lloyd iterations of the k-means fit (methods 'vq', "
+                              "'product_vq')", static=True, ge=0)
     range_quantile: float = param(0.01, doc="method 'bins': the fitted range of a component "
                                   "is its [q, 1-q] quantile interval over the collected states",
                                   ge=0.0, lt=0.5)
     max_states: int = param(2_000_000, doc="refuse quantisers with more states than this "
                             "(a Q-table row per state)", static=True, ge=1)
+
+    def check(self) -> None:
+        if self.method == "product_vq":
+            if not self.group_codes:
+                raise ParamError("method 'product_vq' needs group_codes (one codebook size per "
+                                 "group of components), got ()")
+            if not all(isinstance(k, int | np.integer) and not isinstance(k, bool) and k >= 1
+                       for k in self.group_codes):
+                raise ParamError(f"group_codes={self.group_codes!r} must hold integers >= 1")
 
 
 @struct.dataclass
@@ -71,8 +88,11 @@ class Quantizer:
     Attributes:
       lo, hi: float32 (d,), the fitted per-component range (method 'bins').
       mean, scale: float32 (d,), z-scoring used before the codebook (method 'vq').
-      codebook: float32 (K, d) in z-scored units (method 'vq'; (1, d) zeros for 'bins').
-      method, bins: static copies of the parameters.
+      codebook: float32 (K, d) in z-scored units (method 'vq'; (1, d) zeros for 'bins';
+        'product_vq': the groups' codebooks stacked, (sum group_codes, d), each row zero
+        outside its group's components).
+      method, bins, group_codes: static copies of the parameters; groups: static sizes of
+        the component groups ('product_vq').
     """
 
     lo: jax.Array
@@ -82,6 +102,8 @@ class Quantizer:
     codebook: jax.Array
     method: str = struct.field(pytree_node=False, default="vq")
     bins: int = struct.field(pytree_node=False, default=4)
+    groups: tuple = struct.field(pytree_node=False, default=())
+    group_codes: tuple = struct.field(pytree_node=False, default=())
 
     @property
     def dim(self) -> int:
@@ -91,6 +113,8 @@ class Quantizer:
     def num_states(self) -> int:
         if self.method == "bins":
             return int(self.bins) ** self.dim
+        if self.method == "product_vq":
+            return int(np.prod(self.group_codes))
         return int(self.codebook.shape[-2])
 
 
@@ -100,21 +124,41 @@ def num_states(params: QuantizerParams, dim: int) -> int:
         return int(params.bins) ** int(dim)
     if params.method == "vq":
         return int(params.num_codes)
+    if params.method == "product_vq":
+        return int(np.prod([int(k) for k in params.group_codes])) if params.group_codes else 0
     raise ParamError(f"quantizer method {params.method!r} unknown; choose one of "
                      f"{list(QUANTIZE_METHODS)}")
 
 
-def make_quantizer(params: QuantizerParams, dim: int) -> QuantizerParams:
-    """Validate ``params`` for ``dim``-vectors (non-jitted entry point); returns ``params``."""
+def make_quantizer(params: QuantizerParams, dim: int,
+                   groups: tuple[int, ...] | None = None) -> QuantizerParams:
+    """Validate ``params`` for ``dim``-vectors (non-jitted entry point); returns ``params``.
+    ``groups``: sizes of the consecutive component groups (method 'product_vq')."""
     validate(params)
     if not isinstance(dim, int | np.integer) or dim < 1:
         raise ParamError(f"state dimension must be an int >= 1, got {dim!r}")
+    if params.method == "product_vq":
+        _check_groups(params, dim, groups)
     s = num_states(params, dim)
     if s > params.max_states:
         raise ParamError(f"quantizer {params.method!r} on {dim}-vectors gives {s} states, more "
                          f"than max_states={params.max_states}; use fewer bins, fewer "
                          "components or method 'vq'")
     return params
+
+
+def _check_groups(params: QuantizerParams, dim: int, groups) -> tuple[int, ...]:
+    if groups is None or not len(groups):
+        raise ParamError("method 'product_vq' needs the component groups (sizes summing to the "
+                         f"state dimension {dim})")
+    groups = tuple(int(g) for g in groups)
+    if any(g < 1 for g in groups) or sum(groups) != dim:
+        raise ParamError(f"component groups {groups} must be sizes >= 1 summing to the state "
+                         f"dimension {dim}")
+    if len(params.group_codes) != len(groups):
+        raise ParamError(f"group_codes={params.group_codes!r} has {len(params.group_codes)} "
+                         f"entries but the state vector has {len(groups)} groups {groups}")
+    return groups
 
 
 # --------------------------------------------------------------------------- k-means
@@ -187,8 +231,10 @@ def kmeans(key: jax.Array, x: jax.Array, k: int, iters: int,
 
 
 def fit_quantizer(key: jax.Array, x: jax.Array, params: QuantizerParams,
-                  mask: jax.Array | None = None) -> Quantizer:
+                  mask: jax.Array | None = None,
+                  groups: tuple[int, ...] | None = None) -> Quantizer:
     """Fit a quantiser to collected states ``x`` (N, d) (rows with ``mask`` False ignored).
+    ``groups`` (static sizes of consecutive component groups) is needed by 'product_vq'.
 
     Pure and jit/vmap-able (``params`` static fields set shapes). float32 throughout.
     """
@@ -208,14 +254,26 @@ def fit_quantizer(key: jax.Array, x: jax.Array, params: QuantizerParams,
     if params.method == "vq":
         z = (x - mean) / scale
         codebook = kmeans(key, z, params.num_codes, params.kmeans_iters, weights=w)
+    elif params.method == "product_vq":
+        groups = _check_groups(params, d, groups)
+        z = (x - mean) / scale
+        books, start = [], 0
+        for g, (size, k) in enumerate(zip(groups, params.group_codes, strict=True)):
+            sub = kmeans(jax.random.fold_in(key, g), z[:, start:start + size], int(k),
+                         params.kmeans_iters, weights=w)
+            books.append(jnp.pad(sub, ((0, 0), (start, d - start - size))))
+            start += size
+        codebook = jnp.concatenate(books, axis=0)
     elif params.method == "bins":
         codebook = jnp.zeros((1, d), jnp.float32)
     else:
         raise ParamError(f"quantizer method {params.method!r} unknown; choose one of "
                          f"{list(QUANTIZE_METHODS)}")
+    prod = params.method == "product_vq"
     return Quantizer(lo=lo, hi=hi, mean=mean.astype(jnp.float32), scale=scale,
                      codebook=codebook.astype(jnp.float32), method=params.method,
-                     bins=params.bins)
+                     bins=params.bins, groups=tuple(groups) if prod else (),
+                     group_codes=tuple(int(k) for k in params.group_codes) if prod else ())
 
 
 def bin_indices(qz: Quantizer, x: jax.Array) -> jax.Array:
@@ -230,6 +288,7 @@ def quantize(qz: Quantizer, x: Any) -> jax.Array:
 
     'bins': mixed-radix number sum_j b_j * bins**j (component 0 is the fastest digit).
     'vq': index of the nearest code in z-scored units (ties: lowest index).
+    'product_vq': mixed-radix number of each group's nearest code (group 0 fastest).
     """
     x = jnp.asarray(x, jnp.float32)
     if qz.method == "bins":
@@ -238,5 +297,14 @@ def quantize(qz: Quantizer, x: Any) -> jax.Array:
         return jnp.sum(b * radix, axis=-1).astype(jnp.int32)
     z = (x - qz.mean) / qz.scale
     lead = z.shape[:-1]
+    if qz.method == "product_vq":
+        flat = z.reshape(-1, qz.dim)
+        index, start, row, radix = jnp.zeros(flat.shape[0], jnp.int32), 0, 0, 1
+        for size, k in zip(qz.groups, qz.group_codes, strict=True):
+            book = qz.codebook[row:row + k, start:start + size]
+            code = jnp.argmin(_sq_dists(flat[:, start:start + size], book), axis=-1)
+            index = index + radix * code.astype(jnp.int32)
+            start, row, radix = start + size, row + k, radix * k
+        return index.reshape(lead)
     d = _sq_dists(z.reshape(-1, qz.dim), qz.codebook)
     return jnp.argmin(d, axis=-1).astype(jnp.int32).reshape(lead)
