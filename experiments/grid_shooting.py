@@ -3,18 +3,19 @@ Learning from Easy Missions (the earlier work the paper compares against, Figure
 
 Each learner trains one Q-table (319 states x 9 primitives, one action = repeat a
 primitive until the grid state changes, at least ``MIN_REPEATS`` primitives) with
-``agent.num_envs`` parallel robots. The task is shooting from starts at
-``TASK_DIFFICULTY`` (0.1 by default; 1 = fully random starts, out of reach of this
-baseline in the run length: numbers in docs/agents.md). After every chunk the greedy
-policy is evaluated on fresh starts at that difficulty: the ``success_rate`` curve against
-training trials (cumulative episodes). The default sweep compares LEM off
-(``agent.lem.initial_difficulty = max_difficulty``: every episode starts at the task
-difficulty, exactly as with the curriculum switched off, but in the same compiled
-program) with LEM on (episodes start easy, difficulty 0, and move out to the task
-difficulty when Q stops changing and the training episodes succeed). ``final``: greedy and
-random policy success on fresh starts at the task difficulty. For fully random starts:
-``--set train.eval_difficulty=1 --set agent.lem.max_difficulty=1 --sweep
-agent.lem.initial_difficulty=1,0``.
+``agent.num_envs`` parallel robots and multi-step returns (``TRACE``: Peng's Q(lambda) over
+the last 32 actions, the remedy for the grid's state aliasing). The task is shooting from
+fully random starts (``TASK_DIFFICULTY`` = 1) within 100 s (``MAX_STEPS``). After every
+chunk the near-greedy policy (epsilon ``EVAL_EPSILON``) is evaluated on fresh starts at that
+difficulty: the ``success_rate`` curve against training trials (cumulative episodes). The
+default sweep compares LEM off (``agent.lem.initial_difficulty = max_difficulty``: every
+episode starts at the task difficulty, exactly as with the curriculum switched off, but in
+the same compiled program) with LEM on (episodes start easy, difficulty 0; the difficulty
+rises by 0.1 after every 100-step window whose training episodes succeed at >= 90 % and
+falls by 0.1 after one below 50 %). ``final``: greedy, near-greedy and random policy
+success on fresh starts at the task difficulty. Other task difficulties: ``--set
+train.eval_difficulty=D --set agent.lem.max_difficulty=D --sweep
+agent.lem.initial_difficulty=D,0``.
 
 Run: ``vbl run grid_shooting [--quick]`` or ``python experiments/grid_shooting.py``.
 """
@@ -28,6 +29,7 @@ from flax import struct
 
 from vbl.agents import QRunnerParams
 from vbl.agents.programs import QTrainParams, make_q_program, trials_to_level
+from vbl.agents.traces import TraceParams
 from vbl.engine import Experiment, ReportSection, RunResult, register
 from vbl.envs.shooting import ShootingEnv, ShootingParams
 from vbl.params import param, section
@@ -38,56 +40,68 @@ ENV = ShootingEnv()
 
 @struct.dataclass
 class ReportParams:
-    success_level: float = param(0.1, doc="success rate (greedy, task starts) whose first "
-                                 "crossing the report compares in trials", gt=0.0, le=1.0)
+    success_level: float = param(0.5, doc="success rate (the curve's policy, task starts) "
+                                 "whose first crossing the report compares in trials (median "
+                                 "over seeds, never reached = slowest)", gt=0.0, le=1.0)
 
 
-TASK_DIFFICULTY = 0.1
-"""Start difficulty of the reported task (evaluation, and the cap of the curriculum).
-From fully random starts (1) the ball is in view at only ~20 % of starts and the goal at
-~24 %. A hand-written table on the 319 grid states scores 0.70 there within 100 s
-(random 0.004), but Q-learning does not find or even keep such a policy: started from that
-table it unlearns it within 400 learner steps (greedy 0.74 -> 0.02), and learned greedy
-and near-greedy policies stay at 0.00-0.05 at difficulty 1 (docs/agents.md, "Fully random
-starts"). So the default task stays at 0.1, where greedy beat random at 30 s."""
+TASK_DIFFICULTY = 1.0
+"""Start difficulty of the reported task (evaluation, and the cap of the curriculum): fully
+random starts, as the issue asks. The ball is in view at only ~20 % of them and the goal at
+~24 %; a hand-written table on the 319 grid states scores 0.70 there within 100 s (random
+0.004). One-step Q-learning did not learn it (0.00-0.05); with multi-step returns
+(``TRACE``) and the success-gated curriculum it does (numbers in docs/agents.md)."""
 
 
 MIN_REPEATS = 3  #: primitives per macro action at least (0.3 s)
 
-MAX_STEPS = 300
-"""Time limit of this experiment's episodes, primitives (30 s, the env's default). From fully
-random starts that is too short even for scripted policies (0.07-0.23); with 100 s
-(``--set env.max_steps=1000``) they score 0.70 (a hand-written table on the 319 grid
-states) to 0.91 (docs/agents.md, "Fully random starts"). The learned grid policy does not
-reach difficulty 1 with either limit, and at the reported difficulty 0.1 the random policy
-already scores 0.13-0.17 with 100 s, so the default stays 30 s, where the full-scale
-numbers in docs/agents.md were measured."""
+MAX_STEPS = 1000
+"""Time limit of this experiment's episodes, primitives (100 s; the env's default is 30 s).
+From fully random starts 30 s is too short even for scripted policies (0.07-0.23: a
+successful scripted episode takes ~220 primitives); with 100 s they score 0.70 (a
+hand-written table on the 319 grid states) to 0.91, and the random policy 0.004
+(docs/agents.md, "Fully random starts")."""
+
+TRACE = TraceParams(enabled=True, kind="peng", lam=0.9, length=32)
+"""Multi-step returns (Peng's Q(lambda), lambda 0.9 per action, window 32 actions): the
+remedy for the grid's state aliasing, under which one-step Q-learning unlearned even a
+good hand-written table (docs/agents.md)."""
 
 EVAL_STEPS = 400
 """Cap on (macro) actions per evaluation episode: above ``MAX_STEPS / MIN_REPEATS`` (100), so
 the env's time limit, not the cap, ends an unfinished evaluation episode."""
 
 
+EVAL_EPSILON = 0.1
+"""Epsilon of the near-greedy policy (the final epsilon of training): on an aliased state
+space the best memoryless policy can be stochastic, and the deterministic greedy one cycles
+between look-alike states (docs/agents.md)."""
+
+
 def _agent() -> QRunnerParams:
     """Defaults of this experiment (the library's otherwise):
 
     * discount 0.98 per primitive (0.8 would make a goal more than ~3 s away worth
-      < 0.8**30 = 1e-3);
+      < 0.8**30 = 1e-3); learning rate 0.1 (0.25 with traces: the curriculum stalled and the
+      learned policy collapsed at difficulty 0.3, measured); multi-step returns ``TRACE``;
     * macro actions run at least ``MIN_REPEATS`` primitives: with one, a turn in place
       flipped the goal's orientation category every primitive and the greedy policy cycled
       between two look-alike states until the time limit (measured);
     * LEM: the curriculum runs from difficulty 0 to the task's ``TASK_DIFFICULTY`` (LEM off =
-      ``initial_difficulty = max_difficulty``: every episode at the task difficulty);
-      convergence = mean |change| of Q over 100 learner steps below 0.01, and the training
-      episodes of that window succeeded at >= 80 % (without the success gate the
-      curriculum moves on whenever no reward arrives, as Q then stops changing too);
-      raises in steps of 0.05.
+      ``initial_difficulty = max_difficulty``: every episode at the task difficulty); it
+      raises the difficulty by 0.1 after every window of 100 learner steps whose training
+      episodes succeeded at >= 90 % (``lem.statistic = "none"``: no Q-change condition;
+      with traces and a constant step size Q never stopped changing by the paper's
+      criterion: with "mean |dQ| per window below 0.02-0.1" the curriculum stayed at
+      0-0.3 in 4,000 learner steps); and
+      lowers it by 0.1 after a window below 50 % (``lem.backoff_level``: without it the
+      training success collapsed once the difficulty reached 0.8-0.9, measured).
     """
     a = QRunnerParams()
-    agent = a.agent.replace(discount=0.98)
+    agent = a.agent.replace(discount=0.98, learning_rate=0.1, trace=TRACE)
     macro = a.macro.replace(min_repeats=MIN_REPEATS)
-    lem = a.lem.replace(statistic="mean", window=100, threshold=0.01, step=0.05,
-                        success_level=0.8, max_difficulty=TASK_DIFFICULTY)
+    lem = a.lem.replace(statistic="none", window=100, step=0.1, success_level=0.9,
+                        backoff_level=0.5, max_difficulty=TASK_DIFFICULTY)
     return a.replace(agent=agent, macro=macro, lem=lem, num_envs=64, chunk_steps=100)
 
 
@@ -99,17 +113,20 @@ def _grid() -> GridParams:
 
 
 def _env() -> ShootingParams:
-    """The env's defaults with the time limit ``MAX_STEPS`` (30 s)."""
+    """The env's defaults with the time limit ``MAX_STEPS`` (100 s)."""
     return ShootingParams(max_steps=MAX_STEPS)
 
 
 def _train() -> QTrainParams:
-    return QTrainParams(eval_difficulty=TASK_DIFFICULTY, eval_steps=EVAL_STEPS)
+    """Evaluation at the task difficulty; the near-greedy policy (epsilon ``EVAL_EPSILON``)
+    beside the greedy one, and it draws the learning curve."""
+    return QTrainParams(num_chunks=60, eval_difficulty=TASK_DIFFICULTY, eval_steps=EVAL_STEPS,
+                        eval_epsilon=EVAL_EPSILON, curve_epsilon=EVAL_EPSILON)
 
 
 @struct.dataclass
 class GridShootingConfig:
-    env: ShootingParams = section(_env, doc="shooting task (Section 2), 30 s time limit")
+    env: ShootingParams = section(_env, doc="shooting task (Section 2), 100 s time limit")
     grid: GridParams = section(_grid, doc="grid boundaries (319 states)")
     agent: QRunnerParams = section(_agent, doc="Q-learning, macro actions, LEM")
     train: QTrainParams = section(_train, doc="run length and evaluation")
@@ -161,7 +178,10 @@ def plot(res: RunResult, level: float) -> Path:
         ax.axhline(float(np.mean(res.final["random_success"])), color="k", ls=":",
                    label="random policy")
     ax.axhline(level, color="gray", lw=0.6, ls="--")
-    ax.set(xlabel="training trials (episodes)", ylabel="greedy success, random starts",
+    ce = float(np.max(res.config.train.curve_epsilon))
+    who = "greedy" if ce == 0 else f"near-greedy (eps {ce:g})"
+    ax.set(xlabel="training trials (episodes)",
+           ylabel=f"{who} success, d = {float(np.max(res.config.train.eval_difficulty)):g}",
            ylim=(0, 1), title=f"Grid Q-learning shooting ({res.seeds} seeds, 95% band)")
     ax.legend(fontsize="small")
     ax.grid(alpha=0.3)
@@ -175,14 +195,18 @@ def plot(res: RunResult, level: float) -> Path:
 def report(res: RunResult) -> ReportSection:
     level = float(res.config.report.success_level)
     fig = plot(res, level)
-    curve = ("the greedy success after each chunk" if res.config.train.eval_curve else
+    ce = float(np.max(res.config.train.curve_epsilon))
+    who = "greedy" if ce == 0 else f"near-greedy (epsilon {ce:g})"
+    curve = (f"the {who} success after each chunk" if res.config.train.eval_curve else
              "the training success (train.eval_curve is off)")
-    md = [f"Greedy policy on fresh starts at start difficulty "
+    md = [f"Learned policies on fresh starts at start difficulty "
           f"{res.config.train.eval_difficulty} (1: fully random), {res.seeds} seeds, "
           f"mean ± 95% CI; {NUM_GRID_STATES} grid states. Trials = training episodes until "
-          f"{curve} first reaches {level:.0%} (median over the seeds that reach it).", "",
+          f"{curve} first reaches {level:.0%} (median over the seeds; a seed that never "
+          "reaches it counts as slowest).", "",
           f"Near-greedy: a uniform action with probability {res.config.train.eval_epsilon} "
-          "(breaks cycles between aliased grid states).", "",
+          "(breaks cycles between aliased grid states; on an aliased state space the best "
+          "memoryless policy can be stochastic).", "",
           "| policy | greedy success | near-greedy success | trials to reach "
           f"{level:.0%} | seeds reaching it | training trials |", "|---|---|---|---|---|---|"]
     rnd, greedy, near, reach = [], {}, {}, {}
@@ -194,11 +218,12 @@ def report(res: RunResult) -> ReportSection:
         eps = res.curves["episodes"][p]
         t = trials_to_level(res.curves["success_rate"][p], eps, level)
         ok = ~np.isnan(t)
-        med = f"{np.median(t[ok]):.0f}" if ok.any() else "not reached"
+        # median over all seeds, a seed that never reaches the level counting as slowest
+        t_med = float(np.median(np.where(ok, t, np.inf)))
+        med = f"{t_med:.0f}" if np.isfinite(t_med) else "not reached (median)"
         greedy[_label(values, res.config)] = g
         near[_label(values, res.config)] = ng
-        reach[_label(values, res.config)] = (float(np.median(t[ok])) if ok.any() else np.inf,
-                                 float(eps.sum(axis=0).mean()))
+        reach[_label(values, res.config)] = (t_med, float(eps.sum(axis=0).mean()))
         md.append(f"| {_label(values, res.config)} | {g[0]:.3f} ± {g[1]:.3f} | "
                   f"{ng[0]:.3f} ± {ng[1]:.3f} | {med} | "
                   f"{int(ok.sum())}/{len(t)} | {reach[_label(values, res.config)][1]:.0f} |")
@@ -214,9 +239,14 @@ def report(res: RunResult) -> ReportSection:
                   f"{'yes' if above else '**no**'} (best {best[0]:.3f} vs random {r[0]:.3f});")
     if {"with LEM", "without LEM"} <= set(reach):
         (t_on, _), (t_off, n_off) = reach["with LEM"], reach["without LEM"]
-        fewer = t_on < min(t_off, n_off) if np.isfinite(t_on) else False
-        md.append(f"* LEM reaches {level:.0%} in fewer trials: {'yes' if fewer else '**no**'}"
-                  f" (with LEM {t_on:.0f}, without {t_off:.0f} of {n_off:.0f} trials run).")
+        if np.isfinite(t_on) and not np.isfinite(t_off) and n_off < t_on:
+            verdict = (f"**not shown** (with LEM {t_on:.0f}; without LEM not reached, but it "
+                       f"ran only {n_off:.0f} trials: run it longer)")
+        else:
+            fewer = np.isfinite(t_on) and t_on < t_off
+            verdict = (f"{'yes' if fewer else '**no**'} (median trials with LEM {t_on:.0f}, "
+                       f"without {t_off:.0f}; {n_off:.0f} trials run without)")
+        md.append(f"* LEM reaches {level:.0%} in fewer trials: {verdict}.")
     return ReportSection("\n".join(md), (fig,))
 
 
@@ -233,7 +263,7 @@ EXPERIMENT = register(Experiment(
     seeds=8,
     quick_seeds=2,
     paper_result=True,
-    cost=60.0,  # s of a cold --quick run on 2 cores (compile-dominated)
+    cost=135.0,  # s of a cold --quick run on 2 cores (compile-dominated)
     paper={"baseline": "the earlier work's hand-designed grid (grid lines of Figure 5)"},
     report=report,
 ))

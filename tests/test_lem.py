@@ -100,6 +100,39 @@ def test_max_versus_mean_statistic():
     assert d_mean[-1] > 0.0
 
 
+def test_success_only_gate():
+    # statistic "none": Q keeps changing every step (never converged under max/mean), yet
+    # each window whose training success reaches the level raises: windows end at steps
+    # 3, 6, 9, 12; success 1/2 per step in the first two windows, 2/2 afterwards
+    vals = [float(t) for t in range(12)]
+    eps, suc = [2.0] * 12, [1.0] * 6 + [2.0] * 6
+    p = P.replace(statistic="none", success_level=0.75)
+    d, st = _drive(p, tables(vals), eps, suc)
+    np.testing.assert_allclose(np.asarray(d), [0.0] * 8 + [0.25] * 3 + [0.5])
+    assert int(st.raises) == 2
+    d, _ = _drive(P.replace(success_level=0.75), tables(vals), eps, suc)
+    np.testing.assert_allclose(np.asarray(d), 0.0)  # with the Q-change rule: never
+    with pytest.raises(ParamError, match="success_level"):
+        validate(P.replace(statistic="none"))
+
+
+def test_backoff_lowers_after_failing_windows():
+    # success-only gate at 0.75, back-off below 0.5, step 0.25, windows end at 3, 6, 9, 12,
+    # 15: success 2/2, 2/2, 0/2, 1/2, 0/2 per step -> 0.25, 0.5, 0.25, 0.25 (0.5 is neither
+    # < 0.5 nor >= 0.75), 0.0; never below initial_difficulty
+    vals = [float(t) for t in range(15)]
+    eps = [2.0] * 15
+    suc = [2.0] * 6 + [0.0] * 3 + [1.0] * 3 + [0.0] * 3
+    p = P.replace(statistic="none", success_level=0.75, backoff_level=0.5)
+    d, st = _drive(p, tables(vals), eps, suc)
+    np.testing.assert_allclose(np.asarray(d)[[2, 5, 8, 11, 14]], [0.25, 0.5, 0.25, 0.25, 0.0])
+    assert int(st.raises) == 2
+    d, _ = _drive(p.replace(initial_difficulty=0.25), tables(vals), eps, suc)
+    assert np.asarray(d).min() >= 0.25  # floor: LEM off (initial = max) never moves
+    with pytest.raises(ParamError, match="backoff_level"):
+        validate(P.replace(backoff_level=0.5))  # success_level 0 < 0.5
+
+
 def test_disabled_and_batched():
     d, _ = drive(P.replace(enabled=False), tables([1, 2, 3] + [3] * 9))
     np.testing.assert_allclose(d, 1.0)  # off: max_difficulty, fixed

@@ -208,7 +208,7 @@ def test_async_macro_gives_the_same_transitions_as_macro_step():
     step = jax.vmap(ENV.step, in_axes=(None, 0, 0, None))
     got = {k: np.full(n, -1.0) for k in ("start", "reward", "n", "next")}
     for i in range(cap):
-        def step_out(a, st=st):
+        def step_out(a, st=st, i=i):
             obs, st2, r, term, trunc, info = step(jax.random.PRNGKey(i), st, a,
                                                   ENV.default_params)
             return obs, st2, r, term, trunc, info, block_of(obs)

@@ -65,3 +65,58 @@ def epsilon_greedy_np(rng: np.random.Generator, q_row: np.ndarray, epsilon: floa
         return int(rng.integers(len(q_row)))
     best = np.flatnonzero(q_row == q_row.max())
     return int(rng.choice(best))
+
+
+def trace_step_loop(q: np.ndarray, windows: list, s, a, r, s_boot, terminal, done,
+                    lr: float, gamma: float, lam: float, length: int, kind: str = "peng",
+                    rule: str = "mean", weight=None, num_primitives=None,
+                    a_boot=None) -> np.ndarray:
+    """One synchronous step of truncated-trace Q(lambda) / Sarsa(lambda), env by env.
+
+    ``windows[i]`` is env i's list of ``[state, action, eligibility]``, newest first, at
+    most ``length`` long (updated in place). Every TD error uses the table from before the
+    step. Per env: push the current pair with eligibility 1 (Watkins: first empty the
+    window if the action is not greedy), TD error ``target - Q[s, a]`` for the current
+    pair (Peng: ``target - max Q[s]`` for the older ones), target ``r + gamma**n * B`` with
+    B = max Q[s'] (Sarsa: Q[s', a']). Contributions (eligibility, error) are grouped by
+    (s, a); "mean": lr * sum(e d) / max(sum e, 1), "sum": lr * sum(e d). Afterwards every
+    eligibility is multiplied by gamma**n * lam and the window is emptied at episode end.
+    """
+    frozen = np.array(q, dtype=np.float64)
+    out = np.array(q, dtype=np.float64)
+    groups: dict[tuple[int, int], list[tuple[float, float]]] = defaultdict(list)
+    for i in range(len(s)):
+        si, ai = int(s[i]), int(a[i])
+        n = 1 if num_primitives is None else int(num_primitives[i])
+        g = gamma ** n
+        if kind == "watkins" and frozen[si, ai] < frozen[si].max():
+            windows[i].clear()
+        windows[i].insert(0, [si, ai, 1.0])
+        del windows[i][length:]
+        if weight is None or weight[i]:
+            if terminal[i]:
+                boot = 0.0
+            elif kind == "sarsa":
+                boot = g * frozen[int(s_boot[i]), int(a_boot[i])]
+            else:
+                boot = g * frozen[int(s_boot[i])].max()
+            target = r[i] + boot
+            for k, (sk, ak, e) in enumerate(windows[i]):
+                if k == 0:
+                    d = target - frozen[si, ai]
+                elif kind == "peng":
+                    d = target - frozen[si].max()
+                else:
+                    d = target - frozen[si, ai]
+                groups[(sk, ak)].append((e, d))
+        if done[i]:
+            windows[i].clear()
+        else:
+            for item in windows[i]:
+                item[2] *= g * lam
+    for (sk, ak), contrib in groups.items():
+        total = sum(e * d for e, d in contrib)
+        if rule == "mean":
+            total /= max(sum(e for e, _ in contrib), 1.0)
+        out[sk, ak] += lr * total
+    return out

@@ -19,6 +19,7 @@ from vbl.agents.qlearning import (
     q_update,
     stack_for_learners,
 )
+from vbl.agents.traces import TraceParams, TraceState, trace_init, trace_update
 
 __all__ = [
     "ExplorationParams",
@@ -39,4 +40,8 @@ __all__ = [
     "make_qlearning_runner",
     "q_update",
     "stack_for_learners",
+    "TraceParams",
+    "TraceState",
+    "trace_init",
+    "trace_update",
 ]

@@ -16,6 +16,13 @@ Then the snapshot is retaken and the window restarts. The success gate keeps the
 curriculum from moving on merely because no reward arrives (Q then stops changing too).
 The "moved since the last raise" condition keeps an untouched table (for example all
 zeros because no reward has been seen yet) from counting as converged.
+
+``statistic = "none"`` drops both Q-change conditions: the difficulty rises after every
+window whose training success reaches ``success_level`` (> 0 required). With multi-step
+returns and a constant step size Q never stops changing by the paper's criterion, so the
+grid experiment uses this. ``backoff_level`` > 0 lowers the difficulty by ``step`` (never
+below ``initial_difficulty``, so ``initial = max`` stays the run without curriculum) after a
+window whose training success fell below it.
 """
 
 from __future__ import annotations
@@ -49,12 +56,26 @@ class LEMParams:
     success_level: float = param(0.0, doc="raise only if the training episodes finished in "
                                  "the window succeeded at least at this rate (0: no success "
                                  "condition)", ge=0.0, le=1.0)
+    backoff_level: float = param(0.0, doc="lower the difficulty by `step` (not below "
+                                 "initial_difficulty) after a window whose training episodes "
+                                 "succeeded below this rate (0: never lower)", ge=0.0, le=1.0)
     statistic: str = param("max", doc="change statistic over the table: max or mean of "
-                           "abs(delta Q)", static=True, choices=("max", "mean"))
+                           "abs(delta Q); 'none': no Q-change conditions, raise whenever the "
+                           "window's training success reaches success_level", static=True,
+                           choices=("max", "mean", "none"))
 
     def check(self) -> None:
         import numpy as np
 
+        if bool(np.any(np.asarray(self.backoff_level) > np.maximum(
+                np.asarray(self.success_level), 0.0) * (np.asarray(self.backoff_level) > 0))):
+            raise ParamError(f"lem.backoff_level={self.backoff_level} must be <= "
+                             f"lem.success_level={self.success_level} (a window cannot both "
+                             "raise and lower the difficulty)")
+        if self.statistic == "none" and bool(np.any(np.asarray(self.success_level) <= 0)):
+            raise ParamError("lem.statistic='none' drops the Q-change conditions, so it needs "
+                             f"lem.success_level > 0 (got {self.success_level}): otherwise the "
+                             "difficulty would rise every window")
         if not np.all(np.asarray(self.initial_difficulty) <= np.asarray(self.max_difficulty)):
             raise ParamError(f"lem.initial_difficulty={self.initial_difficulty} must be <= "
                              f"lem.max_difficulty={self.max_difficulty}")
@@ -108,17 +129,25 @@ def lem_update(state: LEMState, q: jax.Array, p: LEMParams, episodes: Any = 0,
     check = steps >= jnp.asarray(p.window, jnp.int32)
     thr = jnp.asarray(p.threshold, jnp.float32)
     q = q.astype(jnp.float32)
-    converged = q_change(q, state.q_snapshot, p.statistic) < thr
-    learned = q_change(q, state.q_at_raise, p.statistic) >= thr
+    if p.statistic == "none":  # success-gated only (needs success_level > 0: check())
+        converged = learned = jnp.bool_(True)
+    else:
+        converged = q_change(q, state.q_snapshot, p.statistic) < thr
+        learned = q_change(q, state.q_at_raise, p.statistic) >= thr
     cap = jnp.asarray(p.max_difficulty, jnp.float32)
     can_rise = state.difficulty < cap
     raise_now = check & converged & learned & can_rise & succeeding
-    difficulty = jnp.where(raise_now,
-                           jnp.minimum(state.difficulty + jnp.asarray(p.step, jnp.float32), cap),
+    step = jnp.asarray(p.step, jnp.float32)
+    floor = jnp.asarray(p.initial_difficulty, jnp.float32)
+    back = jnp.asarray(p.backoff_level, jnp.float32)
+    lower = (check & (back > 0.0) & (win_eps > 0.0) & (win_succ < back * win_eps)
+             & (state.difficulty > floor))
+    difficulty = jnp.where(raise_now, jnp.minimum(state.difficulty + step, cap),
                            state.difficulty)
+    difficulty = jnp.where(lower, jnp.maximum(state.difficulty - step, floor), difficulty)
     return LEMState(difficulty=difficulty,
                     q_snapshot=jnp.where(check, q, state.q_snapshot),
-                    q_at_raise=jnp.where(raise_now, q, state.q_at_raise),
+                    q_at_raise=jnp.where(raise_now | lower, q, state.q_at_raise),
                     steps=jnp.where(check, 0, steps).astype(jnp.int32),
                     raises=state.raises + raise_now.astype(jnp.int32),
                     win_episodes=jnp.where(check, 0.0, win_eps).astype(jnp.float32),

@@ -20,9 +20,10 @@ Per chunk (metrics per learner, scalars):
   how many scored; ``train_success_rate``: successes / episodes (0 when none finished),
   under the start distribution in effect (with LEM: the curriculum's); per finished
   episode, hence biased towards short (successful) episodes.
-* ``success_rate``: the greedy policy (no exploration, no learning) after the chunk on
-  ``train.eval_envs`` fresh starts at ``train.eval_difficulty``: fraction whose first
-  episode scores (with ``train.eval_curve`` off: equal to ``train_success_rate``).
+* ``success_rate``: the greedy policy (no learning; a uniform action with probability
+  ``train.curve_epsilon``, default 0) after the chunk on ``train.eval_envs`` fresh starts at
+  ``train.eval_difficulty``: fraction whose first episode scores (with ``train.eval_curve``
+  off: equal to ``train_success_rate``).
 * ``mean_primitives``: mean primitives per finished training episode (0 when none).
 * ``difficulty``: LEM start difficulty at the end of the chunk; ``lem_raises``: raises so
   far; ``epsilon``: exploration rate (epsilon or temperature) at the end of the chunk;
@@ -79,6 +80,9 @@ class QTrainParams:
     eval_epsilon: float = param(0.05, doc="final evaluation: epsilon of the near-greedy "
                                 "policy (greedy, but a uniform action with this probability: "
                                 "breaks cycles between aliased states)", ge=0.0, le=1.0)
+    curve_epsilon: float = param(0.0, doc="epsilon of the policy the success_rate curve "
+                                 "evaluates (0: greedy; e.g. eval_epsilon: near-greedy)",
+                                 ge=0.0, le=1.0)
     final_eval_rounds: int = param(4, doc="final evaluation: rounds of eval_envs fresh starts "
                                    "for the greedy and for the random policy", static=True,
                                    ge=1)
@@ -147,7 +151,7 @@ def make_q_program(env: Any, state_fn: Callable[[jax.Array, Any], jax.Array], cf
                    epsilon=m["rate"][-1].astype(F32), td_abs=jnp.mean(m["td_abs"]).astype(F32))
         if train.eval_curve:
             res = ev.evaluate(jax.random.fold_in(carry.key, EVAL_STREAM), carry.q,
-                              c.agent, eval_env(c), train.eval_steps)
+                              c.agent, eval_env(c), train.eval_steps, c.train.curve_epsilon)
             out["success_rate"] = res["success_rate"].astype(F32)
         else:
             out["success_rate"] = train_rate

@@ -22,6 +22,10 @@ stays ``lr`` however many environments visit the same pair; "sum" equals applyin
 the single updates one after another with frozen targets, and can overshoot when
 ``lr * count > 1``. Transitions with weight 0 (see ``truncation``) do not count.
 
+With ``agent.trace.enabled`` the runner applies each TD error to the environment's last
+``trace.length`` actions instead (multi-step returns, :mod:`vbl.agents.traces`; off by
+default; lambda = 0 gives exactly the update above).
+
 :func:`make_qlearning_runner` is the reusable training building block: pure
 ``init`` / ``run_chunk`` / ``evaluate`` functions that ``lax.scan`` over steps of E
 parallel environments (act, env step or macro step, update, LEM, record episodes).
@@ -40,8 +44,15 @@ from flax import struct
 
 from vbl.agents.exploration import ExplorationParams, schedule_value, select_action
 from vbl.agents.lem import LEMParams, LEMState, lem_init, lem_update
+from vbl.agents.traces import TraceParams, TraceState, trace_init, trace_update
 from vbl.params import ParamError, param, section, validate
-from vbl.spaces.macro_action import MacroActionParams, macro_step
+from vbl.spaces.macro_action import (
+    MacroActionParams,
+    MacroCarry,
+    async_macro_advance,
+    macro_carry_init,
+    macro_step,
+)
 
 __all__ = [
     "QLearningParams",
@@ -76,6 +87,8 @@ class QLearningParams:
                             "bootstrap from info['final_obs'] (the env must provide it)",
                             static=True, choices=("skip", "terminal", "bootstrap"))
     exploration: ExplorationParams = section(ExplorationParams, doc="action selection")
+    trace: TraceParams = section(TraceParams, doc="multi-step returns (eligibility traces "
+                                 "over the last `length` actions); off by default")
 
 
 @struct.dataclass
@@ -172,6 +185,8 @@ class QRunnerState:
     ep_primitives: jax.Array  #: (E,) int32 primitives in the running episodes
     ep_actions: jax.Array     #: (E,) int32 (macro) actions in the running episodes
     lem: LEMState
+    trace: TraceState         #: per-env trace window (E, L); L = 1 and unused when off
+    macro: MacroCarry         #: per-env running macro actions (E,) (macro.mode 'async')
 
 
 class QLearningRunner(NamedTuple):
@@ -256,6 +271,12 @@ def make_qlearning_runner(env: Any, state_fn: Callable, params: QRunnerParams,
             raise ParamError("lem.enabled=True needs env params with a 'start_difficulty' "
                              f"field; {type(ep).__name__} has none (set lem.enabled=False)")
     expl = ap.exploration
+    tp = ap.trace
+    sarsa = tp.enabled and tp.kind == "sarsa"
+    async_macro = mp.enabled and mp.mode == "async"
+    if async_macro and tp.enabled:
+        raise ParamError("macro.mode='async' does not support agent.trace yet (each env's trace "
+                         "would have to advance only when its action ends); use macro.mode='sync'")
 
     def env_params_at(env_params, difficulty):
         if lp.enabled:
@@ -275,7 +296,9 @@ def make_qlearning_runner(env: Any, state_fn: Callable, params: QRunnerParams,
         zeros = jnp.zeros((n_envs,), jnp.int32)
         return QRunnerState(key=key, q=q, env_state=env_state, obs=obs, s=states_of(obs),
                             steps=jnp.int32(0), episodes=jnp.int32(0), ep_primitives=zeros,
-                            ep_actions=zeros, lem=lem)
+                            ep_actions=zeros, lem=lem,
+                            trace=trace_init(n_envs, tp.length if tp.enabled else 1),
+                            macro=macro_carry_init(n_envs))
 
     def env_transition(key, c: QRunnerState, action, params, env_params):
         """E env (macro) steps -> obs, env_state, reward, term, trunc, info, n, s_next."""
@@ -300,13 +323,33 @@ def make_qlearning_runner(env: Any, state_fn: Callable, params: QRunnerParams,
         if learn:
             rate = schedule_value(params.agent.exploration.schedule, count)
             action = select_action(k_act, c.q[c.s], rate, expl.kind)
+            if sarsa:  # the action chosen at the end of the previous step (none at first)
+                action = jnp.where(c.trace.a_next >= 0, c.trace.a_next, action)
         else:
             rate = jnp.asarray(eval_epsilon, jnp.float32)
             action = select_action(k_act, c.q[c.s], rate, "epsilon_greedy")
-        obs, st, r, term, trunc, info, n, s_next = env_transition(k_env, c, action, params,
-                                                                  env_params)
+        s_from, macro, upd = c.s, c.macro, None
+        prims, acts = 1, 1  # primitives and decisions of each env in this step
+        if async_macro:  # one primitive per env; an env whose action runs on keeps it
+            keys = jax.random.split(k_env, n_envs)
+            ep = env_params_at(env_params, c.lem.difficulty)
+
+            def step_out(a):
+                out = jax.vmap(env.step, in_axes=(0, 0, 0, None))(keys, c.env_state, a, ep)
+                return (*out, states_of(out[0]))
+
+            out, upd, (s_from, action, r, n, decided), macro = async_macro_advance(
+                c.macro, c.s, action, step_out, params.macro.max_repeats,
+                params.agent.discount, params.macro.min_repeats, mp.stop_on)
+            obs, st, _, term, trunc, info, s_next = out
+            term, trunc = jnp.asarray(term, bool), jnp.asarray(trunc, bool)
+            acts = decided.astype(jnp.int32)
+        else:
+            obs, st, r, term, trunc, info, n, s_next = env_transition(k_env, c, action, params,
+                                                                      env_params)
+            prims = n
         done = term | trunc
-        q, lem = c.q, c.lem
+        q, lem, tr = c.q, c.lem, c.trace
         td_abs = jnp.float32(0.0)
         if learn:
             terminal, weight, s_boot = term, None, s_next
@@ -319,16 +362,38 @@ def make_qlearning_runner(env: Any, state_fn: Callable, params: QRunnerParams,
                     raise ParamError("agent.truncation='bootstrap' needs info['final_obs'] "
                                      "from the env")
                 s_boot = jnp.where(trunc & ~term, states_of(info["final_obs"]), s_next)
-            q, delta = q_update(c.q, c.s, action, r, s_boot, terminal,
-                                params.agent.learning_rate, params.agent.discount,
-                                duplicates=ap.duplicates, weight=weight, num_primitives=n)
+            if upd is not None:  # async: only the actions that ended at this primitive
+                weight = upd if weight is None else upd & weight
+            if not tp.enabled:
+                q, delta = q_update(c.q, s_from, action, r, s_boot, terminal,
+                                    params.agent.learning_rate, params.agent.discount,
+                                    duplicates=ap.duplicates, weight=weight, num_primitives=n)
+            else:
+                a_boot = None
+                if sarsa:  # pick the next action now (pre-update table, next count)
+                    n_done = jnp.sum(done, dtype=jnp.int32)
+                    count_next = c.steps + 1 if expl.count_unit == "steps" else c.episodes + n_done
+                    rate_next = schedule_value(params.agent.exploration.schedule, count_next)
+                    a_next = select_action(jax.random.fold_in(k_act, 1), c.q[s_next], rate_next,
+                                           expl.kind)
+                    a_boot = a_next
+                    if ap.truncation == "bootstrap":  # final_obs: no next action, use V
+                        a_boot = jnp.where(trunc & ~term, jnp.argmax(c.q[s_boot], axis=-1),
+                                           a_next).astype(jnp.int32)
+                q, delta, tr = trace_update(
+                    c.q, c.trace, c.s, action, r, s_boot, terminal, done,
+                    params.agent.learning_rate, params.agent.discount, params.agent.trace.lam,
+                    kind=tp.kind, duplicates=ap.duplicates, weight=weight, num_primitives=n,
+                    a_boot=a_boot)
+                if sarsa:
+                    tr = tr.replace(a_next=a_next)
             wsum = jnp.float32(n_envs) if weight is None else jnp.sum(weight.astype(jnp.float32))
             td_abs = jnp.sum(jnp.abs(delta)) / jnp.maximum(wsum, 1.0)
         success = jnp.asarray(info["success"]).astype(bool) & done
         if learn:
             lem = lem_update(c.lem, q, params.lem, jnp.sum(done), jnp.sum(success))
-        ep_prim = c.ep_primitives + n
-        ep_act = c.ep_actions + 1
+        ep_prim = c.ep_primitives + prims
+        ep_act = c.ep_actions + acts
         metrics = dict(
             episodes=jnp.sum(done, dtype=jnp.int32),
             successes=jnp.sum(success, dtype=jnp.int32),
@@ -339,7 +404,8 @@ def make_qlearning_runner(env: Any, state_fn: Callable, params: QRunnerParams,
         new = QRunnerState(key=key, q=q, env_state=st, obs=obs, s=s_next, steps=c.steps + 1,
                            episodes=c.episodes + metrics["episodes"],
                            ep_primitives=jnp.where(done, 0, ep_prim),
-                           ep_actions=jnp.where(done, 0, ep_act), lem=lem)
+                           ep_actions=jnp.where(done, 0, ep_act), lem=lem, trace=tr,
+                           macro=macro)
         return new, metrics, done, success, ep_prim
 
     def run_chunk(carry: QRunnerState, params: QRunnerParams, env_params):

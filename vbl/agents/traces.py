@@ -1,0 +1,181 @@
+"""Multi-step returns for the batched tabular learner: eligibility traces over a fixed window.
+
+Under state aliasing (one grid state standing for many situations) one-step Q-learning
+averages away the action gap and its greedy policy cycles between look-alike states;
+multi-step returns are the standard remedy (Loch & Singh 1998: Sarsa(lambda) finds good
+memoryless policies in POMDPs). Each of a learner's E environments keeps a shift register
+of its last L (state, action, eligibility) pairs (``TraceParams.length``, static); every
+learner step the TD error of each environment's transition is applied to all L buffered
+pairs in one scatter into the table, with eligibility
+
+    e_k = prod_{j = t-k}^{t-1} (discount**n_j * lambda)     (k = 0: the current pair, e = 1)
+
+(``n_j`` primitives of macro action j; ``discount**n`` is then the discount of one
+action). The buffer is cleared when an episode ends. ``lambda`` is traced (a sweep vmaps
+over it); the kind and L are static.
+
+TD errors (``TraceParams.kind``; ``V(s) = max_b Q(s, b)``; all from the table before the
+step, as in :func:`vbl.agents.qlearning.q_update`)::
+
+    target_t = r_t + discount**n_t * (1 - terminal_t) * B_t
+    delta_t  = target_t - Q[s_t, a_t]
+
+* ``"peng"`` (Peng & Williams' Q(lambda)): B = V(s'); the current pair gets delta_t, the
+  older pairs ``delta'_t = target_t - V(s_t)``;
+* ``"naive"`` (Q(lambda) without cuts): B = V(s'); every pair gets delta_t;
+* ``"watkins"`` (Watkins' Q(lambda)): as naive, but the older pairs are dropped (their
+  eligibility set to 0) when a_t is not greedy in s_t (Q[s_t, a_t] < V(s_t)); this one
+  learns Q* under any behaviour;
+* ``"sarsa"`` (Sarsa(lambda), on-policy): B = Q(s', a') with a' the action the behaviour
+  policy takes next in s' (the runner picks it at the end of the step and uses it in the
+  next); with ``truncation="bootstrap"`` a truncated transition bootstraps from V.
+
+With lambda = 0 every older eligibility is 0 and peng / naive / watkins equal the one-step
+update exactly.
+
+**Duplicate rule with weights** (``QLearningParams.duplicates``). Let the contributions on
+one entry (s, a) in one step be the pairs (env i, slot k) with eligibility e_ik and TD error
+d_ik (0-weight transitions, e.g. skipped truncations, drop out):
+
+* ``"mean"``: ``Q[s, a] += lr * sum e_ik d_ik / max(sum e_ik, 1)``: a weighted mean of the
+  TD errors once the eligibilities on (s, a) add up to more than 1, otherwise their weighted
+  sum. With all e = 1 this is the one-step "mean" rule; the step never exceeds ``lr`` times
+  the largest |d|, so it cannot overshoot for lr <= 1.
+* ``"sum"``: ``Q[s, a] += lr * sum e_ik d_ik`` (the single updates one after another with
+  frozen targets: the textbook accumulating-trace update of a batch).
+
+A pair that occurs twice in one environment's window contributes twice (accumulating
+traces, truncated to the window).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from vbl.params import ParamError, param
+
+__all__ = ["TRACE_KINDS", "TraceParams", "TraceState", "trace_init", "trace_update"]
+
+#: TD-error / cut rule of the trace (static choice), see the module doc.
+TRACE_KINDS = ("peng", "naive", "watkins", "sarsa")
+
+
+@struct.dataclass
+class TraceParams:
+    """Eligibility traces truncated to the last ``length`` actions of each environment."""
+
+    enabled: bool = param(False, doc="multi-step returns: apply each TD error to the last "
+                          "`length` (state, action) pairs of its environment with weight "
+                          "(discount**n * lambda)**k; off: one-step update", static=True)
+    kind: str = param("peng", doc="TD error and cut rule: Peng's Q(lambda), naive Q(lambda), "
+                      "Watkins' Q(lambda) (cut at non-greedy actions) or Sarsa(lambda) "
+                      "(on-policy)", static=True, choices=TRACE_KINDS)
+    lam: float = param(0.0, doc="trace decay lambda per action (0: one-step; 1: returns "
+                       "over the whole window)", ge=0.0, le=1.0)
+    length: int = param(16, doc="window L: (state, action) pairs kept per environment",
+                        unit="actions", static=True, ge=1)
+
+
+@struct.dataclass
+class TraceState:
+    """Per-environment trace window of one learner (leading axis E; slot 0 = newest)."""
+
+    s: jax.Array       #: (E, L) int32 states of the buffered pairs
+    a: jax.Array       #: (E, L) int32 actions
+    e: jax.Array       #: (E, L) float32 eligibility for the next transition (0: empty)
+    a_next: jax.Array  #: (E,) int32 Sarsa: the action already chosen for the next step (-1: none)
+
+
+def trace_init(num_envs: int, length: int) -> TraceState:
+    """An empty window (E, L)."""
+    if int(length) < 1:
+        raise ParamError(f"trace length={length!r} must be >= 1")
+    shape = (int(num_envs), int(length))
+    return TraceState(s=jnp.zeros(shape, jnp.int32), a=jnp.zeros(shape, jnp.int32),
+                      e=jnp.zeros(shape, jnp.float32),
+                      a_next=jnp.full((int(num_envs),), -1, jnp.int32))
+
+
+def _check_lambda(lam: Any) -> None:
+    try:
+        arr = np.asarray(lam, float)
+    except (TypeError, jax.errors.TracerArrayConversionError, jax.errors.ConcretizationTypeError):
+        return  # traced: checked where the params were validated
+    if np.any((arr < 0) | (arr > 1)) or np.any(np.isnan(arr)):
+        raise ParamError(f"trace lambda={lam!r} must be in [0, 1]")
+
+
+def trace_update(q: jax.Array, tr: TraceState, s: jax.Array, a: jax.Array, r: jax.Array,
+                 s_boot: jax.Array, terminal: jax.Array, done: jax.Array, learning_rate: Any,
+                 discount: Any, lam: Any, *, kind: str = "peng", duplicates: str = "mean",
+                 weight: jax.Array | None = None, num_primitives: jax.Array | None = None,
+                 a_boot: jax.Array | None = None) -> tuple[jax.Array, jax.Array, TraceState]:
+    """One synchronous trace update of one table by the E transitions of a learner step.
+
+    Args:
+      q: (S, A) float32 table (targets and TD errors use it as given).
+      tr: the window before this step (eligibilities already decayed for this transition).
+      s, a: (E,) int32 state and action of this step's transitions (pushed into slot 0).
+      r: (E,) reward (macro action: discounted sum over its primitives).
+      s_boot: (E,) int32 state to bootstrap from; terminal: (E,) bool, no bootstrap.
+      done: (E,) bool, the episode ended (the window is cleared after the update).
+      learning_rate, discount, lam: scalars (may be traced).
+      kind, duplicates: static rules (module doc).
+      weight: (E,) optional 0/1 mask (0: the transition updates nothing).
+      num_primitives: (E,) optional int, the action's discount is ``discount ** n``.
+      a_boot: (E,) int32, Sarsa only: the action taken next in ``s_boot``.
+
+    Returns (new table, TD errors of the current pairs (E,) float32 (0 where weight is 0),
+    the window for the next step: decayed by ``discount**n * lam``, cleared where ``done``).
+    """
+    if kind not in TRACE_KINDS:
+        raise ParamError(f"trace kind={kind!r}; choose one of {list(TRACE_KINDS)}")
+    if duplicates not in ("mean", "sum"):
+        raise ParamError(f"duplicates={duplicates!r}; choose 'mean' or 'sum'")
+    if kind == "sarsa" and a_boot is None:
+        raise ParamError("trace kind 'sarsa' needs a_boot (the next action)")
+    _check_lambda(lam)
+    n_states, n_actions = q.shape
+    q = q.astype(jnp.float32)
+    lr = jnp.asarray(learning_rate, jnp.float32)
+    gamma = jnp.asarray(discount, jnp.float32)
+    s = jnp.asarray(s, jnp.int32)
+    a = jnp.asarray(a, jnp.int32)
+    s_boot = jnp.asarray(s_boot, jnp.int32)
+    mask = (jnp.ones(s.shape, jnp.float32) if weight is None
+            else jnp.asarray(weight).astype(jnp.float32))
+    g = gamma if num_primitives is None else gamma ** jnp.asarray(num_primitives, jnp.float32)
+    v_s = jnp.max(q[s], axis=-1)
+    q_sa = q[s, a]
+    if kind == "sarsa":
+        b = q[s_boot, jnp.asarray(a_boot, jnp.int32)]
+    else:
+        b = jnp.max(q[s_boot], axis=-1)
+    boot = jnp.where(jnp.asarray(terminal, bool), 0.0, g * b)
+    target = jnp.asarray(r, jnp.float32) + boot
+    delta = (target - q_sa) * mask
+    delta_old = (target - v_s) * mask if kind == "peng" else delta
+    old_e = tr.e[:, :-1]
+    if kind == "watkins":  # a non-greedy action ends the older pairs' returns
+        old_e = jnp.where((q_sa >= v_s)[:, None], old_e, 0.0)
+    ones = jnp.ones(s.shape + (1,), jnp.float32)
+    ss = jnp.concatenate([s[:, None], tr.s[:, :-1]], axis=1)
+    aa = jnp.concatenate([a[:, None], tr.a[:, :-1]], axis=1)
+    ee = jnp.concatenate([ones, old_e], axis=1)
+    d = jnp.concatenate([delta[:, None],
+                         jnp.broadcast_to(delta_old[:, None], old_e.shape)], axis=1) * ee
+    flat = (ss * n_actions + aa).reshape(-1)
+    d = d.reshape(-1)
+    if duplicates == "mean":
+        w = (ee * mask[:, None]).reshape(-1)
+        tot = jnp.zeros(n_states * n_actions, jnp.float32).at[flat].add(w)
+        d = d / jnp.maximum(tot[flat], 1.0)
+    new = q.reshape(-1).at[flat].add(lr * d).reshape(n_states, n_actions)
+    decay = (g * jnp.asarray(lam, jnp.float32))[..., None] * jnp.ones_like(ee)
+    e_next = jnp.where(jnp.asarray(done, bool)[:, None], 0.0, ee * decay)
+    return new, delta, tr.replace(s=ss, a=aa, e=e_next.astype(jnp.float32))
