@@ -33,6 +33,7 @@ from vbl.spaces.incremental import (
     init_run,
     run_updates,
 )
+from vbl.vision.features import SEC2_BALL_LOST_SIDE, SEC2_BALL_POS, SEC2_BALL_VISIBLE
 
 F32 = jnp.float32
 
@@ -79,11 +80,28 @@ class Fig9Train:
     grid_baseline: bool = param(True, doc="final: also train and evaluate the grid baseline "
                                 "(grid_shooting's settings) on the final ball and the same "
                                 "starts", static=True)
+    steer_reference: bool = param(True, doc="final: also evaluate the hand-written steering "
+                                  "policy (train.steer_band) on the same starts", static=True)
+    steer_band: float = param(20.0, doc="final: hand-written reference policy (what is "
+                              "achievable with a ball): FL / F / FR as the ball's image "
+                              "position x2 is left of -band / within / right of +band, TL / TR "
+                              "towards the side where a lost ball left the image", unit="px",
+                              gt=0.0)
 
 
 def _default_env() -> ShootingParams:
     p = ShootingParams(max_steps=150)
     return p.replace(start_difficulty=0.1)
+
+
+EVAL_DIFFICULTY = 0.1  #: Figure 9's evaluation start difficulty (= its training episodes')
+
+
+def _grid_default():
+    """grid_shooting's settings by reference, except the evaluation's start difficulty,
+    pinned to :data:`EVAL_DIFFICULTY` (grid_shooting's own may change, e.g. to 1.0)."""
+    g = fig5().GridBaseline()
+    return g.replace(train=g.train.replace(eval_difficulty=EVAL_DIFFICULTY))
 
 
 @struct.dataclass
@@ -94,9 +112,9 @@ class Fig9Config:
     learner: IncrementalParams = section(IncrementalParams, doc="incremental segmentation + Q")
     change: ChangeParams = section(ChangeParams, doc="ball-size changes")
     train: Fig9Train = section(Fig9Train, doc="run length")
-    grid: object = section(lambda: fig5().GridBaseline(), doc="grid baseline (grid_shooting's "
+    grid: object = section(lambda: _grid_default(), doc="grid baseline (grid_shooting's "
                            "settings); grid.train.eval_difficulty is the evaluation's start "
-                           "difficulty")
+                           "difficulty, pinned to Figure 9's training start difficulty 0.1")
 
 
 @struct.dataclass
@@ -107,6 +125,16 @@ class Carry:
 
 
 ENV = ShootingEnv()
+
+
+def steer_policy(obs: jax.Array, band) -> jax.Array:
+    """The hand-written reference policy (``train.steer_band``) on raw Section-2 features."""
+    lab = ENV.action_labels
+    x2 = obs[SEC2_BALL_POS]
+    seen = jnp.where(x2 > band, lab.index("FR"), jnp.where(x2 < -band, lab.index("FL"),
+                                                           lab.index("F")))
+    lost = jnp.where(obs[SEC2_BALL_LOST_SIDE] > 0, lab.index("TR"), lab.index("TL"))
+    return jnp.where(obs[SEC2_BALL_VISIBLE] > 0.5, seen, lost).astype(jnp.int32)
 
 
 def _params_at(c: Fig9Config, trials: jax.Array) -> ShootingParams:
@@ -156,16 +184,21 @@ def make_program(cfg: Fig9Config) -> Program:
         feat = feat_of(c)
         k_eval, k_grid, k_gfin = jax.random.split(key, 3)
 
-        def rollout(k, rand):
-            """Greedy policy (rand False) or uniformly random primitives (rand True)."""
+        def rollout(k, which):
+            """0 greedy policy, 1 uniformly random primitives, 2 hand-written steering."""
             def pol(o, ka):
-                r = jax.random.randint(ka, (), 0, n_act, jnp.int32)
-                return jnp.where(rand, r, greedy_action(lr, feat(o)))
+                kr, kg = jax.random.split(ka)
+                r = jax.random.randint(kr, (), 0, n_act, jnp.int32)
+                # greedy; ties (boxes never updated) broken at random, not always primitive 0
+                g = greedy_action(lr, feat(o), kg)
+                return jnp.select([which == 0, which == 1], [g, r],
+                                  steer_policy(o, c.train.steer_band))
             return rollout_success(ENV, ep, k, pol, cfg.train.eval_episodes,
                                    cfg.env.max_steps)[0]
 
-        # one traced rollout for both policies (same fresh starts: same key)
-        ok = jax.vmap(rollout, in_axes=(None, 0))(k_eval, jnp.array([False, True]))
+        # one traced rollout for the three policies (same fresh starts: same key)
+        ok = jax.vmap(rollout, in_axes=(None, 0))(
+            k_eval, jnp.arange(3 if cfg.train.steer_reference else 2))
         out = {"greedy_success": jnp.mean(ok[0].astype(F32)),
                "random_success": jnp.mean(ok[1].astype(F32)),
                "states": jnp.sum(lr.seg.active).astype(F32),
@@ -174,6 +207,8 @@ def make_program(cfg: Fig9Config) -> Program:
                "box_lo": lr.seg.lo, "box_hi": lr.seg.hi,
                "box_active": lr.seg.active.astype(F32),
                "box_action": jnp.argmax(lr.q, axis=-1).astype(F32)}
+        if cfg.train.steer_reference:
+            out["steer_success"] = jnp.mean(ok[2].astype(F32))
         if gprog is not None:
             gc = f5.grid_config(ep, c.grid.replace(train=c.grid.train.replace(
                 eval_curve=False)))
@@ -340,6 +375,9 @@ def report(res) -> ReportSection:
             f"{ci95(fin['states'])[0]:.1f} ± {ci95(fin['states'])[1]:.1f} states; uniformly "
             "random primitives on the same starts "
             f"{fmt(fin['random_success'])}")
+    if "steer_success" in fin:
+        line += ("; the hand-written steering policy (train.steer_band, what is achievable "
+                 f"with this ball) {fmt(fin['steer_success'])}")
     if "grid_success" in fin:
         g = fin["grid_success"]
         line += (f"; the grid baseline (grid_shooting's settings, {fig5().NUM_GRID_STATES} "
@@ -361,7 +399,7 @@ EXPERIMENT = register(Experiment(
     # --quick: a smoke run (120 trials are too few to learn much; the windows shrink to fit)
     quick={"train.num_trials": 120, "change.change_trial_1": 40, "change.change_trial_2": 80,
            "train.num_chunks": 3, "train.updates_per_chunk": 60, "train.eval_episodes": 64,
-           "train.grid_baseline": False},
+           "train.grid_baseline": False, "train.steer_reference": False},
     seeds=8,
     quick_seeds=2,
     paper_result=True,

@@ -29,7 +29,7 @@ from vbl.spaces.incremental import (
 ENV = TwoRegionWorld()
 M = 1024
 P = IncrementalParams(max_states=8, buffer_size=M, split_error=1e-5, split_gain=5e-6,
-                      merge_tol=1e-6, outcome_weight=0.0, update_every=25)
+                      merge_tol=1e-6, outcome_weight=0.0, return_weight=0.0, update_every=25)
 
 
 def fill(lr, key, params, noise=0.0):
@@ -39,9 +39,10 @@ def fill(lr, key, params, noise=0.0):
     a = jax.random.randint(ka, (M,), 0, 4).astype(jnp.int32)
     dx = jax.vmap(lambda x, a: ENV.delta(x, a, params))(x, a)
     dx = dx + noise * jax.random.normal(kn, dx.shape, jnp.float32)
-    y = jnp.concatenate([dx, jnp.zeros((M, 1), jnp.float32)], 1)
+    y = jnp.concatenate([dx, jnp.zeros((M, lr.buf.y.shape[1] - 2), jnp.float32)], 1)
     return lr.replace(buf=Buffer(x=x, a=a, y=y, valid=jnp.ones(M, bool),
-                                 ptr=jnp.zeros((), jnp.int32)))
+                                 ptr=jnp.zeros((), jnp.int32), clock=jnp.zeros(M, jnp.int32),
+                                 closed=jnp.ones(M, bool)))
 
 
 @pytest.fixture(scope="module")
@@ -164,6 +165,8 @@ def test_bad_thresholds_raise_clear_errors():
         validate(IncrementalParams(split_error=-1.0))
     with pytest.raises(ParamError, match="split_gain"):
         validate(IncrementalParams(split_gain=1e-3, split_error=1e-4, merge_tol=0.0))
+    with pytest.raises(ParamError, match="return_output"):
+        validate(IncrementalParams(return_weight=0.1))
     with pytest.raises(ParamError, match="temperature"):
         validate(IncrementalParams(temperature=0.0))
 
@@ -193,3 +196,120 @@ def test_fig9_change_windows_by_hand():
     np.testing.assert_allclose(w[1]["rates"], [[0.5, 0.0, 0.0], [0.0, 0.0, 0.0]])
     assert w[1]["spans"] == [(16, 20), (20, 24), (36, 40)]
     np.testing.assert_allclose(w[0]["states"], [[9.0, 14.0]] * 2)
+
+
+def _held_option_update(per_primitive, held, x_before, gamma=0.9, alpha=0.5):
+    """One learner_step of TwoRegionWorld (gain +1 everywhere, step 0.02, action +x0) that
+    ends an action held ``held`` primitives; boxes [0, 0.5) and [0.5, 1] along x0."""
+    from vbl.spaces.incremental import Option, learner_step
+
+    ep = ENV.default_params.replace(gain_right=1.0)
+    p = P.replace(gamma=gamma, alpha=alpha, discount_per_primitive=per_primitive)
+    lr = init_learner(p, 2, 4)
+    seg = lr.seg
+    lr = lr.replace(seg=seg.replace(hi=seg.hi.at[0, 0].set(0.5).at[1].set(1.0),
+                                    lo=seg.lo.at[1, 0].set(0.5),
+                                    active=seg.active.at[1].set(True)),
+                    q=lr.q.at[0].set(jnp.array([0.2, 0.1, 0.0, 0.0], jnp.float32))
+                    .at[1].set(jnp.array([0.8, 0.3, 0.0, 0.0], jnp.float32)))
+    x = jnp.array(x_before, jnp.float32)
+    st = ToyStateLike(x)
+    opt = Option(s0=jnp.int32(0), a=jnp.int32(0), n=jnp.int32(held - 1),
+                 active=jnp.asarray(held > 1))
+    out, opt2, *_ = learner_step(jax.random.PRNGKey(0), lr, opt, ENV, st, x, ep, p,
+                                 lambda o: o)
+    return float(out.q[0, 0]), bool(opt2.active)
+
+
+def ToyStateLike(x):
+    from toy_worlds import ToyState
+    return ToyState(x, jnp.zeros((), jnp.int32))
+
+
+@pytest.mark.parametrize("held", [1, 5])
+def test_discount_per_action_or_per_primitive_by_hand(held):
+    """The action (+x0 from 0.49 into the right box, whose best Q is 0.8) ends after
+    ``held`` primitives. Per action: Q += alpha (gamma * 0.8 - Q); semi-Markov: gamma^held."""
+    g, a = 0.9, 0.5
+    q_act, still = _held_option_update(False, held, [0.49, 0.3], g, a)
+    q_smdp, _ = _held_option_update(True, held, [0.49, 0.3], g, a)
+    assert not still                                   # the box changed: the action ended
+    assert q_act == pytest.approx(0.2 + a * (g * 0.8 - 0.2), rel=1e-6)
+    assert q_smdp == pytest.approx(0.2 + a * (g ** held * 0.8 - 0.2), rel=1e-6)
+
+
+def test_semi_markov_terminal_reward_discounted_by_primitives_before_it():
+    """Goal on the 4th primitive of an action: target gamma^3 * 1 (per action: 1)."""
+    g, a = 0.9, 0.5
+    # gain +1, from x = (0.89, 0.95): +x0 reaches x0 >= 0.9 = goal (x1 already >= 0.9),
+    # starting in box 1 ([0.5, 1]); reuse the helper's boxes with s0 = 1 via a direct call
+    from toy_worlds import ToyState
+
+    from vbl.spaces.incremental import Option, learner_step
+    ep = ENV.default_params.replace(gain_right=1.0)
+    got = []
+    for per in (False, True):
+        p = P.replace(gamma=g, alpha=a, discount_per_primitive=per)
+        lr = init_learner(p, 2, 4)
+        lr = lr.replace(q=lr.q.at[0, 0].set(0.2))
+        x = jnp.array([0.89, 0.95], jnp.float32)
+        opt = Option(s0=jnp.int32(0), a=jnp.int32(0), n=jnp.int32(3), active=jnp.asarray(True))
+        out, _, _, _, info = learner_step(jax.random.PRNGKey(0), lr, opt, ENV,
+                                          ToyState(x, jnp.zeros((), jnp.int32)), x, ep, p,
+                                          lambda o: o)
+        assert bool(info["terminated"])
+        got.append(float(out.q[0, 0]))
+    assert got[0] == pytest.approx(0.2 + a * (1.0 - 0.2), rel=1e-6)
+    assert got[1] == pytest.approx(0.2 + a * (g ** 3 - 0.2), rel=1e-6)
+
+
+def test_greedy_action_breaks_ties_at_random_only_with_a_key():
+    from vbl.spaces.incremental import greedy_action
+    lr = init_learner(P, 2, 4)
+    lr = lr.replace(q=lr.q.at[0].set(jnp.array([0.5, 0.5, 0.1, 0.5], jnp.float32)))
+    x = jnp.array([0.3, 0.3], jnp.float32)
+    assert int(greedy_action(lr, x)) == 0
+    keys = jax.random.split(jax.random.PRNGKey(0), 300)
+    got = np.asarray(jax.vmap(lambda k: greedy_action(lr, x, k))(keys))
+    assert set(got.tolist()) == {0, 1, 3}                 # only the tied best, each drawn
+    assert min(np.bincount(got, minlength=4)[[0, 1, 3]]) > 60
+
+
+def test_close_trial_fills_returns_of_the_ended_trial_only():
+    from vbl.spaces.incremental import close_trial, record
+    buf = init_learner(P.replace(return_output=True), 2, 4).buf
+    x = jnp.zeros(2, jnp.float32)
+    y = jnp.zeros(3, jnp.float32)
+    buf = record(buf, x, jnp.int32(0), y, jnp.asarray(True), 3)           # an earlier trial
+    buf = close_trial(buf, jnp.asarray(True), jnp.asarray(False), jnp.int32(3), 0.5)
+    for c in (10, 11, 12):                                                   # this trial
+        buf = record(buf, x, jnp.int32(1), y, jnp.asarray(True), c)
+        buf = close_trial(buf, jnp.asarray(c == 12), jnp.asarray(True), jnp.int32(c), 0.5)
+    np.testing.assert_allclose(np.asarray(buf.y[:4, -1]), [0.0, 0.25, 0.5, 1.0])
+    assert np.asarray(buf.closed[:4]).all() and not np.asarray(buf.closed[4:]).any()
+
+
+def test_return_output_splits_where_returns_differ_and_dynamics_do_not():
+    """Same dynamics everywhere (gain +1); trials from x0 < 0.5 scored (return 1), from the
+    right not (0). Without the return output nothing splits; with it, exactly at x0 = 0.5."""
+    ep = ENV.default_params.replace(gain_right=1.0)
+    pr = P.replace(return_output=True)
+    lr = fill(init_learner(pr, 2, 4), jax.random.PRNGKey(2), ep, noise=1e-4)
+    ret = (lr.buf.x[:, 0] < 0.5).astype(jnp.float32)
+    lr = lr.replace(buf=lr.buf.replace(y=lr.buf.y.at[:, -1].set(ret)))
+    upd = jax.jit(structure_update)
+    out, split, _ = upd(lr, pr)
+    assert not bool(split)
+    p = pr.replace(return_weight=1.0)
+    for _ in range(3):
+        lr, _, _ = upd(lr, p)
+    lo, hi = boxes(lr)
+    assert len(lo) == 2 and int(lr.splits) == 1
+    order = np.argsort(lo[:, 0])
+    np.testing.assert_allclose(lo[order], [[0.0, 0.0], [0.5, 0.0]])
+    np.testing.assert_allclose(hi[order], [[0.5, 1.0], [1.0, 1.0]])
+    # open transitions (trial not ended: return unknown) do not count with the return on
+    lr0 = fill(init_learner(pr, 2, 4), jax.random.PRNGKey(2), ep, noise=1e-4)
+    lr0 = lr0.replace(buf=lr0.buf.replace(y=lr0.buf.y.at[:, -1].set(ret),
+                                          closed=jnp.zeros(M, bool)))
+    assert not bool(upd(lr0, p)[1])

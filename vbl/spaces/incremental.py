@@ -10,8 +10,13 @@ Learning (one robot, one environment; :func:`make_learner` vmaps over seeds):
 
 1. Start with one box (the paper's two states: "goal" and "other").
 2. Every step, the transition ``(x, a, y)`` goes into a ring buffer of the last
-   ``buffer_size`` transitions, with ``y = (x' - x, outcome_weight^(1/2) * scored)``
-   (``x' - x`` is taken as 0 on a terminal step; truncated steps are not stored).
+   ``buffer_size`` transitions, with ``y = (x' - x, scored, return)`` (``x' - x`` is taken
+   as 0 on a terminal step; truncated steps are not stored; ``return`` only with the
+   static switch ``return_output``). ``return`` is set when the
+   trial ends (:func:`close_trial`): ``return_gamma^k`` (k primitives to the goal) if it
+   scored, else 0 - the reinforcement signal in the segmentation. The residual weighs
+   the outputs 1, ``outcome_weight``, ``return_weight``; with ``return_weight > 0`` only
+   transitions of ended trials enter the fits.
 3. Every ``update_every`` steps the local models are refitted from the buffer:
    per box and primitive an affine least-squares model ``y ~ W^T [x, 1]`` (ridge
    ``ridge``) from sufficient statistics (sums of ``z z^T``, ``z y^T``, ``|y|^2``,
@@ -29,7 +34,8 @@ Learning (one robot, one environment; :func:`make_learner` vmaps over seeds):
 4. Q-learning on boxes with Boltzmann action selection; an *action* holds its
    primitive until the box changes, the episode ends or ``max_repeat`` steps pass,
    then ``Q(s, a) += alpha (r + gamma max Q(s') - Q(s, a))`` (target ``r`` when the
-   episode terminated; no update on truncation).
+   episode terminated; no update on truncation); with ``discount_per_primitive`` the
+   discount is ``gamma^n`` for an action held n primitives (semi-Markov).
 """
 
 from __future__ import annotations
@@ -57,6 +63,7 @@ __all__ = [
     "num_states",
     "greedy_action",
     "learner_step",
+    "close_trial",
     "temperature_at",
 ]
 
@@ -90,13 +97,26 @@ class IncrementalParams:
                              unit="norm. units", gt=0.0, lt=0.5)
     outcome_weight: float = param(0.1, doc="weight of the 'scored' output in the residual "
                                   "(outcome disagreement)", ge=0.0)
+    return_output: bool = param(False, doc="keep the 'return' output (filled in when a trial "
+                                "ends; costs a pass over the buffer per primitive)",
+                                static=True)
+    return_weight: float = param(0.0, doc="weight of the 'return' output in the residual: "
+                                 "return_gamma^(primitives to the goal) if the trial scored, "
+                                 "else 0, known when the trial ends (0: dynamics and 'scored' "
+                                 "only)", ge=0.0)
+    return_gamma: float = param(0.98, doc="discount per primitive of the 'return' output (1: "
+                                "'this trial scored')", gt=0.0, le=1.0)
     ridge: float = param(1e-4, doc="ridge of the least-squares fits", gt=0.0)
     inherit_q: bool = param(True, doc="a new box starts from its parent's Q-values (else "
                             "q_init)")
     q_init: float = param(0.0, doc="initial Q-value of new boxes (inherit_q off, and at "
                           "start)")
     alpha: float = param(0.25, doc="Q-learning rate", gt=0.0, le=1.0)
-    gamma: float = param(0.95, doc="discount per action (state change)", ge=0.0, lt=1.0)
+    gamma: float = param(0.95, doc="discount per action (state change), or per primitive "
+                         "with discount_per_primitive", ge=0.0, lt=1.0)
+    discount_per_primitive: bool = param(False, doc="discount an action by gamma^n, n = the "
+                                         "primitives it held (semi-Markov), instead of gamma "
+                                         "once per action")
     temperature: float = param(0.02, doc="Boltzmann temperature (at the start of the "
                                "schedule)", unit="Q units", gt=0.0)
     split_candidates: int = param(8, doc="boxes (largest residual per transition) whose cuts "
@@ -114,6 +134,9 @@ class IncrementalParams:
         if np.any(np.asarray(self.merge_tol) >= np.asarray(self.split_gain)):
             raise ParamError(f"merge_tol={self.merge_tol} must be < split_gain="
                              f"{self.split_gain} (else a split is undone at once)")
+        if not self.return_output and np.any(np.asarray(self.return_weight) > 0):
+            raise ParamError(f"return_weight={self.return_weight} needs return_output=True "
+                             "(the return output is not kept without it)")
         if np.any(np.asarray(self.split_gain) > np.asarray(self.split_error)):
             raise ParamError(f"split_gain={self.split_gain} must be <= split_error="
                              f"{self.split_error}")
@@ -130,25 +153,31 @@ class Segmentation:
 
 @struct.dataclass
 class Buffer:
-    """Ring buffer: x (M, D) float32, a (M,) int32, y (M, D+1) float32, valid (M,) bool,
-    ptr () int32 next slot."""
+    """Ring buffer: x (M, D) float32, a (M,) int32, y (M, D+1) float32 (change of x,
+    scored; (M, D+2) with the return output: change of x, scored, return), valid (M,)
+    bool, ptr () int32 next slot, clock (M,) int32 the learner's primitive count at the
+    write, closed (M,) bool the trial has ended (the return is known)."""
 
     x: jax.Array
     a: jax.Array
     y: jax.Array
     valid: jax.Array
     ptr: jax.Array
+    clock: jax.Array
+    closed: jax.Array
 
 
 @struct.dataclass
 class Learner:
-    """seg, buf, q (L, A) float32, splits/merges () int32 counters."""
+    """seg, buf, q (L, A) float32, splits/merges () int32 counters, clock () int32
+    primitives taken."""
 
     seg: Segmentation
     buf: Buffer
     q: jax.Array
     splits: jax.Array
     merges: jax.Array
+    clock: jax.Array
 
 
 def init_learner(p: IncrementalParams, dim: int, num_actions: int) -> Learner:
@@ -158,10 +187,13 @@ def init_learner(p: IncrementalParams, dim: int, num_actions: int) -> Learner:
                        hi=jnp.zeros((cap, dim), F32).at[0].set(1.0),
                        active=jnp.zeros((cap,), bool).at[0].set(True))
     buf = Buffer(x=jnp.zeros((m, dim), F32), a=jnp.zeros((m,), I32),
-                 y=jnp.zeros((m, dim + 1), F32), valid=jnp.zeros((m,), bool),
-                 ptr=jnp.zeros((), I32))
+                 y=jnp.zeros((m, dim + (2 if p.return_output else 1)), F32),
+                 valid=jnp.zeros((m,), bool),
+                 ptr=jnp.zeros((), I32), clock=jnp.zeros((m,), I32),
+                 closed=jnp.zeros((m,), bool))
     q = jnp.full((cap, num_actions), p.q_init, F32)
-    return Learner(seg=seg, buf=buf, q=q, splits=jnp.zeros((), I32), merges=jnp.zeros((), I32))
+    return Learner(seg=seg, buf=buf, q=q, splits=jnp.zeros((), I32), merges=jnp.zeros((), I32),
+                   clock=jnp.zeros((), I32))
 
 
 def leaf_of(seg: Segmentation, x: jax.Array) -> jax.Array:
@@ -177,13 +209,32 @@ def num_states(seg: Segmentation) -> jax.Array:
     return jnp.sum(seg.active).astype(I32)
 
 
-def record(buf: Buffer, x: jax.Array, a: jax.Array, y: jax.Array, valid: jax.Array) -> Buffer:
-    """Write one transition at ``ptr`` when ``valid`` (the pointer advances only then)."""
+def record(buf: Buffer, x: jax.Array, a: jax.Array, y: jax.Array, valid: jax.Array,
+           clock: jax.Array | int = 0) -> Buffer:
+    """Write one transition (y: change of x, scored; the return is filled in by
+    :func:`close_trial`) at ``ptr`` when ``valid`` (the pointer advances only then)."""
     i = buf.ptr
     w = lambda arr, v: arr.at[i].set(jnp.where(valid, v, arr[i]))  # noqa: E731
+    y = y.astype(F32)
+    if buf.y.shape[1] == x.shape[-1] + 2:                 # return output kept: 0 until closed
+        y = jnp.concatenate([y, jnp.zeros((1,), F32)])
     return Buffer(x=w(buf.x, x.astype(F32)), a=w(buf.a, a.astype(I32)),
-                  y=w(buf.y, y.astype(F32)), valid=w(buf.valid, valid),
-                  ptr=jnp.where(valid, (i + 1) % buf.x.shape[0], i).astype(I32))
+                  y=w(buf.y, y), valid=w(buf.valid, valid),
+                  ptr=jnp.where(valid, (i + 1) % buf.x.shape[0], i).astype(I32),
+                  clock=w(buf.clock, jnp.asarray(clock, I32)),
+                  closed=w(buf.closed, jnp.zeros((), bool)))
+
+
+def close_trial(buf: Buffer, ended: jax.Array, scored: jax.Array, clock: jax.Array,
+                gamma: Any) -> Buffer:
+    """When ``ended``: the transitions of the trial that just ended (valid, not yet closed)
+    get their return ``gamma^(clock - their clock)`` if it ``scored`` (``clock`` = the
+    scoring primitive's), else 0, and become closed."""
+    open_ = buf.valid & ~buf.closed & ended
+    k = (jnp.asarray(clock, I32) - buf.clock).astype(F32)
+    ret = jnp.where(scored, jnp.asarray(gamma, F32) ** k, 0.0)
+    return buf.replace(y=buf.y.at[:, -1].set(jnp.where(open_, ret, buf.y[:, -1])),
+                       closed=buf.closed | open_)
 
 
 def _spd_solve(a: jax.Array, b: jax.Array) -> jax.Array:
@@ -226,18 +277,26 @@ def _sse(szz, szy, syy, n, ridge):
     return jnp.where(n > 0, jnp.maximum(sse, 0.0), 0.0)
 
 
-def _stats(seg: Segmentation, buf: Buffer, num_actions: int, bins: int, weight_out):
-    """Bin statistics (L, A, D, B, ...) of the buffer under the current boxes (float64)."""
+def _stats(seg: Segmentation, buf: Buffer, num_actions: int, bins: int, weight_out,
+           weight_ret=0.0):
+    """Bin statistics (L, A, D, B, ...) of the buffer under the current boxes (float64).
+
+    With ``weight_ret`` > 0 only closed transitions (trial ended, return known) count."""
     cap, dim = seg.lo.shape
     x = buf.x.astype(F64)
-    y = buf.y.astype(F64).at[:, -1].multiply(jnp.sqrt(jnp.asarray(weight_out, F64)))
+    y = buf.y.astype(F64).at[:, dim].multiply(jnp.sqrt(jnp.asarray(weight_out, F64)))
+    valid = buf.valid
+    if y.shape[1] == dim + 2:                              # the return output is kept
+        wr = jnp.asarray(weight_ret, F64)
+        y = y.at[:, dim + 1].multiply(jnp.sqrt(wr))
+        valid = valid & (buf.closed | (wr <= 0))
     zz = jnp.concatenate([x, jnp.ones((x.shape[0], 1), F64)], axis=1)
     leaf = leaf_of(seg, buf.x)
     width = jnp.maximum(seg.hi[leaf] - seg.lo[leaf], 1e-12)
     b = jnp.clip(jnp.floor(bins * (buf.x - seg.lo[leaf]) / width), 0, bins - 1).astype(I32)
     base = (leaf * num_actions + buf.a) * dim                                     # (M,)
     idx = (base[:, None] + jnp.arange(dim, dtype=I32)[None]) * bins + b           # (M, D)
-    idx = jnp.where(buf.valid[:, None], idx, cap * num_actions * dim * bins)      # dropped
+    idx = jnp.where(valid[:, None], idx, cap * num_actions * dim * bins)          # dropped
     nseg = cap * num_actions * dim * bins + 1
     vals = (zz[:, :, None] * zz[:, None, :], zz[:, :, None] * y[:, None, :],
             jnp.sum(y * y, axis=1), jnp.ones(x.shape[0], F64))
@@ -264,7 +323,8 @@ def structure_update(lr: Learner, p: IncrementalParams) -> tuple[Learner, jax.Ar
     nb = p.bins
     k_c = min(p.split_candidates, cap)
     ridge = jnp.asarray(p.ridge, F64)
-    szz, szy, syy, cnt = _stats(seg, lr.buf, n_act, nb, p.outcome_weight)
+    szz, szy, syy, cnt = _stats(seg, lr.buf, n_act, nb, p.outcome_weight,
+                                p.return_weight if p.return_output else 0.0)
     # whole boxes: sum the bins of axis 0
     tots = [a[:, :, 0].sum(axis=2) for a in (szz, szy, syy, cnt)]                # (L, A, ...)
     t_n = tots[3]
@@ -343,9 +403,14 @@ def structure_update(lr: Learner, p: IncrementalParams) -> tuple[Learner, jax.Ar
     return lr, do_split, do_merge
 
 
-def greedy_action(lr: Learner, x: jax.Array) -> jax.Array:
-    """argmax_a Q(box(x), a), int32."""
-    return jnp.argmax(lr.q[leaf_of(lr.seg, x)], axis=-1).astype(I32)
+def greedy_action(lr: Learner, x: jax.Array, key: jax.Array | None = None) -> jax.Array:
+    """argmax_a Q(box(x), a), int32. Ties (e.g. a box never updated, all ``q_init``) go to
+    the first action without ``key``, to a uniformly drawn tied action with it."""
+    q = lr.q[leaf_of(lr.seg, x)]
+    if key is None:
+        return jnp.argmax(q, axis=-1).astype(I32)
+    tied = q >= jnp.max(q, axis=-1, keepdims=True)
+    return jax.random.categorical(key, jnp.where(tied, 0.0, -jnp.inf), axis=-1).astype(I32)
 
 
 @struct.dataclass
@@ -397,12 +462,19 @@ def learner_step(key: jax.Array, lr: Learner, opt: Option, env: Any, env_state: 
     s2 = leaf_of(lr.seg, x2)
     dx = jnp.where(term, 0.0, x2 - x)
     y = jnp.concatenate([dx, info["success"].astype(F32)[None]])
-    buf = record(lr.buf, x, a, y, ~(trunc & ~term))
+    buf = record(lr.buf, x, a, y, ~(trunc & ~term), lr.clock)
+    if p.return_output:
+        buf = close_trial(buf, done, info["success"], lr.clock, p.return_gamma)
     end = done | (s2 != s0) | (n >= p.max_repeat)
-    target = jnp.where(term, r, r + p.gamma * jnp.max(lr.q[s2]))
+    # semi-Markov: the reward of the n-th primitive is discounted by gamma^(n-1), the value
+    # after it by gamma^n; per action: r + gamma max Q(s')
+    g = jnp.asarray(p.gamma, F32)
+    steps = jnp.where(p.discount_per_primitive, n.astype(F32), 1.0)
+    r_disc = jnp.where(p.discount_per_primitive, g ** (steps - 1.0), 1.0) * r
+    target = jnp.where(term, r_disc, r_disc + g ** steps * jnp.max(lr.q[s2]))
     upd = end & ~(trunc & ~term)
     q = lr.q.at[s0, a].add(jnp.where(upd, p.alpha * (target - lr.q[s0, a]), 0.0))
-    lr = lr.replace(buf=buf, q=q.astype(F32))
+    lr = lr.replace(buf=buf, q=q.astype(F32), clock=lr.clock + 1)
     opt = Option(s0=s0.astype(I32), a=a.astype(I32), n=n.astype(I32), active=~end)
     info = dict(info, reward=r, terminated=term, truncated=trunc)
     return lr, opt, env_state2, obs2, info
