@@ -97,7 +97,8 @@ class CVAStateParams:
     state: str = param("cva", doc="'cva': CVA state vectors [mu_obj...]; 'current': the "
                        "current features y(t) of the same objects (Table 2 baseline); "
                        "'select': both, zero-padded to one length, use_cva picks one per "
-                       "learner (one compilation for both; needs quantizer.method='vq')",
+                       "learner (one compilation for both; needs quantizer.method "
+                       "'vq' or 'product_vq')",
                        static=True, choices=STATE_KINDS)
     use_cva: bool = param(True, doc="state='select' only: True = CVA state vector, False = "
                           "current features (traced, so a sweep over it is one compilation)")
