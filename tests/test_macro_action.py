@@ -126,22 +126,28 @@ def test_macro_params_validation():
         validate(MacroActionParams(min_repeats=0))
 
 
-def test_runner_with_macro_actions_learns_the_counter():
-    """Q-learning on the blocks (state = counter // 3) with macro actions reaches the goal."""
+def train_counter(mode: str, transition_steps: float, chunk_steps: int):
+    """One chunk of Q-learning on the blocks (state = counter // 3) with macro actions
+    (``mode`` 'sync' or 'async'), 2 learners x 8 envs; returns (carry, metrics)."""
     from vbl.agents import ExplorationParams, ScheduleParams
 
     params = QRunnerParams(
         agent=QLearningParams(num_states=GOAL // BLOCK + 1, num_actions=3, discount=0.9,
                               exploration=ExplorationParams(schedule=ScheduleParams(
                                   kind="linear", init_value=1.0, end_value=0.0,
-                                  transition_steps=60.0))),
-        macro=MacroActionParams(enabled=True, max_repeats=5), lem=LEMParams(enabled=False),
-        num_envs=8, chunk_steps=100)
+                                  transition_steps=transition_steps))),
+        macro=MacroActionParams(enabled=True, max_repeats=5, mode=mode),
+        lem=LEMParams(enabled=False), num_envs=8, chunk_steps=chunk_steps)
     runner = make_qlearning_runner(ENV, block_of, params)
     bp = stack_for_learners(params, 2)
     ep = stack_for_learners(CounterParams(step_reward=0.0, goal_reward=1.0), 2)
     carry = runner.init_batch(learner_keys(3, 2), bp, ep)
-    carry, m = runner.run_chunk_batch(carry, bp, ep)
+    return runner.run_chunk_batch(carry, bp, ep)
+
+
+def test_runner_with_macro_actions_learns_the_counter():
+    """Q-learning on the blocks (state = counter // 3) with macro actions reaches the goal."""
+    carry, m = train_counter("sync", 60.0, 100)
     prim, act = np.asarray(m["primitives"]), np.asarray(m["actions"])
     assert np.all(prim >= act) and prim.sum() > act.sum()  # actions span several primitives
     # the learned greedy action in every non-terminal block is "+1"
@@ -231,20 +237,8 @@ def test_async_macro_gives_the_same_transitions_as_macro_step():
 
 
 def test_runner_with_async_macro_actions_learns_the_counter():
-    from vbl.agents import ExplorationParams, ScheduleParams
-
-    params = QRunnerParams(
-        agent=QLearningParams(num_states=GOAL // BLOCK + 1, num_actions=3, discount=0.9,
-                              exploration=ExplorationParams(schedule=ScheduleParams(
-                                  kind="linear", init_value=1.0, end_value=0.0,
-                                  transition_steps=200.0))),
-        macro=MacroActionParams(enabled=True, max_repeats=5, mode="async"),
-        lem=LEMParams(enabled=False), num_envs=8, chunk_steps=300)
-    runner = make_qlearning_runner(ENV, block_of, params)
-    bp = stack_for_learners(params, 2)
-    ep = stack_for_learners(CounterParams(step_reward=0.0, goal_reward=1.0), 2)
-    carry = runner.init_batch(learner_keys(3, 2), bp, ep)
-    carry, m = runner.run_chunk_batch(carry, bp, ep)
+    """The same learning with async macro actions (runner steps = primitives)."""
+    carry, m = train_counter("async", 200.0, 300)
     prim, act = np.asarray(m["primitives"]), np.asarray(m["actions"])
     assert np.all(prim >= act) and prim.sum() > act.sum()
     np.testing.assert_array_equal(np.argmax(np.asarray(carry.q)[:, :GOAL // BLOCK], -1), 0)

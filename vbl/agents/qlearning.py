@@ -381,7 +381,7 @@ def make_qlearning_runner(env: Any, state_fn: Callable, params: QRunnerParams,
                         a_boot = jnp.where(trunc & ~term, jnp.argmax(c.q[s_boot], axis=-1),
                                            a_next).astype(jnp.int32)
                 q, delta, tr = trace_update(
-                    c.q, c.trace, c.s, action, r, s_boot, terminal, done,
+                    c.q, c.trace, s_from, action, r, s_boot, terminal, done,
                     params.agent.learning_rate, params.agent.discount, params.agent.trace.lam,
                     kind=tp.kind, duplicates=ap.duplicates, weight=weight, num_primitives=n,
                     a_boot=a_boot)
