@@ -28,11 +28,12 @@ import numpy as np
 from flax import struct
 
 from vbl.agents import QRunnerParams
+from vbl.agents.exploration import ScheduleParams
 from vbl.agents.programs import QTrainParams, make_q_program, trials_to_level
 from vbl.agents.traces import TraceParams
 from vbl.engine import Experiment, ReportSection, RunResult, register
 from vbl.envs.shooting import ShootingEnv, ShootingParams
-from vbl.params import param, section
+from vbl.params import ParamError, param, section
 from vbl.spaces.grid import NUM_GRID_STATES, GridParams, grid_state
 
 ENV = ShootingEnv()
@@ -40,9 +41,19 @@ ENV = ShootingEnv()
 
 @struct.dataclass
 class ReportParams:
-    success_level: float = param(0.5, doc="success rate (the curve's policy, task starts) "
-                                 "whose first crossing the report compares in trials (median "
-                                 "over seeds, never reached = slowest)", gt=0.0, le=1.0)
+    success_levels: tuple = param((0.2, 0.3, 0.5), doc="success rates (the curve's policy, "
+                                  "task starts) whose first crossing the report compares in "
+                                  "trials (median over seeds, never reached = slowest); the "
+                                  "first is drawn in the plot")
+    smooth_chunks: int = param(3, doc="a crossing is the first chunk whose mean success over "
+                               "the last this many chunks reaches the level (one chunk's "
+                               "evaluation has eval_envs starts: noisy)", ge=1)
+
+    def check(self) -> None:
+        lv = np.asarray(self.success_levels, float)
+        if lv.ndim != 1 or lv.size == 0 or np.any((lv <= 0) | (lv > 1)):
+            raise ParamError(f"report.success_levels={self.success_levels!r}: one or more "
+                             "success rates in (0, 1]")
 
 
 TASK_DIFFICULTY = 1.0
@@ -117,11 +128,25 @@ def _env() -> ShootingParams:
     return ShootingParams(max_steps=MAX_STEPS)
 
 
+NUM_CHUNKS = 100
+"""Training chunks (x 100 learner steps x 64 robots): without LEM the episodes at the task
+difficulty mostly run to the time limit, so it finishes ~2.3x fewer trials per chunk than
+with LEM; 100 chunks give it about as many trials as LEM needs to reach the report's levels."""
+
+LR_SCALE = ScheduleParams(kind="linear", init_value=1.0, end_value=0.2,
+                          transition_begin=60.0, transition_steps=20.0)
+"""Step size over training (factor on the learning rate, per chunk): 0.1 for 60 chunks,
+then linearly down to 0.02 by chunk 80 (a decreasing step size lets the tabular estimates
+settle; with a constant 0.1 the learned policy kept swinging between 0.0 and 0.66, measured
+in session 3)."""
+
+
 def _train() -> QTrainParams:
     """Evaluation at the task difficulty; the near-greedy policy (epsilon ``EVAL_EPSILON``)
-    beside the greedy one, and it draws the learning curve."""
-    return QTrainParams(num_chunks=60, eval_difficulty=TASK_DIFFICULTY, eval_steps=EVAL_STEPS,
-                        eval_epsilon=EVAL_EPSILON, curve_epsilon=EVAL_EPSILON)
+    beside the greedy one, and it draws the learning curve; step size ``LR_SCALE``."""
+    return QTrainParams(num_chunks=NUM_CHUNKS, eval_difficulty=TASK_DIFFICULTY,
+                        eval_steps=EVAL_STEPS, eval_epsilon=EVAL_EPSILON,
+                        curve_epsilon=EVAL_EPSILON, lr_scale=LR_SCALE)
 
 
 @struct.dataclass
@@ -192,61 +217,78 @@ def plot(res: RunResult, level: float) -> Path:
     return path
 
 
+def lem_verdict(t_on: float, t_off: float, n_off: float) -> str:
+    """Does LEM reach a level in fewer trials? ``t_on``, ``t_off``: median trials to the
+    level with / without LEM (inf: the median seed never reached it); ``n_off``: trials the
+    run without LEM finished (mean over seeds)."""
+    if not np.isfinite(t_on):
+        return "**no** (not reached with LEM)"
+    if not np.isfinite(t_off) and n_off < t_on:
+        return (f"**not shown** (with LEM {t_on:.0f}; without LEM not reached, but it ran only "
+                f"{n_off:.0f} trials: run it longer)")
+    off = f"{t_off:.0f}" if np.isfinite(t_off) else f"not reached in {n_off:.0f}"
+    return f"{'yes' if t_on < t_off else '**no**'} (with LEM {t_on:.0f}, without {off})"
+
+
 def report(res: RunResult) -> ReportSection:
-    level = float(res.config.report.success_level)
-    fig = plot(res, level)
+    levels = [float(v) for v in np.atleast_1d(res.config.report.success_levels)]
+    window = int(res.config.report.smooth_chunks)
+    fig = plot(res, levels[0])
     ce = float(np.max(res.config.train.curve_epsilon))
     who = "greedy" if ce == 0 else f"near-greedy (epsilon {ce:g})"
     curve = (f"the {who} success after each chunk" if res.config.train.eval_curve else
              "the training success (train.eval_curve is off)")
     md = [f"Learned policies on fresh starts at start difficulty "
           f"{res.config.train.eval_difficulty} (1: fully random), {res.seeds} seeds, "
-          f"mean ± 95% CI; {NUM_GRID_STATES} grid states. Trials = training episodes until "
-          f"{curve} first reaches {level:.0%} (median over the seeds; a seed that never "
-          "reaches it counts as slowest).", "",
+          f"mean ± 95% CI; {NUM_GRID_STATES} grid states.", "",
           f"Near-greedy: a uniform action with probability {res.config.train.eval_epsilon} "
           "(breaks cycles between aliased grid states; on an aliased state space the best "
           "memoryless policy can be stochastic).", "",
-          "| policy | greedy success | near-greedy success | trials to reach "
-          f"{level:.0%} | seeds reaching it | training trials |", "|---|---|---|---|---|---|"]
-    rnd, greedy, near, reach = [], {}, {}, {}
+          "| policy | greedy success | near-greedy success | training trials |",
+          "|---|---|---|---|"]
+    rnd, greedy, near, reach, runs = [], {}, {}, {}, {}
     for p, values in enumerate(res.points):
+        name = _label(values, res.config)
         g = _ci(res.final["greedy_success"][p])
         ng = (_ci(res.final["near_greedy_success"][p]) if "near_greedy_success" in res.final
               else (float("nan"), 0.0))
         rnd.append(res.final["random_success"][p])
         eps = res.curves["episodes"][p]
-        t = trials_to_level(res.curves["success_rate"][p], eps, level)
-        ok = ~np.isnan(t)
-        # median over all seeds, a seed that never reaches the level counting as slowest
-        t_med = float(np.median(np.where(ok, t, np.inf)))
-        med = f"{t_med:.0f}" if np.isfinite(t_med) else "not reached (median)"
-        greedy[_label(values, res.config)] = g
-        near[_label(values, res.config)] = ng
-        reach[_label(values, res.config)] = (t_med, float(eps.sum(axis=0).mean()))
-        md.append(f"| {_label(values, res.config)} | {g[0]:.3f} ± {g[1]:.3f} | "
-                  f"{ng[0]:.3f} ± {ng[1]:.3f} | {med} | "
-                  f"{int(ok.sum())}/{len(t)} | {reach[_label(values, res.config)][1]:.0f} |")
+        greedy[name], near[name] = g, ng
+        runs[name] = float(eps.sum(axis=0).mean())
+        for lv in levels:
+            t = trials_to_level(res.curves["success_rate"][p], eps, lv, window)
+            # median over all seeds, a seed that never reaches the level counting as slowest
+            reach[name, lv] = (float(np.median(np.where(np.isnan(t), np.inf, t))),
+                               int((~np.isnan(t)).sum()), len(t))
+        md.append(f"| {name} | {g[0]:.3f} ± {g[1]:.3f} | {ng[0]:.3f} ± {ng[1]:.3f} | "
+                  f"{runs[name]:.0f} |")
     # the random policy's evaluation uses the same keys at every sweep point (common random
     # numbers), so average over points per seed rather than pooling duplicates
     r = _ci(np.mean(rnd, axis=0))
-    md.append(f"| random policy | {r[0]:.3f} ± {r[1]:.3f} | | | | |")
+    md.append(f"| random policy | {r[0]:.3f} ± {r[1]:.3f} | | |")
+    md += ["", f"Training trials (episodes) until {curve}, averaged over the last {window} "
+           "chunks, first reaches each level: median over the seeds (a seed that never "
+           "reaches it counts as slowest) and seeds reaching it.", "",
+           "| policy | " + " | ".join(f"trials to {lv:.0%}" for lv in levels) + " |",
+           "|---|" + "---|" * len(levels)]
+    for name in runs:
+        cells = []
+        for lv in levels:
+            t, k, n = reach[name, lv]
+            cells.append(f"{t:.0f} ({k}/{n})" if np.isfinite(t) else f"not reached ({k}/{n})")
+        md.append(f"| {name} | " + " | ".join(cells) + " |")
     md += ["", "What must hold (the paper gives no number for this baseline):", ""]
-    for name, table in (("greedy", greedy), ("near-greedy", near)):
+    for kind, table in (("greedy", greedy), ("near-greedy", near)):
         best = max(table.values(), key=lambda v: v[0])
         above = best[0] - best[1] > r[0] + r[1]
-        md.append(f"* the {name} policy shoots above the random policy (95% intervals apart): "
+        md.append(f"* the {kind} policy shoots above the random policy (95% intervals apart): "
                   f"{'yes' if above else '**no**'} (best {best[0]:.3f} vs random {r[0]:.3f});")
-    if {"with LEM", "without LEM"} <= set(reach):
-        (t_on, _), (t_off, n_off) = reach["with LEM"], reach["without LEM"]
-        if np.isfinite(t_on) and not np.isfinite(t_off) and n_off < t_on:
-            verdict = (f"**not shown** (with LEM {t_on:.0f}; without LEM not reached, but it "
-                       f"ran only {n_off:.0f} trials: run it longer)")
-        else:
-            fewer = np.isfinite(t_on) and t_on < t_off
-            verdict = (f"{'yes' if fewer else '**no**'} (median trials with LEM {t_on:.0f}, "
-                       f"without {t_off:.0f}; {n_off:.0f} trials run without)")
-        md.append(f"* LEM reaches {level:.0%} in fewer trials: {verdict}.")
+    if {"with LEM", "without LEM"} <= set(runs):
+        for lv in levels:
+            verdict = lem_verdict(reach["with LEM", lv][0], reach["without LEM", lv][0],
+                                  runs["without LEM"])
+            md.append(f"* LEM reaches {lv:.0%} in fewer trials: {verdict}.")
     return ReportSection("\n".join(md), (fig,))
 
 

@@ -74,7 +74,8 @@ def random_success_exact(start: int, steps: int, p_right: float = 0.5) -> float:
 
 @struct.dataclass
 class ReportP:
-    success_level: float = param(0.5, doc="level", gt=0.0, le=1.0)
+    success_levels: tuple = param((0.5,), doc="levels")
+    smooth_chunks: int = param(1, doc="window", ge=1)
 
 
 def _agent() -> QRunnerParams:
@@ -162,6 +163,17 @@ def test_grid_report_renders(chain_result):
     assert all(Path(f).exists() for f in sec.figures)
 
 
+def test_lem_verdict_cases():
+    from vbl.engine.registry import load_script
+
+    gs = load_script(Path(__file__).parents[1] / "experiments" / "grid_shooting.py")
+    assert gs.lem_verdict(100.0, 200.0, 300.0).startswith("yes")
+    assert gs.lem_verdict(300.0, 200.0, 300.0).startswith("**no**")
+    assert gs.lem_verdict(100.0, np.inf, 300.0).startswith("yes")     # never reached in 300
+    assert gs.lem_verdict(400.0, np.inf, 300.0).startswith("**not shown**")
+    assert gs.lem_verdict(np.inf, np.inf, 300.0).startswith("**no**")
+
+
 def test_trials_to_level_hand_computed():
     success = np.array([[0.0, 0.1], [0.5, 0.2], [0.2, 0.3], [0.9, 0.4]])   # (chunks, seeds)
     episodes = np.array([[10, 20], [10, 20], [5, 20], [5, 20]])
@@ -169,6 +181,40 @@ def test_trials_to_level_hand_computed():
     np.testing.assert_array_equal(trials_to_level(success, episodes, 0.3), [20.0, 60.0])
     with pytest.raises(ValueError, match="chunks, seeds"):
         trials_to_level(success[:, 0], episodes[:, 0], 0.5)
+    # window 2: running means seed 0 (0, .25, .35, .55), seed 1 (.1, .15, .25, .35)
+    np.testing.assert_array_equal(trials_to_level(success, episodes, 0.3, window=2),
+                                  [25.0, 80.0])
+    np.testing.assert_array_equal(trials_to_level(success, episodes, 0.5, window=2),
+                                  [30.0, np.nan])
+    with pytest.raises(ValueError, match="window"):
+        trials_to_level(success, episodes, 0.5, window=0)
+
+
+def test_lr_scale_schedule_sets_the_step_size_per_chunk():
+    """train.lr_scale multiplies the agent's learning rate per chunk (hand values of the
+    linear schedule); scale 0 leaves the Q-table untouched, scale 1 moves it."""
+    from vbl.agents.exploration import ScheduleParams
+
+    def run(scale: ScheduleParams, chunks: int):
+        cfg = ChainConfig()
+        cfg = cfg.replace(train=cfg.train.replace(lr_scale=scale))
+        prog = make_q_program(ChainEnv(), chain_state, cfg, num_states=N)
+        carry = prog.init(jax.random.PRNGKey(0), cfg)
+        lrs = []
+        for _ in range(chunks):
+            carry, m = jax.jit(prog.step)(carry, cfg)
+            lrs.append(float(m["learning_rate"]))
+        return carry.q, lrs
+
+    lin = ScheduleParams(kind="linear", init_value=1.0, end_value=0.2, transition_begin=1.0,
+                         transition_steps=2.0)
+    _, lrs = run(lin, 4)
+    base = ChainConfig().agent.agent.learning_rate                  # 0.25
+    np.testing.assert_allclose(lrs, [base, base, 0.6 * base, 0.2 * base], rtol=1e-6)
+    q0, lrs0 = run(ScheduleParams(kind="constant", init_value=0.0), 2)
+    assert lrs0 == [0.0, 0.0] and np.all(np.asarray(q0) == 0.0)
+    q1, _ = run(ScheduleParams(kind="constant", init_value=1.0), 2)
+    assert np.any(np.asarray(q1) != 0.0)
 
 
 def test_bad_config_errors():

@@ -27,7 +27,8 @@ Per chunk (metrics per learner, scalars):
 * ``mean_primitives``: mean primitives per finished training episode (0 when none).
 * ``difficulty``: LEM start difficulty at the end of the chunk; ``lem_raises``: raises so
   far; ``epsilon``: exploration rate (epsilon or temperature) at the end of the chunk;
-  ``td_abs``: mean absolute TD error over the chunk.
+  ``td_abs``: mean absolute TD error over the chunk; ``learning_rate``: the step size of the
+  chunk (``agent.agent.learning_rate`` times ``train.lr_scale`` at the chunks done).
 
 ``final`` (once, independent key): ``greedy_success``, ``near_greedy_success`` and
 ``random_success`` (the greedy policy of the learned table, the same with a uniform action
@@ -51,8 +52,9 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from vbl.agents.exploration import ScheduleParams, schedule_value
 from vbl.agents.qlearning import QRunnerState, make_qlearning_runner
-from vbl.params import ParamError, param, validate
+from vbl.params import ParamError, param, section, validate
 
 __all__ = ["QTrainParams", "make_q_program", "trials_to_level", "EVAL_STREAM"]
 
@@ -86,6 +88,10 @@ class QTrainParams:
     final_eval_rounds: int = param(4, doc="final evaluation: rounds of eval_envs fresh starts "
                                    "for the greedy and for the random policy", static=True,
                                    ge=1)
+    lr_scale: ScheduleParams = section(
+        lambda: ScheduleParams(kind="constant", init_value=1.0),
+        doc="factor on agent.agent.learning_rate in each training chunk, count = chunks done "
+        "(default constant 1: the agent's step size throughout)")
 
 
 def _require(cfg: Any, names: tuple[str, ...]) -> None:
@@ -139,7 +145,10 @@ def make_q_program(env: Any, state_fn: Callable[[jax.Array, Any], jax.Array], cf
 
     def step(carry: QRunnerState, c):
         run, ev = runners(c)
-        carry, m = run.run_chunk(carry, c.agent, c.env)
+        chunk = carry.steps // cfg.agent.chunk_steps
+        lr = c.agent.agent.learning_rate * schedule_value(c.train.lr_scale, chunk)
+        agent = c.agent.replace(agent=c.agent.agent.replace(learning_rate=lr))
+        carry, m = run.run_chunk(carry, agent, c.env)
         episodes = jnp.sum(m["episodes"]).astype(F32)
         successes = jnp.sum(m["successes"]).astype(F32)
         n = jnp.maximum(episodes, 1.0)
@@ -148,7 +157,8 @@ def make_q_program(env: Any, state_fn: Callable[[jax.Array, Any], jax.Array], cf
                    mean_primitives=jnp.sum(m["primitives"]).astype(F32) / n,
                    difficulty=carry.lem.difficulty.astype(F32),
                    lem_raises=carry.lem.raises.astype(F32),
-                   epsilon=m["rate"][-1].astype(F32), td_abs=jnp.mean(m["td_abs"]).astype(F32))
+                   epsilon=m["rate"][-1].astype(F32), td_abs=jnp.mean(m["td_abs"]).astype(F32),
+                   learning_rate=jnp.asarray(lr, F32))
         if train.eval_curve:
             res = ev.evaluate(jax.random.fold_in(carry.key, EVAL_STREAM), carry.q,
                               c.agent, eval_env(c), train.eval_steps, c.train.curve_epsilon)
@@ -182,17 +192,24 @@ def make_q_program(env: Any, state_fn: Callable[[jax.Array, Any], jax.Array], cf
     return Program(init=init, step=step, num_chunks=train.num_chunks, final=final)
 
 
-def trials_to_level(success: Any, episodes: Any, level: float) -> Any:
-    """Per seed: cumulative training trials at the first chunk whose ``success`` >= ``level``
+def trials_to_level(success: Any, episodes: Any, level: float, window: int = 1) -> Any:
+    """Per seed: cumulative training trials at the first chunk where the mean ``success`` of
+    the last ``window`` chunks (that chunk included; fewer at the start) is >= ``level``
     (NaN if never). ``success``, ``episodes``: (chunks, seeds) host arrays (a run's
-    ``curves["success_rate"][point]`` and ``curves["episodes"][point]``) -> (seeds,) float."""
+    ``curves["success_rate"][point]`` and ``curves["episodes"][point]``) -> (seeds,) float.
+    ``window`` > 1 averages out the evaluation noise of one chunk (a few dozen starts)."""
     import numpy as np
 
     success, episodes = np.asarray(success, float), np.asarray(episodes, float)
     if success.shape != episodes.shape or success.ndim != 2:
         raise ValueError(f"success {success.shape} and episodes {episodes.shape} must both be "
                          "(chunks, seeds)")
+    if int(window) < 1:
+        raise ValueError(f"window={window}: must be >= 1 chunk")
     cum = np.cumsum(episodes, axis=0)
-    hit = success >= level
+    csum = np.cumsum(success, axis=0)
+    lagged = np.concatenate([np.zeros((window, success.shape[1])), csum], axis=0)[:len(csum)]
+    count = np.minimum(np.arange(1, len(csum) + 1), window)[:, None]
+    hit = (csum - lagged) / count >= level
     first = np.argmax(hit, axis=0)
     return np.where(hit.any(axis=0), cum[first, np.arange(cum.shape[1])], np.nan)
