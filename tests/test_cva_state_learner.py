@@ -100,6 +100,28 @@ def test_filter_matches_cva_state_on_data():
     np.testing.assert_allclose(np.asarray(got), ref, rtol=1e-4, atol=1e-4)
 
 
+def test_keep_beyond_order_keeps_the_fits_components():
+    """Components beyond the AIC order n* are 0 by default and, with keep_beyond_order, the
+    fit's own canonical rows (vbl.sysid.cva.fit_one at the same lag and horizon)."""
+    from vbl.sysid.cva import fit_one, n_identifiable
+
+    env = MovingTargetEnv()
+    d = collect(env, jax.random.PRNGKey(3), env.default_params, 600)
+    cva = CVAParams(lag=2)
+    off = identify_object(d["u"], d["obs"], cva, 4)
+    on = identify_object(d["u"], d["obs"], cva, 4, True)
+    n = int(off.n)
+    assert n == int(on.n) and 1 <= n < 4
+    m, q = d["u"].shape[1], d["obs"].shape[1]
+    f = fit_one(d["u"], d["obs"], cva, lag=2, horizon=4, n_cap=n_identifiable(2, 4, m, q))
+    ref = np.asarray(f.U[:4], float)                              # (4, 2 (m + q))
+    got = lambda mod: np.concatenate([np.asarray(mod.Uu).reshape(4, -1),  # noqa: E731
+                                      np.asarray(mod.Uy).reshape(4, -1)], axis=1)
+    np.testing.assert_allclose(got(on), ref, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(got(off)[:n], ref[:n], rtol=1e-5, atol=1e-6)
+    assert np.all(got(off)[n:] == 0.0) and np.any(np.abs(ref[n:]) > 1e-3)
+
+
 def test_bad_inputs():
     env = MovingTargetEnv()
     with pytest.raises(ParamError, match="obs_slices"):

@@ -111,6 +111,10 @@ class CVAStateParams:
                                   "of objects (e.g. (4, 2): ball 4 components (position and "
                                   "velocity), goal 2); () = n_used for every object",
                                   static=True)
+    keep_beyond_order: bool = param(False, doc="keep the canonical components beyond the "
+                                    "AIC order n* among the n_used (False: they are 0, the "
+                                    "paper's state); e.g. the ball's image velocity, which "
+                                    "its AIC order 4 drops (docs/cva_learning.md)")
     extra: tuple = param((), doc="extra obs_slices appended unfiltered to the state vector "
                          "(e.g. 'lost_side')", static=True)
     collect_steps: int = param(2000, doc="random-action steps collected per learner for the "
@@ -192,8 +196,12 @@ def collect(env: Any, key: jax.Array, env_params: Any, num_steps: int) -> dict[s
     return {"obs": obs.astype(jnp.float32), "u": u, "start": start}
 
 
-def identify_object(u: jax.Array, y: jax.Array, cva: CVAParams, n_used: int) -> ObjectModel:
+def identify_object(u: jax.Array, y: jax.Array, cva: CVAParams, n_used: int,
+                    keep_beyond_order: Any = False) -> ObjectModel:
     """CVA + AIC order + lag rule on one data set ``u (N, m)``, ``y (N, q)`` (jit/vmap-able).
+
+    The filter holds the first ``n_used`` canonical components; those beyond the AIC order
+    n* are 0 unless ``keep_beyond_order`` (bool, may be traced).
 
     Lag rule (Sec. 3.1.2): from ``l = 1``, stop at the first l whose ``log det R(n*) <
     cva.logdet_stop``; otherwise keep growing l while ``AIC(n*)`` decreases; at most
@@ -212,7 +220,8 @@ def identify_object(u: jax.Array, y: jax.Array, cva: CVAParams, n_used: int) -> 
         if rows.shape[0] < n_used:
             rows = jnp.concatenate([rows, jnp.zeros((n_used - rows.shape[0], rows.shape[1]),
                                                     rows.dtype)])
-        rows = rows * (jnp.arange(n_used) < f.n)[:, None]  # components beyond n* are 0
+        keep = (jnp.arange(n_used) < f.n) | jnp.asarray(keep_beyond_order, bool)
+        rows = rows * keep[:, None]  # components beyond n* are 0 unless kept
         uu = rows[:, :lag * m].reshape(n_used, lag, m)
         uy = rows[:, lag * m:].reshape(n_used, lag, q)
         pad = lag_max - lag
@@ -430,7 +439,8 @@ def make_cva_learner(env: Any, p: CVAStateParams, m: int | None = None) -> CVALe
         data = collect(env, k_col, env_params, p.collect_steps)
         models = ()
         if p.state != "current":
-            models = tuple(identify_object(data["u"], data["obs"][:, sl], pp.cva, k)
+            models = tuple(identify_object(data["u"], data["obs"][:, sl], pp.cva, k,
+                                           pp.keep_beyond_order)
                            for sl, k in zip(fenv.slices, p.n_used_per_object(), strict=True))
         use_cva = jnp.asarray(pp.use_cva, bool)
         xs = _history_states(fenv, data, models, use_cva)
