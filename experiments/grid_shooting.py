@@ -141,8 +141,10 @@ def _env() -> ShootingParams:
 
 NUM_CHUNKS = 100
 """Training chunks (x 100 learner steps x 64 robots): without LEM the episodes at the task
-difficulty mostly run to the time limit, so it finishes ~2.3x fewer trials per chunk than
-with LEM; 100 chunks give it about as many trials as LEM needs to reach the report's levels."""
+difficulty mostly run to the time limit, so it finishes ~2x fewer trials per chunk than
+with LEM (100 chunks: ~3,300 vs ~6,700). That covers LEM's crossings of 20 % and 30 %
+(~1,600 and ~1,900 trials); to compare at 50 % (LEM ~3,800) run the no-LEM arm longer
+(``--sweep agent.lem.initial_difficulty=1.0 --set train.num_chunks=130``; docs/agents.md)."""
 
 LR_SCALE = ScheduleParams(kind="linear", init_value=1.0, end_value=0.2,
                           transition_begin=60.0, transition_steps=20.0)
