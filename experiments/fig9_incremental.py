@@ -170,7 +170,8 @@ def make_program(cfg: Fig9Config) -> Program:
             "success_rate": jnp.sum(out["success"].astype(F32)) / jnp.maximum(n_ep, 1.0),
             "states": out["states"][-1].astype(F32),
             "trials": run.trials.astype(F32),
-            "splits": run.lr.splits.astype(F32), "merges": run.lr.merges.astype(F32)}
+            "splits": run.lr.splits.astype(F32), "merges": run.lr.merges.astype(F32),
+            "value_splits": run.lr.value_splits.astype(F32)}
 
     f5 = fig5()
     # the grid baseline, trained inside `final` (no per-chunk evaluation curve)
@@ -202,6 +203,7 @@ def make_program(cfg: Fig9Config) -> Program:
         out = {"greedy_success": jnp.mean(ok[0].astype(F32)),
                "random_success": jnp.mean(ok[1].astype(F32)),
                "states": jnp.sum(lr.seg.active).astype(F32),
+               "splits": lr.splits.astype(F32), "value_splits": lr.value_splits.astype(F32),
                "trials_done": carry.run.trials.astype(F32),
                "trial_success": carry.trial_success, "trial_states": carry.trial_states,
                "box_lo": lr.seg.lo, "box_hi": lr.seg.hi,
@@ -372,7 +374,10 @@ def report(res) -> ReportSection:
     line = (f"Greedy policy on {cfg.train.eval_episodes} fresh starts per seed (start "
             f"difficulty {cfg.grid.train.eval_difficulty}, final ball, "
             f"{cfg.env.max_steps}-primitive limit): {fmt(gs)} with "
-            f"{ci95(fin['states'])[0]:.1f} ± {ci95(fin['states'])[1]:.1f} states; uniformly "
+            f"{ci95(fin['states'])[0]:.1f} ± {ci95(fin['states'])[1]:.1f} states"
+            + (f" ({fin['value_splits'].mean():.1f} of {fin['splits'].mean():.1f} splits per "
+               "seed by the value criterion)" if "value_splits" in fin else "")
+            + "; uniformly "
             "random primitives on the same starts "
             f"{fmt(fin['random_success'])}")
     if "steer_success" in fin:

@@ -28,8 +28,10 @@ from vbl.spaces.incremental import (
 
 ENV = TwoRegionWorld()
 M = 1024
+# the model-error criterion alone (value-driven splits off; they are tested below)
 P = IncrementalParams(max_states=8, buffer_size=M, split_error=1e-5, split_gain=5e-6,
-                      merge_tol=1e-6, outcome_weight=0.0, return_weight=0.0, update_every=25)
+                      merge_tol=1e-6, outcome_weight=0.0, return_weight=0.0, update_every=25,
+                      value_split_gain=0.0)
 
 
 def fill(lr, key, params, noise=0.0):
@@ -42,7 +44,7 @@ def fill(lr, key, params, noise=0.0):
     y = jnp.concatenate([dx, jnp.zeros((M, lr.buf.y.shape[1] - 2), jnp.float32)], 1)
     return lr.replace(buf=Buffer(x=x, a=a, y=y, valid=jnp.ones(M, bool),
                                  ptr=jnp.zeros((), jnp.int32), clock=jnp.zeros(M, jnp.int32),
-                                 closed=jnp.ones(M, bool)))
+                                 closed=jnp.ones(M, bool), term=jnp.zeros(M, bool)))
 
 
 @pytest.fixture(scope="module")
@@ -313,3 +315,200 @@ def test_return_output_splits_where_returns_differ_and_dynamics_do_not():
     lr0 = lr0.replace(buf=lr0.buf.replace(y=lr0.buf.y.at[:, -1].set(ret),
                                           closed=jnp.zeros(M, bool)))
     assert not bool(upd(lr0, p)[1])
+
+
+# --- value-driven splits ---------------------------------------------------------------
+# Toy world: one affine dynamics everywhere (gain +1), but primitive 0 scores left of
+# x0 = 0.5 and primitive 1 right of it (the scoring step's change of x is the world's, so
+# the dynamics stay affine; outcome_weight = 0). With Q = 0 everywhere the TD target of a
+# transition is 1 if it scored, else 0. Hand-derived greedy values: the whole box has mean
+# target 1/2 for primitives 0 and 1 (0 for 2, 3), so v = 1/2; each half has a primitive
+# with mean 1, so a cut at x0 = 0.5 gains (1/2 * 1 + 1/2 * 1) - 1/2 = 1/2 per transition;
+# a cut at x0 = 0.25 gains 1/4 * 1 + 3/4 * 2/3 - 1/2 = 1/4; cuts along x1 gain ~0.
+PV = P.replace(value_split_gain=0.1, value_merge_tol=0.01, value_min_count=10.0)
+
+
+def scoring_buffer(key, p):
+    lr = fill(init_learner(p, 2, 4), key, ENV.default_params.replace(gain_right=1.0),
+              noise=1e-4)
+    x0, a = lr.buf.x[:, 0], lr.buf.a
+    scored = ((a == 0) & (x0 < 0.5)) | ((a == 1) & (x0 >= 0.5))
+    return lr.replace(buf=lr.buf.replace(y=lr.buf.y.at[:, 2].set(scored.astype(jnp.float32)),
+                                         term=scored))
+
+
+def test_value_split_cuts_where_the_best_primitive_changes_and_model_error_does_not():
+    upd = jax.jit(structure_update)
+    lr0 = scoring_buffer(jax.random.PRNGKey(4), PV)
+    # the model-error criterion alone (value criterion off): one box, nothing splits
+    lr = lr0
+    for _ in range(3):
+        lr, split, _ = upd(lr, PV.replace(value_split_gain=0.0))
+        assert not bool(split)
+    assert int(num_states(lr.seg)) == 1
+    # the value criterion: exactly one split, at x0 = 0.5, then nothing more
+    lr, split, merge = upd(lr0, PV)
+    assert bool(split) and not bool(merge)
+    assert int(lr.value_splits) == 1 and int(lr.splits) == 1
+    for _ in range(3):
+        lr, split, merge = upd(lr, PV)
+        assert not bool(split) and not bool(merge)      # the merge is vetoed by the value
+    lo, hi = boxes(lr)
+    order = np.argsort(lo[:, 0])
+    np.testing.assert_allclose(lo[order], [[0.0, 0.0], [0.5, 0.0]])
+    np.testing.assert_allclose(hi[order], [[0.5, 1.0], [1.0, 1.0]])
+    # without the veto (merge tolerance above the 1/2 the pair gains by staying apart) the
+    # identical models merge the boxes back when nothing splits
+    lr_m, split, merge = upd(lr, PV.replace(value_split_gain=0.9, value_merge_tol=0.8))
+    assert bool(merge) and not bool(split)
+
+
+def test_value_split_threshold_above_the_hand_gain_does_not_split():
+    upd = jax.jit(structure_update)
+    lr = scoring_buffer(jax.random.PRNGKey(4), PV)
+    assert not bool(upd(lr, PV.replace(value_split_gain=0.55, value_merge_tol=0.01))[1])
+    assert bool(upd(lr, PV.replace(value_split_gain=0.45, value_merge_tol=0.01))[1])
+
+
+def test_td_targets_follow_the_held_primitive_to_the_box_exit_by_hand():
+    """Boxes [0, 0.5) and [0.5, 1] along x0; Q(right box) = (0.8, 0.3, 0, 0). One trial:
+    primitive 0 held from x0 = 0.43 in steps of 0.02 (clocks 5, 6, 7, 8: the 4th step
+    leaves the left box), then primitive 2 (clock 9) scores, then a new trial's step
+    (clock 10) that ends without scoring (term), then the newest one (clock 11)."""
+    from vbl.spaces.incremental import record, td_targets
+    g = 0.9
+    lr = init_learner(P, 2, 4)
+    seg = lr.seg
+    seg = seg.replace(hi=seg.hi.at[0, 0].set(0.5).at[1].set(1.0),
+                      lo=seg.lo.at[1, 0].set(0.5), active=seg.active.at[1].set(True))
+    q = lr.q.at[1].set(jnp.array([0.8, 0.3, 0.0, 0.0], jnp.float32))
+    buf = lr.buf
+    d = jnp.array([0.02, 0.0, 0.0], jnp.float32)
+    steps = [([0.43, 0.3], 0, d, 5, False), ([0.45, 0.3], 0, d, 6, False),
+             ([0.47, 0.3], 0, d, 7, False), ([0.49, 0.3], 0, d, 8, False),    # exits
+             ([0.52, 0.3], 2, jnp.array([0.0, 0.0, 1.0]), 9, True),            # scores
+             ([0.10, 0.1], 1, jnp.zeros(3), 10, True),                         # fails
+             ([0.20, 0.2], 3, jnp.array([0.0, -0.02, 0.0]), 11, False)]        # newest
+    for x, a, y, c, t in steps:
+        buf = record(buf, jnp.array(x, jnp.float32), jnp.int32(a), y, jnp.asarray(True), c, t)
+    got = np.asarray(td_targets(seg, buf, q, g))[:7]
+    want = [g * 0.8] * 4 + [1.0, 0.0, g * 0.0]
+    np.testing.assert_allclose(got, want, rtol=1e-6)
+    # semi-Markov: gamma per primitive, the chain of k primitives before the exit adds g^k
+    got = np.asarray(td_targets(seg, buf, q, g, True))[:4]
+    np.testing.assert_allclose(got, [g ** 4 * 0.8, g ** 3 * 0.8, g ** 2 * 0.8, g * 0.8],
+                               rtol=1e-5)
+
+
+def test_value_criterion_off_leaves_the_old_updates_unchanged(update):
+    """value_split_gain = 0 (off) with any other value settings: the same boxes as the
+    model-error criterion alone (the two-region test above)."""
+    lr = fill(init_learner(P, 2, 4), jax.random.PRNGKey(0), ENV.default_params, noise=1e-4)
+    a, s1, _ = update(lr)
+    b, s2, _ = jax.jit(structure_update)(lr, P.replace(value_min_count=1.0,
+                                                       value_merge_tol=0.0))
+    assert bool(s1) and bool(s2) and int(b.value_splits) == 0
+    for u, v in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b), strict=True):
+        np.testing.assert_array_equal(np.asarray(u), np.asarray(v))
+
+
+def test_bad_value_parameters_raise_clear_errors():
+    with pytest.raises(ParamError, match="value_merge_tol"):
+        validate(IncrementalParams(value_split_gain=0.01, value_merge_tol=0.02))
+    with pytest.raises(ParamError, match="value_split_gain"):
+        validate(IncrementalParams(value_split_gain=-0.1))
+    with pytest.raises(ParamError, match="value_min_count"):
+        validate(IncrementalParams(value_min_count=0.0))
+    validate(IncrementalParams(value_split_gain=0.0, value_merge_tol=0.02))   # off: fine
+
+
+def test_cross_fitted_greedy_value_by_hand():
+    """Two primitives, 10 transitions in each half of the data. Primitive 0 averages 1 in
+    half 0 and 0 in half 1, primitive 1 the reverse: both average 1/2, so the max of the
+    means is 1/2; cross-fitted, the primitive chosen on one half scores 0 on the other, so
+    the greedy value is 0 (noise does not pay). A primitive under min_count / 2 in one
+    half does not count; none qualifying gives -inf."""
+    from vbl.spaces.incremental import _greedy_value
+    tsum = jnp.array([[[10.0, 0.0], [0.0, 10.0]]], jnp.float64)          # (L=1, A=2, 2)
+    tcnt = jnp.full((1, 2, 2), 10.0, jnp.float64)
+    assert float(_greedy_value(tsum, tcnt, 10.0, False)[0]) == pytest.approx(0.5)
+    assert float(_greedy_value(tsum, tcnt, 10.0, True)[0]) == pytest.approx(0.0)
+    # consistent halves: primitive 1 averages 0.8 in both -> 0.8 either way
+    tsum2 = jnp.array([[[3.0, 2.0], [8.0, 8.0]]], jnp.float64)
+    for xf in (False, True):
+        assert float(_greedy_value(tsum2, tcnt, 10.0, xf)[0]) == pytest.approx(0.8)
+    few = tcnt.at[0, 1, 0].set(4.0)                                       # 4 < 10 / 2
+    assert float(_greedy_value(tsum2, few, 10.0, True)[0]) == pytest.approx(0.25)
+    assert float(_greedy_value(tsum2, tcnt, 30.0, True)[0]) == -np.inf
+
+
+def test_value_gain_per_buffer_weighs_by_the_boxes_share_by_hand():
+    """Boxes x1 < 0.5 (bottom) and x1 >= 0.5 (top); the scoring pattern of the toy world
+    above holds in the bottom box only (nothing scores on top). The bottom box's cut at
+    x0 = 0.5 gains 1/2 per transition of the box and, with half of the buffer in it,
+    1/2 * 1/2 = 1/4 per transition of the buffer."""
+    upd = jax.jit(structure_update)
+    lr = scoring_buffer(jax.random.PRNGKey(4), PV)
+    bottom = lr.buf.x[:, 1] < 0.5
+    sc = lr.buf.term & bottom
+    lr = lr.replace(buf=lr.buf.replace(y=lr.buf.y.at[:, 2].set(sc.astype(jnp.float32)),
+                                       term=sc))
+    seg = lr.seg
+    lr = lr.replace(seg=seg.replace(hi=seg.hi.at[0, 1].set(0.5).at[1].set(1.0),
+                                    lo=seg.lo.at[1, 1].set(0.5),
+                                    active=seg.active.at[1].set(True)))
+    for per_buffer, gain, want in ((False, 0.3, True), (True, 0.3, False), (True, 0.2, True)):
+        out, split, _ = upd(lr, PV.replace(value_split_gain=gain, value_per_buffer=per_buffer))
+        assert bool(split) == want, (per_buffer, gain)
+        if want:
+            lo, hi = boxes(out)
+            assert any(np.allclose(lo_, [0.5, 0.0]) and np.allclose(hi_, [1.0, 0.5])
+                       for lo_, hi_ in zip(lo, hi, strict=True))
+
+
+def test_fringe_targets_end_chains_at_bin_edges_by_hand():
+    """One box, Q = 0, 4 bins. Primitive 0 held at x0 = 0.43, 0.45, 0.47, 0.49 (clocks
+    5-8; the 4th step crosses the bin edge 0.5, bin 1 -> 2), then primitive 2 scores. Per axis:
+    along x0 the chain ends at the crossing, bootstrapped from v_bin_next[., 0]; along x1
+    (no crossing) it ends where the primitive changes (clock 9), from v_bin_next[., 1]."""
+    from vbl.spaces.incremental import record, td_targets
+    g = 0.9
+    lr = init_learner(P, 2, 4)
+    buf = lr.buf
+    d = jnp.array([0.02, 0.0, 0.0], jnp.float32)
+    xs = [0.43, 0.45, 0.47, 0.49]
+    for i, x0 in enumerate(xs):
+        buf = record(buf, jnp.array([x0, 0.3], jnp.float32), jnp.int32(0), d, jnp.asarray(True),
+                     5 + i, False)
+    buf = record(buf, jnp.array([0.51, 0.3], jnp.float32), jnp.int32(2),
+                 jnp.array([0.0, 0.0, 1.0]), jnp.asarray(True), 9, True)        # scores
+    bins = 4
+    x = np.asarray(buf.x)
+    xn = np.clip(x + np.asarray(buf.y)[:, :2], 0, 1)
+    same = np.floor(bins * x) == np.floor(bins * xn)
+    assert same[:4, 0].tolist() == [True, True, True, False] and same[:4, 1].all()
+    vb = np.zeros((M, 2), np.float32)
+    vb[3] = [0.7, 0.2]                        # values of the bins the 4th step lands in
+    got = np.asarray(td_targets(lr.seg, buf, lr.q, g, False, jnp.asarray(same),
+                                jnp.asarray(vb)))[:5]
+    np.testing.assert_allclose(got[:4, 0], [g * 0.7] * 4, rtol=1e-6)
+    np.testing.assert_allclose(got[:4, 1], [g * 0.2] * 4, rtol=1e-6)
+    np.testing.assert_allclose(got[4], [1.0, 1.0])
+
+
+def test_fringe_value_split_on_the_toy_by_hand():
+    """The scoring toy with fringe targets (gamma 0.95): along x0 every bin has a primitive
+    that scores (bin value 1), so a transition that does not score gets 0.95. Each half's
+    greedy value is 1; the whole box's is 1/2 * 1 + 1/2 * 0.95 = 0.975 (primitive 0 or 1),
+    so the cut at x0 = 0.5 gains 0.025 (at 0.25: 1/4 + 3/4 * 0.9833 - 0.975 = 0.0125;
+    along x1 nothing). A threshold of 0.02 cuts at x0 = 0.5, 0.03 does not cut."""
+    lr0 = scoring_buffer(jax.random.PRNGKey(4), PV)
+    upd = jax.jit(structure_update)
+    pf = PV.replace(value_fringe=True, gamma=0.95, value_merge_tol=0.001)
+    lr, split, _ = upd(lr0, pf.replace(value_split_gain=0.02))
+    assert bool(split) and int(lr.value_splits) == 1
+    lo, hi = boxes(lr)
+    order = np.argsort(lo[:, 0])
+    np.testing.assert_allclose(lo[order], [[0.0, 0.0], [0.5, 0.0]])
+    np.testing.assert_allclose(hi[order], [[0.5, 1.0], [1.0, 1.0]])
+    assert not bool(upd(lr0, pf.replace(value_split_gain=0.03))[1])

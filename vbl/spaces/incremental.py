@@ -31,6 +31,17 @@ Learning (one robot, one environment; :func:`make_learner` vmaps over seeds):
    most ``merge_tol`` (< ``split_gain``: hysteresis) merge; their Q-values average.
    The "outcomes disagree" criterion is the outcome output of the model: a box where
    the same primitive sometimes scores and sometimes not has a large residual there.
+   With ``value_split_gain > 0`` a *value-driven* split (Continuous U-Tree style) goes
+   first: every buffered transition gets its TD target under the current boxes and Q
+   (:func:`td_targets`: 1 if it scored, 0 if it failed, else ``gamma max_a Q(box(x'), a)``
+   at the end of the held primitive's chain in the box), summed per (box, primitive,
+   axis, bin); a cut's gain is the greedy value per transition of its two sides minus
+   that of the whole box (greedy value = max over primitives with ``value_min_count``
+   transitions of the mean target, cross-fitted over two halves of the buffer with
+   ``value_crossfit``; per transition of the buffer with ``value_per_buffer``); the best
+   cut with gain >= ``value_split_gain`` is made (``value_fringe``: per axis, chains also
+   end at that axis's bin edges and bootstrap from the bins' greedy values). Merges whose
+   pair gains more than ``value_merge_tol`` by staying apart are vetoed.
 4. Q-learning on boxes with Boltzmann action selection; an *action* holds its
    primitive until the box changes, the episode ends or ``max_repeat`` steps pass,
    then ``Q(s, a) += alpha (r + gamma max Q(s') - Q(s, a))`` (target ``r`` when the
@@ -60,6 +71,7 @@ __all__ = [
     "leaf_of",
     "record",
     "structure_update",
+    "td_targets",
     "num_states",
     "greedy_action",
     "learner_step",
@@ -129,6 +141,31 @@ class IncrementalParams:
     anneal_trials: int = param(0, doc="trials over which the temperature goes from "
                                "temperature to temperature_final (0: constant temperature)",
                                ge=0)
+    value_split_gain: float = param(0.06, doc="value-driven splits: least gain per transition "
+                                    "of a cut in the value of acting greedily on each side "
+                                    "separately over acting greedily in the whole box, from "
+                                    "TD targets of the buffered transitions (0: off, only "
+                                    "model-error splits)", unit="Q units", ge=0.0)
+    value_min_count: float = param(20.0, doc="value-driven splits: least transitions of a "
+                                   "primitive on a side (in a box) for its mean TD target to "
+                                   "enter that side's (box's) greedy value", ge=1.0)
+    value_crossfit: bool = param(True, doc="value-driven splits: each side's greedy primitive "
+                                 "is chosen on one half of the buffer and valued on the other "
+                                 "(cross-fitting: no gain from noise alone in expectation); "
+                                 "else max of the means (biased upwards on small sides)")
+    value_per_buffer: bool = param(False, doc="value-driven splits: gains (and value_split_gain, "
+                                   "value_merge_tol) per transition of the whole buffer, i.e. "
+                                   "weighted by the box's share of the experience (else per "
+                                   "transition of the box)")
+    value_fringe: bool = param(False, doc="value-driven splits: per axis, chains of a held "
+                               "primitive also end at that axis's bin edges and bootstrap from "
+                               "the bins' greedy values (one round of fringe value iteration: "
+                               "a cut's value no longer has to exist before the cut)",
+                               static=True)
+    value_merge_tol: float = param(0.005, doc="with value-driven splits on, two boxes merge only "
+                                   "if acting greedily in each separately beats acting greedily "
+                                   "in their union by at most this per transition "
+                                   "(< value_split_gain: hysteresis)", unit="Q units", ge=0.0)
 
     def check(self) -> None:
         if np.any(np.asarray(self.merge_tol) >= np.asarray(self.split_gain)):
@@ -140,6 +177,11 @@ class IncrementalParams:
         if np.any(np.asarray(self.split_gain) > np.asarray(self.split_error)):
             raise ParamError(f"split_gain={self.split_gain} must be <= split_error="
                              f"{self.split_error}")
+        on = np.asarray(self.value_split_gain) > 0
+        if np.any(on & (np.asarray(self.value_merge_tol) >= np.asarray(self.value_split_gain))):
+            raise ParamError(f"value_merge_tol={self.value_merge_tol} must be < "
+                             f"value_split_gain={self.value_split_gain} when value-driven "
+                             "splits are on (else a value split is undone at once)")
 
 
 @struct.dataclass
@@ -156,7 +198,8 @@ class Buffer:
     """Ring buffer: x (M, D) float32, a (M,) int32, y (M, D+1) float32 (change of x,
     scored; (M, D+2) with the return output: change of x, scored, return), valid (M,)
     bool, ptr () int32 next slot, clock (M,) int32 the learner's primitive count at the
-    write, closed (M,) bool the trial has ended (the return is known)."""
+    write, closed (M,) bool the trial has ended (the return is known), term (M,) bool the
+    transition ended its episode (goal or failure; not a time-limit truncation)."""
 
     x: jax.Array
     a: jax.Array
@@ -165,12 +208,14 @@ class Buffer:
     ptr: jax.Array
     clock: jax.Array
     closed: jax.Array
+    term: jax.Array
 
 
 @struct.dataclass
 class Learner:
-    """seg, buf, q (L, A) float32, splits/merges () int32 counters, clock () int32
-    primitives taken."""
+    """seg, buf, q (L, A) float32, splits/merges () int32 counters (value_splits: the
+    splits made by the value criterion, included in splits), clock () int32 primitives
+    taken."""
 
     seg: Segmentation
     buf: Buffer
@@ -178,6 +223,7 @@ class Learner:
     splits: jax.Array
     merges: jax.Array
     clock: jax.Array
+    value_splits: jax.Array
 
 
 def init_learner(p: IncrementalParams, dim: int, num_actions: int) -> Learner:
@@ -190,10 +236,10 @@ def init_learner(p: IncrementalParams, dim: int, num_actions: int) -> Learner:
                  y=jnp.zeros((m, dim + (2 if p.return_output else 1)), F32),
                  valid=jnp.zeros((m,), bool),
                  ptr=jnp.zeros((), I32), clock=jnp.zeros((m,), I32),
-                 closed=jnp.zeros((m,), bool))
+                 closed=jnp.zeros((m,), bool), term=jnp.zeros((m,), bool))
     q = jnp.full((cap, num_actions), p.q_init, F32)
     return Learner(seg=seg, buf=buf, q=q, splits=jnp.zeros((), I32), merges=jnp.zeros((), I32),
-                   clock=jnp.zeros((), I32))
+                   clock=jnp.zeros((), I32), value_splits=jnp.zeros((), I32))
 
 
 def leaf_of(seg: Segmentation, x: jax.Array) -> jax.Array:
@@ -210,9 +256,10 @@ def num_states(seg: Segmentation) -> jax.Array:
 
 
 def record(buf: Buffer, x: jax.Array, a: jax.Array, y: jax.Array, valid: jax.Array,
-           clock: jax.Array | int = 0) -> Buffer:
+           clock: jax.Array | int = 0, term: jax.Array | bool = False) -> Buffer:
     """Write one transition (y: change of x, scored; the return is filled in by
-    :func:`close_trial`) at ``ptr`` when ``valid`` (the pointer advances only then)."""
+    :func:`close_trial`; ``term``: it ended its episode) at ``ptr`` when ``valid`` (the
+    pointer advances only then)."""
     i = buf.ptr
     w = lambda arr, v: arr.at[i].set(jnp.where(valid, v, arr[i]))  # noqa: E731
     y = y.astype(F32)
@@ -222,7 +269,8 @@ def record(buf: Buffer, x: jax.Array, a: jax.Array, y: jax.Array, valid: jax.Arr
                   y=w(buf.y, y), valid=w(buf.valid, valid),
                   ptr=jnp.where(valid, (i + 1) % buf.x.shape[0], i).astype(I32),
                   clock=w(buf.clock, jnp.asarray(clock, I32)),
-                  closed=w(buf.closed, jnp.zeros((), bool)))
+                  closed=w(buf.closed, jnp.zeros((), bool)),
+                  term=w(buf.term, jnp.asarray(term, bool)))
 
 
 def close_trial(buf: Buffer, ended: jax.Array, scored: jax.Array, clock: jax.Array,
@@ -308,6 +356,97 @@ def _stats(seg: Segmentation, buf: Buffer, num_actions: int, bins: int, weight_o
     return out
 
 
+def td_targets(seg: Segmentation, buf: Buffer, q: jax.Array, gamma: Any,
+               per_primitive: Any = False, same_bin: jax.Array | None = None,
+               v_bin_next: jax.Array | None = None) -> jax.Array:
+    """TD target (float32 (M,)) of every buffered transition under the current boxes and Q.
+
+    An *action* of the learner holds its primitive while the box does not change, so a
+    transition whose successor in the buffer continues it (next clock, same primitive, not
+    terminal, and ``x' = x + dx`` still in the same box) takes the target of its successor;
+    the last transition of such a chain gets ``1`` if it scored, ``0`` if it ended the
+    episode without scoring, else ``gamma * max_a Q(box(x'), a)`` - the learner's own
+    Q-learning target per action (``per_primitive``: discounted by ``gamma^k`` more for a
+    chain of k primitives before it, as the semi-Markov learner). Chains are followed by
+    pointer doubling (log2(M) gathers). The newest transition ends its chain (its successor
+    is unknown yet); invalid slots give 0 (they are never counted).
+
+    Fringe targets (``same_bin`` (M, D) bool: ``x'`` is in the same bin of its box as ``x``
+    along axis d; ``v_bin_next`` (M, D): the greedy value of the bin ``x'`` lands in along
+    axis d): per axis d, a chain also ends where it crosses a bin edge of axis d, and a
+    chain end inside the box takes ``gamma * v_bin_next`` (when finite) instead of
+    ``gamma * max Q(box)``. Returns (M, D) targets then, one set per axis."""
+    m, dim = buf.x.shape
+    g = jnp.asarray(gamma, F32)
+    scored = buf.y[:, dim] > 0.5
+    xn = jnp.clip(buf.x + buf.y[:, :dim], 0.0, 1.0)
+    s, sn = leaf_of(seg, buf.x), leaf_of(seg, xn)
+    base = jnp.where(scored, 1.0, jnp.where(buf.term, 0.0, g * jnp.max(q[sn], axis=-1)))
+    idx = jnp.arange(m, dtype=I32)
+    succ = (idx + 1) % m
+    newest = (buf.ptr - 1) % m
+    cont = (buf.valid & buf.valid[succ] & (idx != newest) & (buf.clock[succ] == buf.clock + 1)
+            & ~buf.term & ~scored & (buf.a[succ] == buf.a) & (sn == s))
+    if same_bin is None:
+        nxt = jnp.where(cont, succ, idx)
+        dist = cont.astype(F32)
+        for _ in range(max(1, int(np.ceil(np.log2(m))))):
+            dist = dist + dist[nxt]
+            nxt = nxt[nxt]
+        disc = jnp.where(jnp.asarray(per_primitive, bool), g ** dist, 1.0)
+        return jnp.where(buf.valid, disc * base[nxt], 0.0).astype(F32)
+    inside = ((sn == s) & ~scored & ~buf.term)[:, None]
+    base_d = jnp.where(inside & jnp.isfinite(v_bin_next), g * v_bin_next, base[:, None])
+    cont_d = cont[:, None] & same_bin                                               # (M, D)
+    nxt = jnp.where(cont_d, succ[:, None], idx[:, None])
+    dist = cont_d.astype(F32)
+    for _ in range(max(1, int(np.ceil(np.log2(m))))):
+        dist = dist + jnp.take_along_axis(dist, nxt, axis=0)
+        nxt = jnp.take_along_axis(nxt, nxt, axis=0)
+    disc = jnp.where(jnp.asarray(per_primitive, bool), g ** dist, 1.0)
+    out = disc * jnp.take_along_axis(base_d, nxt, axis=0)
+    return jnp.where(buf.valid[:, None], out, 0.0).astype(F32)
+
+
+def _value_stats(seg: Segmentation, buf: Buffer, target: jax.Array, num_actions: int,
+                 bins: int):
+    """Sums of TD targets and counts per (box, primitive, axis, bin, half): (L, A, D, B, 2)
+    float64; half = buffer slot parity (two interleaved halves of the data, for the
+    cross-fitted greedy value)."""
+    cap, dim = seg.lo.shape
+    leaf = leaf_of(seg, buf.x)
+    width = jnp.maximum(seg.hi[leaf] - seg.lo[leaf], 1e-12)
+    b = jnp.clip(jnp.floor(bins * (buf.x - seg.lo[leaf]) / width), 0, bins - 1).astype(I32)
+    half = (jnp.arange(buf.x.shape[0], dtype=I32) % 2)[:, None]
+    base = (leaf * num_actions + buf.a) * dim
+    idx = ((base[:, None] + jnp.arange(dim, dtype=I32)[None]) * bins + b) * 2 + half
+    nseg = cap * num_actions * dim * bins * 2
+    idx = jnp.where(buf.valid[:, None], idx, nseg).reshape(-1)
+    t = target.astype(F64)
+    vals = jnp.stack([jnp.broadcast_to(t if t.ndim == 2 else t[:, None], b.shape),
+                      jnp.ones(b.shape, F64)], axis=-1).reshape(-1, 2)
+    s = jax.ops.segment_sum(vals, idx, nseg + 1)[:-1]
+    s = s.reshape((cap, num_actions, dim, bins, 2, 2))
+    return s[..., 0], s[..., 1]
+
+
+def _greedy_value(tsum, tcnt, min_count, crossfit):
+    """Value of acting greedily from target sums / counts (L, A, ..., 2 halves): the max
+    over primitives (axis 1) of the mean target, primitives with >= ``min_count``
+    transitions only; with ``crossfit`` the primitive is chosen on one half of the data and
+    its mean taken on the other (both ways, averaged; a primitive needs ``min_count / 2``
+    in each half), which removes the upward bias of a max over noisy means. -inf where no
+    primitive qualifies."""
+    s, c = tsum.sum(axis=-1), tcnt.sum(axis=-1)
+    plain = jnp.max(jnp.where(c >= min_count, s / jnp.maximum(c, 1.0), -jnp.inf), axis=1)
+    mean = tsum / jnp.maximum(tcnt, 1.0)
+    qual = jnp.all(tcnt >= 0.5 * min_count, axis=-1, keepdims=True)
+    pick = jnp.argmax(jnp.where(qual, mean, -jnp.inf), axis=1, keepdims=True)   # per half
+    other = jnp.take_along_axis(mean[..., ::-1], pick, axis=1)[:, 0]   # other half's mean
+    cross = jnp.where(jnp.any(qual, axis=1)[..., 0], other.mean(axis=-1), -jnp.inf)
+    return jnp.where(jnp.asarray(crossfit, bool), cross, plain)
+
+
 def structure_update(lr: Learner, p: IncrementalParams) -> tuple[Learner, jax.Array, jax.Array]:
     """Refit the local models from the buffer; split one box, or else merge two.
 
@@ -371,9 +510,65 @@ def structure_update(lr: Learner, p: IncrementalParams) -> tuple[Learner, jax.Ar
           & ~jnp.all(seg.active))
     score = jnp.where(ok, gain, -jnp.inf).reshape(-1)
     best = jnp.argmax(score)
-    do_split = jnp.isfinite(score[best])
-    leaf, rem = cand[best // (dim * (nb - 1))], best % (dim * (nb - 1))
-    axis, c = rem // (nb - 1), rem % (nb - 1)
+    do_msplit = jnp.isfinite(score[best])
+    m_leaf, rem = cand[best // (dim * (nb - 1))], best % (dim * (nb - 1))
+    m_axis, m_c = rem // (nb - 1), rem % (nb - 1)
+
+    # value-driven split (value_split_gain > 0): TD targets of the buffered transitions,
+    # summed per (box, primitive, axis, bin); a cut's gain is the greedy value per
+    # transition of its two sides acted on separately minus that of the whole box
+    v_on = jnp.asarray(p.value_split_gain) > 0
+    tgt = td_targets(seg, lr.buf, lr.q, p.gamma, p.discount_per_primitive)
+    tsum, tcnt = _value_stats(seg, lr.buf, tgt, n_act, nb)                       # (L, A, D, B)
+    b_sum, b_cnt = tsum[:, :, 0].sum(axis=2), tcnt[:, :, 0].sum(axis=2)           # (L, A, 2)
+    mc, xf = p.value_min_count, p.value_crossfit
+    v_box = _greedy_value(b_sum, b_cnt, mc, xf)                                   # (L,)
+    if p.value_fringe:
+        # per axis: chains end at the bin edges of that axis, bootstrapped from the bins'
+        # greedy values of the targets above (one round of fringe value iteration)
+        buf = lr.buf
+        leaf_x = leaf_of(seg, buf.x)
+        xn = jnp.clip(buf.x + buf.y[:, :dim], 0.0, 1.0)
+        lo_x = seg.lo[leaf_x]
+        w_x = jnp.maximum(seg.hi[leaf_x] - lo_x, 1e-12)
+        b_x = jnp.clip(jnp.floor(nb * (buf.x - lo_x) / w_x), 0, nb - 1).astype(I32)
+        b_n = jnp.clip(jnp.floor(nb * (xn - lo_x) / w_x), 0, nb - 1).astype(I32)
+        v_bin = _greedy_value(tsum, tcnt, mc, xf)                                 # (L, D, B)
+        vb = v_bin[leaf_x[:, None], jnp.arange(dim)[None], b_n].astype(F32)       # (M, D)
+        tgt_d = td_targets(seg, buf, lr.q, p.gamma, p.discount_per_primitive, b_x == b_n, vb)
+        tsum, tcnt = _value_stats(seg, buf, tgt_d, n_act, nb)
+        ax_sum, ax_cnt = tsum.sum(axis=3), tcnt.sum(axis=3)                       # (L, A, D, 2)
+        v_box_cut = _greedy_value(ax_sum, ax_cnt, mc, xf)[:, :, None]             # (L, D, 1)
+    else:
+        ax_sum, ax_cnt = b_sum[:, :, None], b_cnt[:, :, None]
+        v_box_cut = v_box[:, None, None]
+    l_sum, l_cnt = (jnp.cumsum(a, axis=3)[:, :, :, :-1] for a in (tsum, tcnt))    # (L,A,D,B-1,2)
+    r_sum, r_cnt = ax_sum[:, :, :, None] - l_sum, ax_cnt[:, :, :, None] - l_cnt
+    v_l = _greedy_value(l_sum, l_cnt, mc, xf)                                     # (L, D, B-1)
+    v_r = _greedy_value(r_sum, r_cnt, mc, xf)
+    vn_l, vn_r = l_cnt.sum(axis=(1, -1)), r_cnt.sum(axis=(1, -1))
+    vn_box = b_cnt.sum(axis=(1, -1))
+    # per transition of the box, or (value_per_buffer) of the whole buffer: weighted by
+    # the box's share of the experience, i.e. the gain in the visited states' mean value
+    share = jnp.where(jnp.asarray(p.value_per_buffer, bool),
+                      vn_box / jnp.maximum(jnp.sum(lr.buf.valid), 1).astype(F64), 1.0)
+    v_gain = ((vn_l * v_l + vn_r * v_r) / jnp.maximum(vn_box, 1.0)[:, None, None]
+              - v_box_cut) * share[:, None, None]
+    v_width = (seg.hi - seg.lo)[:, :, None]
+    v_ok = (v_on & seg.active[:, None, None] & jnp.isfinite(v_gain)
+            & (v_gain >= p.value_split_gain)
+            & (vn_l >= p.min_samples) & (vn_r >= p.min_samples)
+            & (frac * v_width >= p.min_width) & ((1 - frac) * v_width >= p.min_width)
+            & ~jnp.all(seg.active))
+    v_score = jnp.where(v_ok, v_gain, -jnp.inf).reshape(-1)
+    v_best = jnp.argmax(v_score)
+    do_vsplit = jnp.isfinite(v_score[v_best])
+    v_leaf, v_rem = v_best // (dim * (nb - 1)), v_best % (dim * (nb - 1))
+    # the value split goes first; else the model-error split
+    leaf = jnp.where(do_vsplit, v_leaf, m_leaf).astype(I32)
+    axis = jnp.where(do_vsplit, v_rem // (nb - 1), m_axis).astype(I32)
+    c = jnp.where(do_vsplit, v_rem % (nb - 1), m_c).astype(I32)
+    do_split = do_vsplit | do_msplit
     cut = seg.lo[leaf, axis] + (c + 1).astype(F32) / nb * (seg.hi[leaf, axis] - seg.lo[leaf, axis])
     new = jnp.argmin(seg.active)                                                  # free slot
     s_lo = seg.lo.at[new].set(seg.lo[leaf].at[axis].set(cut))
@@ -382,10 +577,17 @@ def structure_update(lr: Learner, p: IncrementalParams) -> tuple[Learner, jax.Ar
     split_seg = Segmentation(lo=s_lo, hi=s_hi, active=seg.active.at[new].set(True))
     split_q = lr.q.at[new].set(q_new)
 
-    # merge: the box whose union with its partner raises the residual least
+    # merge: the box whose union with its partner raises the residual least; with the
+    # value criterion on, not a pair whose greedy value gains from staying apart
     n_u = n_box + n_box[partner]
     rise = (sse_u - sse_box - sse_box[partner]) / jnp.maximum(n_u, 1.0)
-    m_ok = has_partner & (rise <= p.merge_tol)
+    u_sum, u_cnt = b_sum + b_sum[partner], b_cnt + b_cnt[partner]
+    vn_u = vn_box + vn_box[partner]
+    apart = ((vn_box * v_box + vn_box[partner] * v_box[partner]) / jnp.maximum(vn_u, 1.0)
+             - _greedy_value(u_sum, u_cnt, mc, xf)) * jnp.where(
+                 jnp.asarray(p.value_per_buffer, bool), share + share[partner], 1.0)
+    veto = v_on & jnp.isfinite(apart) & (apart > p.value_merge_tol)
+    m_ok = has_partner & (rise <= p.merge_tol) & ~veto
     m_score = jnp.where(m_ok, -rise, -jnp.inf)
     i = jnp.argmax(m_score)
     do_merge = jnp.isfinite(m_score[i]) & ~do_split
@@ -399,7 +601,8 @@ def structure_update(lr: Learner, p: IncrementalParams) -> tuple[Learner, jax.Ar
     seg2 = jax.tree_util.tree_map(pick, split_seg, merge_seg, seg)
     q2 = pick(split_q, merge_q, lr.q)
     lr = lr.replace(seg=seg2, q=q2, splits=lr.splits + do_split.astype(I32),
-                    merges=lr.merges + do_merge.astype(I32))
+                    merges=lr.merges + do_merge.astype(I32),
+                    value_splits=lr.value_splits + do_vsplit.astype(I32))
     return lr, do_split, do_merge
 
 
@@ -462,7 +665,7 @@ def learner_step(key: jax.Array, lr: Learner, opt: Option, env: Any, env_state: 
     s2 = leaf_of(lr.seg, x2)
     dx = jnp.where(term, 0.0, x2 - x)
     y = jnp.concatenate([dx, info["success"].astype(F32)[None]])
-    buf = record(lr.buf, x, a, y, ~(trunc & ~term), lr.clock)
+    buf = record(lr.buf, x, a, y, ~(trunc & ~term), lr.clock, term)
     if p.return_output:
         buf = close_trial(buf, done, info["success"], lr.clock, p.return_gamma)
     end = done | (s2 != s0) | (n >= p.max_repeat)
