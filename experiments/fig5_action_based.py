@@ -30,7 +30,7 @@ from vbl.agents.qlearning import QRunnerParams
 from vbl.engine import Experiment, Program, ReportSection, register
 from vbl.engine.registry import load_script
 from vbl.envs.shooting import ShootingEnv, ShootingParams
-from vbl.params import param, section
+from vbl.params import ParamError, param, section
 from vbl.spaces.action_based import (
     ActionBasedParams,
     CollectParams,
@@ -107,12 +107,21 @@ class EvalParams:
                                 "compile time short)", static=True)
 
 
+def _build_default() -> ActionBasedParams:
+    """The library's thresholds, with the two lost-side features (``features.lost_sides``)
+    categorical: clusters and ellipsoids never mix "ball seen", "ball lost left" and "ball
+    lost right" (nor the goal's three), which the Gaussian ellipsoids of mixed clusters did
+    (half-widths ~1 along the lost-side axes, measured); 4 clusters per primitive,
+    iteration and pattern (36 ellipsoids per primitive and iteration)."""
+    return ActionBasedParams(categorical_dims=2, clusters_per_action=4)
+
+
 @struct.dataclass
 class Fig5Config:
     env: ShootingParams = section(ShootingParams, doc="shooting task")
     features: FeatureParams = section(FeatureParams, doc="feature normalisation")
     collect: CollectParams = section(CollectParams, doc="experience collection")
-    build: ActionBasedParams = section(ActionBasedParams, doc="construction thresholds")
+    build: ActionBasedParams = section(_build_default, doc="construction thresholds")
     grid: GridBaseline = section(GridBaseline, doc="grid baseline (grid_shooting's settings; "
                                  "its chunks are this run's chunks)")
     eval: EvalParams = section(EvalParams, doc="evaluation of the map")
@@ -126,6 +135,10 @@ class Carry:
 
 def make_program(cfg: Fig5Config) -> Program:
     n_act = ENV.num_actions
+    if cfg.build.categorical_dims > (2 if cfg.features.lost_sides else 0):
+        raise ParamError(f"build.categorical_dims={cfg.build.categorical_dims}: only the "
+                         "lost-side features are categorical (2 with features.lost_sides, "
+                         "else 0)")
     gprog = grid_program(cfg.env, cfg.grid) if cfg.eval.grid_baseline else None
 
     def init(key, c):
@@ -156,6 +169,8 @@ def make_program(cfg: Fig5Config) -> Program:
                 "map_iterations": sm.iterations.astype(F32),
                 "centre": sm.centre, "shape": sm.shape,
                 "ell_active": sm.ell_active.astype(F32), "ell_state": sm.ell_state.astype(F32),
+                "ell_pattern": sm.ell_pattern.astype(F32),
+                "ell_reliability": sm.ell_reliability, "ell_value": sm.ell_value,
                 "action": sm.action.astype(F32), "transitions": sm.transitions.astype(F32),
                 "order": sm.order.astype(F32), "active": sm.active.astype(F32)}
         if gprog is not None:
@@ -167,13 +182,18 @@ def make_program(cfg: Fig5Config) -> Program:
                    num_chunks=1 if gprog is None else gprog.num_chunks)
 
 
-def map_of(final: dict, seed: int) -> StateMap:
-    """The StateMap of one learner from the run's ``final`` arrays (one sweep point)."""
+def map_of(final: dict, seed: int, build: ActionBasedParams | None = None) -> StateMap:
+    """The StateMap of one learner from the run's ``final`` arrays (one sweep point);
+    ``build`` (the run's ``build`` section) gives the static categorical/rank settings."""
+    b = _build_default() if build is None else build
     g = lambda k, t=np.float32: np.asarray(final[k])[seed].astype(t)  # noqa: E731
     return StateMap(centre=g("centre"), shape=g("shape"), ell_active=g("ell_active", bool),
-                    ell_state=g("ell_state", np.int32), action=g("action", np.int32),
-                    transitions=g("transitions", np.int32), order=g("order", np.int32),
-                    active=g("active", bool), iterations=np.int32(0))
+                    ell_state=g("ell_state", np.int32), ell_pattern=g("ell_pattern", np.int32),
+                    ell_reliability=g("ell_reliability"), ell_value=g("ell_value"),
+                    action=g("action", np.int32), transitions=g("transitions", np.int32),
+                    order=g("order", np.int32), active=g("active", bool),
+                    iterations=np.int32(0), categorical_dims=b.categorical_dims,
+                    categorical_levels=b.categorical_levels, rank=b.rank)
 
 
 def plot_fig5(final: dict, cfg: Fig5Config, out: Path, seed: int = 0, n: int = 160) -> Path:
@@ -184,7 +204,7 @@ def plot_fig5(final: dict, cfg: Fig5Config, out: Path, seed: int = 0, n: int = 1
     import matplotlib.pyplot as plt
 
     from vbl.world.robots import action_labels
-    sm = map_of(final, seed)
+    sm = map_of(final, seed, cfg.build)
     fp = cfg.features
     u = (np.arange(n) + 0.5) / n
     b, g = np.meshgrid(u, u)                                  # x1 (cols), x3 (rows)
@@ -278,7 +298,7 @@ EXPERIMENT = register(Experiment(
     seeds=4,
     quick_seeds=2,
     paper_result=True,
-    cost=56.0,  # s of a cold --quick run on 2 shared cores (compile-dominated)
+    cost=115.0,  # s of a cold --quick run on 2 shared cores (compile-dominated; load ~4)
     paper={"figure": "5", "claim": "states differ from the programmer's grid; F/B labels"},
     report=report,
 ))

@@ -107,9 +107,16 @@ def test_deterministic_and_batched_equals_looped(collect, builder, flipped):
     batched = jax.jit(jax.vmap(lambda k: build_state_map(exp, ABP, k)))(keys)
     for i in range(2):
         single = builder(exp, keys[i])
-        for a, b in zip(jax.tree_util.tree_leaves(single), jax.tree_util.tree_leaves(batched),
-                        strict=True):
-            np.testing.assert_allclose(np.asarray(a), np.asarray(b)[i], rtol=1e-5, atol=1e-6)
+        for name in single.__dataclass_fields__:
+            a, b = getattr(single, name), getattr(batched, name)
+            if not isinstance(a, jax.Array):
+                assert a == b, name             # static fields
+                continue
+            # a reliability is a count ratio: float reduction order may move one boundary
+            # point of ~1,000 in or out of an ellipsoid
+            tol = 2e-3 if name == "ell_reliability" else 1e-6
+            np.testing.assert_allclose(np.asarray(a), np.asarray(b)[i], rtol=1e-5, atol=tol,
+                                       err_msg=name)
 
 
 def test_bad_thresholds_raise_clear_errors(flipped):
@@ -118,6 +125,10 @@ def test_bad_thresholds_raise_clear_errors(flipped):
         make_builder(ActionBasedParams(min_reliability=1.5))
     with pytest.raises(ParamError, match="coverage"):
         make_builder(ActionBasedParams(coverage=0.0))
+    with pytest.raises(ParamError, match="supersede"):
+        make_builder(ActionBasedParams(supersede=True))          # needs rank="value"
+    with pytest.raises(ParamError, match="rank"):
+        make_builder(ActionBasedParams(rank="nearest"))
     with pytest.raises(ParamError, match="start_window"):
         make_builder(ABP.replace(start_window=100))(exp, jax.random.PRNGKey(0))
     from vbl.params import validate
@@ -139,3 +150,122 @@ def test_fig5_and_fig9_compare_with_grid_shootings_own_config():
         assert g.train.eval_difficulty == pytest.approx(0.1), name
     f9 = get("fig9_incremental").default_config
     assert f9.env.start_difficulty == pytest.approx(f9.grid.train.eval_difficulty)
+
+
+def test_pattern_of_reads_categorical_digits():
+    from vbl.spaces.action_based import pattern_of
+    x = jnp.asarray([[0.3, 0.0, 0.0], [0.3, 0.5, 0.0], [0.9, 1.0, 0.5], [0.1, 0.0, 1.0],
+                     [0.2, 1.0, 1.0]], jnp.float32)
+    # digits (round(2 v)) of the last two features, base 3, first digit least significant
+    np.testing.assert_array_equal(np.asarray(pattern_of(x, 2, 3)), [0, 1, 5, 6, 8])
+    np.testing.assert_array_equal(np.asarray(pattern_of(x, 0, 3)), [0, 0, 0, 0, 0])
+    assert pattern_of(x, 2, 3).dtype == jnp.int32
+
+
+def test_kmeans_groups_never_mix():
+    """Two groups at overlapping positions: with one cluster per group each centre is its
+    own group's mean (hand values), whatever the distances say."""
+    from vbl.spaces.ellipsoids import kmeans
+    pts = jnp.asarray([[0.10], [0.20], [0.15], [0.90]], jnp.float32)
+    grp = jnp.asarray([0, 0, 1, 1], jnp.int32)
+    mask = jnp.ones(4, bool)
+    c, a = kmeans(jax.random.PRNGKey(0), pts, mask, 1, 5, grp, 2)
+    np.testing.assert_allclose(np.asarray(c)[:, 0], [0.15, 0.525], rtol=1e-6)
+    np.testing.assert_array_equal(np.asarray(a), [0, 0, 1, 1])
+
+
+def _flag_features(o):
+    """Line world position plus a categorical 'facing' flag (1 where the primitives are not
+    swapped, p >= 0.5; 0 below)."""
+    return jnp.concatenate([o, (o >= 0.5).astype(jnp.float32)])
+
+
+def test_categorical_feature_states_hold_only_their_pattern():
+    """With the swap flag as a categorical feature (2 levels) the hand-derived states come
+    out again (F1 where the flag is 1, B2 where it is 0), and an ellipsoid never holds a
+    point of the other pattern: (p, flag) with the flag contradicting p is in no state."""
+    exp = jax.jit(lambda k: collect_experience(
+        ENV, ENV.default_params.replace(flip_below=0.5), k, _flag_features, 2, CP))(
+        jax.random.PRNGKey(0))
+    p = ABP.replace(categorical_dims=1, categorical_levels=2)
+    sm = make_builder(p)(exp, jax.random.PRNGKey(1))
+    assert int(num_states(sm)) == 2
+    by_action = {int(sm.action[s]): s for s in np.flatnonzero(np.asarray(sm.active))}
+    assert int(sm.transitions[by_action[F]]) == 1 and int(sm.transitions[by_action[B]]) == 2
+    ea = np.asarray(sm.ell_active)
+    pat = np.asarray(sm.ell_pattern)[ea]
+    st = np.asarray(sm.ell_state)[ea]
+    # F's ellipsoids hold only flag-1 points; B's are flag-0 ones (plus, possibly, a rim
+    # ellipsoid of flag-1 points just right of 0.5 that F1's ellipsoid left uncovered: B
+    # from there steps into B2 at once, so they belong to B2 too)
+    assert set(pat[st == by_action[F]]) == {1} and 0 in set(pat[st == by_action[B]])
+    right = jnp.linspace(0.56, 0.97, 12, dtype=jnp.float32)[:, None]
+    left = jnp.linspace(0.03, 0.44, 12, dtype=jnp.float32)[:, None]
+    ones, zeros = jnp.ones_like(right), jnp.zeros_like(right)
+    assert np.all(np.asarray(classify(sm, jnp.concatenate([right, ones], 1))) == by_action[F])
+    assert np.all(np.asarray(classify(sm, jnp.concatenate([left, zeros], 1))) == by_action[B])
+    # a contradicting flag: in no state (away from 0.5, where an ellipsoid of the other
+    # pattern may reach a little past its members, e.g. B2's to p = 0.56 with flag 0)
+    far_right = jnp.linspace(0.7, 0.97, 8, dtype=jnp.float32)[:, None]
+    far_left = jnp.linspace(0.03, 0.3, 8, dtype=jnp.float32)[:, None]
+    z8, o8 = jnp.zeros_like(far_right), jnp.ones_like(far_right)
+    assert np.all(np.asarray(classify(sm, jnp.concatenate([far_right, z8], 1))) == -1)
+    assert np.all(np.asarray(classify(sm, jnp.concatenate([far_left, o8], 1))) == -1)
+    with pytest.raises(ParamError, match="categorical_dims"):
+        make_builder(p)(exp.replace(x=exp.x[..., :1]), jax.random.PRNGKey(1))
+
+
+def test_ellipsoid_value_matches_numpy_reference(collect):
+    """Without the swap, every F start point reaches the goal directly: the F1 ellipsoids'
+    value is the mean over the F start points inside them of discount^(steps after the
+    point until the scoring step), computed here from the raw experience."""
+    exp = collect(jax.random.PRNGKey(2), 0.0)
+    gam = 0.9
+    sm = make_builder(ABP.replace(discount=gam))(exp, jax.random.PRNGKey(1))
+    x, valid, goal = (np.asarray(exp.x)[F], np.asarray(exp.valid)[F], np.asarray(exp.goal)[F])
+    w = ABP.start_window
+    # steps from t to the first goal step g of its episode (inf: never)
+    g_idx = np.where(goal.any(1), goal.argmax(1), 10 ** 6)
+    t = np.arange(w)[None]
+    val = np.where(t <= g_idx[:, None], gam ** (g_idx[:, None] - t).astype(float), 0.0)
+    val = np.where(g_idx[:, None] < 10 ** 6, val, 0.0)
+    xs, ok = x[:, :w, 0], valid[:, :w]
+    ea = np.flatnonzero(np.asarray(sm.ell_active))
+    assert len(ea) >= 1
+    for e in ea:
+        c, m = np.asarray(sm.centre)[e, 0], np.asarray(sm.shape)[e, 0, 0]
+        inside = ok & ((xs - c) ** 2 * m <= 1.0)
+        assert inside.sum() > 10
+        np.testing.assert_allclose(float(sm.ell_value[e]), val[inside].mean(), rtol=1e-4)
+        np.testing.assert_allclose(float(sm.ell_reliability[e]), 1.0)
+
+
+def test_value_rank_gives_the_same_hand_derived_map(flipped):
+    """Ranking overlaps by value instead of transitions changes no state of the line world:
+    F1 on [0.5, 1), B2 on [0, 0.5), and the values are ordered as derived by hand (every F1
+    point scores within 10 steps, a B2 point needs its B steps first: lower value)."""
+    exp, _ = flipped
+    sm = make_builder(ABP.replace(rank="value", discount=0.9))(exp, jax.random.PRNGKey(1))
+    assert int(num_states(sm)) == 2 and sm.rank == "value"
+    by_action = {int(sm.action[s]): s for s in np.flatnonzero(np.asarray(sm.active))}
+    right = jnp.linspace(0.56, 0.97, 12, dtype=jnp.float32)[:, None]
+    left = jnp.linspace(0.03, 0.44, 12, dtype=jnp.float32)[:, None]
+    assert np.all(np.asarray(classify(sm, right)) == by_action[F])
+    assert np.all(np.asarray(classify(sm, left)) == by_action[B])
+    ea = np.asarray(sm.ell_active)
+    val, st = np.asarray(sm.ell_value)[ea], np.asarray(sm.ell_state)[ea]
+    assert val[st == by_action[F]].min() > val[st == by_action[B]].max() > 0.0
+    assert val.max() <= 1.0
+
+
+def test_fig5_categorical_dims_need_lost_side_features():
+    """Figure 5 treats the two lost-side features as categorical; without them (5 features)
+    that setting is refused with a clear error before anything is compiled."""
+    from vbl.engine.registry import get
+
+    exp = get("fig5_action_based")
+    cfg = exp.default_config
+    assert cfg.build.categorical_dims == 2 and cfg.features.lost_sides
+    bad = cfg.replace(features=cfg.features.replace(lost_sides=False))
+    with pytest.raises(ParamError, match="categorical_dims"):
+        exp.make_program(bad)

@@ -16,19 +16,24 @@ Algorithm (all fixed-shape, jit- and vmap-able):
 2. :func:`build_state_map`, iteration ``i = 0, 1, ...``: a point ``x_t`` of an
    episode with primitive ``a`` (one of its first ``start_window`` points, not yet
    inside a built state) *reaches* when a later step of the same episode hits the
-   goal or lands inside a built state. Per primitive, the reaching points are
-   clustered (k-means, ``clusters_per_action``) and each cluster becomes a
-   hyper-ellipsoid (:mod:`vbl.spaces.ellipsoids`, ``coverage`` quantile of its
-   members). A cluster is kept when it has ``min_points`` members and at least
-   ``min_reliability`` of *all* of ``a``'s start points inside it reach. The kept
-   ellipsoids of primitive ``a`` at iteration ``i`` form one state with action
-   ``a``, ``i + 1`` transitions to the goal and division order ``i``. Stop when an
-   iteration adds nothing (or after ``max_iterations``).
+   goal or lands inside a built state. Per primitive and *categorical pattern* (the
+   values of the last ``categorical_dims`` features, e.g. the objects' lost sides:
+   "seen", "lost left", "lost right"), the reaching points are clustered (k-means,
+   ``clusters_per_action``) and each cluster becomes a hyper-ellipsoid
+   (:mod:`vbl.spaces.ellipsoids`, ``coverage`` quantile of its members) that only holds
+   points of its pattern. A cluster is kept when it has ``min_points`` members and at
+   least ``min_reliability`` of *all* of ``a``'s start points inside it reach. The kept
+   ellipsoids of primitive ``a`` at iteration ``i`` form one state with action ``a``,
+   ``1 +`` the transitions of the state its points reach, and division order ``i``.
+   Stop when an iteration adds nothing (or after ``max_iterations``).
 
+Each ellipsoid also gets a *value*: the mean over its start points of
+``discount^(primitives to the target)`` x the target's value (goal 1, not reached 0).
 The result is a :class:`StateMap`; :func:`classify` maps ``x`` to the containing
-state with the fewest transitions (ties: smallest Mahalanobis distance), ``-1`` in
-the *remainder* (no state contains ``x``: situations never seen reaching the goal);
-:func:`policy_action` uses the nearest ellipsoid there.
+state with the fewest transitions (ties: smallest Mahalanobis distance; or, with
+``rank = "value"``, the containing ellipsoid of highest value), ``-1`` in the
+*remainder* (no state contains ``x``: situations never seen reaching the goal);
+:func:`policy_action` uses the nearest ellipsoid of the same pattern there.
 """
 
 from __future__ import annotations
@@ -42,7 +47,13 @@ import numpy as np
 from flax import struct
 
 from vbl.params import ParamError, param, validate
-from vbl.spaces.ellipsoids import fit_ellipsoids, kmeans, mahalanobis2, mahalanobis2_chunked
+from vbl.spaces.ellipsoids import (
+    best_inside,
+    fit_ellipsoids,
+    kmeans,
+    mahalanobis2,
+    mahalanobis2_chunked,
+)
 
 __all__ = [
     "FeatureParams",
@@ -51,6 +62,7 @@ __all__ = [
     "Experience",
     "StateMap",
     "sec2_features",
+    "pattern_of",
     "collect_experience",
     "build_state_map",
     "classify",
@@ -123,8 +135,8 @@ class ActionBasedParams:
 
     max_iterations: int = param(12, doc="most construction iterations (transitions to goal)",
                                 static=True, ge=1)
-    clusters_per_action: int = param(6, doc="k-means clusters per primitive and iteration",
-                                     static=True, ge=1)
+    clusters_per_action: int = param(6, doc="k-means clusters per primitive, iteration and "
+                                     "categorical pattern", static=True, ge=1)
     kmeans_iters: int = param(10, doc="Lloyd iterations of the k-means", static=True, ge=1)
     start_window: int = param(50, doc="first points of each episode used as start points "
                               "(the rest only serve as look-ahead)", unit="steps",
@@ -137,6 +149,37 @@ class ActionBasedParams:
                                    gt=0.0, le=1.0)
     ridge: float = param(1e-4, doc="added to cluster covariances", unit="(norm. units)^2",
                          gt=0.0)
+    categorical_dims: int = param(0, doc="the last this many features are categorical (e.g. "
+                                  "the objects' lost sides): points are clustered per "
+                                  "pattern of their values and an ellipsoid only holds "
+                                  "points of its own pattern (0: all features continuous)",
+                                  static=True, ge=0)
+    categorical_levels: int = param(3, doc="values of each categorical feature, equally "
+                                    "spaced in [0, 1] (3: 0, 0.5, 1 = lost left, seen, lost "
+                                    "right)", static=True, ge=2)
+
+    discount: float = param(0.98, doc="discount per primitive of an ellipsoid's value (mean "
+                            "over its start points of discount^(primitives to the target) x "
+                            "the target's value, 1 for the goal, 0 when not reached)",
+                            gt=0.0, le=1.0)
+    rank: str = param("transitions", doc="which containing state classifies a point: 'value' "
+                      "(the ellipsoid of highest value: reached most reliably and soonest) "
+                      "or 'transitions' (fewest transitions to the goal, then smallest "
+                      "Mahalanobis distance)", static=True, choices=("value", "transitions"))
+
+    supersede: bool = param(False, doc="with rank 'value': a later state may also claim "
+                            "points inside built states of another action when its value "
+                            "there is higher (else only points in no state are candidates)",
+                            static=True)
+
+    def check(self) -> None:
+        if self.supersede and self.rank != "value":
+            raise ParamError("build.supersede=True needs build.rank='value' (a state "
+                             "supersedes another by value)")
+
+    @property
+    def num_patterns(self) -> int:
+        return self.categorical_levels ** self.categorical_dims
 
 
 @struct.dataclass
@@ -151,25 +194,49 @@ class Experience:
 
 @struct.dataclass
 class StateMap:
-    """Built states (capacity S = max_iterations * A) made of ellipsoids (E = S * K).
+    """Built states (capacity S = max_iterations * A) made of ellipsoids (E = S * K * P,
+    K = clusters_per_action, P = categorical patterns).
 
-    centre (E, D), shape (E, D, D) float32; ell_active (E,) bool; ell_state (E,) int32
-    the state an ellipsoid belongs to; per state (S,): action int32 (state s = i * A + a,
-    made at iteration i, has action a), transitions int32 (state transitions to the goal:
-    1 + those of the state its points reach), order int32 (division order i), active bool;
-    iterations () int32 run. An ellipsoid whose points, repeating a, reach a state that
-    already has action a joins that state (F then F is still F).
+    centre (E, D), shape (E, D, D) float32 (zero for inactive ellipsoids); ell_active (E,)
+    bool; ell_state (E,) int32 the state an ellipsoid belongs to; ell_pattern (E,) int32 the
+    categorical pattern of its points (:func:`pattern_of`); ell_reliability (E,) float32
+    the fraction of its primitive's start points inside it that reached; ell_value (E,)
+    float32 the mean over those start points of discount^(primitives to the target) x the
+    target's value (goal 1, unreached 0); per state (S,):
+    action int32 (state s = i * A + a, made at iteration i, has action a), transitions int32
+    (state transitions to the goal: 1 + those of the state its points reach), order int32
+    (division order i), active bool; iterations () int32 run. An ellipsoid whose points,
+    repeating a, reach a state that already has action a joins that state (F then F is
+    still F). Static: categorical_dims, categorical_levels, rank (as in
+    :class:`ActionBasedParams`).
     """
 
     centre: jax.Array
     shape: jax.Array
     ell_active: jax.Array
     ell_state: jax.Array
+    ell_pattern: jax.Array
+    ell_reliability: jax.Array
+    ell_value: jax.Array
     action: jax.Array
     transitions: jax.Array
     order: jax.Array
     active: jax.Array
     iterations: jax.Array
+    categorical_dims: int = struct.field(pytree_node=False, default=0)
+    categorical_levels: int = struct.field(pytree_node=False, default=3)
+    rank: str = struct.field(pytree_node=False, default="transitions")
+
+
+def pattern_of(x: jax.Array, categorical_dims: int, levels: int) -> jax.Array:
+    """Categorical pattern (int32 (...)) of features x (..., D): the last
+    ``categorical_dims`` features, each rounded to one of ``levels`` equally spaced values
+    in [0, 1], read as digits base ``levels`` (0 when ``categorical_dims`` is 0)."""
+    if categorical_dims == 0:
+        return jnp.zeros(x.shape[:-1], jnp.int32)
+    digits = jnp.clip(jnp.round(x[..., -categorical_dims:] * (levels - 1)), 0, levels - 1)
+    base = (levels ** jnp.arange(categorical_dims, dtype=jnp.int32)).astype(F32)
+    return jnp.sum(digits * base, axis=-1).astype(jnp.int32)
 
 
 def collect_experience(env: Any, env_params: Any, key: jax.Array,
@@ -217,6 +284,9 @@ def _check_build(exp: Experience, p: ActionBasedParams) -> None:
     if p.start_window > t1 - 1:
         raise ParamError(f"start_window={p.start_window} must be <= the collection horizon "
                          f"{t1 - 1} (the episodes' length)")
+    if p.categorical_dims >= exp.x.shape[-1]:
+        raise ParamError(f"categorical_dims={p.categorical_dims} must be < the number of "
+                         f"features {exp.x.shape[-1]} (some must be continuous)")
 
 
 def build_state_map(exp: Experience, p: ActionBasedParams, key: jax.Array) -> StateMap:
@@ -226,56 +296,88 @@ def build_state_map(exp: Experience, p: ActionBasedParams, key: jax.Array) -> St
     :func:`make_builder` for a checked, jitted version.
     """
     n_act, n_ep, t1, dim = exp.x.shape
-    w, k, n_it = p.start_window, p.clusters_per_action, p.max_iterations
+    w, n_it, n_pat = p.start_window, p.max_iterations, p.num_patterns
+    k = p.clusters_per_action * n_pat                # ellipsoids per primitive and iteration
     s_cap = n_it * n_act
     e_cap = s_cap * k
     goal_lab = s_cap                       # target label of "scored"
     big = jnp.int32(10 ** 6)
     pts = exp.x[:, :, :w, :].reshape(n_act, n_ep * w, dim)
+    pat_of = lambda x: pattern_of(x, p.categorical_dims, p.categorical_levels)  # noqa: E731
+    pts_pat = pat_of(pts)                                                       # (A, P)
+    x_pat = pat_of(exp.x)                                                       # (A, N, T1)
+    cl_pat = jnp.repeat(jnp.arange(n_pat, dtype=jnp.int32), p.clusters_per_action)  # (k,)
     starts_valid = exp.valid[:, :, :w]
     i32 = jnp.int32
 
     smap = StateMap(
         centre=jnp.zeros((e_cap, dim), F32), shape=jnp.zeros((e_cap, dim, dim), F32),
         ell_active=jnp.zeros((e_cap,), bool), ell_state=jnp.zeros((e_cap,), i32),
+        ell_pattern=jnp.tile(cl_pat, s_cap), ell_reliability=jnp.zeros((e_cap,), F32),
+        ell_value=jnp.zeros((e_cap,), F32),
         action=jnp.tile(jnp.arange(n_act, dtype=i32), n_it),
         transitions=jnp.full((s_cap,), big, i32),
         order=jnp.repeat(jnp.arange(n_it, dtype=i32), n_act),
-        active=jnp.zeros((s_cap,), bool), iterations=jnp.zeros((), i32))
+        active=jnp.zeros((s_cap,), bool), iterations=jnp.zeros((), i32),
+        categorical_dims=p.categorical_dims, categorical_levels=p.categorical_levels,
+        rank=p.rank)
+    by_value = p.rank == "value"
+    gamma = jnp.asarray(p.discount, F32)
 
-    def cluster(kk, pa, cand, starts, reach, tgt):
-        _, assign = kmeans(kk, pa, cand, k, p.kmeans_iters)
+    def cluster(kk, pa, ppat, cand, starts, reach, tgt, val, cur_v):
+        _, assign = kmeans(kk, pa, cand, p.clusters_per_action, p.kmeans_iters, ppat, n_pat)
         c, m, cnt = fit_ellipsoids(pa, cand, assign, k, p.coverage, p.ridge)
-        inside = (mahalanobis2_chunked(pa, c, m) <= 1.0) & starts[:, None]      # (P, k)
+        inside = ((mahalanobis2_chunked(pa, c, m) <= 1.0) & (ppat[:, None] == cl_pat[None])
+                  & starts[:, None])                                            # (P, k)
         n_in = jnp.sum(inside, axis=0).astype(F32)
         n_ok = jnp.sum(inside & reach[:, None], axis=0).astype(F32)
         rel = n_ok / jnp.maximum(n_in, 1.0)
+        value = jnp.sum(jnp.where(inside, val[:, None], 0.0), axis=0) / jnp.maximum(n_in, 1.0)
         ok = (cnt >= p.min_points) & (rel >= p.min_reliability)
+        if p.supersede:           # better than the states the ellipsoid's points are in now
+            now = jnp.sum(jnp.where(inside, cur_v[:, None], 0.0), axis=0) / jnp.maximum(n_in, 1.0)
+            ok = ok & (value > now)
         member = jax.nn.one_hot(assign, k, dtype=F32) * cand.astype(F32)[:, None]  # (P, k)
         hist = member.T @ jax.nn.one_hot(jnp.maximum(tgt, 0), s_cap + 1, dtype=F32)
-        return c, m, ok, jnp.argmax(hist, axis=-1).astype(i32)                  # mode target
+        c = jnp.where(ok[:, None], c, 0.0)
+        m = jnp.where(ok[:, None, None], m, 0.0)
+        return c, m, ok, rel, value, jnp.argmax(hist, axis=-1).astype(i32)      # mode target
 
-    def first_target(lab):
-        """Label of the first goal/built state hit after each point (-1 none): (A, N, T)."""
+    def first_target(lab, lab_v):
+        """Label of the first goal/built state hit after each point (-1 none) and the
+        point's value discount^(steps to it) x its value (goal 1, none 0): (A, N, T) each."""
         def back(nxt, inp):
-            g, l_next = inp
-            cur = jnp.where(g, goal_lab, jnp.where(l_next >= 0, l_next, nxt))
-            return cur, cur
-        xs = (jnp.moveaxis(exp.goal, 2, 0), jnp.moveaxis(lab[..., 1:], 2, 0))
-        _, tgt = jax.lax.scan(back, jnp.full(exp.goal.shape[:2], -1, i32), xs, reverse=True)
-        return jnp.moveaxis(tgt, 0, 2)
+            g, l_next, v_next = inp
+            n_lab, n_val = nxt
+            hit = l_next >= 0
+            cur = jnp.where(g, goal_lab, jnp.where(hit, l_next, n_lab))
+            val = jnp.where(g, 1.0, gamma * jnp.where(hit, v_next, n_val))
+            return (cur, val), (cur, val)
+        mv = lambda a: jnp.moveaxis(a, 2, 0)  # noqa: E731
+        xs = (mv(exp.goal), mv(lab[..., 1:]), mv(lab_v[..., 1:]))
+        init = (jnp.full(exp.goal.shape[:2], -1, i32), jnp.zeros(exp.goal.shape[:2], F32))
+        _, (tgt, val) = jax.lax.scan(back, init, xs, reverse=True)
+        return jnp.moveaxis(tgt, 0, 2), jnp.moveaxis(val, 0, 2)
 
     def body(carry):
-        it, key, sm, lab, _ = carry
+        it, key, sm, lab, lab_v, _ = carry
         key, kc = jax.random.split(key)
-        tgt = first_target(lab)
+        tgt, val = first_target(lab, lab_v)
         reach = tgt >= 0
-        starts = starts_valid & (lab[..., :w] < 0)
-        cand = starts & reach[..., :w]
+        free = lab[..., :w] < 0
+        if p.supersede:
+            starts = starts_valid
+            own = jnp.arange(n_act, dtype=i32)[:, None, None]
+            other = sm.action[jnp.maximum(lab[..., :w], 0)] != own
+            free = free | (other & (val[..., :w] > lab_v[..., :w]))
+        else:
+            starts = starts_valid & free
+        cand = starts_valid & free & reach[..., :w]
         flat = (lambda a: a.reshape(n_act, -1))
-        c, m, ok, mode = jax.vmap(cluster)(jax.random.split(kc, n_act), pts, flat(cand),
-                                           flat(starts), flat(reach[..., :w]),
-                                           flat(tgt[..., :w]))                # (A, k, ...)
+        c, m, ok, rel, value, mode = jax.vmap(cluster)(
+            jax.random.split(kc, n_act), pts, pts_pat, flat(cand), flat(starts),
+            flat(reach[..., :w]), flat(tgt[..., :w]), flat(val[..., :w]),
+            flat(lab_v[..., :w]))                                                # (A, k, ...)
         acts = jnp.arange(n_act, dtype=i32)[:, None]
         fresh = (it * n_act + acts) * jnp.ones((1, k), i32)                       # (A, k)
         mode_state = jnp.minimum(mode, s_cap - 1)
@@ -295,24 +397,31 @@ def build_state_map(exp: Experience, p: ActionBasedParams, key: jax.Array) -> St
             shape=upd(sm.shape, m.reshape(-1, dim, dim), (base, z, z)),
             ell_active=upd(sm.ell_active, ok.reshape(-1), (base,)),
             ell_state=upd(sm.ell_state, ell_state.reshape(-1), (base,)),
+            ell_reliability=upd(sm.ell_reliability, jnp.where(ok, rel, 0.0).reshape(-1),
+                                (base,)),
+            ell_value=upd(sm.ell_value, jnp.where(ok, value, 0.0).reshape(-1), (base,)),
             transitions=transitions, active=active, iterations=it + 1)
-        # label the points that fall inside the new ellipsoids (fewest transitions wins)
-        d2 = mahalanobis2_chunked(exp.x, c.reshape(-1, dim), m.reshape(-1, dim, dim))  # (A,N,T1,Ak)
+        # label the points that fall inside the new ellipsoids (the rank of classify)
         e_st = ell_state.reshape(-1)
-        score = jnp.where((d2 <= 1.0) & ok.reshape(-1), transitions[e_st].astype(F32) * 4.0
-                          + d2, jnp.inf)
-        best = jnp.argmin(score, axis=-1)
-        hit = jnp.isfinite(jnp.min(score, axis=-1)) & exp.valid & (lab < 0)
+        e_val = value.reshape(-1)
+        base = -e_val if by_value else transitions[e_st].astype(F32) * 4.0
+        best, inside = best_inside(exp.x, x_pat, c.reshape(-1, dim), m.reshape(-1, dim, dim),
+                                   jnp.tile(cl_pat, n_act), ok.reshape(-1), base,
+                                   0.0 if by_value else 1.0)                    # (A, N, T1)
+        new_v = e_val[best]
+        hit = inside & exp.valid
+        hit = hit & ((lab < 0) | (new_v > lab_v)) if p.supersede else hit & (lab < 0)
         lab = jnp.where(hit, e_st[best], lab)
-        return it + 1, key, sm, lab, jnp.any(ok)
+        lab_v = jnp.where(hit, new_v, lab_v)
+        return it + 1, key, sm, lab, lab_v, jnp.any(ok)
 
     def cond(carry):
-        it, _, _, _, added = carry
+        it, _, _, _, _, added = carry
         return (it < n_it) & added
 
     init = (jnp.zeros((), i32), key, smap, jnp.full(exp.valid.shape, -1, i32),
-            jnp.ones((), bool))
-    _, _, smap, _, _ = jax.lax.while_loop(cond, body, init)
+            jnp.zeros(exp.valid.shape, F32), jnp.ones((), bool))
+    smap = jax.lax.while_loop(cond, body, init)[2]
     return smap
 
 
@@ -332,23 +441,34 @@ def make_builder(p: ActionBasedParams) -> Callable[[Experience, jax.Array], Stat
 
 
 def _scores(sm: StateMap, x: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Squared Mahalanobis distance to every ellipsoid (inf for inactive ones and for those
+    of another categorical pattern) and the ellipsoids' states."""
     d2 = mahalanobis2(x, sm.centre, sm.shape)                                    # (..., E)
-    d2 = jnp.where(sm.ell_active, d2, jnp.inf)
+    pat = pattern_of(x, sm.categorical_dims, sm.categorical_levels)
+    d2 = jnp.where(sm.ell_active & (pat[..., None] == sm.ell_pattern), d2, jnp.inf)
     return d2, sm.ell_state
 
 
 def classify(sm: StateMap, x: jax.Array) -> jax.Array:
-    """State index (int32, (...)) of features x (..., D); -1 when no state contains x."""
+    """State index (int32, (...)) of features x (..., D); -1 when no state contains x.
+
+    Among the containing ellipsoids (same categorical pattern, inside), ``rank =
+    "transitions"``: the state with the fewest transitions to the goal, ties by the
+    smallest Mahalanobis distance; ``"value"``: the ellipsoid of highest value."""
     d2, st = _scores(sm, x)
     inside = d2 <= 1.0
-    key = jnp.where(inside, sm.transitions[st].astype(F32) * 4.0 + d2, jnp.inf)
+    rank = -sm.ell_value if sm.rank == "value" else sm.transitions[st].astype(F32) * 4.0 + d2
+    key = jnp.where(inside, rank, jnp.inf)
     best = jnp.argmin(key, axis=-1)
     return jnp.where(jnp.any(inside, axis=-1), st[best], -1).astype(jnp.int32)
 
 
 def nearest_state(sm: StateMap, x: jax.Array) -> jax.Array:
-    """State of the ellipsoid with the smallest Mahalanobis distance (int32 (...))."""
+    """State of the ellipsoid with the smallest Mahalanobis distance among those of x's
+    categorical pattern, or among all ellipsoids when the pattern has none (int32 (...))."""
     d2, st = _scores(sm, x)
+    d_all = jnp.where(sm.ell_active, mahalanobis2(x, sm.centre, sm.shape), jnp.inf)
+    d2 = jnp.where(jnp.any(jnp.isfinite(d2), axis=-1, keepdims=True), d2, d_all)
     return st[jnp.argmin(d2, axis=-1)].astype(jnp.int32)
 
 
