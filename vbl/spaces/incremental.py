@@ -325,6 +325,14 @@ def _sse(szz, szy, syy, n, ridge):
     return jnp.where(n > 0, jnp.maximum(sse, 0.0), 0.0)
 
 
+def _bin_in_box(seg: Segmentation, leaf: jax.Array, x: jax.Array, bins: int) -> jax.Array:
+    """Bin index (M, D) int32 of points ``x`` (M, D) along each axis of their box ``leaf``
+    (M,): ``bins`` equal bins of the box's side, clipped to [0, bins)."""
+    lo = seg.lo[leaf]
+    width = jnp.maximum(seg.hi[leaf] - lo, 1e-12)
+    return jnp.clip(jnp.floor(bins * (x - lo) / width), 0, bins - 1).astype(I32)
+
+
 def _stats(seg: Segmentation, buf: Buffer, num_actions: int, bins: int, weight_out,
            weight_ret=0.0):
     """Bin statistics (L, A, D, B, ...) of the buffer under the current boxes (float64).
@@ -340,8 +348,7 @@ def _stats(seg: Segmentation, buf: Buffer, num_actions: int, bins: int, weight_o
         valid = valid & (buf.closed | (wr <= 0))
     zz = jnp.concatenate([x, jnp.ones((x.shape[0], 1), F64)], axis=1)
     leaf = leaf_of(seg, buf.x)
-    width = jnp.maximum(seg.hi[leaf] - seg.lo[leaf], 1e-12)
-    b = jnp.clip(jnp.floor(bins * (buf.x - seg.lo[leaf]) / width), 0, bins - 1).astype(I32)
+    b = _bin_in_box(seg, leaf, buf.x, bins)
     base = (leaf * num_actions + buf.a) * dim                                     # (M,)
     idx = (base[:, None] + jnp.arange(dim, dtype=I32)[None]) * bins + b           # (M, D)
     idx = jnp.where(valid[:, None], idx, cap * num_actions * dim * bins)          # dropped
@@ -415,8 +422,7 @@ def _value_stats(seg: Segmentation, buf: Buffer, target: jax.Array, num_actions:
     cross-fitted greedy value)."""
     cap, dim = seg.lo.shape
     leaf = leaf_of(seg, buf.x)
-    width = jnp.maximum(seg.hi[leaf] - seg.lo[leaf], 1e-12)
-    b = jnp.clip(jnp.floor(bins * (buf.x - seg.lo[leaf]) / width), 0, bins - 1).astype(I32)
+    b = _bin_in_box(seg, leaf, buf.x, bins)
     half = (jnp.arange(buf.x.shape[0], dtype=I32) % 2)[:, None]
     base = (leaf * num_actions + buf.a) * dim
     idx = ((base[:, None] + jnp.arange(dim, dtype=I32)[None]) * bins + b) * 2 + half
@@ -529,10 +535,8 @@ def structure_update(lr: Learner, p: IncrementalParams) -> tuple[Learner, jax.Ar
         buf = lr.buf
         leaf_x = leaf_of(seg, buf.x)
         xn = jnp.clip(buf.x + buf.y[:, :dim], 0.0, 1.0)
-        lo_x = seg.lo[leaf_x]
-        w_x = jnp.maximum(seg.hi[leaf_x] - lo_x, 1e-12)
-        b_x = jnp.clip(jnp.floor(nb * (buf.x - lo_x) / w_x), 0, nb - 1).astype(I32)
-        b_n = jnp.clip(jnp.floor(nb * (xn - lo_x) / w_x), 0, nb - 1).astype(I32)
+        b_x = _bin_in_box(seg, leaf_x, buf.x, nb)
+        b_n = _bin_in_box(seg, leaf_x, xn, nb)
         v_bin = _greedy_value(tsum, tcnt, mc, xf)                                 # (L, D, B)
         vb = v_bin[leaf_x[:, None], jnp.arange(dim)[None], b_n].astype(F32)       # (M, D)
         tgt_d = td_targets(seg, buf, lr.q, p.gamma, p.discount_per_primitive, b_x == b_n, vb)
