@@ -512,3 +512,78 @@ def test_fringe_value_split_on_the_toy_by_hand():
     np.testing.assert_allclose(lo[order], [[0.0, 0.0], [0.5, 0.0]])
     np.testing.assert_allclose(hi[order], [[0.5, 1.0], [1.0, 1.0]])
     assert not bool(upd(lr0, pf.replace(value_split_gain=0.03))[1])
+
+
+# --- exit outputs (where the held primitive leaves the box) ------------------------------
+
+
+def test_exit_changes_follow_the_held_primitive_to_the_box_exit_by_hand():
+    """The buffer of the TD-target test: the chain of primitive 0 (clocks 5-8) leaves the
+    left box at x0 = 0.51, so its exits are 0.51 - x0; the scoring and the failing step end
+    their own chains (their x' = x: the change of x is 0 on a terminal step); the newest
+    transition's exit is its own change."""
+    from vbl.spaces.incremental import exit_changes, record
+    lr = init_learner(P, 2, 4)
+    seg = lr.seg
+    seg = seg.replace(hi=seg.hi.at[0, 0].set(0.5).at[1].set(1.0),
+                      lo=seg.lo.at[1, 0].set(0.5), active=seg.active.at[1].set(True))
+    buf = lr.buf
+    d = jnp.array([0.02, 0.0, 0.0], jnp.float32)
+    steps = [([0.43, 0.3], 0, d, 5, False), ([0.45, 0.3], 0, d, 6, False),
+             ([0.47, 0.3], 0, d, 7, False), ([0.49, 0.3], 0, d, 8, False),
+             ([0.52, 0.3], 2, jnp.array([0.0, 0.0, 1.0]), 9, True),
+             ([0.10, 0.1], 1, jnp.zeros(3), 10, True),
+             ([0.20, 0.2], 3, jnp.array([0.0, -0.02, 0.0]), 11, False)]
+    for x, a, y, c, t in steps:
+        buf = record(buf, jnp.array(x, jnp.float32), jnp.int32(a), y, jnp.asarray(True), c, t)
+    got = np.asarray(exit_changes(seg, buf))
+    want = [[0.08, 0], [0.06, 0], [0.04, 0], [0.02, 0], [0, 0], [0, 0], [0, -0.02]]
+    np.testing.assert_allclose(got[:7], want, atol=1e-6)
+    np.testing.assert_array_equal(got[7:], 0.0)                  # empty slots
+
+
+def drifting_chains(p, step=0.001, length=16):
+    """M transitions in chains of ``length`` steps of one primitive each (consecutive
+    clocks, then a gap): x0 drifts by ``step`` per step away from x0 = 0.5, so one step
+    hardly differs between the sides but where a chain ends differs by 2 x length x step."""
+    lr = init_learner(p, 2, 4)
+    n = M // length
+    k0, k1, ka = jax.random.split(jax.random.PRNGKey(7), 3)
+    start = jax.random.uniform(k0, (n,), jnp.float32, 0.1, 0.9)
+    x1 = jax.random.uniform(k1, (n,), jnp.float32, 0.1, 0.9)
+    sign = jnp.where(start < 0.5, -1.0, 1.0)
+    t = jnp.arange(length, dtype=jnp.float32)
+    x0 = (start[:, None] + sign[:, None] * step * t[None]).reshape(-1)
+    x = jnp.stack([x0, jnp.repeat(x1, length)], 1)
+    dx = jnp.stack([jnp.repeat(sign * step, length), jnp.zeros(M, jnp.float32)], 1)
+    a = jnp.repeat(jax.random.randint(ka, (n,), 0, 4), length).astype(jnp.int32)
+    clock = (jnp.arange(n)[:, None] * (length + 10) + jnp.arange(length)[None]).reshape(-1)
+    y = jnp.concatenate([dx, jnp.zeros((M, lr.buf.y.shape[1] - 2), jnp.float32)], 1)
+    return lr.replace(buf=Buffer(x=x, a=a, y=y, valid=jnp.ones(M, bool),
+                                 ptr=jnp.zeros((), jnp.int32), clock=clock.astype(jnp.int32),
+                                 closed=jnp.ones(M, bool), term=jnp.zeros(M, bool)))
+
+
+def test_exit_output_splits_where_exits_differ_and_one_step_changes_barely_do():
+    """One-step changes of +-0.001 (a residual reduction of ~1e-6 per transition, below
+    split_gain 5e-6): no split from the one-step models, with or without the exit outputs
+    at weight 0. With the exit outputs at weight 1 the chain exits (up to +-0.016) differ by
+    side: exactly one split, at x0 = 0.5."""
+    upd = jax.jit(structure_update)
+    pe = P.replace(exit_output=True)
+    for p in (P, pe):
+        assert not bool(upd(drifting_chains(p), p)[1])
+    lr = drifting_chains(pe)
+    p1 = pe.replace(exit_weight=1.0)
+    for _ in range(3):
+        lr, _, _ = upd(lr, p1)
+    lo, hi = boxes(lr)
+    assert len(lo) == 2 and int(lr.splits) == 1
+    order = np.argsort(lo[:, 0])
+    np.testing.assert_allclose(lo[order], [[0.0, 0.0], [0.5, 0.0]])
+    np.testing.assert_allclose(hi[order], [[0.5, 1.0], [1.0, 1.0]])
+
+
+def test_exit_weight_without_exit_output_is_a_clear_error():
+    with pytest.raises(ParamError, match="exit_weight.*exit_output"):
+        validate(P.replace(exit_weight=0.5))

@@ -42,6 +42,10 @@ Learning (one robot, one environment; :func:`make_learner` vmaps over seeds):
    cut with gain >= ``value_split_gain`` is made (``value_fringe``: per axis, chains also
    end at that axis's bin edges and bootstrap from the bins' greedy values). Merges whose
    pair gains more than ``value_merge_tol`` by staying apart are vetoed.
+   With ``exit_output`` the local models also predict the *exit* of the held primitive
+   (:func:`exit_changes`: x where a chain of that primitive leaves the box, minus x),
+   weighted ``exit_weight``: a box splits where the same action leads to different places
+   even when one step hardly differs (a ball drifting out of the image left or right).
 4. Q-learning on boxes with Boltzmann action selection; an *action* holds its
    primitive until the box changes, the episode ends or ``max_repeat`` steps pass,
    then ``Q(s, a) += alpha (r + gamma max Q(s') - Q(s, a))`` (target ``r`` when the
@@ -72,6 +76,7 @@ __all__ = [
     "record",
     "structure_update",
     "td_targets",
+    "exit_changes",
     "num_states",
     "greedy_action",
     "learner_step",
@@ -162,6 +167,14 @@ class IncrementalParams:
                                "the bins' greedy values (one round of fringe value iteration: "
                                "a cut's value no longer has to exist before the cut)",
                                static=True)
+    exit_output: bool = param(False, doc="add the *exit* of the held primitive to the local "
+                              "models' outputs: where a chain of the same primitive leaves "
+                              "the box (x at the chain end - x), so a box splits where the "
+                              "same action leads to different places (e.g. a ball that "
+                              "leaves the image left or right); costs a second set of "
+                              "outputs in the statistics", static=True)
+    exit_weight: float = param(0.0, doc="weight of the exit outputs in the model residual "
+                               "(with exit_output)", ge=0.0)
     value_merge_tol: float = param(0.005, doc="with value-driven splits on, two boxes merge only "
                                    "if acting greedily in each separately beats acting greedily "
                                    "in their union by at most this per transition "
@@ -171,6 +184,9 @@ class IncrementalParams:
         if np.any(np.asarray(self.merge_tol) >= np.asarray(self.split_gain)):
             raise ParamError(f"merge_tol={self.merge_tol} must be < split_gain="
                              f"{self.split_gain} (else a split is undone at once)")
+        if not self.exit_output and np.any(np.asarray(self.exit_weight) > 0):
+            raise ParamError(f"exit_weight={self.exit_weight} needs exit_output=True (the "
+                             "exit outputs are only computed then)")
         if not self.return_output and np.any(np.asarray(self.return_weight) > 0):
             raise ParamError(f"return_weight={self.return_weight} needs return_output=True "
                              "(the return output is not kept without it)")
@@ -334,10 +350,11 @@ def _bin_in_box(seg: Segmentation, leaf: jax.Array, x: jax.Array, bins: int) -> 
 
 
 def _stats(seg: Segmentation, buf: Buffer, num_actions: int, bins: int, weight_out,
-           weight_ret=0.0):
+           weight_ret=0.0, extra_y: jax.Array | None = None):
     """Bin statistics (L, A, D, B, ...) of the buffer under the current boxes (float64).
 
-    With ``weight_ret`` > 0 only closed transitions (trial ended, return known) count."""
+    With ``weight_ret`` > 0 only closed transitions (trial ended, return known) count.
+    ``extra_y`` (M, E): more (already weighted) outputs appended to the buffer's."""
     cap, dim = seg.lo.shape
     x = buf.x.astype(F64)
     y = buf.y.astype(F64).at[:, dim].multiply(jnp.sqrt(jnp.asarray(weight_out, F64)))
@@ -346,6 +363,8 @@ def _stats(seg: Segmentation, buf: Buffer, num_actions: int, bins: int, weight_o
         wr = jnp.asarray(weight_ret, F64)
         y = y.at[:, dim + 1].multiply(jnp.sqrt(wr))
         valid = valid & (buf.closed | (wr <= 0))
+    if extra_y is not None:
+        y = jnp.concatenate([y, extra_y.astype(F64)], axis=1)
     zz = jnp.concatenate([x, jnp.ones((x.shape[0], 1), F64)], axis=1)
     leaf = leaf_of(seg, buf.x)
     b = _bin_in_box(seg, leaf, buf.x, bins)
@@ -361,6 +380,45 @@ def _stats(seg: Segmentation, buf: Buffer, num_actions: int, bins: int, weight_o
         s = jax.ops.segment_sum(rep.reshape((-1,) + v.shape[1:]), idx.reshape(-1), nseg)
         out.append(s[:-1].reshape((cap, num_actions, dim, bins) + v.shape[1:]))
     return out
+
+
+def _continues(seg: Segmentation, buf: Buffer):
+    """Per buffered transition: does its successor in the buffer continue the same action
+    (next clock, same primitive, not terminal, ``x' = x + dx`` still in the same box)?
+    Returns (cont (M,) bool, scored (M,) bool, xn (M, D) the next features, s, sn (M,)
+    their boxes)."""
+    m, dim = buf.x.shape
+    scored = buf.y[:, dim] > 0.5
+    xn = jnp.clip(buf.x + buf.y[:, :dim], 0.0, 1.0)
+    s, sn = leaf_of(seg, buf.x), leaf_of(seg, xn)
+    idx = jnp.arange(m, dtype=I32)
+    succ = (idx + 1) % m
+    newest = (buf.ptr - 1) % m
+    cont = (buf.valid & buf.valid[succ] & (idx != newest) & (buf.clock[succ] == buf.clock + 1)
+            & ~buf.term & ~scored & (buf.a[succ] == buf.a) & (sn == s))
+    return cont, scored, xn, s, sn
+
+
+def _chain_end(cont: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Last transition (int32 (M,)) of each transition's chain and the chain steps after it
+    (float32 (M,)), by pointer doubling (log2(M) gathers) over ``cont`` (M,) bool."""
+    m = cont.shape[0]
+    idx = jnp.arange(m, dtype=I32)
+    nxt = jnp.where(cont, (idx + 1) % m, idx)
+    dist = cont.astype(F32)
+    for _ in range(max(1, int(np.ceil(np.log2(m))))):
+        dist = dist + dist[nxt]
+        nxt = nxt[nxt]
+    return nxt, dist
+
+
+def exit_changes(seg: Segmentation, buf: Buffer) -> jax.Array:
+    """Where the held primitive leaves the box: ``x'`` of the last transition of each
+    transition's chain (same primitive, same box, consecutive; see :func:`td_targets`)
+    minus its own ``x``; float32 (M, D), 0 for invalid slots."""
+    cont, _, xn, _, _ = _continues(seg, buf)
+    nxt, _ = _chain_end(cont)
+    return jnp.where(buf.valid[:, None], xn[nxt] - buf.x, 0.0).astype(F32)
 
 
 def td_targets(seg: Segmentation, buf: Buffer, q: jax.Array, gamma: Any,
@@ -385,21 +443,12 @@ def td_targets(seg: Segmentation, buf: Buffer, q: jax.Array, gamma: Any,
     ``gamma * max Q(box)``. Returns (M, D) targets then, one set per axis."""
     m, dim = buf.x.shape
     g = jnp.asarray(gamma, F32)
-    scored = buf.y[:, dim] > 0.5
-    xn = jnp.clip(buf.x + buf.y[:, :dim], 0.0, 1.0)
-    s, sn = leaf_of(seg, buf.x), leaf_of(seg, xn)
+    cont, scored, xn, s, sn = _continues(seg, buf)
     base = jnp.where(scored, 1.0, jnp.where(buf.term, 0.0, g * jnp.max(q[sn], axis=-1)))
     idx = jnp.arange(m, dtype=I32)
     succ = (idx + 1) % m
-    newest = (buf.ptr - 1) % m
-    cont = (buf.valid & buf.valid[succ] & (idx != newest) & (buf.clock[succ] == buf.clock + 1)
-            & ~buf.term & ~scored & (buf.a[succ] == buf.a) & (sn == s))
     if same_bin is None:
-        nxt = jnp.where(cont, succ, idx)
-        dist = cont.astype(F32)
-        for _ in range(max(1, int(np.ceil(np.log2(m))))):
-            dist = dist + dist[nxt]
-            nxt = nxt[nxt]
+        nxt, dist = _chain_end(cont)
         disc = jnp.where(jnp.asarray(per_primitive, bool), g ** dist, 1.0)
         return jnp.where(buf.valid, disc * base[nxt], 0.0).astype(F32)
     inside = ((sn == s) & ~scored & ~buf.term)[:, None]
@@ -468,8 +517,11 @@ def structure_update(lr: Learner, p: IncrementalParams) -> tuple[Learner, jax.Ar
     nb = p.bins
     k_c = min(p.split_candidates, cap)
     ridge = jnp.asarray(p.ridge, F64)
+    extra = None
+    if p.exit_output:
+        extra = jnp.sqrt(jnp.asarray(p.exit_weight, F32)) * exit_changes(seg, lr.buf)
     szz, szy, syy, cnt = _stats(seg, lr.buf, n_act, nb, p.outcome_weight,
-                                p.return_weight if p.return_output else 0.0)
+                                p.return_weight if p.return_output else 0.0, extra)
     # whole boxes: sum the bins of axis 0
     tots = [a[:, :, 0].sum(axis=2) for a in (szz, szy, syy, cnt)]                # (L, A, ...)
     t_n = tots[3]
