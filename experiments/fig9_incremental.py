@@ -205,6 +205,7 @@ def make_program(cfg: Fig9Config) -> Program:
                "states": jnp.sum(lr.seg.active).astype(F32),
                "splits": lr.splits.astype(F32), "value_splits": lr.value_splits.astype(F32),
                "trials_done": carry.run.trials.astype(F32),
+               "primitives_done": lr.clock.astype(F32),
                "trial_success": carry.trial_success, "trial_states": carry.trial_states,
                "box_lo": lr.seg.lo, "box_hi": lr.seg.hi,
                "box_active": lr.seg.active.astype(F32),
@@ -214,9 +215,16 @@ def make_program(cfg: Fig9Config) -> Program:
         if gprog is not None:
             gc = f5.grid_config(ep, c.grid.replace(train=c.grid.train.replace(
                 eval_curve=False)))
-            g = jax.lax.fori_loop(0, gprog.num_chunks, lambda _, g: gprog.step(g, gc)[0],
-                                  gprog.init(k_grid, gc))
+            def gstep(_, gc_n):
+                g, n_ep, n_prim = gc_n
+                g, m = gprog.step(g, gc)
+                return g, n_ep + m["episodes"], n_prim + m["episodes"] * m["mean_primitives"]
+
+            z = jnp.zeros((), F32)
+            g, g_ep, g_prim = jax.lax.fori_loop(0, gprog.num_chunks, gstep,
+                                                (gprog.init(k_grid, gc), z, z))
             out["grid_success"] = gprog.final(g, gc, k_gfin)["greedy_success"]
+            out["grid_trials"], out["grid_primitives"] = g_ep, g_prim
         return out
 
     return Program(init=init, step=step, num_chunks=cfg.train.num_chunks, final=final)
@@ -385,10 +393,19 @@ def report(res) -> ReportSection:
                  f"with this ball) {fmt(fin['steer_success'])}")
     if "grid_success" in fin:
         g = fin["grid_success"]
-        line += (f"; the grid baseline (grid_shooting's settings, {fig5().NUM_GRID_STATES} "
+        line += (f"; the grid baseline (grid_shooting's learner, {fig5().NUM_GRID_STATES} "
                  f"states, trained on the final ball, same start difficulty and limit) "
                  f"{fmt(g)}. At least the grid's success with fewer states: "
                  f"{yn(gs.mean() >= g.mean() and fin['states'].mean() < 319)}.")
+        if "grid_trials" in fin:
+            line += (f" Experience: the grid learner {fin['grid_trials'].mean():,.0f} trials "
+                     f"({fin['grid_primitives'].mean():,.0f} primitives, "
+                     f"{cfg.grid.agent.num_envs} envs x {cfg.grid.train.num_chunks} chunks x "
+                     f"{cfg.grid.agent.chunk_steps} learner steps), the on-line learner "
+                     f"{fin['trials_done'].mean():,.0f} trials "
+                     f"({fin['primitives_done'].mean():,.0f} primitives), means over seeds; "
+                     "equal experience: `--set grid.agent.num_envs=1 --set "
+                     "grid.train.num_chunks=N`.")
     else:
         line += ("; grid baseline not run (train.grid_baseline off, e.g. --quick): see "
                  "fig5_action_based.")
