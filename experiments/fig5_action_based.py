@@ -112,8 +112,12 @@ def _build_default() -> ActionBasedParams:
     categorical: clusters and ellipsoids never mix "ball seen", "ball lost left" and "ball
     lost right" (nor the goal's three), which the Gaussian ellipsoids of mixed clusters did
     (half-widths ~1 along the lost-side axes, measured); 4 clusters per primitive,
-    iteration and pattern (36 ellipsoids per primitive and iteration)."""
-    return ActionBasedParams(categorical_dims=2, clusters_per_action=4)
+    iteration and pattern (36 ellipsoids per primitive and iteration). Session 5: the
+    reliability is the chance of scoring through the chain (threshold 0.4) and a point
+    goes to the containing ellipsoid of fewest expected primitives to the goal (4 seeds:
+    0.18 -> 0.26, every seed up; docs/state_spaces.md, "Figure 5: session 5")."""
+    return ActionBasedParams(categorical_dims=2, clusters_per_action=4,
+                             chain_reliability=True, rank="time", min_reliability=0.4)
 
 
 @struct.dataclass
@@ -125,6 +129,12 @@ class Fig5Config:
     grid: GridBaseline = section(GridBaseline, doc="grid baseline (grid_shooting's settings; "
                                  "its chunks are this run's chunks)")
     eval: EvalParams = section(EvalParams, doc="evaluation of the map")
+
+
+def ball_speed(state) -> jax.Array:
+    """The ball's speed (m/s) in a shooting state: the world speed the construction's
+    ``build.start_max_speed`` filters start points by."""
+    return jnp.linalg.norm(state.world.ball_vel).astype(F32)
 
 
 @struct.dataclass
@@ -144,7 +154,7 @@ def make_program(cfg: Fig5Config) -> Program:
     def init(key, c):
         k_col, k_build, k_grid = jax.random.split(key, 3)
         feat = lambda o: sec2_features(o, c.features)  # noqa: E731
-        exp = collect_experience(ENV, c.env, k_col, feat, n_act, c.collect)
+        exp = collect_experience(ENV, c.env, k_col, feat, n_act, c.collect, ball_speed)
         smap = build_state_map(exp, c.build, k_build)
         grid = None if gprog is None else gprog.init(k_grid, grid_config(c.env, c.grid))
         return Carry(smap=smap, grid=grid)
@@ -171,6 +181,7 @@ def make_program(cfg: Fig5Config) -> Program:
                 "ell_active": sm.ell_active.astype(F32), "ell_state": sm.ell_state.astype(F32),
                 "ell_pattern": sm.ell_pattern.astype(F32),
                 "ell_reliability": sm.ell_reliability, "ell_value": sm.ell_value,
+                "ell_time": sm.ell_time,
                 "action": sm.action.astype(F32), "transitions": sm.transitions.astype(F32),
                 "order": sm.order.astype(F32), "active": sm.active.astype(F32)}
         if gprog is not None:
@@ -190,6 +201,7 @@ def map_of(final: dict, seed: int, build: ActionBasedParams | None = None) -> St
     return StateMap(centre=g("centre"), shape=g("shape"), ell_active=g("ell_active", bool),
                     ell_state=g("ell_state", np.int32), ell_pattern=g("ell_pattern", np.int32),
                     ell_reliability=g("ell_reliability"), ell_value=g("ell_value"),
+                    ell_time=g("ell_time"),
                     action=g("action", np.int32), transitions=g("transitions", np.int32),
                     order=g("order", np.int32), active=g("active", bool),
                     iterations=np.int32(0), categorical_dims=b.categorical_dims,
@@ -298,7 +310,7 @@ EXPERIMENT = register(Experiment(
     seeds=4,
     quick_seeds=2,
     paper_result=True,
-    cost=115.0,  # s of a cold --quick run on 2 shared cores (compile-dominated; load ~4)
+    cost=119.0,  # s of a cold --quick run on 2 shared cores (compile-dominated; load ~2-3)
     paper={"figure": "5", "claim": "states differ from the programmer's grid; F/B labels"},
     report=report,
 ))

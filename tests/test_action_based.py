@@ -266,6 +266,125 @@ def test_fig5_categorical_dims_need_lost_side_features():
     exp = get("fig5_action_based")
     cfg = exp.default_config
     assert cfg.build.categorical_dims == 2 and cfg.features.lost_sides
+    # session 5: chain reliability and the time rank are Figure 5's construction
+    assert cfg.build.chain_reliability and cfg.build.rank == "time"
+    assert cfg.build.min_reliability == pytest.approx(0.4)
     bad = cfg.replace(features=cfg.features.replace(lost_sides=False))
     with pytest.raises(ParamError, match="categorical_dims"):
         exp.make_program(bad)
+
+
+def _moving(state):
+    """Line-world 'speed': 1 on [0.5, 0.75) (the points to drop as start points), else 0."""
+    p = state.x[0]
+    return ((p >= 0.5) & (p < 0.75)).astype(jnp.float32)
+
+
+def test_collect_records_speed_and_rest_filter_drops_exactly_the_moving_points():
+    """speed_fn is recorded at every point (here 1 exactly where 0.5 <= p < 0.75). With
+    start_max_speed 0.5 those points are no start points: F1 comes only from F points at
+    p >= 0.75 (its ellipsoid reaches at most ~0.12 below them), and B, which oscillates
+    just below 0.5, never reaches it -> one state, and p in [0.5, 0.7] is in none. With
+    all speeds 0 the filter changes nothing (the map equals the unfiltered one)."""
+    ep = ENV.default_params.replace(flip_below=0.5)
+    exp = jax.jit(lambda k: collect_experience(ENV, ep, k, lambda o: o, 2, CP, _moving))(
+        jax.random.PRNGKey(0))
+    x, sp, valid = (np.asarray(a) for a in (exp.x[..., 0], exp.speed, exp.valid))
+    assert exp.speed.shape == exp.valid.shape and exp.speed.dtype == jnp.float32
+    np.testing.assert_array_equal(sp[valid], ((x >= 0.5) & (x < 0.75))[valid])
+    p = ABP.replace(start_max_speed=0.5)
+    sm = make_builder(p)(exp, jax.random.PRNGKey(1))
+    assert int(num_states(sm)) == 1
+    s = int(np.flatnonzero(np.asarray(sm.active))[0])
+    assert int(sm.action[s]) == F and int(sm.transitions[s]) == 1
+    mid = jnp.linspace(0.5, 0.7, 9, dtype=jnp.float32)[:, None]
+    top = jnp.linspace(0.8, 0.97, 9, dtype=jnp.float32)[:, None]
+    assert np.all(np.asarray(classify(sm, mid)) == -1)
+    assert np.all(np.asarray(classify(sm, top)) == s)
+    # speeds all 0: the same map as without the filter, bit for bit
+    still = exp.replace(speed=jnp.zeros_like(exp.speed))
+    a, b = make_builder(p)(still, jax.random.PRNGKey(1)), make_builder(ABP)(still,
+                                                                           jax.random.PRNGKey(1))
+    for u, v in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b), strict=True):
+        np.testing.assert_array_equal(np.asarray(u), np.asarray(v))
+
+
+def _twin_experience(n=60, t_len=40, step=0.05):
+    """Hand-made line experience (A = 2, D = 1). F (group 0): pairs of identical episodes
+    walking right from p0 in [0.5, 0.95); the first of a pair scores on the step that
+    crosses 1, its twin ends there without scoring. B (group 1): episodes walking right
+    from p0 in [0, 0.45) into the F region, never scoring. So every F1 ellipsoid holds
+    twins in equal numbers (chain value exactly 0.5) and every B start point reaches F1."""
+    x = np.zeros((2, n, t_len + 1, 1), np.float32)
+    valid = np.zeros((2, n, t_len + 1), bool)
+    goal = np.zeros((2, n, t_len), bool)
+    for i in range(n):
+        p0 = 0.5 + 0.45 * (i // 2) / (n // 2)
+        path = p0 + step * np.arange(t_len + 1)
+        tg = int(np.argmax(path >= 1.0)) - 1               # the step that crosses 1
+        x[0, i, :, 0], valid[0, i, :tg + 1] = np.minimum(path, 1.0), True
+        goal[0, i, tg] = i % 2 == 0
+        q = 0.45 * i / n + step * np.arange(t_len + 1)
+        x[1, i, :, 0], valid[1, i] = np.minimum(q, 1.0), q < 0.95
+    from vbl.spaces.action_based import Experience
+    return Experience(x=jnp.asarray(x), valid=jnp.asarray(valid), goal=jnp.asarray(goal),
+                      speed=jnp.zeros(valid.shape, jnp.float32))
+
+
+def test_chain_reliability_counts_the_reached_states_chain_value():
+    """Hand truth on the twin experience: F1's reliability is 0.5 (half of its start points
+    score); every B start point reaches F1, so B2's reliability is 1 when reaching counts
+    1, and 0.5 (the chain value of the F1 ellipsoid it reaches) with chain_reliability."""
+    exp = _twin_experience()
+    p = ABP.replace(min_reliability=0.4)
+    for chain, b_rel in ((False, 1.0), (True, 0.5)):
+        sm = make_builder(p.replace(chain_reliability=chain))(exp, jax.random.PRNGKey(1))
+        assert int(num_states(sm)) == 2, chain
+        ea = np.asarray(sm.ell_active)
+        act = np.asarray(sm.action)[np.asarray(sm.ell_state)][ea]
+        rel = np.asarray(sm.ell_reliability)[ea]
+        np.testing.assert_allclose(rel[act == F], 0.5, rtol=1e-6)
+        np.testing.assert_allclose(rel[act == B], b_rel, rtol=1e-6)
+    # at 0.6 the chain (0.5) keeps nothing
+    sm = make_builder(p.replace(min_reliability=0.6, chain_reliability=True))(
+        exp, jax.random.PRNGKey(1))
+    assert int(num_states(sm)) == 0
+
+
+def test_ellipsoid_time_matches_numpy_reference(collect):
+    """Without the swap every F start point scores directly: an F1 ellipsoid's expected
+    time is the mean over its reaching F start points of (scoring step - t + 1)."""
+    exp = collect(jax.random.PRNGKey(2), 0.0)
+    sm = make_builder(ABP)(exp, jax.random.PRNGKey(1))
+    x, valid, goal = (np.asarray(exp.x)[F], np.asarray(exp.valid)[F], np.asarray(exp.goal)[F])
+    w = ABP.start_window
+    scores = goal.any(1)
+    g_idx = np.where(scores, goal.argmax(1), -1)
+    t = np.arange(w)[None]
+    reach = scores[:, None] & (t <= g_idx[:, None]) & valid[:, :w]
+    tm = (g_idx[:, None] - t + 1).astype(float)
+    xs = x[:, :w, 0]
+    ea = np.flatnonzero(np.asarray(sm.ell_active))
+    assert len(ea) >= 1
+    for e in ea:
+        c, m = np.asarray(sm.centre)[e, 0], np.asarray(sm.shape)[e, 0, 0]
+        inside = reach & ((xs - c) ** 2 * m <= 1.0)
+        np.testing.assert_allclose(float(sm.ell_time[e]), tm[inside].mean(), rtol=1e-4)
+
+
+def test_time_rank_prefers_the_faster_containing_state():
+    """Two states whose ellipsoids both contain x = 0.5: state 0 (1 transition, 30 expected
+    primitives), state 1 (2 transitions, 10 primitives). 'transitions' picks state 0,
+    'time' state 1; outside both: -1."""
+    from vbl.spaces.action_based import StateMap
+    f = jnp.float32
+    sm = StateMap(centre=jnp.asarray([[0.45], [0.55]], f), shape=jnp.asarray([[[100.0]],
+                  [[100.0]]], f), ell_active=jnp.ones(2, bool),
+                  ell_state=jnp.asarray([0, 1], jnp.int32), ell_pattern=jnp.zeros(2, jnp.int32),
+                  ell_reliability=jnp.ones(2, f), ell_value=jnp.zeros(2, f),
+                  ell_time=jnp.asarray([30.0, 10.0], f), action=jnp.asarray([F, B], jnp.int32),
+                  transitions=jnp.asarray([1, 2], jnp.int32), order=jnp.asarray([0, 1], jnp.int32),
+                  active=jnp.ones(2, bool), iterations=jnp.asarray(2, jnp.int32))
+    x = jnp.asarray([[0.5], [0.9]], f)
+    np.testing.assert_array_equal(np.asarray(classify(sm, x)), [0, -1])
+    np.testing.assert_array_equal(np.asarray(classify(sm.replace(rank="time"), x)), [1, -1])

@@ -28,12 +28,21 @@ Algorithm (all fixed-shape, jit- and vmap-able):
    Stop when an iteration adds nothing (or after ``max_iterations``).
 
 Each ellipsoid also gets a *value*: the mean over its start points of
-``discount^(primitives to the target)`` x the target's value (goal 1, not reached 0).
+``discount^(primitives to the target)`` x the target's value (goal 1, not reached 0),
+and an expected *time*: the mean over its reaching start points of the primitives to
+the target plus the target's time (goal 0).
 The result is a :class:`StateMap`; :func:`classify` maps ``x`` to the containing
 state with the fewest transitions (ties: smallest Mahalanobis distance; or, with
-``rank = "value"``, the containing ellipsoid of highest value), ``-1`` in the
-*remainder* (no state contains ``x``: situations never seen reaching the goal);
-:func:`policy_action` uses the nearest ellipsoid of the same pattern there.
+``rank = "value"``, the containing ellipsoid of highest value; with ``rank = "time"``
+the one of fewest expected primitives), ``-1`` in the *remainder* (no state contains
+``x``: situations never seen reaching the goal); :func:`policy_action` uses the nearest
+ellipsoid of the same pattern there.
+
+Options (all off by default): ``start_max_speed`` keeps as start points only those
+whose recorded world speed (:attr:`Experience.speed`, e.g. the ball's) is below it;
+``chain_reliability`` counts a point that reaches a built state with that ellipsoid's
+reliability instead of 1 (so reliability is the chance of scoring through the chain);
+``max_reach_steps`` counts a point as reaching only within that many primitives.
 """
 
 from __future__ import annotations
@@ -72,6 +81,9 @@ __all__ = [
 ]
 
 F32 = jnp.float32
+TIME_TIE = 1e-3
+"""With ``rank = "time"``: weight of the Mahalanobis distance (<= 1 inside) that breaks
+ties between containing ellipsoids of equal expected time (well below one primitive)."""
 
 
 @struct.dataclass
@@ -145,7 +157,8 @@ class ActionBasedParams:
                             gt=0.0, le=1.0)
     min_points: float = param(20.0, doc="fewest members of a kept cluster", ge=1.0)
     min_reliability: float = param(0.6, doc="least fraction of the primitive's start points "
-                                   "inside the ellipsoid that reach the goal/built states",
+                                   "inside the ellipsoid that reach the goal/built states "
+                                   "(with chain_reliability: their mean chance of scoring)",
                                    gt=0.0, le=1.0)
     ridge: float = param(1e-4, doc="added to cluster covariances", unit="(norm. units)^2",
                          gt=0.0)
@@ -163,14 +176,29 @@ class ActionBasedParams:
                             "the target's value, 1 for the goal, 0 when not reached)",
                             gt=0.0, le=1.0)
     rank: str = param("transitions", doc="which containing state classifies a point: 'value' "
-                      "(the ellipsoid of highest value: reached most reliably and soonest) "
-                      "or 'transitions' (fewest transitions to the goal, then smallest "
-                      "Mahalanobis distance)", static=True, choices=("value", "transitions"))
+                      "(the ellipsoid of highest value: reached most reliably and soonest), "
+                      "'transitions' (fewest transitions to the goal, then smallest "
+                      "Mahalanobis distance) or 'time' (the ellipsoid with the fewest "
+                      "expected primitives to the goal, ell_time)", static=True,
+                      choices=("value", "transitions", "time"))
 
     supersede: bool = param(False, doc="with rank 'value': a later state may also claim "
                             "points inside built states of another action when its value "
                             "there is higher (else only points in no state are candidates)",
                             static=True)
+    start_max_speed: float = param(0.0, doc="only points whose world speed "
+                                   "(Experience.speed, e.g. the ball's) is below this are "
+                                   "start points (look-ahead points unchanged); 0: no filter",
+                                   unit="m/s", ge=0.0)
+    chain_reliability: bool = param(False, doc="reliability = mean over the start points "
+                                    "inside of the chance of scoring through the chain: 1 "
+                                    "for a point that scores, the reliability of the "
+                                    "ellipsoid it reaches for a point that reaches a built "
+                                    "state, 0 otherwise (else 1 for reaching anything)",
+                                    static=True)
+    max_reach_steps: int = param(0, doc="a point reaches only when the goal or built state "
+                                 "is hit within this many primitives (0: no cap, the "
+                                 "paper's 'regardless of its length')", unit="steps", ge=0)
 
     def check(self) -> None:
         if self.supersede and self.rank != "value":
@@ -185,11 +213,14 @@ class ActionBasedParams:
 @struct.dataclass
 class Experience:
     """x (A, N, T+1, D) float32 features before each step; valid (A, N, T+1) bool (inside
-    the episode); goal (A, N, T) bool (step t scored). Episode group a held primitive a."""
+    the episode); goal (A, N, T) bool (step t scored); speed (A, N, T+1) float32 a world
+    speed at each point (``speed_fn`` of :func:`collect_experience`, e.g. the ball's; 0
+    without one). Episode group a held primitive a."""
 
     x: jax.Array
     valid: jax.Array
     goal: jax.Array
+    speed: jax.Array
 
 
 @struct.dataclass
@@ -202,7 +233,9 @@ class StateMap:
     categorical pattern of its points (:func:`pattern_of`); ell_reliability (E,) float32
     the fraction of its primitive's start points inside it that reached; ell_value (E,)
     float32 the mean over those start points of discount^(primitives to the target) x the
-    target's value (goal 1, unreached 0); per state (S,):
+    target's value (goal 1, unreached 0); ell_time (E,) float32 the expected primitives to
+    the goal: mean over its reaching start points of (primitives to the target + the
+    target's ell_time, 0 for the goal); per state (S,):
     action int32 (state s = i * A + a, made at iteration i, has action a), transitions int32
     (state transitions to the goal: 1 + those of the state its points reach), order int32
     (division order i), active bool; iterations () int32 run. An ellipsoid whose points,
@@ -218,6 +251,7 @@ class StateMap:
     ell_pattern: jax.Array
     ell_reliability: jax.Array
     ell_value: jax.Array
+    ell_time: jax.Array
     action: jax.Array
     transitions: jax.Array
     order: jax.Array
@@ -241,11 +275,16 @@ def pattern_of(x: jax.Array, categorical_dims: int, levels: int) -> jax.Array:
 
 def collect_experience(env: Any, env_params: Any, key: jax.Array,
                        feature_fn: Callable[[jax.Array], jax.Array], num_actions: int,
-                       p: CollectParams | None = None) -> Experience:
+                       p: CollectParams | None = None,
+                       speed_fn: Callable[[Any], jax.Array] | None = None) -> Experience:
     """Run ``episodes_per_action`` episodes per primitive, each holding it (jit-able).
 
     ``feature_fn(obs) -> (D,) float32`` normalises an observation; ``p`` defaults to
-    ``CollectParams()``. Returns :class:`Experience` with A = ``num_actions`` groups."""
+    ``CollectParams()``; ``speed_fn(env_state) -> ()`` (optional) records a world speed
+    at each point (e.g. the ball's, for ``ActionBasedParams.start_max_speed``; zeros
+    without it). Returns :class:`Experience` with A = ``num_actions`` groups."""
+    spd = (lambda st: jnp.zeros((), F32)) if speed_fn is None else (  # noqa: E731
+        lambda st: jnp.asarray(speed_fn(st), F32))
     p = CollectParams() if p is None else p
     n, t_len = p.episodes_per_action, p.horizon
     has_diff = hasattr(env_params, "start_difficulty")
@@ -261,19 +300,20 @@ def collect_experience(env: Any, env_params: Any, key: jax.Array,
         def body(carry, kt):
             obs, st, alive = carry
             obs2, st2, _, term, trunc, info = env.step(kt, st, a, ep)
-            out = (feature_fn(obs), alive, alive & info["success"])
+            out = (feature_fn(obs), alive, alive & info["success"], spd(st))
             return (obs2, st2, alive & ~(term | trunc)), out
 
-        (obs_t, _, alive_t), (xs, valid, goal) = jax.lax.scan(
+        (obs_t, st_t, alive_t), (xs, valid, goal, sp) = jax.lax.scan(
             body, (obs, st, jnp.ones((), bool)), jax.random.split(k_run, t_len))
         x = jnp.concatenate([xs, feature_fn(obs_t)[None]], axis=0)
         valid = jnp.concatenate([valid, alive_t[None]], axis=0)
-        return x.astype(F32), valid, goal
+        sp = jnp.concatenate([sp, spd(st_t)[None]], axis=0)
+        return x.astype(F32), valid, goal, sp
 
     keys = jax.random.split(key, num_actions * n).reshape(num_actions, n, -1)
     acts = jnp.broadcast_to(jnp.arange(num_actions, dtype=jnp.int32)[:, None], (num_actions, n))
-    x, valid, goal = jax.vmap(jax.vmap(episode))(keys, acts)
-    return Experience(x=x, valid=valid, goal=goal)
+    x, valid, goal, speed = jax.vmap(jax.vmap(episode))(keys, acts)
+    return Experience(x=x, valid=valid, goal=goal, speed=speed)
 
 
 def _check_build(exp: Experience, p: ActionBasedParams) -> None:
@@ -307,14 +347,17 @@ def build_state_map(exp: Experience, p: ActionBasedParams, key: jax.Array) -> St
     pts_pat = pat_of(pts)                                                       # (A, P)
     x_pat = pat_of(exp.x)                                                       # (A, N, T1)
     cl_pat = jnp.repeat(jnp.arange(n_pat, dtype=jnp.int32), p.clusters_per_action)  # (k,)
-    starts_valid = exp.valid[:, :, :w]
     i32 = jnp.int32
+    thr = jnp.asarray(p.start_max_speed, F32)
+    at_rest = (thr <= 0.0) | (exp.speed[:, :, :w] < thr)     # start points: speed filter
+    starts_valid = exp.valid[:, :, :w] & at_rest
+    cap = jnp.asarray(p.max_reach_steps, i32)
 
     smap = StateMap(
         centre=jnp.zeros((e_cap, dim), F32), shape=jnp.zeros((e_cap, dim, dim), F32),
         ell_active=jnp.zeros((e_cap,), bool), ell_state=jnp.zeros((e_cap,), i32),
         ell_pattern=jnp.tile(cl_pat, s_cap), ell_reliability=jnp.zeros((e_cap,), F32),
-        ell_value=jnp.zeros((e_cap,), F32),
+        ell_value=jnp.zeros((e_cap,), F32), ell_time=jnp.zeros((e_cap,), F32),
         action=jnp.tile(jnp.arange(n_act, dtype=i32), n_it),
         transitions=jnp.full((s_cap,), big, i32),
         order=jnp.repeat(jnp.arange(n_it, dtype=i32), n_act),
@@ -322,16 +365,23 @@ def build_state_map(exp: Experience, p: ActionBasedParams, key: jax.Array) -> St
         categorical_dims=p.categorical_dims, categorical_levels=p.categorical_levels,
         rank=p.rank)
     by_value = p.rank == "value"
+    by_time = p.rank == "time"
     gamma = jnp.asarray(p.discount, F32)
 
-    def cluster(kk, pa, ppat, cand, starts, reach, tgt, val, cur_v):
+    def cluster(kk, pa, ppat, cand, starts, reach, tgt, val, cur_v, chain, tm):
         _, assign = kmeans(kk, pa, cand, p.clusters_per_action, p.kmeans_iters, ppat, n_pat)
         c, m, cnt = fit_ellipsoids(pa, cand, assign, k, p.coverage, p.ridge)
         inside = ((mahalanobis2_chunked(pa, c, m) <= 1.0) & (ppat[:, None] == cl_pat[None])
                   & starts[:, None])                                            # (P, k)
         n_in = jnp.sum(inside, axis=0).astype(F32)
-        n_ok = jnp.sum(inside & reach[:, None], axis=0).astype(F32)
-        rel = n_ok / jnp.maximum(n_in, 1.0)
+        in_ok = inside & reach[:, None]
+        n_ok = jnp.sum(in_ok, axis=0).astype(F32)
+        if p.chain_reliability:   # chance of scoring through the chain
+            rel = (jnp.sum(jnp.where(in_ok, chain[:, None], 0.0), axis=0)
+                   / jnp.maximum(n_in, 1.0))
+        else:
+            rel = n_ok / jnp.maximum(n_in, 1.0)
+        e_time = jnp.sum(jnp.where(in_ok, tm[:, None], 0.0), axis=0) / jnp.maximum(n_ok, 1.0)
         value = jnp.sum(jnp.where(inside, val[:, None], 0.0), axis=0) / jnp.maximum(n_in, 1.0)
         ok = (cnt >= p.min_points) & (rel >= p.min_reliability)
         if p.supersede:           # better than the states the ellipsoid's points are in now
@@ -341,29 +391,39 @@ def build_state_map(exp: Experience, p: ActionBasedParams, key: jax.Array) -> St
         hist = member.T @ jax.nn.one_hot(jnp.maximum(tgt, 0), s_cap + 1, dtype=F32)
         c = jnp.where(ok[:, None], c, 0.0)
         m = jnp.where(ok[:, None, None], m, 0.0)
-        return c, m, ok, rel, value, jnp.argmax(hist, axis=-1).astype(i32)      # mode target
+        return (c, m, ok, rel, value, e_time,
+                jnp.argmax(hist, axis=-1).astype(i32))                          # mode target
 
-    def first_target(lab, lab_v):
-        """Label of the first goal/built state hit after each point (-1 none) and the
-        point's value discount^(steps to it) x its value (goal 1, none 0): (A, N, T) each."""
+    def first_target(lab, lab_v, lab_c, lab_t):
+        """Per point (A, N, T): label of the first goal/built state hit after it (-1 none),
+        its value discount^(steps to it) x the target's value (goal 1, none 0), its chain
+        value (the target's reliability, goal 1), its time (steps to the target + the
+        target's time) and the steps to the target."""
         def back(nxt, inp):
-            g, l_next, v_next = inp
-            n_lab, n_val = nxt
+            g, l_next, v_next, c_next, t_next = inp
+            n_lab, n_val, n_ch, n_tm, n_st = nxt
             hit = l_next >= 0
             cur = jnp.where(g, goal_lab, jnp.where(hit, l_next, n_lab))
             val = jnp.where(g, 1.0, gamma * jnp.where(hit, v_next, n_val))
-            return (cur, val), (cur, val)
+            ch = jnp.where(g, 1.0, jnp.where(hit, c_next, n_ch))
+            tm = 1.0 + jnp.where(g, 0.0, jnp.where(hit, t_next, n_tm))
+            st = 1 + jnp.where(g | hit, 0, n_st)
+            out = (cur, val, ch, tm, st)
+            return out, out
         mv = lambda a: jnp.moveaxis(a, 2, 0)  # noqa: E731
-        xs = (mv(exp.goal), mv(lab[..., 1:]), mv(lab_v[..., 1:]))
-        init = (jnp.full(exp.goal.shape[:2], -1, i32), jnp.zeros(exp.goal.shape[:2], F32))
-        _, (tgt, val) = jax.lax.scan(back, init, xs, reverse=True)
-        return jnp.moveaxis(tgt, 0, 2), jnp.moveaxis(val, 0, 2)
+        xs = (mv(exp.goal), mv(lab[..., 1:]), mv(lab_v[..., 1:]), mv(lab_c[..., 1:]),
+              mv(lab_t[..., 1:]))
+        zf = jnp.zeros(exp.goal.shape[:2], F32)
+        init = (jnp.full(exp.goal.shape[:2], -1, i32), zf, zf, zf,
+                jnp.zeros(exp.goal.shape[:2], i32))
+        _, outs = jax.lax.scan(back, init, xs, reverse=True)
+        return tuple(jnp.moveaxis(o, 0, 2) for o in outs)
 
     def body(carry):
-        it, key, sm, lab, lab_v, _ = carry
+        it, key, sm, lab, lab_v, lab_c, lab_t, _ = carry
         key, kc = jax.random.split(key)
-        tgt, val = first_target(lab, lab_v)
-        reach = tgt >= 0
+        tgt, val, chain, tm, steps = first_target(lab, lab_v, lab_c, lab_t)
+        reach = (tgt >= 0) & ((cap <= 0) | (steps <= cap))
         free = lab[..., :w] < 0
         if p.supersede:
             starts = starts_valid
@@ -374,10 +434,10 @@ def build_state_map(exp: Experience, p: ActionBasedParams, key: jax.Array) -> St
             starts = starts_valid & free
         cand = starts_valid & free & reach[..., :w]
         flat = (lambda a: a.reshape(n_act, -1))
-        c, m, ok, rel, value, mode = jax.vmap(cluster)(
+        c, m, ok, rel, value, e_time, mode = jax.vmap(cluster)(
             jax.random.split(kc, n_act), pts, pts_pat, flat(cand), flat(starts),
             flat(reach[..., :w]), flat(tgt[..., :w]), flat(val[..., :w]),
-            flat(lab_v[..., :w]))                                                # (A, k, ...)
+            flat(lab_v[..., :w]), flat(chain[..., :w]), flat(tm[..., :w]))      # (A, k, ...)
         acts = jnp.arange(n_act, dtype=i32)[:, None]
         fresh = (it * n_act + acts) * jnp.ones((1, k), i32)                       # (A, k)
         mode_state = jnp.minimum(mode, s_cap - 1)
@@ -400,27 +460,38 @@ def build_state_map(exp: Experience, p: ActionBasedParams, key: jax.Array) -> St
             ell_reliability=upd(sm.ell_reliability, jnp.where(ok, rel, 0.0).reshape(-1),
                                 (base,)),
             ell_value=upd(sm.ell_value, jnp.where(ok, value, 0.0).reshape(-1), (base,)),
+            ell_time=upd(sm.ell_time, jnp.where(ok, e_time, 0.0).reshape(-1), (base,)),
             transitions=transitions, active=active, iterations=it + 1)
         # label the points that fall inside the new ellipsoids (the rank of classify)
         e_st = ell_state.reshape(-1)
         e_val = value.reshape(-1)
-        base = -e_val if by_value else transitions[e_st].astype(F32) * 4.0
+        e_rel = rel.reshape(-1)
+        e_tm = e_time.reshape(-1)
+        if by_value:
+            base, coef = -e_val, 0.0
+        elif by_time:
+            base, coef = e_tm, TIME_TIE
+        else:
+            base, coef = transitions[e_st].astype(F32) * 4.0, 1.0
         best, inside = best_inside(exp.x, x_pat, c.reshape(-1, dim), m.reshape(-1, dim, dim),
                                    jnp.tile(cl_pat, n_act), ok.reshape(-1), base,
-                                   0.0 if by_value else 1.0)                    # (A, N, T1)
+                                   coef)                                         # (A, N, T1)
         new_v = e_val[best]
         hit = inside & exp.valid
         hit = hit & ((lab < 0) | (new_v > lab_v)) if p.supersede else hit & (lab < 0)
         lab = jnp.where(hit, e_st[best], lab)
         lab_v = jnp.where(hit, new_v, lab_v)
-        return it + 1, key, sm, lab, lab_v, jnp.any(ok)
+        lab_c = jnp.where(hit, e_rel[best], lab_c)
+        lab_t = jnp.where(hit, e_tm[best], lab_t)
+        return it + 1, key, sm, lab, lab_v, lab_c, lab_t, jnp.any(ok)
 
     def cond(carry):
-        it, _, _, _, _, added = carry
+        it, *_, added = carry
         return (it < n_it) & added
 
+    zf = jnp.zeros(exp.valid.shape, F32)
     init = (jnp.zeros((), i32), key, smap, jnp.full(exp.valid.shape, -1, i32),
-            jnp.zeros(exp.valid.shape, F32), jnp.ones((), bool))
+            zf, zf, zf, jnp.ones((), bool))
     smap = jax.lax.while_loop(cond, body, init)[2]
     return smap
 
@@ -457,7 +528,12 @@ def classify(sm: StateMap, x: jax.Array) -> jax.Array:
     smallest Mahalanobis distance; ``"value"``: the ellipsoid of highest value."""
     d2, st = _scores(sm, x)
     inside = d2 <= 1.0
-    rank = -sm.ell_value if sm.rank == "value" else sm.transitions[st].astype(F32) * 4.0 + d2
+    if sm.rank == "value":
+        rank = -sm.ell_value
+    elif sm.rank == "time":
+        rank = sm.ell_time + TIME_TIE * d2
+    else:
+        rank = sm.transitions[st].astype(F32) * 4.0 + d2
     key = jnp.where(inside, rank, jnp.inf)
     best = jnp.argmin(key, axis=-1)
     return jnp.where(jnp.any(inside, axis=-1), st[best], -1).astype(jnp.int32)
