@@ -57,6 +57,15 @@ def boxes(lr):
     return np.asarray(lr.seg.lo)[act], np.asarray(lr.seg.hi)[act]
 
 
+def assert_cut_at_half(lr):
+    """Exactly two boxes: the unit square cut once, at x0 = 0.5."""
+    lo, hi = boxes(lr)
+    assert len(lo) == 2
+    order = np.argsort(lo[:, 0])
+    np.testing.assert_allclose(lo[order], [[0.0, 0.0], [0.5, 0.0]])
+    np.testing.assert_allclose(hi[order], [[0.5, 1.0], [1.0, 1.0]])
+
+
 def test_residual_matches_numpy_least_squares():
     rng = np.random.default_rng(0)
     z = np.c_[rng.uniform(size=(50, 2)), np.ones(50)]
@@ -78,11 +87,7 @@ def test_splits_at_region_boundary_and_nowhere_else(update):
     for _ in range(3):                               # refits find nothing more to split
         lr, split, merge = update(lr)
         assert not bool(split) and not bool(merge)
-    lo, hi = boxes(lr)
-    assert len(lo) == 2
-    order = np.argsort(lo[:, 0])
-    np.testing.assert_allclose(lo[order], [[0.0, 0.0], [0.5, 0.0]])
-    np.testing.assert_allclose(hi[order], [[0.5, 1.0], [1.0, 1.0]])
+    assert_cut_at_half(lr)
     pts = jnp.array([[0.2, 0.3], [0.49, 0.9], [0.51, 0.1], [1.0, 1.0]], jnp.float32)
     leaf = np.asarray(leaf_of(lr.seg, pts))
     assert leaf[0] == leaf[1] != leaf[2] == leaf[3]
@@ -305,11 +310,8 @@ def test_return_output_splits_where_returns_differ_and_dynamics_do_not():
     p = pr.replace(return_weight=1.0)
     for _ in range(3):
         lr, _, _ = upd(lr, p)
-    lo, hi = boxes(lr)
-    assert len(lo) == 2 and int(lr.splits) == 1
-    order = np.argsort(lo[:, 0])
-    np.testing.assert_allclose(lo[order], [[0.0, 0.0], [0.5, 0.0]])
-    np.testing.assert_allclose(hi[order], [[0.5, 1.0], [1.0, 1.0]])
+    assert_cut_at_half(lr)
+    assert int(lr.splits) == 1
     # open transitions (trial not ended: return unknown) do not count with the return on
     lr0 = fill(init_learner(pr, 2, 4), jax.random.PRNGKey(2), ep, noise=1e-4)
     lr0 = lr0.replace(buf=lr0.buf.replace(y=lr0.buf.y.at[:, -1].set(ret),
@@ -353,10 +355,7 @@ def test_value_split_cuts_where_the_best_primitive_changes_and_model_error_does_
     for _ in range(3):
         lr, split, merge = upd(lr, PV)
         assert not bool(split) and not bool(merge)      # the merge is vetoed by the value
-    lo, hi = boxes(lr)
-    order = np.argsort(lo[:, 0])
-    np.testing.assert_allclose(lo[order], [[0.0, 0.0], [0.5, 0.0]])
-    np.testing.assert_allclose(hi[order], [[0.5, 1.0], [1.0, 1.0]])
+    assert_cut_at_half(lr)
     # without the veto (merge tolerance above the 1/2 the pair gains by staying apart) the
     # identical models merge the boxes back when nothing splits
     lr_m, split, merge = upd(lr, PV.replace(value_split_gain=0.9, value_merge_tol=0.8))
@@ -507,10 +506,7 @@ def test_fringe_value_split_on_the_toy_by_hand():
     pf = PV.replace(value_fringe=True, gamma=0.95, value_merge_tol=0.001)
     lr, split, _ = upd(lr0, pf.replace(value_split_gain=0.02))
     assert bool(split) and int(lr.value_splits) == 1
-    lo, hi = boxes(lr)
-    order = np.argsort(lo[:, 0])
-    np.testing.assert_allclose(lo[order], [[0.0, 0.0], [0.5, 0.0]])
-    np.testing.assert_allclose(hi[order], [[0.5, 1.0], [1.0, 1.0]])
+    assert_cut_at_half(lr)
     assert not bool(upd(lr0, pf.replace(value_split_gain=0.03))[1])
 
 
@@ -577,11 +573,8 @@ def test_exit_output_splits_where_exits_differ_and_one_step_changes_barely_do():
     p1 = pe.replace(exit_weight=1.0)
     for _ in range(3):
         lr, _, _ = upd(lr, p1)
-    lo, hi = boxes(lr)
-    assert len(lo) == 2 and int(lr.splits) == 1
-    order = np.argsort(lo[:, 0])
-    np.testing.assert_allclose(lo[order], [[0.0, 0.0], [0.5, 0.0]])
-    np.testing.assert_allclose(hi[order], [[0.5, 1.0], [1.0, 1.0]])
+    assert_cut_at_half(lr)
+    assert int(lr.splits) == 1
 
 
 def test_exit_weight_without_exit_output_is_a_clear_error():
