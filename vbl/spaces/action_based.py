@@ -329,6 +329,19 @@ def _check_build(exp: Experience, p: ActionBasedParams) -> None:
                          f"features {exp.x.shape[-1]} (some must be continuous)")
 
 
+def _rank_terms(rank: str, value: jax.Array, time: jax.Array,
+                transitions: jax.Array) -> tuple[jax.Array, float]:
+    """Ranking of containing ellipsoids (lowest wins): ``base + coef * d2`` with d2 the
+    squared Mahalanobis distance; per ellipsoid value, expected time and its state's
+    transitions (E,) -> (base (E,), coef). "value": -value; "time": time, ties by
+    ``TIME_TIE * d2``; "transitions": 4 x transitions + d2 (d2 <= 1 inside)."""
+    if rank == "value":
+        return -value, 0.0
+    if rank == "time":
+        return time, TIME_TIE
+    return transitions.astype(F32) * 4.0, 1.0
+
+
 def build_state_map(exp: Experience, p: ActionBasedParams, key: jax.Array) -> StateMap:
     """Grow the states backwards from the goal (see the module docstring).
 
@@ -364,8 +377,6 @@ def build_state_map(exp: Experience, p: ActionBasedParams, key: jax.Array) -> St
         active=jnp.zeros((s_cap,), bool), iterations=jnp.zeros((), i32),
         categorical_dims=p.categorical_dims, categorical_levels=p.categorical_levels,
         rank=p.rank)
-    by_value = p.rank == "value"
-    by_time = p.rank == "time"
     gamma = jnp.asarray(p.discount, F32)
 
     def cluster(kk, pa, ppat, cand, starts, reach, tgt, val, cur_v, chain, tm):
@@ -467,12 +478,7 @@ def build_state_map(exp: Experience, p: ActionBasedParams, key: jax.Array) -> St
         e_val = value.reshape(-1)
         e_rel = rel.reshape(-1)
         e_tm = e_time.reshape(-1)
-        if by_value:
-            base, coef = -e_val, 0.0
-        elif by_time:
-            base, coef = e_tm, TIME_TIE
-        else:
-            base, coef = transitions[e_st].astype(F32) * 4.0, 1.0
+        base, coef = _rank_terms(p.rank, e_val, e_tm, transitions[e_st])
         best, inside = best_inside(exp.x, x_pat, c.reshape(-1, dim), m.reshape(-1, dim, dim),
                                    jnp.tile(cl_pat, n_act), ok.reshape(-1), base,
                                    coef)                                         # (A, N, T1)
@@ -528,12 +534,8 @@ def classify(sm: StateMap, x: jax.Array) -> jax.Array:
     smallest Mahalanobis distance; ``"value"``: the ellipsoid of highest value."""
     d2, st = _scores(sm, x)
     inside = d2 <= 1.0
-    if sm.rank == "value":
-        rank = -sm.ell_value
-    elif sm.rank == "time":
-        rank = sm.ell_time + TIME_TIE * d2
-    else:
-        rank = sm.transitions[st].astype(F32) * 4.0 + d2
+    base, coef = _rank_terms(sm.rank, sm.ell_value, sm.ell_time, sm.transitions[st])
+    rank = base + coef * d2
     key = jnp.where(inside, rank, jnp.inf)
     best = jnp.argmin(key, axis=-1)
     return jnp.where(jnp.any(inside, axis=-1), st[best], -1).astype(jnp.int32)
