@@ -400,15 +400,16 @@ def _continues(seg: Segmentation, buf: Buffer):
 
 
 def _chain_end(cont: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """Last transition (int32 (M,)) of each transition's chain and the chain steps after it
-    (float32 (M,)), by pointer doubling (log2(M) gathers) over ``cont`` (M,) bool."""
+    """Last transition (int32 (M, ...)) of each transition's chain and the chain steps
+    after it (float32 (M, ...)), by pointer doubling (log2(M) gathers along axis 0) over
+    ``cont`` (M, ...) bool (trailing axes: independent chain rules, e.g. one per axis)."""
     m = cont.shape[0]
-    idx = jnp.arange(m, dtype=I32)
+    idx = jnp.arange(m, dtype=I32).reshape((m,) + (1,) * (cont.ndim - 1))
     nxt = jnp.where(cont, (idx + 1) % m, idx)
     dist = cont.astype(F32)
     for _ in range(max(1, int(np.ceil(np.log2(m))))):
-        dist = dist + dist[nxt]
-        nxt = nxt[nxt]
+        dist = dist + jnp.take_along_axis(dist, nxt, axis=0)
+        nxt = jnp.take_along_axis(nxt, nxt, axis=0)
     return nxt, dist
 
 
@@ -441,24 +442,16 @@ def td_targets(seg: Segmentation, buf: Buffer, q: jax.Array, gamma: Any,
     axis d): per axis d, a chain also ends where it crosses a bin edge of axis d, and a
     chain end inside the box takes ``gamma * v_bin_next`` (when finite) instead of
     ``gamma * max Q(box)``. Returns (M, D) targets then, one set per axis."""
-    m, dim = buf.x.shape
     g = jnp.asarray(gamma, F32)
-    cont, scored, xn, s, sn = _continues(seg, buf)
+    cont, scored, _, s, sn = _continues(seg, buf)
     base = jnp.where(scored, 1.0, jnp.where(buf.term, 0.0, g * jnp.max(q[sn], axis=-1)))
-    idx = jnp.arange(m, dtype=I32)
-    succ = (idx + 1) % m
     if same_bin is None:
         nxt, dist = _chain_end(cont)
         disc = jnp.where(jnp.asarray(per_primitive, bool), g ** dist, 1.0)
         return jnp.where(buf.valid, disc * base[nxt], 0.0).astype(F32)
     inside = ((sn == s) & ~scored & ~buf.term)[:, None]
     base_d = jnp.where(inside & jnp.isfinite(v_bin_next), g * v_bin_next, base[:, None])
-    cont_d = cont[:, None] & same_bin                                               # (M, D)
-    nxt = jnp.where(cont_d, succ[:, None], idx[:, None])
-    dist = cont_d.astype(F32)
-    for _ in range(max(1, int(np.ceil(np.log2(m))))):
-        dist = dist + jnp.take_along_axis(dist, nxt, axis=0)
-        nxt = jnp.take_along_axis(nxt, nxt, axis=0)
+    nxt, dist = _chain_end(cont[:, None] & same_bin)                                # (M, D)
     disc = jnp.where(jnp.asarray(per_primitive, bool), g ** dist, 1.0)
     out = disc * jnp.take_along_axis(base_d, nxt, axis=0)
     return jnp.where(buf.valid[:, None], out, 0.0).astype(F32)
