@@ -1,11 +1,13 @@
 """Figure 5: off-line, action-based state-space construction (paper Section 2.1).
 
 Each learner collects experience in parallel shooting environments (each episode holds
-one primitive), grows its state map backwards from the goal
-(:mod:`vbl.spaces.action_based`), and is compared with the grid baseline exactly as the
-``grid_shooting`` experiment trains and evaluates it (its default config, used by reference
-through :func:`grid_shooting`: Q-learning on the programmer's 319-state grid with macro
-actions and Learning from Easy Missions), trained in the chunks of this run. ``final``
+one primitive) and grows its state map backwards from the goal (``construction``: "cells",
+the default, :mod:`vbl.spaces.action_cells`, states made of quantile cells; or
+"ellipsoids", :mod:`vbl.spaces.action_based`, k-means hyper-ellipsoids). It is compared
+with the grid baseline exactly as the ``grid_shooting`` experiment trains and evaluates it
+(its default config, used by reference through :func:`grid_shooting`: Q-learning on the
+programmer's 319-state grid with macro actions and Learning from Easy Missions), trained
+in the chunks of this run. ``final``
 evaluates the map's policy on fresh starts at the grid's task difficulty
 (``grid.train.eval_difficulty``) and takes the grid's own final evaluation (greedy and
 random policy) at the same difficulty. The report draws Figure 5 (the map on (ball size,
@@ -43,6 +45,14 @@ from vbl.spaces.action_based import (
     policy_action,
     rollout_success,
     sec2_features,
+)
+from vbl.spaces.action_cells import (
+    CellMap,
+    CellMapParams,
+    build_cell_map,
+    cell_policy_action,
+    classify_cells,
+    num_cell_states,
 )
 from vbl.spaces.grid import NUM_GRID_STATES, GridParams
 
@@ -120,12 +130,31 @@ def _build_default() -> ActionBasedParams:
                              chain_reliability=True, rank="time", min_reliability=0.4)
 
 
+def _collect_default() -> CollectParams:
+    """Start difficulty U[0, 0.3] (0 = ball in front near the goal): the data lie where the
+    map is evaluated (0.1) and F reaches the goal from far more of them than from fully
+    random starts (cells, 2 seeds: 0.64 / 0.55 at 0.3 against 0.46 / 0.49 at 1.0;
+    docs/state_spaces.md, "Figure 5: session 6"). The ellipsoid construction's numbers in
+    the docs were measured with ``collect.difficulty_hi=1.0``."""
+    return CollectParams(difficulty_hi=0.3)
+
+
+CONSTRUCTIONS = ("cells", "ellipsoids")
+
+
 @struct.dataclass
 class Fig5Config:
+    construction: str = param("cells", doc="clusters of the construction: 'cells' (quantile "
+                              "cells, vbl.spaces.action_cells: 0.66 on 4 seeds) or "
+                              "'ellipsoids' (k-means hyper-ellipsoids, vbl.spaces.action_based: "
+                              "0.26)", static=True, choices=CONSTRUCTIONS)
     env: ShootingParams = section(ShootingParams, doc="shooting task")
     features: FeatureParams = section(FeatureParams, doc="feature normalisation")
-    collect: CollectParams = section(CollectParams, doc="experience collection")
-    build: ActionBasedParams = section(_build_default, doc="construction thresholds")
+    collect: CollectParams = section(_collect_default, doc="experience collection")
+    cells: CellMapParams = section(CellMapParams, doc="cell construction (construction="
+                                   "'cells')")
+    build: ActionBasedParams = section(_build_default, doc="ellipsoid construction thresholds "
+                                       "(construction='ellipsoids')")
     grid: GridBaseline = section(GridBaseline, doc="grid baseline (grid_shooting's settings; "
                                  "its chunks are this run's chunks)")
     eval: EvalParams = section(EvalParams, doc="evaluation of the map")
@@ -139,51 +168,75 @@ def ball_speed(state) -> jax.Array:
 
 @struct.dataclass
 class Carry:
-    smap: StateMap
+    smap: StateMap | CellMap
     grid: object
+
+
+def _map_fns(construction: str):
+    """(policy_action, num_states, classify) of a construction's map type."""
+    if construction == "cells":
+        return cell_policy_action, num_cell_states, classify_cells
+    return policy_action, num_states, classify
 
 
 def make_program(cfg: Fig5Config) -> Program:
     n_act = ENV.num_actions
-    if cfg.build.categorical_dims > (2 if cfg.features.lost_sides else 0):
-        raise ParamError(f"build.categorical_dims={cfg.build.categorical_dims}: only the "
-                         "lost-side features are categorical (2 with features.lost_sides, "
-                         "else 0)")
+    cells = cfg.construction == "cells"
+    sec = "cells" if cells else "build"
+    cat = (cfg.cells if cells else cfg.build).categorical_dims
+    if cat > (2 if cfg.features.lost_sides else 0):
+        raise ParamError(f"{sec}.categorical_dims={cat}: only the lost-side features are "
+                         "categorical (2 with features.lost_sides, else 0)")
+    if cells and len(cfg.cells.bins) != cfg.features.dim - cat:
+        raise ParamError(f"cells.bins={cfg.cells.bins} needs one entry per continuous feature "
+                         f"({cfg.features.dim - cat})")
+    if (cfg.cells if cells else cfg.build).start_window > cfg.collect.horizon:
+        raise ParamError(f"{sec}.start_window must be <= collect.horizon="
+                         f"{cfg.collect.horizon}")
+    act_fn, count_fn, _ = _map_fns(cfg.construction)
     gprog = grid_program(cfg.env, cfg.grid) if cfg.eval.grid_baseline else None
 
     def init(key, c):
         k_col, k_build, k_grid = jax.random.split(key, 3)
         feat = lambda o: sec2_features(o, c.features)  # noqa: E731
         exp = collect_experience(ENV, c.env, k_col, feat, n_act, c.collect, ball_speed)
-        smap = build_state_map(exp, c.build, k_build)
+        smap = (build_cell_map(exp, c.cells) if cells
+                else build_state_map(exp, c.build, k_build))
         grid = None if gprog is None else gprog.init(k_grid, grid_config(c.env, c.grid))
         return Carry(smap=smap, grid=grid)
 
     def step(carry, c):
         if gprog is None:
-            return carry, {"map_states": num_states(carry.smap).astype(F32)}
+            return carry, {"map_states": count_fn(carry.smap).astype(F32)}
         g, m = gprog.step(carry.grid, grid_config(c.env, c.grid))
         return carry.replace(grid=g), {
             "episodes": m["episodes"], "success_rate": m["success_rate"],
-            "grid_difficulty": m["difficulty"], "map_states": num_states(carry.smap).astype(F32)}
+            "grid_difficulty": m["difficulty"], "map_states": count_fn(carry.smap).astype(F32)}
 
     def final(carry, c, key):
         k_map, k_grid = jax.random.split(key)
         ep = c.env.replace(start_difficulty=jnp.asarray(c.grid.train.eval_difficulty, F32))
         feat = lambda o: sec2_features(o, c.features)  # noqa: E731
         sm = carry.smap
-        ok, _ = rollout_success(ENV, ep, k_map, lambda o, _: policy_action(sm, feat(o)),
+        ok, _ = rollout_success(ENV, ep, k_map, lambda o, _: act_fn(sm, feat(o)),
                                 cfg.eval.episodes, cfg.env.max_steps)
         out = {"map_success": jnp.mean(ok.astype(F32)),
-                "map_states": num_states(sm).astype(F32),
-                "map_iterations": sm.iterations.astype(F32),
-                "centre": sm.centre, "shape": sm.shape,
-                "ell_active": sm.ell_active.astype(F32), "ell_state": sm.ell_state.astype(F32),
-                "ell_pattern": sm.ell_pattern.astype(F32),
-                "ell_reliability": sm.ell_reliability, "ell_value": sm.ell_value,
-                "ell_time": sm.ell_time,
-                "action": sm.action.astype(F32), "transitions": sm.transitions.astype(F32),
-                "order": sm.order.astype(F32), "active": sm.active.astype(F32)}
+               "map_states": count_fn(sm).astype(F32),
+               "map_iterations": sm.iterations.astype(F32),
+               "action": sm.action.astype(F32), "transitions": sm.transitions.astype(F32),
+               "order": sm.order.astype(F32), "active": sm.active.astype(F32)}
+        if cells:
+            out.update(edges=sm.edges, cell_state=sm.cell_state.astype(F32),
+                       cell_time=sm.cell_time,
+                       cell_transitions=sm.cell_transitions.astype(F32),
+                       fallback=sm.fallback.astype(F32))
+        else:
+            out.update({"centre": sm.centre, "shape": sm.shape,
+                        "ell_active": sm.ell_active.astype(F32),
+                        "ell_state": sm.ell_state.astype(F32),
+                        "ell_pattern": sm.ell_pattern.astype(F32),
+                        "ell_reliability": sm.ell_reliability, "ell_value": sm.ell_value,
+                        "ell_time": sm.ell_time})
         if gprog is not None:
             g = gprog.final(carry.grid, grid_config(c.env, c.grid), k_grid)
             out.update(grid_success=g["greedy_success"], random_success=g["random_success"])
@@ -193,11 +246,22 @@ def make_program(cfg: Fig5Config) -> Program:
                    num_chunks=1 if gprog is None else gprog.num_chunks)
 
 
-def map_of(final: dict, seed: int, build: ActionBasedParams | None = None) -> StateMap:
-    """The StateMap of one learner from the run's ``final`` arrays (one sweep point);
-    ``build`` (the run's ``build`` section) gives the static categorical/rank settings."""
-    b = _build_default() if build is None else build
+def map_of(final: dict, seed: int, cfg: Fig5Config | None = None) -> StateMap | CellMap:
+    """The map of one learner from the run's ``final`` arrays (one sweep point): a CellMap
+    or a StateMap after ``cfg.construction`` (``cfg``: the run's config, for the static
+    settings; default: Figure 5's)."""
+    cfg = Fig5Config() if cfg is None else cfg
     g = lambda k, t=np.float32: np.asarray(final[k])[seed].astype(t)  # noqa: E731
+    if cfg.construction == "cells":
+        c = cfg.cells
+        return CellMap(edges=g("edges"), cell_state=g("cell_state", np.int32),
+                       cell_time=g("cell_time"), cell_transitions=g("cell_transitions", np.int32),
+                       fallback=g("fallback", np.int32), action=g("action", np.int32),
+                       transitions=g("transitions", np.int32), order=g("order", np.int32),
+                       active=g("active", bool), iterations=np.int32(0), bins=tuple(c.bins),
+                       categorical_dims=c.categorical_dims,
+                       categorical_levels=c.categorical_levels)
+    b = cfg.build
     return StateMap(centre=g("centre"), shape=g("shape"), ell_active=g("ell_active", bool),
                     ell_state=g("ell_state", np.int32), ell_pattern=g("ell_pattern", np.int32),
                     ell_reliability=g("ell_reliability"), ell_value=g("ell_value"),
@@ -216,13 +280,13 @@ def plot_fig5(final: dict, cfg: Fig5Config, out: Path, seed: int = 0, n: int = 1
     import matplotlib.pyplot as plt
 
     from vbl.world.robots import action_labels
-    sm = map_of(final, seed, cfg.build)
+    sm = map_of(final, seed, cfg)
     fp = cfg.features
     u = (np.arange(n) + 0.5) / n
     b, g = np.meshgrid(u, u)                                  # x1 (cols), x3 (rows)
     x = np.full((n, n, fp.dim), 0.5, np.float32)
     x[..., 0], x[..., 2] = b, g
-    s = np.asarray(classify(sm, jnp.asarray(x)))
+    s = np.asarray(_map_fns(cfg.construction)[2](sm, jnp.asarray(x)))
     order = np.where(s >= 0, np.asarray(sm.order)[np.maximum(s, 0)], -1)
     n_it = max(int(np.asarray(sm.order)[np.asarray(sm.active)].max(initial=0)) + 1, 1)
     shade = np.where(order >= 0, 0.15 + 0.7 * order / max(n_it, 1), 1.0)
@@ -243,7 +307,7 @@ def plot_fig5(final: dict, cfg: Fig5Config, out: Path, seed: int = 0, n: int = 1
         ax.axhline(v, color="C0", lw=1)
     ax.set_xlabel("ball size x1 [px]")
     ax.set_ylabel("goal size x3 [px]")
-    ax.set_title(f"Figure 5: action-based map (seed {seed}), "
+    ax.set_title(f"Figure 5: action-based map, {cfg.construction} (seed {seed}), "
                  f"{int(np.asarray(sm.active).sum())} states; blue: grid")
     fig.tight_layout()
     path = out / "fig5_state_map.png"
@@ -294,7 +358,8 @@ def report(res) -> ReportSection:
     else:
         md += ["", "Grid baseline not run (eval.grid_baseline off, e.g. --quick): see "
                "grid_shooting and the full run of this experiment."]
-    md += ["", f"The map took {ms('map_iterations', '{:.1f}')} construction iterations."]
+    md += ["", f"Construction: {cfg.construction}; the map took "
+           f"{ms('map_iterations', '{:.1f}')} construction iterations."]
     return ReportSection(markdown="\n".join(md), figures=(fig,))
 
 
@@ -306,6 +371,7 @@ EXPERIMENT = register(Experiment(
     # --quick: a smaller collection and map, no grid baseline (its compile would double the
     # quick run's time; `vbl reproduce --quick` runs grid_shooting --quick anyway)
     quick={"collect.episodes_per_action": 300, "collect.horizon": 60, "build.start_window": 30,
+           "cells.start_window": 30,
            "build.max_iterations": 6, "eval.episodes": 64, "eval.grid_baseline": False},
     seeds=4,
     quick_seeds=2,

@@ -22,12 +22,14 @@ def _fmt(st: dict[str, Any]) -> str:
 
 
 def default_section(result: RunResult) -> ReportSection:
-    """A table of every sweep point's last-chunk and final metrics (mean ± 95% CI)."""
+    """A table of every sweep point's scalar last-chunk and final metrics (mean ± 95% CI);
+    array-valued metrics (e.g. a learned map) stay in ``summary.json`` only."""
     lines = []
     for entry in result.summary.get("points", []):
         label = ", ".join(f"{k}={v}" for k, v in entry["values"].items()) or "default config"
         stats = {**{f"{k} (last chunk)": v for k, v in entry.get("last_chunk", {}).items()},
                  **{f"{k} (final)": v for k, v in entry.get("final", {}).items()}}
+        stats = {k: v for k, v in stats.items() if not isinstance(v.get("mean"), list)}
         if not lines:
             lines += ["| point | " + " | ".join(stats) + " |", "|---" * (len(stats) + 1) + "|"]
         lines.append(f"| {label} | " + " | ".join(_fmt(v) for v in stats.values()) + " |")

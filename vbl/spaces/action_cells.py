@@ -1,0 +1,304 @@
+"""Off-line, action-based construction on quantile cells (paper Section 2.1).
+
+The same construction as :mod:`vbl.spaces.action_based` (a *state* is a set of input
+vectors from which repeating one kind of primitive reaches the goal or a state built
+before, whatever the number of repetitions; states grow backwards from the goal), with
+the clusters made of **cells** instead of k-means hyper-ellipsoids: each continuous
+feature is cut into ``bins[d]`` bins (``spacing``: quantiles of the collected points
+that see the feature's object, or equal widths), each categorical pattern (e.g. "ball
+seen / lost left / lost right") is its own set of cells, and a state is the union of the
+cells labelled with the same primitive at the same iteration (the paper's "a hyper-
+ellipsoid, or a union of them", with axis-aligned boxes). Cells cannot spill across a
+boundary the way a Gaussian ellipsoid fitted to a mixed cluster does
+(docs/state_spaces.md, "Figure 5: session 6").
+
+Iteration ``i = 0, 1, ...`` (all fixed-shape, jit- and vmap-able):
+
+1. A start point (one of an episode's first ``start_window`` points, in a cell not yet
+   labelled) of an episode holding primitive ``a`` *reaches* when a later step of the
+   same episode scores or lands in a labelled cell; it takes ``steps`` primitives to that
+   target, plus the target cell's expected time (goal: 0).
+2. Per cell and primitive: ``n`` start points, reach fraction ``r`` (the *reliability*)
+   and expected time ``t`` (mean over the reaching points). A primitive qualifies when
+   ``n >= min_points`` and ``r >= min_reliability``; among those the cell takes the one of
+   highest *value* ``r * discount**t`` and gets state ``i * A + a``, time ``t`` and
+   transitions to the goal = the rounded mean over its reaching points of 1 + the
+   target's transitions (goal: 0).
+3. Stop when an iteration labels no cell (or after ``max_iterations``).
+
+The policy reads the map: the labelled cell's primitive; in an unlabelled cell (the
+*remainder*) the primitive most cells of the same categorical pattern have.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from vbl.params import ParamError, param, validate
+from vbl.spaces.action_based import Experience, pattern_of
+
+__all__ = [
+    "CellMapParams",
+    "CellMap",
+    "build_cell_map",
+    "make_cell_builder",
+    "cell_index",
+    "classify_cells",
+    "cell_policy_action",
+    "num_cell_states",
+]
+
+F32 = jnp.float32
+I32 = jnp.int32
+NO_EDGE = float(np.finfo(np.float32).max)
+"""Padding of unused bin edges (above every feature value; finite, so that a map survives a
+round trip through ``summary.json``)."""
+
+
+@struct.dataclass
+class CellMapParams:
+    """Cells and thresholds of the cell construction (defaults: Figure 5's, measured in
+    docs/state_spaces.md)."""
+
+    bins: tuple[int, ...] = param((4, 5, 3, 3, 1), doc="quantile bins per continuous feature "
+                                  "(Section 2: x1 ball size, x2 ball position, x3 goal size, x4 "
+                                  "goal position, x5 goal orientation; 1 = feature not used)",
+                                  static=True, ge=1)
+    seen_feature: tuple[int, ...] = param((5, 5, 6, 6, 6), doc="per continuous feature: index "
+                                          "of the feature whose value 0.5 marks its object as "
+                                          "seen (bin edges are quantiles over those points; "
+                                          "Section 2: the lost-side features); -1 = all points",
+                                          static=True, ge=-1)
+    spacing: str = param("quantile", doc="bin edges: 'quantile' (equal counts of the points "
+                         "that see the object) or 'uniform' (equal widths between their least "
+                         "and largest value)", static=True, choices=("quantile", "uniform"))
+    categorical_dims: int = param(2, doc="the last this many features are categorical (cells "
+                                  "of each pattern are separate; Section 2: the lost sides)",
+                                  static=True, ge=0)
+    categorical_levels: int = param(3, doc="values of each categorical feature, equally spaced "
+                                    "in [0, 1]", static=True, ge=2)
+    start_window: int = param(50, doc="first points of each episode used as start points",
+                              unit="steps", static=True, ge=1)
+    max_iterations: int = param(12, doc="most construction iterations", static=True, ge=1)
+    min_points: float = param(5.0, doc="fewest start points of a primitive in a cell for it "
+                              "to qualify", ge=1.0)
+    min_reliability: float = param(0.5, doc="least fraction of a primitive's start points in "
+                                   "a cell that reach the goal or a labelled cell", ge=0.0,
+                                   le=1.0)
+    discount: float = param(0.98, doc="per-primitive discount of the value r * discount^t "
+                            "that chooses among qualifying primitives", gt=0.0, le=1.0)
+
+    def check(self) -> None:
+        if len(self.bins) != len(self.seen_feature):
+            raise ParamError(f"cells.bins {self.bins} and cells.seen_feature "
+                             f"{self.seen_feature} must have one entry per continuous feature")
+
+    @property
+    def num_patterns(self) -> int:
+        return self.categorical_levels ** self.categorical_dims
+
+    @property
+    def num_cells(self) -> int:
+        return int(np.prod(self.bins)) * self.num_patterns
+
+
+@struct.dataclass
+class CellMap:
+    """A built cell map. edges (Dc, max(bins) - 1) float32 inner bin edges per continuous
+    feature (NO_EDGE padded); cell_state (C,) int32 (-1 = remainder); cell_time (C,) float32
+    expected primitives to the goal; cell_transitions (C,) int32; fallback (P,) int32 the
+    remainder's primitive per categorical pattern; per state (S = max_iterations x A):
+    action, transitions (fewest of its cells), order (iteration), active; iterations ()
+    int32. C = prod(bins) x P cells, index = (bin index in row-major order) x P + pattern."""
+
+    edges: jax.Array
+    cell_state: jax.Array
+    cell_time: jax.Array
+    cell_transitions: jax.Array
+    fallback: jax.Array
+    action: jax.Array
+    transitions: jax.Array
+    order: jax.Array
+    active: jax.Array
+    iterations: jax.Array
+    bins: tuple[int, ...] = struct.field(pytree_node=False, default=())
+    categorical_dims: int = struct.field(pytree_node=False, default=0)
+    categorical_levels: int = struct.field(pytree_node=False, default=3)
+
+
+def _edges(x: jax.Array, valid: jax.Array, p: CellMapParams) -> jax.Array:
+    """Inner bin edges (Dc, max(bins) - 1), NO_EDGE padded, from the valid points."""
+    width = max(max(p.bins) - 1, 1)
+    rows = []
+    for d, (b, s) in enumerate(zip(p.bins, p.seen_feature, strict=True)):
+        if b == 1:
+            rows.append(jnp.full((width,), NO_EDGE, F32))
+            continue
+        mask = valid if s < 0 else valid & (jnp.abs(x[..., s] - 0.5) < 0.25)
+        v = jnp.where(mask, x[..., d], jnp.nan).reshape(-1)
+        frac = jnp.linspace(0.0, 1.0, b + 1)[1:-1]
+        if p.spacing == "quantile":
+            q = jnp.nanquantile(v, frac).astype(F32)
+        else:
+            lo, hi = jnp.nanmin(v), jnp.nanmax(v)
+            q = (lo + frac * (hi - lo)).astype(F32)
+        q = jnp.where(jnp.isfinite(q), q, NO_EDGE)    # no point sees the object: one bin
+        rows.append(jnp.concatenate([q, jnp.full((width - (b - 1),), NO_EDGE, F32)]))
+    return jnp.stack(rows)
+
+
+def _index(edges: jax.Array, bins: tuple[int, ...], cat_dims: int, levels: int,
+           x: jax.Array) -> jax.Array:
+    idx = jnp.zeros(x.shape[:-1], I32)
+    for d, b in enumerate(bins):
+        k = jnp.sum(x[..., d, None] > edges[d], axis=-1).astype(I32)  # edges sorted
+        idx = idx * b + jnp.minimum(k, b - 1)
+    p = levels ** cat_dims
+    return idx * p + pattern_of(x, cat_dims, levels)
+
+
+def cell_index(cm: CellMap, x: jax.Array) -> jax.Array:
+    """Cell (int32 (...)) of features x (..., D)."""
+    return _index(cm.edges, cm.bins, cm.categorical_dims, cm.categorical_levels, x)
+
+
+def _check(exp: Experience, p: CellMapParams) -> None:
+    validate(p)
+    if exp.x.ndim != 4:
+        raise ValueError(f"experience.x must be (A, N, T+1, D), got shape {exp.x.shape}")
+    d = exp.x.shape[-1]
+    if p.categorical_dims >= d:
+        raise ParamError(f"cells.categorical_dims={p.categorical_dims} must be < the number of "
+                         f"features {d} (some must be continuous)")
+    if len(p.bins) != d - p.categorical_dims:
+        raise ParamError(f"cells.bins has {len(p.bins)} entries; the experience has "
+                         f"{d - p.categorical_dims} continuous features ({d} features, "
+                         f"{p.categorical_dims} categorical)")
+    if any(s >= d for s in p.seen_feature):
+        raise ParamError(f"cells.seen_feature {p.seen_feature}: indices must be < {d}")
+    if p.start_window > exp.x.shape[2] - 1:
+        raise ParamError(f"cells.start_window={p.start_window} must be <= the collection "
+                         f"horizon {exp.x.shape[2] - 1}")
+
+
+def build_cell_map(exp: Experience, p: CellMapParams) -> CellMap:
+    """Grow the cell states backwards from the goal (module docstring). Jit-able with
+    ``p`` closed over (traced thresholds may be vmapped); :func:`make_cell_builder` checks
+    and jits. Deterministic: no key."""
+    n_act, _, _, _ = exp.x.shape
+    w, n_it, n_cells = p.start_window, p.max_iterations, p.num_cells
+    s_cap = n_it * n_act
+    gamma = jnp.asarray(p.discount, F32)
+    edges = _edges(exp.x, exp.valid, p)
+    cell = _index(edges, p.bins, p.categorical_dims, p.categorical_levels, exp.x)  # (A,N,T1)
+    starts_cell = cell[:, :, :w].reshape(n_act, -1)
+
+    def first_target(lab, ctime, ctrans):
+        """Per point (A, N, T): reached (bool), primitives to the goal through the target
+        (steps + target time) and transitions (1 + the target's; goal 1)."""
+        lab_pt, t_pt, tr_pt = lab[cell], ctime[cell], ctrans[cell]
+        hit_pt = (lab_pt >= 0) & exp.valid
+
+        def back(nxt, inp):
+            g, hit, t_next, tr_next = inp
+            n_reach, n_tm, n_tr = nxt
+            reach = g | hit | n_reach
+            tm = 1.0 + jnp.where(g, 0.0, jnp.where(hit, t_next, n_tm))
+            tr = jnp.where(g, 1, jnp.where(hit, 1 + tr_next, n_tr))
+            out = (reach, tm, tr)
+            return out, out
+
+        mv = lambda a: jnp.moveaxis(a, 2, 0)  # noqa: E731
+        xs = (mv(exp.goal), mv(hit_pt[..., 1:]), mv(t_pt[..., 1:]), mv(tr_pt[..., 1:]))
+        shp = exp.goal.shape[:2]
+        init = (jnp.zeros(shp, bool), jnp.zeros(shp, F32), jnp.zeros(shp, I32))
+        _, outs = jax.lax.scan(back, init, xs, reverse=True)
+        return tuple(jnp.moveaxis(o, 0, 2) for o in outs)
+
+    def per_cell(ids, weights):
+        return jax.ops.segment_sum(weights, ids, num_segments=n_cells)
+
+    def body(carry):
+        it, lab, ctime, ctrans, _ = carry
+        reach, tm, tr = first_target(lab, ctime, ctrans)
+        flat = lambda a: a[:, :, :w].reshape(n_act, -1)  # noqa: E731
+        start = flat(exp.valid) & (lab[starts_cell] < 0)
+        ok_pt = start & flat(reach)
+        n_in = jax.vmap(per_cell)(starts_cell, start.astype(F32))                # (A, C)
+        n_ok = jax.vmap(per_cell)(starts_cell, ok_pt.astype(F32))
+        s_tm = jax.vmap(per_cell)(starts_cell, jnp.where(ok_pt, flat(tm), 0.0))
+        s_tr = jax.vmap(per_cell)(starts_cell, jnp.where(ok_pt, flat(tr), 0).astype(F32))
+        rel = n_ok / jnp.maximum(n_in, 1.0)
+        e_tm = s_tm / jnp.maximum(n_ok, 1.0)
+        ok = (n_in >= p.min_points) & (rel >= p.min_reliability) & (lab < 0)[None]
+        value = jnp.where(ok, rel * gamma ** e_tm, -1.0)
+        best = jnp.argmax(value, axis=0).astype(I32)                             # (C,)
+        new = jnp.any(ok, axis=0)
+        pick = lambda a: jnp.take_along_axis(a, best[None], axis=0)[0]  # noqa: E731
+        lab = jnp.where(new, it * n_act + best, lab)
+        ctime = jnp.where(new, pick(e_tm), ctime)
+        ctrans = jnp.where(new, jnp.round(pick(s_tr) / jnp.maximum(pick(n_ok), 1.0)).astype(I32),
+                           ctrans)
+        return it + 1, lab, ctime, ctrans, jnp.any(new)
+
+    def cond(carry):
+        return (carry[0] < n_it) & carry[4]
+
+    init = (jnp.zeros((), I32), jnp.full((n_cells,), -1, I32), jnp.zeros((n_cells,), F32),
+            jnp.zeros((n_cells,), I32), jnp.ones((), bool))
+    it, lab, ctime, ctrans, _ = jax.lax.while_loop(cond, body, init)
+
+    labelled = lab >= 0
+    seg = jnp.where(labelled, lab, s_cap)                                 # dump bucket s_cap
+    active = jax.ops.segment_sum(labelled.astype(I32), seg, num_segments=s_cap + 1)[:s_cap] > 0
+    big = jnp.iinfo(I32).max
+    trans = jax.ops.segment_min(jnp.where(labelled, ctrans, big), seg,
+                                num_segments=s_cap + 1)[:s_cap]
+    n_pat = p.num_patterns
+    act = jnp.where(labelled, lab % n_act, 0)
+    counts = jax.ops.segment_sum(jax.nn.one_hot(act, n_act, dtype=F32) * labelled[:, None],
+                                 jnp.arange(n_cells) % n_pat, num_segments=n_pat)  # (P, A)
+    return CellMap(edges=edges, cell_state=lab, cell_time=ctime,
+                   cell_transitions=jnp.where(labelled, ctrans, 0), fallback=jnp.argmax(
+                       counts, axis=-1).astype(I32),
+                   action=jnp.tile(jnp.arange(n_act, dtype=I32), n_it),
+                   transitions=jnp.where(active, trans, 0),
+                   order=jnp.repeat(jnp.arange(n_it, dtype=I32), n_act), active=active,
+                   iterations=it, bins=tuple(p.bins), categorical_dims=p.categorical_dims,
+                   categorical_levels=p.categorical_levels)
+
+
+def make_cell_builder(p: CellMapParams) -> Callable[[Experience], CellMap]:
+    """Validated, jitted ``build(exp) -> CellMap`` for the settings ``p``."""
+    validate(p)
+    _build = jax.jit(lambda exp: build_cell_map(exp, p))
+
+    def build(exp: Experience) -> CellMap:
+        _check(exp, p)
+        return _build(exp)
+
+    return build
+
+
+def classify_cells(cm: CellMap, x: jax.Array) -> jax.Array:
+    """State (int32 (...)) of features x (..., D); -1 in the remainder."""
+    return cm.cell_state[cell_index(cm, x)]
+
+
+def cell_policy_action(cm: CellMap, x: jax.Array) -> jax.Array:
+    """The map's primitive for features x (..., D): the labelled cell's, else the
+    remainder's primitive of x's categorical pattern (int32 (...))."""
+    c = cell_index(cm, x)
+    s = cm.cell_state[c]
+    fb = cm.fallback[c % (cm.categorical_levels ** cm.categorical_dims)]
+    return jnp.where(s >= 0, cm.action[jnp.maximum(s, 0)], fb).astype(I32)
+
+
+def num_cell_states(cm: CellMap) -> jax.Array:
+    """Number of built states (the goal not counted), int32."""
+    return jnp.sum(cm.active).astype(I32)
