@@ -307,8 +307,8 @@ def plot_fig5(final: dict, cfg: Fig5Config, out: Path, seed: int = 0, n: int = 1
         ax.axhline(v, color="C0", lw=1)
     ax.set_xlabel("ball size x1 [px]")
     ax.set_ylabel("goal size x3 [px]")
-    ax.set_title(f"Figure 5: action-based map, {cfg.construction} (seed {seed}), "
-                 f"{int(np.asarray(sm.active).sum())} states; blue: grid")
+    ax.set_title(f"Fig. 5 map ({cfg.construction}, seed {seed}): "
+                 f"{int(np.asarray(sm.active).sum())} states; blue = grid", fontsize=10)
     fig.tight_layout()
     path = out / "fig5_state_map.png"
     fig.savefig(path, dpi=120)
