@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from toy_worlds import LineWorld
+from toy_worlds import LineWorld, assert_line_world_swap_map, line_world_collector
 
 from vbl.params import ParamError
 from vbl.spaces.action_based import (
@@ -36,8 +36,7 @@ F, B = 0, 1
 
 @pytest.fixture(scope="module")
 def collect():
-    return jax.jit(lambda k, flip: collect_experience(
-        ENV, ENV.default_params.replace(flip_below=flip), k, lambda o: o, 2, CP))
+    return line_world_collector(CP.episodes_per_action, CP.horizon)
 
 
 @pytest.fixture(scope="module")
@@ -61,21 +60,8 @@ def test_experience_shapes_and_dtypes(flipped):
 
 def test_line_world_with_swap_gives_hand_derived_states(flipped):
     _, sm = flipped
-    act = np.asarray(sm.active)
-    assert int(num_states(sm)) == 2
-    states = np.flatnonzero(act)
-    by_action = {int(sm.action[s]): s for s in states}
-    assert set(by_action) == {F, B}
-    assert int(sm.transitions[by_action[F]]) == 1 and int(sm.order[by_action[F]]) == 0
-    assert int(sm.transitions[by_action[B]]) == 2 and int(sm.order[by_action[B]]) == 1
+    assert_line_world_swap_map(sm, num_states, classify, policy_action)
     assert int(sm.iterations) == 3          # the third iteration finds nothing new
-    right = jnp.linspace(0.56, 0.97, 12, dtype=jnp.float32)[:, None]
-    left = jnp.linspace(0.03, 0.44, 12, dtype=jnp.float32)[:, None]
-    assert np.all(np.asarray(classify(sm, right)) == by_action[F])
-    assert np.all(np.asarray(classify(sm, left)) == by_action[B])
-    assert np.all(np.asarray(policy_action(sm, right)) == F)
-    assert np.all(np.asarray(policy_action(sm, left)) == B)
-    assert classify(sm, right).dtype == jnp.int32
 
 
 def test_policy_from_map_reaches_goal(flipped):

@@ -11,10 +11,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from toy_worlds import LineWorld
+from toy_worlds import LineWorld, assert_line_world_swap_map, line_world_collector
 
 from vbl.params import ParamError
-from vbl.spaces.action_based import CollectParams, Experience, collect_experience, rollout_success
+from vbl.spaces.action_based import CollectParams, Experience, rollout_success
 from vbl.spaces.action_cells import (
     CellMapParams,
     build_cell_map,
@@ -36,8 +36,7 @@ F, B = 0, 1
 
 @pytest.fixture(scope="module")
 def collect():
-    return jax.jit(lambda k, flip: collect_experience(
-        ENV, ENV.default_params.replace(flip_below=flip), k, lambda o: o, 2, CP))
+    return line_world_collector(CP.episodes_per_action, CP.horizon)
 
 
 @pytest.fixture(scope="module")
@@ -58,19 +57,8 @@ def test_edges_are_quantiles_or_equal_widths_of_the_valid_points(flipped):
 
 def test_line_world_with_swap_gives_hand_derived_states(flipped):
     _, cm = flipped
-    assert int(num_cell_states(cm)) == 2
-    by_action = {int(cm.action[s]): s for s in np.flatnonzero(np.asarray(cm.active))}
-    assert set(by_action) == {F, B}
-    assert int(cm.transitions[by_action[F]]) == 1 and int(cm.order[by_action[F]]) == 0
-    assert int(cm.transitions[by_action[B]]) == 2 and int(cm.order[by_action[B]]) == 1
+    assert_line_world_swap_map(cm, num_cell_states, classify_cells, cell_policy_action)
     assert int(cm.iterations) == 3          # the third iteration labels nothing
-    right = jnp.linspace(0.56, 0.97, 12, dtype=jnp.float32)[:, None]
-    left = jnp.linspace(0.03, 0.44, 12, dtype=jnp.float32)[:, None]
-    assert np.all(np.asarray(classify_cells(cm, right)) == by_action[F])
-    assert np.all(np.asarray(classify_cells(cm, left)) == by_action[B])
-    assert np.all(np.asarray(cell_policy_action(cm, right)) == F)
-    assert np.all(np.asarray(cell_policy_action(cm, left)) == B)
-    assert classify_cells(cm, right).dtype == jnp.int32
 
 
 def test_policy_from_cell_map_reaches_goal(flipped):

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from vbl.params import param
@@ -150,3 +151,34 @@ class ChainEnv:
         st = jax.tree.map(lambda a, b: jnp.where(done, a, b), st_r, ChainState(s=s2, t=t))
         obs = jnp.where(done, obs_r, jnp.array([s2], F32))
         return obs, st, term.astype(F32), term, trunc, {"success": term}
+
+
+def assert_line_world_swap_map(m, num_states, classify, policy_action) -> None:
+    """The hand-derived map of LineWorld with ``flip_below=0.5`` (primitives F = 0, B = 1):
+    state F with 1 transition (division order 0) on p in [0.5, 1), state B with 2
+    transitions (order 1) on [0, 0.5); checked away from p = 0.5 for any map type with
+    ``action``, ``transitions``, ``order``, ``active`` per state and the given functions."""
+    f, b = 0, 1
+    assert int(num_states(m)) == 2
+    by_action = {int(m.action[s]): s for s in np.flatnonzero(np.asarray(m.active))}
+    assert set(by_action) == {f, b}
+    assert int(m.transitions[by_action[f]]) == 1 and int(m.order[by_action[f]]) == 0
+    assert int(m.transitions[by_action[b]]) == 2 and int(m.order[by_action[b]]) == 1
+    right = jnp.linspace(0.56, 0.97, 12, dtype=jnp.float32)[:, None]
+    left = jnp.linspace(0.03, 0.44, 12, dtype=jnp.float32)[:, None]
+    assert np.all(np.asarray(classify(m, right)) == by_action[f])
+    assert np.all(np.asarray(classify(m, left)) == by_action[b])
+    assert np.all(np.asarray(policy_action(m, right)) == f)
+    assert np.all(np.asarray(policy_action(m, left)) == b)
+    assert classify(m, right).dtype == jnp.int32
+
+
+def line_world_collector(episodes_per_action: int = 200, horizon: int = 40):
+    """Jitted ``collect(key, flip_below) -> Experience`` on LineWorld (both primitives,
+    identity features), as the Section 2.1 construction tests use it."""
+    from vbl.spaces.action_based import CollectParams, collect_experience
+
+    env = LineWorld()
+    cp = CollectParams(episodes_per_action=episodes_per_action, horizon=horizon)
+    return jax.jit(lambda k, flip: collect_experience(
+        env, env.default_params.replace(flip_below=flip), k, lambda o: o, 2, cp))
