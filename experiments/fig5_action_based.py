@@ -39,6 +39,7 @@ from vbl.spaces.action_based import (
     FeatureParams,
     StateMap,
     build_state_map,
+    check_build,
     classify,
     collect_experience,
     num_states,
@@ -51,6 +52,7 @@ from vbl.spaces.action_cells import (
     CellMapParams,
     build_cell_map,
     cell_policy_action,
+    check_cells,
     classify_cells,
     num_cell_states,
 )
@@ -187,12 +189,8 @@ def make_program(cfg: Fig5Config) -> Program:
     if cat > (2 if cfg.features.lost_sides else 0):
         raise ParamError(f"{sec}.categorical_dims={cat}: only the lost-side features are "
                          "categorical (2 with features.lost_sides, else 0)")
-    if cells and len(cfg.cells.bins) != cfg.features.dim - cat:
-        raise ParamError(f"cells.bins={cfg.cells.bins} needs one entry per continuous feature "
-                         f"({cfg.features.dim - cat})")
-    if (cfg.cells if cells else cfg.build).start_window > cfg.collect.horizon:
-        raise ParamError(f"{sec}.start_window must be <= collect.horizon="
-                         f"{cfg.collect.horizon}")
+    check = check_cells if cells else check_build
+    check(cfg.cells if cells else cfg.build, cfg.features.dim, cfg.collect.horizon)
     act_fn, count_fn, _ = _map_fns(cfg.construction)
     gprog = grid_program(cfg.env, cfg.grid) if cfg.eval.grid_baseline else None
 

@@ -74,6 +74,7 @@ __all__ = [
     "pattern_of",
     "collect_experience",
     "build_state_map",
+    "check_build",
     "classify",
     "policy_action",
     "num_states",
@@ -316,17 +317,22 @@ def collect_experience(env: Any, env_params: Any, key: jax.Array,
     return Experience(x=x, valid=valid, goal=goal, speed=speed)
 
 
-def _check_build(exp: Experience, p: ActionBasedParams) -> None:
+def check_build(p: ActionBasedParams, num_features: int, horizon: int) -> None:
+    """Raise ParamError unless ``p`` fits experience of ``num_features`` features and
+    episodes of ``horizon`` primitives (callable before any data exists)."""
     validate(p)
+    if p.start_window > horizon:
+        raise ParamError(f"start_window={p.start_window} must be <= the collection horizon "
+                         f"{horizon} (the episodes' length)")
+    if p.categorical_dims >= num_features:
+        raise ParamError(f"categorical_dims={p.categorical_dims} must be < the number of "
+                         f"features {num_features} (some must be continuous)")
+
+
+def _check_build(exp: Experience, p: ActionBasedParams) -> None:
     if exp.x.ndim != 4:
         raise ValueError(f"experience.x must be (A, N, T+1, D), got shape {exp.x.shape}")
-    t1 = exp.x.shape[2]
-    if p.start_window > t1 - 1:
-        raise ParamError(f"start_window={p.start_window} must be <= the collection horizon "
-                         f"{t1 - 1} (the episodes' length)")
-    if p.categorical_dims >= exp.x.shape[-1]:
-        raise ParamError(f"categorical_dims={p.categorical_dims} must be < the number of "
-                         f"features {exp.x.shape[-1]} (some must be continuous)")
+    check_build(p, exp.x.shape[-1], exp.x.shape[2] - 1)
 
 
 def _rank_terms(rank: str, value: jax.Array, time: jax.Array,

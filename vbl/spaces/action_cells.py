@@ -46,6 +46,7 @@ __all__ = [
     "CellMapParams",
     "CellMap",
     "build_cell_map",
+    "check_cells",
     "make_cell_builder",
     "cell_index",
     "classify_cells",
@@ -167,11 +168,11 @@ def cell_index(cm: CellMap, x: jax.Array) -> jax.Array:
     return _index(cm.edges, cm.bins, cm.categorical_dims, cm.categorical_levels, x)
 
 
-def _check(exp: Experience, p: CellMapParams) -> None:
+def check_cells(p: CellMapParams, num_features: int, horizon: int) -> None:
+    """Raise ParamError unless ``p`` fits experience of ``num_features`` features and
+    episodes of ``horizon`` primitives (callable before any data exists)."""
     validate(p)
-    if exp.x.ndim != 4:
-        raise ValueError(f"experience.x must be (A, N, T+1, D), got shape {exp.x.shape}")
-    d = exp.x.shape[-1]
+    d = num_features
     if p.categorical_dims >= d:
         raise ParamError(f"cells.categorical_dims={p.categorical_dims} must be < the number of "
                          f"features {d} (some must be continuous)")
@@ -181,9 +182,15 @@ def _check(exp: Experience, p: CellMapParams) -> None:
                          f"{p.categorical_dims} categorical)")
     if any(s >= d for s in p.seen_feature):
         raise ParamError(f"cells.seen_feature {p.seen_feature}: indices must be < {d}")
-    if p.start_window > exp.x.shape[2] - 1:
+    if p.start_window > horizon:
         raise ParamError(f"cells.start_window={p.start_window} must be <= the collection "
-                         f"horizon {exp.x.shape[2] - 1}")
+                         f"horizon {horizon}")
+
+
+def _check(exp: Experience, p: CellMapParams) -> None:
+    if exp.x.ndim != 4:
+        raise ValueError(f"experience.x must be (A, N, T+1, D), got shape {exp.x.shape}")
+    check_cells(p, exp.x.shape[-1], exp.x.shape[2] - 1)
 
 
 def build_cell_map(exp: Experience, p: CellMapParams) -> CellMap:
@@ -197,6 +204,7 @@ def build_cell_map(exp: Experience, p: CellMapParams) -> CellMap:
     edges = _edges(exp.x, exp.valid, p)
     cell = _index(edges, p.bins, p.categorical_dims, p.categorical_levels, exp.x)  # (A,N,T1)
     starts_cell = cell[:, :, :w].reshape(n_act, -1)
+    starts_valid = exp.valid[:, :, :w].reshape(n_act, -1)
 
     def first_target(lab, ctime, ctrans):
         """Per point (A, N, T): reached (bool), primitives to the goal through the target
@@ -227,7 +235,7 @@ def build_cell_map(exp: Experience, p: CellMapParams) -> CellMap:
         it, lab, ctime, ctrans, _ = carry
         reach, tm, tr = first_target(lab, ctime, ctrans)
         flat = lambda a: a[:, :, :w].reshape(n_act, -1)  # noqa: E731
-        start = flat(exp.valid) & (lab[starts_cell] < 0)
+        start = starts_valid & (lab[starts_cell] < 0)
         ok_pt = start & flat(reach)
         n_in = jax.vmap(per_cell)(starts_cell, start.astype(F32))                # (A, C)
         n_ok = jax.vmap(per_cell)(starts_cell, ok_pt.astype(F32))
