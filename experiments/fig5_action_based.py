@@ -32,7 +32,7 @@ from vbl.agents.qlearning import QRunnerParams
 from vbl.engine import Experiment, Program, ReportSection, register
 from vbl.engine.registry import load_script
 from vbl.envs.shooting import ShootingEnv, ShootingParams
-from vbl.params import ParamError, param, section
+from vbl.params import ParamError, param, section, validate
 from vbl.spaces.action_based import (
     ActionBasedParams,
     CollectParams,
@@ -51,10 +51,19 @@ from vbl.spaces.action_cells import (
     CellMap,
     CellMapParams,
     build_cell_map,
+    cell_index,
     cell_policy_action,
     check_cells,
     classify_cells,
     num_cell_states,
+)
+from vbl.spaces.cell_refine import (
+    RefinedMap,
+    RefineParams,
+    initial_units,
+    num_refined_states,
+    refine_cell_map,
+    refined_policy_action,
 )
 from vbl.spaces.grid import NUM_GRID_STATES, GridParams
 
@@ -157,6 +166,9 @@ class Fig5Config:
                                    "'cells')")
     build: ActionBasedParams = section(_build_default, doc="ellipsoid construction thresholds "
                                        "(construction='ellipsoids')")
+    refine: RefineParams = section(RefineParams, doc="closed-loop refinement of the cell map "
+                                   "(construction='cells'; an extension of the paper: "
+                                   "refine.iterations=0 turns it off)")
     grid: GridBaseline = section(GridBaseline, doc="grid baseline (grid_shooting's settings; "
                                  "its chunks are this run's chunks)")
     eval: EvalParams = section(EvalParams, doc="evaluation of the map")
@@ -172,6 +184,9 @@ def ball_speed(state) -> jax.Array:
 class Carry:
     smap: StateMap | CellMap
     grid: object
+    refined: RefinedMap | None
+    collect_primitives: jax.Array   # () float32 primitives of the collection
+    grid_primitives: jax.Array      # () float32 primitives of the grid's finished episodes
 
 
 def _map_fns(construction: str):
@@ -193,21 +208,29 @@ def make_program(cfg: Fig5Config) -> Program:
     check(cfg.cells if cells else cfg.build, cfg.features.dim, cfg.collect.horizon)
     act_fn, count_fn, _ = _map_fns(cfg.construction)
     gprog = grid_program(cfg.env, cfg.grid) if cfg.eval.grid_baseline else None
+    refine = cells and cfg.refine.iterations > 0
+    validate(cfg.refine, "refine.")
 
     def init(key, c):
         k_col, k_build, k_grid = jax.random.split(key, 3)
+        k_ref = jax.random.fold_in(k_build, 1)    # keeps the other keys of earlier runs
         feat = lambda o: sec2_features(o, c.features)  # noqa: E731
         exp = collect_experience(ENV, c.env, k_col, feat, n_act, c.collect, ball_speed)
         smap = (build_cell_map(exp, c.cells) if cells
                 else build_state_map(exp, c.build, k_build))
+        refined = (refine_cell_map(ENV, c.env, k_ref, feat, smap, c.refine) if refine
+                   else None)
         grid = None if gprog is None else gprog.init(k_grid, grid_config(c.env, c.grid))
-        return Carry(smap=smap, grid=grid)
+        return Carry(smap=smap, grid=grid, refined=refined,
+                     collect_primitives=jnp.sum(exp.valid[..., :-1]).astype(F32),
+                     grid_primitives=jnp.zeros((), F32))
 
     def step(carry, c):
         if gprog is None:
             return carry, {"map_states": count_fn(carry.smap).astype(F32)}
         g, m = gprog.step(carry.grid, grid_config(c.env, c.grid))
-        return carry.replace(grid=g), {
+        prims = carry.grid_primitives + m["episodes"] * m["mean_primitives"]
+        return carry.replace(grid=g, grid_primitives=prims.astype(F32)), {
             "episodes": m["episodes"], "success_rate": m["success_rate"],
             "grid_difficulty": m["difficulty"], "map_states": count_fn(carry.smap).astype(F32)}
 
@@ -222,7 +245,22 @@ def make_program(cfg: Fig5Config) -> Program:
                "map_states": count_fn(sm).astype(F32),
                "map_iterations": sm.iterations.astype(F32),
                "action": sm.action.astype(F32), "transitions": sm.transitions.astype(F32),
-               "order": sm.order.astype(F32), "active": sm.active.astype(F32)}
+               "order": sm.order.astype(F32), "active": sm.active.astype(F32),
+               "collect_primitives": carry.collect_primitives}
+        if refine:
+            rm = carry.refined
+            k_ref = jax.random.fold_in(k_map, 1)
+            ok_r, _ = rollout_success(ENV, ep, k_ref,
+                                      lambda o, _: refined_policy_action(sm, rm, feat(o)),
+                                      cfg.eval.episodes, cfg.env.max_steps)
+            used = jnp.zeros(rm.policy.shape, bool).at[rm.unit_of].set(True)
+            out.update(refined_success=jnp.mean(ok_r.astype(F32)),
+                       refined_states=num_refined_states(rm, n_act, cfg.refine.max_transitions
+                                                         ).astype(F32),
+                       refined_units=jnp.sum(used & (jnp.sum(rm.visits, -1) > 0)).astype(F32),
+                       refine_primitives=rm.primitives, refine_train_success=rm.train_success,
+                       refined_policy=rm.policy.astype(F32),
+                       refined_transitions=rm.transitions.astype(F32))
         if cells:
             out.update(edges=sm.edges, cell_state=sm.cell_state.astype(F32),
                        cell_time=sm.cell_time,
@@ -237,7 +275,8 @@ def make_program(cfg: Fig5Config) -> Program:
                         "ell_time": sm.ell_time})
         if gprog is not None:
             g = gprog.final(carry.grid, grid_config(c.env, c.grid), k_grid)
-            out.update(grid_success=g["greedy_success"], random_success=g["random_success"])
+            out.update(grid_success=g["greedy_success"], random_success=g["random_success"],
+                       grid_primitives=carry.grid_primitives)
         return out
 
     return Program(init=init, step=step, final=final,
@@ -314,6 +353,53 @@ def plot_fig5(final: dict, cfg: Fig5Config, out: Path, seed: int = 0, n: int = 1
     return path
 
 
+def plot_refined(final: dict, cfg: Fig5Config, out: Path, seed: int = 0, n: int = 160) -> Path:
+    """The refined policy of one learner on Figure 5's slice (as :func:`plot_fig5`): label =
+    primitive + transitions to the goal, darker = fewer transitions; white = never
+    reached the goal in the refinement."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from vbl.world.robots import action_labels
+    cm = map_of(final, seed, cfg)
+    unit_of, _ = initial_units(cm, cfg.refine.units)
+    pol = np.asarray(final["refined_policy"])[seed].astype(int)
+    trans = np.asarray(final["refined_transitions"])[seed].astype(int)
+    fp = cfg.features
+    u = (np.arange(n) + 0.5) / n
+    b, g = np.meshgrid(u, u)
+    x = np.full((n, n, fp.dim), 0.5, np.float32)
+    x[..., 0], x[..., 2] = b, g
+    unit = np.asarray(unit_of)[np.asarray(cell_index(cm, jnp.asarray(x)))]
+    t = trans[unit]
+    t_max = max(int(trans.max(initial=1)), 1)
+    shade = np.where(t > 0, 0.15 + 0.7 * (t - 1) / t_max, 1.0)
+    fig, ax = plt.subplots(figsize=(5.5, 5))
+    ext = (0, fp.ball_size_max, 0, fp.goal_size_max)
+    ax.imshow(shade, origin="lower", extent=ext, cmap="gray", vmin=0, vmax=1, aspect="auto")
+    labels = action_labels("two_motor")
+    for un in np.unique(unit[t > 0]):
+        rr, cc = np.nonzero(unit == un)
+        ax.text((cc.mean() + 0.5) / n * fp.ball_size_max, (rr.mean() + 0.5) / n
+                * fp.goal_size_max, f"{labels[pol[un]]}$_{{{trans[un]}}}$", ha="center",
+                va="center", fontsize=8, color="red")
+    gp = cfg.grid.grid
+    for v in (gp.ball_size_lower, gp.ball_size_upper):
+        ax.axvline(v, color="C0", lw=1)
+    for v in (gp.goal_size_lower, gp.goal_size_upper):
+        ax.axhline(v, color="C0", lw=1)
+    ax.set_xlabel("ball size x1 [px]")
+    ax.set_ylabel("goal size x3 [px]")
+    ax.set_title(f"refined map (seed {seed}): {int(final['refined_states'][seed])} states; "
+                 "blue = grid", fontsize=10)
+    fig.tight_layout()
+    path = out / "fig5_refined_map.png"
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
 def ci95(v) -> tuple[float, float]:
     """Mean and half-width of the 95% t interval over seeds (0 for one seed)."""
     from vbl.engine.results import t_quantile_975
@@ -326,7 +412,9 @@ def ci95(v) -> tuple[float, float]:
 def report(res) -> ReportSection:
     cfg = res.config
     fin = {k: np.asarray(v)[0] for k, v in res.final.items()}
-    fig = plot_fig5(fin, cfg, Path(res.out_dir))
+    figs = (plot_fig5(fin, cfg, Path(res.out_dir)),)
+    if "refined_policy" in fin:
+        figs += (plot_refined(fin, cfg, Path(res.out_dir)),)
 
     def ms(k, f="{:.3f}"):
         m, h = ci95(fin[k])
@@ -340,6 +428,11 @@ def report(res) -> ReportSection:
           f"map's policy on {cfg.eval.episodes} starts per seed.", "",
           "| method | states | success rate |", "|---|---|---|",
           f"| action-based map | {ms('map_states', '{:.1f}')} | {ms('map_success')} |"]
+    refined = "refined_success" in fin
+    if refined:
+        md += [f"| same map, closed-loop refinement (vbl extension) | "
+               f"{ms('refined_states', '{:.1f}')} (policy table: "
+               f"{ms('refined_units', '{:.0f}')} units) | {ms('refined_success')} |"]
     if "grid_success" in fin:
         map_m, grid_m = ci95(fin["map_success"]), ci95(fin["grid_success"])
         overlap = abs(map_m[0] - grid_m[0]) <= map_m[1] + grid_m[1]
@@ -353,12 +446,31 @@ def report(res) -> ReportSection:
                f"{NUM_GRID_STATES}: success {'yes' if map_m[0] >= grid_m[0] else '**no**'} "
                f"({map_m[0]:.3f} vs {grid_m[0]:.3f}{', intervals overlap' if overlap else ''}"
                f"); states {'yes' if st[0] < NUM_GRID_STATES else '**no**'} ({st[0]:.1f})."]
+        if refined:
+            r_m, r_st = ci95(fin["refined_success"]), ci95(fin["refined_units"])
+            md += ["", f"With the closed-loop refinement: success "
+                   f"{'yes' if r_m[0] >= grid_m[0] else '**no**'} ({r_m[0]:.3f} vs "
+                   f"{grid_m[0]:.3f}); policy-table rows "
+                   f"{'yes' if r_st[0] < NUM_GRID_STATES else '**no**'} ({r_st[0]:.0f} vs "
+                   f"{NUM_GRID_STATES})."]
+        md += ["", "Experience (primitives per seed, mean): collection "
+               f"{fin['collect_primitives'].mean():,.0f}"
+               + (f" + refinement {fin['refine_primitives'].mean():,.0f}" if refined else "")
+               + f"; grid baseline (finished training episodes) "
+               f"{fin['grid_primitives'].mean():,.0f}."]
     else:
         md += ["", "Grid baseline not run (eval.grid_baseline off, e.g. --quick): see "
                "grid_shooting and the full run of this experiment."]
     md += ["", f"Construction: {cfg.construction}; the map took "
            f"{ms('map_iterations', '{:.1f}')} construction iterations."]
-    return ReportSection(markdown="\n".join(md), figures=(fig,))
+    if refined:
+        r = cfg.refine
+        md += ["", f"Refinement (vbl.spaces.cell_refine): {r.iterations} iterations x "
+               f"{r.episodes} on-policy episodes (epsilon {r.epsilon}, start difficulty "
+               f"U[{r.difficulty_lo}, {r.difficulty_hi}]) re-choose each unit's primitive by "
+               "its mean closed-loop score; the construction's partition is kept. States = "
+               "(transitions to the goal, primitive) pairs of the refined policy."]
+    return ReportSection(markdown="\n".join(md), figures=figs)
 
 
 EXPERIMENT = register(Experiment(
@@ -370,7 +482,8 @@ EXPERIMENT = register(Experiment(
     # quick run's time; `vbl reproduce --quick` runs grid_shooting --quick anyway)
     quick={"collect.episodes_per_action": 300, "collect.horizon": 60, "build.start_window": 30,
            "cells.start_window": 30,
-           "build.max_iterations": 6, "eval.episodes": 64, "eval.grid_baseline": False},
+           "build.max_iterations": 6, "eval.episodes": 64, "eval.grid_baseline": False,
+           "refine.iterations": 8, "refine.episodes": 128, "refine.horizon": 100},
     seeds=4,
     quick_seeds=2,
     paper_result=True,
