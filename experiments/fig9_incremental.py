@@ -31,7 +31,9 @@ from vbl.spaces.incremental import (
     RunCarry,
     greedy_action,
     init_run,
+    policy_success,
     run_updates,
+    temperature_at,
 )
 from vbl.vision.features import SEC2_BALL_LOST_SIDE, SEC2_BALL_POS, SEC2_BALL_VISIBLE
 
@@ -200,7 +202,11 @@ def make_program(cfg: Fig9Config) -> Program:
         # one traced rollout for the three policies (same fresh starts: same key)
         ok = jax.vmap(rollout, in_axes=(None, 0))(
             k_eval, jnp.arange(3 if cfg.train.steer_reference else 2))
+        # the learner's own (Boltzmann) behaviour, frozen: the same starts
+        ok_b = policy_success(k_eval, lr, ENV, ep, c.learner, feat, cfg.train.eval_episodes,
+                              cfg.env.max_steps, temperature_at(c.learner, carry.run.trials))
         out = {"greedy_success": jnp.mean(ok[0].astype(F32)),
+               "boltzmann_success": jnp.mean(ok_b.astype(F32)),
                "random_success": jnp.mean(ok[1].astype(F32)),
                "states": jnp.sum(lr.seg.active).astype(F32),
                "splits": lr.splits.astype(F32), "value_splits": lr.value_splits.astype(F32),

@@ -580,3 +580,95 @@ def test_exit_output_splits_where_exits_differ_and_one_step_changes_barely_do():
 def test_exit_weight_without_exit_output_is_a_clear_error():
     with pytest.raises(ParamError, match="exit_weight.*exit_output"):
         validate(P.replace(exit_weight=0.5))
+
+
+def _mc_learner():
+    """Two boxes (x0 < 0.5 | x0 >= 0.5), Monte Carlo updates."""
+    p = P.replace(value_update="monte_carlo", mc_log=4, alpha=0.5, mc_gamma=0.5)
+    lr = init_learner(p, 2, 4)
+    seg = lr.seg.replace(lo=lr.seg.lo.at[1].set(jnp.array([0.5, 0.0], jnp.float32)),
+                         hi=lr.seg.hi.at[0].set(jnp.array([0.5, 1.0], jnp.float32))
+                         .at[1].set(1.0), active=lr.seg.active.at[1].set(True))
+    return p, lr.replace(seg=seg)
+
+
+def test_monte_carlo_update_by_hand():
+    """Decisions: box 0 / primitive 2 at clocks 3 and 5, box 1 / primitive 0 at clock 6,
+    goal on clock 7, gamma 0.5: returns 1/16, 1/4 (mean 5/32, two updates at alpha 1/2:
+    step 3/4) and 1/2 (step 1/2). A failed trial moves towards 0; before the trial ends
+    nothing changes; a fifth decision does not fit the 4-slot log."""
+    from vbl.spaces.incremental import log_decision, monte_carlo_update
+    p, lr = _mc_learner()
+    log = lr.log
+    left, right = jnp.array([0.2, 0.3], jnp.float32), jnp.array([0.7, 0.3], jnp.float32)
+    for x, a, c in ((left, 2, 3), (left, 2, 5), (right, 0, 6)):
+        log = log_decision(log, jnp.asarray(True), x, a, c)
+    log = log_decision(log, jnp.asarray(False), right, 3, 6)               # not a decision
+    assert int(log.n) == 3
+    q0 = lr.q.at[1, 0].set(0.1)
+    same, kept = monte_carlo_update(q0, lr.seg, log, jnp.asarray(False), jnp.asarray(False),
+                                    jnp.int32(6), p.alpha, p.mc_gamma)
+    np.testing.assert_array_equal(np.asarray(same), np.asarray(q0))
+    assert int(kept.n) == 3
+    q, emptied = monte_carlo_update(q0, lr.seg, log, jnp.asarray(True), jnp.asarray(True),
+                                    jnp.int32(7), p.alpha, p.mc_gamma)
+    want = np.asarray(q0).copy()
+    want[0, 2] = 0.75 * (1 / 16 + 1 / 4) / 2
+    want[1, 0] = 0.1 + 0.5 * (0.5 - 0.1)
+    np.testing.assert_allclose(np.asarray(q), want, rtol=1e-6)
+    assert int(emptied.n) == 0
+    q_fail, _ = monte_carlo_update(q0, lr.seg, log, jnp.asarray(True), jnp.asarray(False),
+                                   jnp.int32(7), p.alpha, p.mc_gamma)
+    assert float(q_fail[1, 0]) == pytest.approx(0.05) and float(q_fail[0, 2]) == 0.0
+    for c in range(5):
+        log = log_decision(log.replace(n=jnp.int32(0)) if c == 0 else log, jnp.asarray(True),
+                           left, 1, c)
+    assert int(log.n) == 4 and int(log.clock[-1]) == 3
+
+
+def test_monte_carlo_learner_step_learns_at_the_trial_end():
+    """From x = (0.89, 0.95) in box 1, +x0 scores at once (gain +1): the decision's return
+    is 1 and Q(1, +x0) moves by alpha; the Q-learning target would be the same, so the
+    step-by-step TD path is checked to be off by a non-terminal step first."""
+    from toy_worlds import ToyState
+
+    from vbl.spaces.incremental import init_option, learner_step
+    p, lr = _mc_learner()
+    ep = ENV.default_params.replace(gain_right=1.0)
+    x = jnp.array([0.6, 0.2], jnp.float32)                  # far from the goal: no score
+    lr2, opt, _, _, info = learner_step(jax.random.PRNGKey(1), lr, init_option(), ENV,
+                                        ToyState(x, jnp.zeros((), jnp.int32)), x, ep, p,
+                                        lambda o: o, temperature=1e-3)
+    assert not bool(info["terminated"])
+    np.testing.assert_array_equal(np.asarray(lr2.q), np.asarray(lr.q))   # no update yet
+    assert int(lr2.log.n) == 1
+    x = jnp.array([0.89, 0.95], jnp.float32)
+    q = lr.q.at[1, 0].set(0.4)                      # +x0 is the greedy primitive in box 1
+    out, _, _, _, info = learner_step(jax.random.PRNGKey(0), lr.replace(q=q), init_option(),
+                                      ENV, ToyState(x, jnp.zeros((), jnp.int32)), x, ep, p,
+                                      lambda o: o, temperature=1e-3)
+    assert bool(info["terminated"]) and bool(info["success"])
+    assert float(out.q[1, 0]) == pytest.approx(0.4 + p.alpha * (1.0 - 0.4))
+    assert int(out.log.n) == 0
+
+
+def test_policy_success_follows_the_frozen_boltzmann_policy():
+    """Box 0 (x0 < 0.5) prefers +x0; box 1 has +x0 and +x1 tied (gain +1 everywhere), so
+    at a low temperature the robot, re-deciding every 5 held primitives, mixes the two and
+    every start reaches the goal corner; with the preferences towards the walls (-x0, -x1)
+    none does."""
+    from vbl.spaces.incremental import policy_success
+    p, lr = _mc_learner()
+    p = p.replace(max_repeat=5)
+    ep = ENV.default_params.replace(gain_right=1.0, max_steps=1000)
+    good = lr.q.at[0, 0].set(1.0).at[1, 0].set(1.0).at[1, 2].set(1.0)
+    run = jax.jit(lambda q, t: policy_success(jax.random.PRNGKey(3), lr.replace(q=q), ENV, ep,
+                                              p, lambda o: o, 64, 1000, t))
+    assert float(run(good, 1e-3).mean()) == 1.0
+    bad = lr.q.at[0, 1].set(1.0).at[1, 3].set(1.0)
+    assert float(run(bad, 1e-3).mean()) == 0.0
+
+
+def test_unknown_value_update_is_a_clear_error():
+    with pytest.raises(ParamError, match="value_update"):
+        validate(P.replace(value_update="sarsa"))

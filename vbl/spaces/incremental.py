@@ -72,6 +72,9 @@ __all__ = [
     "Buffer",
     "Learner",
     "init_learner",
+    "policy_success",
+    "log_decision",
+    "monte_carlo_update",
     "leaf_of",
     "record",
     "structure_update",
@@ -87,6 +90,9 @@ __all__ = [
 F32 = jnp.float32
 F64 = jnp.float64
 I32 = jnp.int32
+
+
+VALUE_UPDATES = ("q_learning", "monte_carlo")
 
 
 @struct.dataclass
@@ -180,6 +186,17 @@ class IncrementalParams:
                                    "in their union by at most this per transition "
                                    "(< value_split_gain: hysteresis)", unit="Q units", ge=0.0)
 
+    value_update: str = param("q_learning", doc="how Q learns: 'q_learning' (one-step target "
+                              "r + gamma max Q(s') per action) or 'monte_carlo' (every "
+                              "decision of a trial moves towards mc_gamma^(primitives to the "
+                              "goal) if the trial scored, else 0, when the trial ends; no "
+                              "bootstrapping through aliased boxes)", static=True,
+                              choices=VALUE_UPDATES)
+    mc_gamma: float = param(0.98, doc="monte_carlo: discount per primitive of a decision's "
+                            "return", gt=0.0, le=1.0)
+    mc_log: int = param(256, doc="monte_carlo: most decisions of one trial remembered (later "
+                        "ones are not learned from)", static=True, ge=1)
+
     def check(self) -> None:
         if np.any(np.asarray(self.merge_tol) >= np.asarray(self.split_gain)):
             raise ParamError(f"merge_tol={self.merge_tol} must be < split_gain="
@@ -228,10 +245,23 @@ class Buffer:
 
 
 @struct.dataclass
+class TrialLog:
+    """The decisions of the running trial (``value_update='monte_carlo'``): x (N, D)
+    float32 features at the decision, a (N,) int32 primitive, clock (N,) int32 the
+    learner's primitive count at the decision, n () int32 decisions logged. N = mc_log
+    (1 with Q-learning, unused)."""
+
+    x: jax.Array
+    a: jax.Array
+    clock: jax.Array
+    n: jax.Array
+
+
+@struct.dataclass
 class Learner:
     """seg, buf, q (L, A) float32, splits/merges () int32 counters (value_splits: the
     splits made by the value criterion, included in splits), clock () int32 primitives
-    taken."""
+    taken, log the running trial's decisions (Monte Carlo updates)."""
 
     seg: Segmentation
     buf: Buffer
@@ -240,6 +270,7 @@ class Learner:
     merges: jax.Array
     clock: jax.Array
     value_splits: jax.Array
+    log: TrialLog
 
 
 def init_learner(p: IncrementalParams, dim: int, num_actions: int) -> Learner:
@@ -254,8 +285,11 @@ def init_learner(p: IncrementalParams, dim: int, num_actions: int) -> Learner:
                  ptr=jnp.zeros((), I32), clock=jnp.zeros((m,), I32),
                  closed=jnp.zeros((m,), bool), term=jnp.zeros((m,), bool))
     q = jnp.full((cap, num_actions), p.q_init, F32)
+    n_log = p.mc_log if p.value_update == "monte_carlo" else 1
+    log = TrialLog(x=jnp.zeros((n_log, dim), F32), a=jnp.zeros((n_log,), I32),
+                   clock=jnp.zeros((n_log,), I32), n=jnp.zeros((), I32))
     return Learner(seg=seg, buf=buf, q=q, splits=jnp.zeros((), I32), merges=jnp.zeros((), I32),
-                   clock=jnp.zeros((), I32), value_splits=jnp.zeros((), I32))
+                   clock=jnp.zeros((), I32), value_splits=jnp.zeros((), I32), log=log)
 
 
 def leaf_of(seg: Segmentation, x: jax.Array) -> jax.Array:
@@ -299,6 +333,39 @@ def close_trial(buf: Buffer, ended: jax.Array, scored: jax.Array, clock: jax.Arr
     ret = jnp.where(scored, jnp.asarray(gamma, F32) ** k, 0.0)
     return buf.replace(y=buf.y.at[:, -1].set(jnp.where(open_, ret, buf.y[:, -1])),
                        closed=buf.closed | open_)
+
+
+def log_decision(log: TrialLog, decide: jax.Array, x: jax.Array, a: jax.Array,
+                 clock: jax.Array) -> TrialLog:
+    """Append a decision (features x (D,), primitive a, clock) when ``decide``; a full log
+    drops it."""
+    i = jnp.minimum(log.n, log.a.shape[0] - 1)
+    w = decide & (log.n < log.a.shape[0])
+    put = lambda arr, v: arr.at[i].set(jnp.where(w, v, arr[i]))  # noqa: E731
+    return TrialLog(x=put(log.x, x.astype(F32)), a=put(log.a, jnp.asarray(a, I32)),
+                    clock=put(log.clock, jnp.asarray(clock, I32)), n=log.n + w.astype(I32))
+
+
+def monte_carlo_update(q: jax.Array, seg: Segmentation, log: TrialLog, ended: jax.Array,
+                       scored: jax.Array, clock: jax.Array, alpha: Any,
+                       gamma: Any) -> tuple[jax.Array, TrialLog]:
+    """When the trial ``ended``: every logged decision (its box *now*, its primitive) gets
+    the return ``gamma^(clock - its clock)`` if the trial ``scored`` (``clock`` = the
+    scoring primitive's), else 0; a (box, primitive) with c decisions moves towards their
+    mean return by ``1 - (1 - alpha)^c`` (c updates towards the same mean); the log empties.
+    Returns (q (L, A), log)."""
+    n_box, n_act = q.shape
+    valid = (jnp.arange(log.a.shape[0]) < log.n) & ended
+    ret = jnp.where(scored, jnp.asarray(gamma, F32) ** (jnp.asarray(clock, I32)
+                                                         - log.clock).astype(F32), 0.0)
+    idx = jnp.where(valid, leaf_of(seg, log.x) * n_act + log.a, n_box * n_act)
+    seg_sum = lambda w: jax.ops.segment_sum(w, idx, num_segments=n_box * n_act + 1)[  # noqa: E731
+        :n_box * n_act].reshape(n_box, n_act)
+    cnt = seg_sum(valid.astype(F32))
+    mean = seg_sum(jnp.where(valid, ret, 0.0)) / jnp.maximum(cnt, 1.0)
+    step = 1.0 - (1.0 - jnp.asarray(alpha, F32)) ** cnt
+    q = jnp.where(cnt > 0, q + step * (mean - q), q).astype(F32)
+    return q, log.replace(n=jnp.where(ended, 0, log.n).astype(I32))
 
 
 def _spd_solve(a: jax.Array, b: jax.Array) -> jax.Array:
@@ -725,11 +792,48 @@ def learner_step(key: jax.Array, lr: Learner, opt: Option, env: Any, env_state: 
     r_disc = jnp.where(p.discount_per_primitive, g ** (steps - 1.0), 1.0) * r
     target = jnp.where(term, r_disc, r_disc + g ** steps * jnp.max(lr.q[s2]))
     upd = end & ~(trunc & ~term)
-    q = lr.q.at[s0, a].add(jnp.where(upd, p.alpha * (target - lr.q[s0, a]), 0.0))
+    if p.value_update == "monte_carlo":
+        log = log_decision(lr.log, ~opt.active, x, a, lr.clock)
+        q, log = monte_carlo_update(lr.q, lr.seg, log, done, info["success"], lr.clock,
+                                    p.alpha, p.mc_gamma)
+        lr = lr.replace(log=log)
+    else:
+        q = lr.q.at[s0, a].add(jnp.where(upd, p.alpha * (target - lr.q[s0, a]), 0.0))
     lr = lr.replace(buf=buf, q=q.astype(F32), clock=lr.clock + 1)
     opt = Option(s0=s0.astype(I32), a=a.astype(I32), n=n.astype(I32), active=~end)
     info = dict(info, reward=r, terminated=term, truncated=trunc)
     return lr, opt, env_state2, obs2, info
+
+
+def policy_success(key: jax.Array, lr: Learner, env: Any, env_params: Any,
+                   p: IncrementalParams, feature_fn: Callable[[jax.Array], jax.Array],
+                   num_episodes: int, max_steps: int, temperature: Any) -> jax.Array:
+    """The learner's own behaviour, frozen (no learning, no structure change): Boltzmann
+    selection at ``temperature`` whenever the box changes, an episode starts or
+    ``max_repeat`` primitives pass, the primitive held in between (as in training).
+    Returns success (num_episodes,) bool: the first episode from a fresh start scored
+    within ``max_steps`` primitives."""
+    def one(k):
+        k0, k1 = jax.random.split(k)
+        obs, st = env.reset(k0, env_params)
+
+        def body(carry, kt):
+            obs, st, alive, ok, s0, a, n = carry
+            k_a, k_e = jax.random.split(kt)
+            s = leaf_of(lr.seg, feature_fn(obs))
+            decide = (s != s0) | (n >= p.max_repeat)
+            a = jnp.where(decide, boltzmann_action(k_a, lr.q[s], temperature), a).astype(I32)
+            n = jnp.where(decide, 1, n + 1).astype(I32)
+            obs2, st2, _, term, trunc, info = env.step(k_e, st, a, env_params)
+            ok = ok | (alive & info["success"])
+            return (obs2, st2, alive & ~(term | trunc), ok, s, a, n), None
+
+        init = (obs, st, jnp.ones((), bool), jnp.zeros((), bool), jnp.full((), -1, I32),
+                jnp.zeros((), I32), jnp.zeros((), I32))
+        (_, _, _, ok, _, _, _), _ = jax.lax.scan(body, init, jax.random.split(k1, max_steps))
+        return ok
+
+    return jax.vmap(one)(jax.random.split(key, num_episodes))
 
 
 def check_params(p: IncrementalParams) -> IncrementalParams:
