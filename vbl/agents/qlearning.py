@@ -44,6 +44,7 @@ from flax import struct
 
 from vbl.agents.exploration import ExplorationParams, schedule_value, select_action
 from vbl.agents.lem import LEMParams, LEMState, lem_init, lem_update
+from vbl.agents.monte_carlo import MCLog, mc_init, mc_log, mc_update
 from vbl.agents.traces import TraceParams, TraceState, trace_init, trace_update
 from vbl.params import ParamError, param, section, validate
 from vbl.spaces.macro_action import (
@@ -86,6 +87,13 @@ class QLearningParams:
                             "(not terminal): skip it (no update), treat it as terminal, or "
                             "bootstrap from info['final_obs'] (the env must provide it)",
                             static=True, choices=("skip", "terminal", "bootstrap"))
+    update: str = param("q_learning", doc="how the table learns: 'q_learning' (the one-step "
+                        "rule above, or traces) or 'monte_carlo' (every decision of a trial "
+                        "moves towards discount^(primitives to the goal) if the trial scored, "
+                        "else 0, when it ends: vbl.agents.monte_carlo; no bootstrapping)",
+                        static=True, choices=("q_learning", "monte_carlo"))
+    mc_log: int = param(128, doc="monte_carlo: most decisions of one trial remembered per env "
+                        "(later ones are not learned from)", static=True, ge=1)
     exploration: ExplorationParams = section(ExplorationParams, doc="action selection")
     trace: TraceParams = section(TraceParams, doc="multi-step returns (eligibility traces "
                                  "over the last `length` actions); off by default")
@@ -187,6 +195,8 @@ class QRunnerState:
     lem: LEMState
     trace: TraceState         #: per-env trace window (E, L); L = 1 and unused when off
     macro: MacroCarry         #: per-env running macro actions (E,) (macro.mode 'async')
+    mc: MCLog                 #: per-env decisions of the running trial (E, L); L = 1 unless
+    #:                           agent.update is 'monte_carlo'
 
 
 class QLearningRunner(NamedTuple):
@@ -274,6 +284,13 @@ def make_qlearning_runner(env: Any, state_fn: Callable, params: QRunnerParams,
     tp = ap.trace
     sarsa = tp.enabled and tp.kind == "sarsa"
     async_macro = mp.enabled and mp.mode == "async"
+    monte_carlo = ap.update == "monte_carlo"
+    if monte_carlo and tp.enabled:
+        raise ParamError("agent.update='monte_carlo' learns from whole trials; it does not "
+                         "combine with agent.trace (set agent.trace.enabled=False)")
+    if monte_carlo and ap.truncation == "bootstrap":
+        raise ParamError("agent.update='monte_carlo' does not bootstrap; use "
+                         "agent.truncation='skip' or 'terminal'")
     if async_macro and tp.enabled:
         raise ParamError("macro.mode='async' does not support agent.trace yet (each env's trace "
                          "would have to advance only when its action ends); use macro.mode='sync'")
@@ -298,7 +315,8 @@ def make_qlearning_runner(env: Any, state_fn: Callable, params: QRunnerParams,
                             steps=jnp.int32(0), episodes=jnp.int32(0), ep_primitives=zeros,
                             ep_actions=zeros, lem=lem,
                             trace=trace_init(n_envs, tp.length if tp.enabled else 1),
-                            macro=macro_carry_init(n_envs))
+                            macro=macro_carry_init(n_envs),
+                            mc=mc_init(n_envs, ap.mc_log if monte_carlo else 1))
 
     def env_transition(key, c: QRunnerState, action, params, env_params):
         """E env (macro) steps -> obs, env_state, reward, term, trunc, info, n, s_next."""
@@ -330,6 +348,8 @@ def make_qlearning_runner(env: Any, state_fn: Callable, params: QRunnerParams,
             action = select_action(k_act, c.q[c.s], rate, "epsilon_greedy")
         s_from, macro, upd = c.s, c.macro, None
         prims, acts = 1, 1  # primitives and decisions of each env in this step
+        s_dec, a_dec = c.s, action  # the decision of this step (where an env decides)
+        decided = jnp.ones((n_envs,), bool)
         if async_macro:  # one primitive per env; an env whose action runs on keeps it
             keys = jax.random.split(k_env, n_envs)
             ep = env_params_at(env_params, c.lem.difficulty)
@@ -344,14 +364,24 @@ def make_qlearning_runner(env: Any, state_fn: Callable, params: QRunnerParams,
             obs, st, _, term, trunc, info, s_next = out
             term, trunc = jnp.asarray(term, bool), jnp.asarray(trunc, bool)
             acts = decided.astype(jnp.int32)
+            a_dec = action
         else:
             obs, st, r, term, trunc, info, n, s_next = env_transition(k_env, c, action, params,
                                                                       env_params)
             prims = n
         done = term | trunc
-        q, lem, tr = c.q, c.lem, c.trace
+        q, lem, tr, mc = c.q, c.lem, c.trace, c.mc
         td_abs = jnp.float32(0.0)
-        if learn:
+        if learn and monte_carlo:
+            # primitive index of the decision / of the trial's last primitive (from 0)
+            mc = mc_log(c.mc, decided, s_dec, a_dec, c.ep_primitives)
+            scored = jnp.asarray(info["success"]).astype(bool) & done
+            keep = None if ap.truncation == "terminal" else ~(trunc & ~term)
+            q, mc, n_learned = mc_update(c.q, mc, done, scored, c.ep_primitives + prims - 1,
+                                         params.agent.learning_rate, params.agent.discount,
+                                         keep)
+            del n_learned               # td_abs stays 0: no TD errors
+        elif learn:
             terminal, weight, s_boot = term, None, s_next
             if ap.truncation == "skip":
                 weight = ~(trunc & ~term)
@@ -405,7 +435,7 @@ def make_qlearning_runner(env: Any, state_fn: Callable, params: QRunnerParams,
                            episodes=c.episodes + metrics["episodes"],
                            ep_primitives=jnp.where(done, 0, ep_prim),
                            ep_actions=jnp.where(done, 0, ep_act), lem=lem, trace=tr,
-                           macro=macro)
+                           macro=macro, mc=mc)
         return new, metrics, done, success, ep_prim
 
     def run_chunk(carry: QRunnerState, params: QRunnerParams, env_params):

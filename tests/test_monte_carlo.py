@@ -1,0 +1,141 @@
+"""Monte Carlo updates of the Q-learning runner (vbl.agents.monte_carlo).
+
+Truths: hand returns of a few logged decisions; on the 5-state chain under the uniformly
+random policy (epsilon 1), every-visit Monte Carlo estimates Q^pi of that policy,
+which a NumPy policy evaluation gives (Q(s, a) = 1 if a scores from s, else
+gamma * mean_b Q(s', b): the return counts the scoring primitive as k = 0).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from flax import struct
+
+import vbl  # noqa: F401  (x64 on, as in every vbl program)
+from tests import toy_worlds
+from vbl.agents import (
+    ExplorationParams,
+    QLearningParams,
+    QRunnerParams,
+    ScheduleParams,
+    learner_keys,
+    make_qlearning_runner,
+    stack_for_learners,
+)
+from vbl.agents.lem import LEMParams
+from vbl.agents.monte_carlo import mc_init, mc_log, mc_update
+from vbl.agents.traces import TraceParams
+from vbl.params import ParamError
+from vbl.spaces.macro_action import MacroActionParams
+
+N = 5
+
+
+@struct.dataclass
+class LongParams:
+    max_steps: int = 2000   # truncation practically never happens
+
+
+class Chain(toy_worlds.ChainEnv):
+    n = N
+    default_params = LongParams()
+
+    def start(self, key, params):
+        return jax.random.randint(key, (), 0, N - 1, jnp.int32)
+
+
+def state_fn(obs):
+    return obs[..., 0].astype(jnp.int32)
+
+
+def random_policy_q(gamma: float) -> np.ndarray:
+    """Q^pi of the uniformly random policy on the chain (policy evaluation)."""
+    q = np.zeros((N, 2))
+    for _ in range(2000):
+        v = q.mean(axis=1)
+        new = np.zeros_like(q)
+        for s in range(N - 1):
+            for a in range(2):
+                s2 = min(s + 1, N - 1) if a == 1 else max(s - 1, 0)
+                new[s, a] = 1.0 if s2 == N - 1 else gamma * v[s2]
+        q = new
+    return q
+
+
+def test_mc_update_by_hand():
+    """Env 0: decisions (s1, a0) at primitive 0 and (s1, a0) at 2, (s2, a1) at 3; scores on
+    primitive 3 (gamma 0.5): returns 1/8, 1/2 (mean 5/16, two updates at lr 1/2: step 3/4)
+    and 1. Env 1: one decision (s1, a0), trial still running: not learned from."""
+    log = mc_init(2, 3)
+    t = jnp.asarray(True)
+    for s, a, c, d1 in ((1, 0, 0, True), (1, 0, 2, False), (2, 1, 3, False)):
+        log = mc_log(log, jnp.array([True, d1]), jnp.array([s, s]), jnp.array([a, a]),
+                     jnp.array([c, c]))
+    log = mc_log(log, jnp.array([True, False]), jnp.array([3, 3]), jnp.array([1, 1]),
+                 jnp.array([4, 4]))                      # env 0's log is full: dropped
+    np.testing.assert_array_equal(np.asarray(log.n), [3, 1])
+    q0 = jnp.zeros((4, 2), jnp.float32).at[2, 1].set(0.2)
+    q, log2, n = mc_update(q0, log, jnp.array([True, False]), jnp.array([True, True]),
+                           jnp.array([3, 9]), 0.5, 0.5)
+    want = np.asarray(q0).copy()
+    want[1, 0] = 0.75 * (1 / 8 + 1 / 2) / 2
+    want[2, 1] = 0.2 + 0.5 * (1.0 - 0.2)
+    np.testing.assert_allclose(np.asarray(q), want, rtol=1e-6)
+    np.testing.assert_array_equal(np.asarray(log2.n), [0, 1])
+    assert float(n) == 3.0
+    q_fail, _, _ = mc_update(q0, log, jnp.array([True, False]), jnp.array([False, False]),
+                             jnp.array([3, 9]), 0.5, 0.5)
+    assert float(q_fail[2, 1]) == pytest.approx(0.1) and float(q_fail[1, 0]) == 0.0
+    q_skip, _, n_skip = mc_update(q0, log, jnp.array([True, False]), jnp.array([True, True]),
+                                  jnp.array([3, 9]), 0.5, 0.5, weight=jnp.array([False, t]))
+    np.testing.assert_array_equal(np.asarray(q_skip), np.asarray(q0))
+    assert float(n_skip) == 0.0
+
+
+def _params(update="monte_carlo", lr=0.01, macro=False, **agent):
+    expl = ExplorationParams(schedule=ScheduleParams(kind="constant", init_value=1.0))
+    return QRunnerParams(
+        agent=QLearningParams(num_states=N, num_actions=2, exploration=expl, update=update,
+                              learning_rate=lr, discount=0.8, **agent),
+        macro=MacroActionParams(enabled=macro, mode="async"), lem=LEMParams(enabled=False),
+        num_envs=16, chunk_steps=200)
+
+
+def test_runner_estimates_the_random_policys_values():
+    params = _params()
+    runner = make_qlearning_runner(Chain(), state_fn, params)
+    bp = stack_for_learners(params, 2)
+    ep = stack_for_learners(Chain.default_params, 2)
+    carry = runner.init_batch(learner_keys(0, 2), bp, ep)
+    for _ in range(5):
+        carry, m = runner.run_chunk_batch(carry, bp, ep)
+    want = random_policy_q(0.8)
+    for i in range(2):
+        np.testing.assert_allclose(np.asarray(carry.q[i, :N - 1]), want[:N - 1], atol=0.03)
+    assert float(carry.q[0, N - 2, 1]) == pytest.approx(1.0, abs=1e-3)   # scores at once
+    assert int(np.asarray(m["episodes"]).sum()) > 0
+
+
+def test_async_macro_monte_carlo_learns_the_greedy_path():
+    params = _params(lr=0.1, macro=True)
+    runner = make_qlearning_runner(Chain(), state_fn, params)
+    bp = stack_for_learners(params, 2)
+    ep = stack_for_learners(Chain.default_params, 2)
+    carry = runner.init_batch(learner_keys(3, 2), bp, ep)
+    carry, _ = runner.run_chunk_batch(carry, bp, ep)
+    assert np.all(np.asarray(carry.q[:, :N - 1, 1]) > np.asarray(carry.q[:, :N - 1, 0]))
+    res = runner.evaluate_batch(learner_keys(4, 2), carry.q, bp, ep, 20)
+    np.testing.assert_allclose(np.asarray(res["success_rate"]), 1.0)
+
+
+def test_q_learning_default_unchanged_and_bad_combinations_are_clear_errors():
+    assert QLearningParams().update == "q_learning"
+    with pytest.raises(ParamError, match="trace"):
+        make_qlearning_runner(Chain(), state_fn, _params(trace=TraceParams(enabled=True)))
+    with pytest.raises(ParamError, match="truncation"):
+        make_qlearning_runner(Chain(), state_fn, _params(truncation="bootstrap"))
+    with pytest.raises(ParamError, match="update"):
+        make_qlearning_runner(Chain(), state_fn, _params(update="sarsa"))

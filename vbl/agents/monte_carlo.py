@@ -1,0 +1,85 @@
+"""Every-visit Monte Carlo updates of a Q-table from whole trials (E parallel envs).
+
+Each env logs its running trial's decisions (discrete state, action, primitive index of
+the decision). When the trial ends, every logged decision gets the return
+``discount**k`` if the trial scored, k = primitives from the decision to the scoring
+primitive (0: the decision's own primitive scored), else 0; the Q entry of a (state,
+action) with c such decisions in this batch moves towards their mean return by
+``1 - (1 - lr)**c`` (c updates towards the same mean), and the log empties. No
+bootstrapping: a state that aliases situations needing different actions does not
+spread a wrong value to its predecessors (docs/state_spaces.md, "Figure 5: session 7",
+where Monte Carlo control on fixed cells beat one-step Q-learning by far).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+__all__ = ["MCLog", "mc_init", "mc_log", "mc_update"]
+
+F32 = jnp.float32
+I32 = jnp.int32
+
+
+@struct.dataclass
+class MCLog:
+    """Decisions of every env's running trial: s, a, clock (E, L) int32 (clock = primitives
+    of the trial before the decision); n (E,) int32 decisions logged. A full log drops
+    later decisions."""
+
+    s: jax.Array
+    a: jax.Array
+    clock: jax.Array
+    n: jax.Array
+
+
+def mc_init(num_envs: int, length: int) -> MCLog:
+    z = jnp.zeros((num_envs, length), I32)
+    return MCLog(s=z, a=z, clock=z, n=jnp.zeros((num_envs,), I32))
+
+
+def mc_log(log: MCLog, decided: jax.Array, s: jax.Array, a: jax.Array,
+           clock: jax.Array) -> MCLog:
+    """Append (s, a, clock) (E,) where ``decided`` (E,) bool."""
+    length = log.s.shape[1]
+    rows = jnp.arange(log.s.shape[0])
+    i = jnp.minimum(log.n, length - 1)
+    w = jnp.asarray(decided, bool) & (log.n < length)
+
+    def put(arr, v):
+        return arr.at[rows, i].set(jnp.where(w, jnp.asarray(v, I32), arr[rows, i]))
+
+    return MCLog(s=put(log.s, s), a=put(log.a, a), clock=put(log.clock, clock),
+                 n=log.n + w.astype(I32))
+
+
+def mc_update(q: jax.Array, log: MCLog, ended: jax.Array, scored: jax.Array,
+              last_clock: jax.Array, learning_rate: Any, discount: Any,
+              weight: jax.Array | None = None) -> tuple[jax.Array, MCLog, jax.Array]:
+    """Update q (S, A) from the trials that ``ended`` (E,) bool; ``scored`` (E,) bool;
+    ``last_clock`` (E,) int32 the primitive index (from 0) of the trial's last primitive;
+    ``weight`` (E,) bool: False = the ended trial teaches nothing (e.g. a time-limit
+    truncation with ``truncation='skip'``). Returns (q, log emptied where ended, number
+    of decisions learned from () float32)."""
+    n_s, n_a = q.shape
+    length = log.s.shape[1]
+    use = jnp.asarray(ended, bool) if weight is None else jnp.asarray(ended, bool) & weight
+    valid = (jnp.arange(length)[None] < log.n[:, None]) & use[:, None]
+    k = (jnp.asarray(last_clock, I32)[:, None] - log.clock).astype(F32)
+    ret = jnp.where(jnp.asarray(scored, bool)[:, None], jnp.asarray(discount, F32) ** k, 0.0)
+    idx = jnp.where(valid, log.s * n_a + log.a, n_s * n_a).reshape(-1)
+
+    def seg(w):
+        return jax.ops.segment_sum(w.reshape(-1), idx, num_segments=n_s * n_a + 1)[
+            :n_s * n_a].reshape(n_s, n_a)
+
+    cnt = seg(valid.astype(F32))
+    mean = seg(jnp.where(valid, ret, 0.0)) / jnp.maximum(cnt, 1.0)
+    step = 1.0 - (1.0 - jnp.asarray(learning_rate, F32)) ** cnt
+    q = jnp.where(cnt > 0, q + step * (mean - q), q).astype(F32)
+    log = log.replace(n=jnp.where(jnp.asarray(ended, bool), 0, log.n).astype(I32))
+    return q, log, jnp.sum(cnt)
