@@ -106,12 +106,23 @@ def _grid_default():
     return g.replace(train=g.train.replace(eval_difficulty=EVAL_DIFFICULTY))
 
 
+def _learner_default() -> IncrementalParams:
+    """The library's segmentation with Monte Carlo value updates (session 7): every decision
+    of a trial learns from the trial's discounted outcome, no bootstrapping through aliased
+    boxes; learning rate 0.02, Boltzmann temperature 0.01. 4 seeds: greedy 0.63 against 0.12
+    with one-step Q-learning (``--set learner.value_update=q_learning --set
+    learner.alpha=0.25 --set learner.temperature=0.02``: the library defaults);
+    docs/state_spaces.md, "Figure 9: session 7"."""
+    return IncrementalParams(value_update="monte_carlo", alpha=0.02, temperature=0.01)
+
+
 @struct.dataclass
 class Fig9Config:
     env: ShootingParams = section(_default_env, doc="shooting task (start difficulty 0.1, "
                                   "150-primitive episodes)")
     features: FeatureParams = section(FeatureParams, doc="feature normalisation")
-    learner: IncrementalParams = section(IncrementalParams, doc="incremental segmentation + Q")
+    learner: IncrementalParams = section(_learner_default, doc="incremental segmentation + "
+                                         "Monte Carlo action values")
     change: ChangeParams = section(ChangeParams, doc="ball-size changes")
     train: Fig9Train = section(Fig9Train, doc="run length")
     grid: object = section(lambda: _grid_default(), doc="grid baseline (grid_shooting's "
@@ -391,6 +402,8 @@ def report(res) -> ReportSection:
             f"{ci95(fin['states'])[0]:.1f} ± {ci95(fin['states'])[1]:.1f} states"
             + (f" ({fin['value_splits'].mean():.1f} of {fin['splits'].mean():.1f} splits per "
                "seed by the value criterion)" if "value_splits" in fin else "")
+            + (f"; the learner's own Boltzmann behaviour, frozen, {fmt(fin['boltzmann_success'])}"
+               if "boltzmann_success" in fin else "")
             + "; uniformly "
             "random primitives on the same starts "
             f"{fmt(fin['random_success'])}")
