@@ -125,14 +125,23 @@ def test_bad_thresholds_raise_clear_errors(flipped):
 def test_fig5_and_fig9_compare_with_grid_shootings_own_config():
     """The grid baseline of Figures 5 and 9 is grid_shooting's default config by reference,
     except the evaluation's start difficulty, pinned to 0.1 (grid_shooting's own task is
-    fully random starts); Figure 9 evaluates at its training episodes' difficulty."""
+    fully random starts), and, for Figure 9, the budget (one robot, equal experience);
+    Figure 9 evaluates at its training episodes' difficulty."""
+    import sys
+
     from vbl.engine.registry import get
 
     gs = get("grid_shooting").default_config
+    get("fig9_incremental")
+    f9m = sys.modules["vbl_experiments.fig9_incremental"]
     for name in ("fig5_action_based", "fig9_incremental"):
         g = get(name).default_config.grid
-        assert g.agent == gs.agent and g.grid == gs.grid, name
-        assert g.train.replace(eval_difficulty=gs.train.eval_difficulty) == gs.train, name
+        budget = dict(num_envs=gs.agent.num_envs), dict(num_chunks=gs.train.num_chunks)
+        if name == "fig9_incremental":
+            assert (g.agent.num_envs, g.train.num_chunks) == (f9m.GRID_ENVS, f9m.GRID_CHUNKS)
+        assert g.agent.replace(**budget[0]) == gs.agent and g.grid == gs.grid, name
+        assert g.train.replace(eval_difficulty=gs.train.eval_difficulty, **budget[1]) == \
+            gs.train, name
         assert g.train.eval_difficulty == pytest.approx(0.1), name
     f9 = get("fig9_incremental").default_config
     assert f9.env.start_difficulty == pytest.approx(f9.grid.train.eval_difficulty)
