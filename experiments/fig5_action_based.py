@@ -309,34 +309,33 @@ def map_of(final: dict, seed: int, cfg: Fig5Config | None = None) -> StateMap | 
                     categorical_levels=b.categorical_levels, rank=b.rank)
 
 
-def plot_fig5(final: dict, cfg: Fig5Config, out: Path, seed: int = 0, n: int = 160) -> Path:
-    """The map of one learner on (ball size x1, goal size x3); x2 = x4 = 0 px, x5 = 0, both
-    objects visible. Darker = earlier division; label = action + transitions to the goal."""
+def _slice(cfg: Fig5Config, n: int) -> np.ndarray:
+    """Feature vectors (n, n, D) of Figure 5's slice: x1 ball size along the columns, x3
+    goal size along the rows, x2 = x4 = 0 px, x5 = 0, both objects visible."""
+    u = (np.arange(n) + 0.5) / n
+    b, g = np.meshgrid(u, u)
+    x = np.full((n, n, cfg.features.dim), 0.5, np.float32)
+    x[..., 0], x[..., 2] = b, g
+    return x
+
+
+def _draw_slice(cfg: Fig5Config, region: np.ndarray, shade: np.ndarray, label, title: str,
+                path: Path) -> Path:
+    """Draw regions (n, n) int (< 0: none) of the slice, grey ``shade`` (n, n) in [0, 1],
+    ``label(region) -> str`` at each region's centre, the grid's boundaries in blue."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from vbl.world.robots import action_labels
-    sm = map_of(final, seed, cfg)
-    fp = cfg.features
-    u = (np.arange(n) + 0.5) / n
-    b, g = np.meshgrid(u, u)                                  # x1 (cols), x3 (rows)
-    x = np.full((n, n, fp.dim), 0.5, np.float32)
-    x[..., 0], x[..., 2] = b, g
-    s = np.asarray(_map_fns(cfg.construction)[2](sm, jnp.asarray(x)))
-    order = np.where(s >= 0, np.asarray(sm.order)[np.maximum(s, 0)], -1)
-    n_it = max(int(np.asarray(sm.order)[np.asarray(sm.active)].max(initial=0)) + 1, 1)
-    shade = np.where(order >= 0, 0.15 + 0.7 * order / max(n_it, 1), 1.0)
+    fp, n = cfg.features, region.shape[0]
     fig, ax = plt.subplots(figsize=(5.5, 5))
-    ext = (0, fp.ball_size_max, 0, fp.goal_size_max)
-    ax.imshow(shade, origin="lower", extent=ext, cmap="gray", vmin=0, vmax=1, aspect="auto")
-    labels = action_labels("two_motor")
-    for st in np.unique(s[s >= 0]):
-        rr, cc = np.nonzero(s == st)
-        a, t = int(sm.action[st]), int(sm.transitions[st])
+    ax.imshow(shade, origin="lower", extent=(0, fp.ball_size_max, 0, fp.goal_size_max),
+              cmap="gray", vmin=0, vmax=1, aspect="auto")
+    for r in np.unique(region[region >= 0]):
+        rr, cc = np.nonzero(region == r)
         ax.text((cc.mean() + 0.5) / n * fp.ball_size_max, (rr.mean() + 0.5) / n
-                * fp.goal_size_max, f"{labels[a]}$_{{{t}}}$", ha="center", va="center",
-                fontsize=8, color="red")
+                * fp.goal_size_max, label(r), ha="center", va="center", fontsize=8,
+                color="red")
     gp = cfg.grid.grid
     for v in (gp.ball_size_lower, gp.ball_size_upper):
         ax.axvline(v, color="C0", lw=1)
@@ -344,60 +343,47 @@ def plot_fig5(final: dict, cfg: Fig5Config, out: Path, seed: int = 0, n: int = 1
         ax.axhline(v, color="C0", lw=1)
     ax.set_xlabel("ball size x1 [px]")
     ax.set_ylabel("goal size x3 [px]")
-    ax.set_title(f"Fig. 5 map ({cfg.construction}, seed {seed}): "
-                 f"{int(np.asarray(sm.active).sum())} states; blue = grid", fontsize=10)
+    ax.set_title(title, fontsize=10)
     fig.tight_layout()
-    path = out / "fig5_state_map.png"
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
 
 
-def plot_refined(final: dict, cfg: Fig5Config, out: Path, seed: int = 0, n: int = 160) -> Path:
-    """The refined policy of one learner on Figure 5's slice (as :func:`plot_fig5`): label =
-    primitive + transitions to the goal, darker = fewer transitions; white = never
-    reached the goal in the refinement."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+def plot_fig5(final: dict, cfg: Fig5Config, out: Path, seed: int = 0, n: int = 160) -> Path:
+    """The map of one learner on Figure 5's slice (:func:`_slice`). Darker = earlier
+    division; label = action + transitions to the goal."""
+    from vbl.world.robots import action_labels
+    sm = map_of(final, seed, cfg)
+    s = np.asarray(_map_fns(cfg.construction)[2](sm, jnp.asarray(_slice(cfg, n))))
+    order = np.where(s >= 0, np.asarray(sm.order)[np.maximum(s, 0)], -1)
+    n_it = max(int(np.asarray(sm.order)[np.asarray(sm.active)].max(initial=0)) + 1, 1)
+    shade = np.where(order >= 0, 0.15 + 0.7 * order / max(n_it, 1), 1.0)
+    labels = action_labels("two_motor")
+    return _draw_slice(
+        cfg, s, shade, lambda st: f"{labels[int(sm.action[st])]}$_{{{int(sm.transitions[st])}}}$",
+        f"Fig. 5 map ({cfg.construction}, seed {seed}): {int(np.asarray(sm.active).sum())} "
+        "states; blue = grid", out / "fig5_state_map.png")
 
+
+def plot_refined(final: dict, cfg: Fig5Config, out: Path, seed: int = 0, n: int = 160) -> Path:
+    """The refined policy of one learner on Figure 5's slice: label = primitive +
+    transitions to the goal, darker = fewer transitions; white = never reached the goal in
+    the refinement."""
     from vbl.world.robots import action_labels
     cm = map_of(final, seed, cfg)
     unit_of, _ = initial_units(cm, cfg.refine.units)
     pol = np.asarray(final["refined_policy"])[seed].astype(int)
     trans = np.asarray(final["refined_transitions"])[seed].astype(int)
-    fp = cfg.features
-    u = (np.arange(n) + 0.5) / n
-    b, g = np.meshgrid(u, u)
-    x = np.full((n, n, fp.dim), 0.5, np.float32)
-    x[..., 0], x[..., 2] = b, g
-    unit = np.asarray(unit_of)[np.asarray(cell_index(cm, jnp.asarray(x)))]
+    unit = np.asarray(unit_of)[np.asarray(cell_index(cm, jnp.asarray(_slice(cfg, n))))]
     t = trans[unit]
-    t_max = max(int(trans.max(initial=1)), 1)
-    shade = np.where(t > 0, 0.15 + 0.7 * (t - 1) / t_max, 1.0)
-    fig, ax = plt.subplots(figsize=(5.5, 5))
-    ext = (0, fp.ball_size_max, 0, fp.goal_size_max)
-    ax.imshow(shade, origin="lower", extent=ext, cmap="gray", vmin=0, vmax=1, aspect="auto")
+    shade = np.where(t > 0, 0.15 + 0.7 * (t - 1) / max(int(trans.max(initial=1)), 1), 1.0)
     labels = action_labels("two_motor")
-    for un in np.unique(unit[t > 0]):
-        rr, cc = np.nonzero(unit == un)
-        ax.text((cc.mean() + 0.5) / n * fp.ball_size_max, (rr.mean() + 0.5) / n
-                * fp.goal_size_max, f"{labels[pol[un]]}$_{{{trans[un]}}}$", ha="center",
-                va="center", fontsize=8, color="red")
-    gp = cfg.grid.grid
-    for v in (gp.ball_size_lower, gp.ball_size_upper):
-        ax.axvline(v, color="C0", lw=1)
-    for v in (gp.goal_size_lower, gp.goal_size_upper):
-        ax.axhline(v, color="C0", lw=1)
-    ax.set_xlabel("ball size x1 [px]")
-    ax.set_ylabel("goal size x3 [px]")
-    ax.set_title(f"refined map (seed {seed}): {int(final['refined_states'][seed])} states; "
-                 "blue = grid", fontsize=10)
-    fig.tight_layout()
-    path = out / "fig5_refined_map.png"
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return _draw_slice(
+        cfg, np.where(t > 0, unit, -1), shade,
+        lambda un: f"{labels[pol[un]]}$_{{{trans[un]}}}$",
+        f"refined map (seed {seed}): {int(final['refined_states'][seed])} states; "
+        "blue = grid", out / "fig5_refined_map.png")
 
 
 def ci95(v) -> tuple[float, float]:

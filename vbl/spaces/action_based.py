@@ -73,6 +73,7 @@ __all__ = [
     "sec2_features",
     "pattern_of",
     "collect_experience",
+    "reset_at_random_difficulty",
     "build_state_map",
     "check_build",
     "classify",
@@ -274,6 +275,18 @@ def pattern_of(x: jax.Array, categorical_dims: int, levels: int) -> jax.Array:
     return jnp.sum(digits * base, axis=-1).astype(jnp.int32)
 
 
+def reset_at_random_difficulty(env: Any, env_params: Any, k_d: jax.Array, k_reset: jax.Array,
+                               lo: Any, hi: Any) -> tuple[jax.Array, Any, Any]:
+    """``env.reset(k_reset, ...)`` with the start difficulty drawn uniformly in [lo, hi] from
+    ``k_d`` when the env's params have ``start_difficulty`` (else the params as given).
+    Returns (obs, state, the episode's env params)."""
+    ep = env_params
+    if hasattr(env_params, "start_difficulty"):
+        ep = env_params.replace(start_difficulty=jax.random.uniform(k_d, (), F32, lo, hi))
+    obs, st = env.reset(k_reset, ep)
+    return obs, st, ep
+
+
 def collect_experience(env: Any, env_params: Any, key: jax.Array,
                        feature_fn: Callable[[jax.Array], jax.Array], num_actions: int,
                        p: CollectParams | None = None,
@@ -288,15 +301,11 @@ def collect_experience(env: Any, env_params: Any, key: jax.Array,
         lambda st: jnp.asarray(speed_fn(st), F32))
     p = CollectParams() if p is None else p
     n, t_len = p.episodes_per_action, p.horizon
-    has_diff = hasattr(env_params, "start_difficulty")
 
     def episode(k, a):
         k_d, k_reset, k_run = jax.random.split(k, 3)
-        ep = env_params
-        if has_diff:
-            d = jax.random.uniform(k_d, (), F32, p.difficulty_lo, p.difficulty_hi)
-            ep = env_params.replace(start_difficulty=d)
-        obs, st = env.reset(k_reset, ep)
+        obs, st, ep = reset_at_random_difficulty(env, env_params, k_d, k_reset,
+                                                 p.difficulty_lo, p.difficulty_hi)
 
         def body(carry, kt):
             obs, st, alive = carry

@@ -40,6 +40,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from vbl.params import ParamError, param, validate
+from vbl.spaces.action_based import reset_at_random_difficulty
 from vbl.spaces.action_cells import CellMap, cell_index
 
 __all__ = [
@@ -178,16 +179,12 @@ def refine_cell_map(env: Any, env_params: Any, key: jax.Array,
     n_act = env.num_actions
     unit_of, pol0 = initial_units(cm, p.units)
     n_units = pol0.shape[0]
-    has_diff = hasattr(env_params, "start_difficulty")
     gamma = jnp.asarray(p.discount, F32)
 
     def episode(k, pol):
         k_d, k_reset, k_run = jax.random.split(k, 3)
-        ep = env_params
-        if has_diff:
-            d = jax.random.uniform(k_d, (), F32, p.difficulty_lo, p.difficulty_hi)
-            ep = env_params.replace(start_difficulty=d)
-        obs, st = env.reset(k_reset, ep)
+        obs, st, ep = reset_at_random_difficulty(env, env_params, k_d, k_reset,
+                                                 p.difficulty_lo, p.difficulty_hi)
 
         def body(carry, kt):
             obs, st, alive, prev, a, held = carry
