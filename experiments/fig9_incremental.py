@@ -348,8 +348,9 @@ def change_windows(succ: np.ndarray, states: np.ndarray, changes: tuple[int, ...
                    window: int) -> list[dict]:
     """Per change: success per seed (seeds, 3) in the ``window`` trials before it, right
     after it and at the end of its recovery window (the ``window`` trials before the next
-    change, or before the last trial), and the states just before it and ``window`` trials
-    after it (seeds, 2). ``succ``, ``states``: (seeds, trials)."""
+    change, or before the last trial), and the states just before it, ``window`` trials
+    after it and at the end of its recovery window (seeds, 3). ``succ``, ``states``:
+    (seeds, trials)."""
     n = succ.shape[1]
     out = []
     for i, c in enumerate(changes):
@@ -357,7 +358,7 @@ def change_windows(succ: np.ndarray, states: np.ndarray, changes: tuple[int, ...
         spans = [(c - window, c), (c, c + window), (end - window, end)]
         rates = [succ[:, max(a, 0):min(b, n)].mean(axis=1) if min(b, n) > max(a, 0)
                  else np.full(succ.shape[0], np.nan) for a, b in spans]
-        st = [states[:, min(max(t, 0), n - 1)] for t in (c - 1, c + window)]
+        st = [states[:, min(max(t, 0), n - 1)] for t in (c - 1, c + window, end - 1)]
         out.append(dict(change=c, end=end, spans=spans, rates=np.stack(rates, 1),
                         states=np.stack(st, 1)))
     return out
@@ -388,7 +389,7 @@ def report(res) -> ReportSection:
           f"over {w}-trial windows (training episodes, Boltzmann exploration included), mean ± "
           "95% CI over seeds:", "",
           "| change | before | right after | end of recovery window | states before -> "
-          f"{w} trials after |", "|---|---|---|---|---|"]
+          f"{w} trials after -> end of recovery window |", "|---|---|---|---|---|"]
     verdict = []
     for i, cw in enumerate(change_windows(succ, st, (ch.change_trial_1, ch.change_trial_2),
                                           w)):
@@ -396,16 +397,19 @@ def report(res) -> ReportSection:
         (a0, a1), (b0, b1), (e0, e1) = cw["spans"]
         md.append(f"| {i + 1} (trial {cw['change']}) | {fmt(r[:, 0])} ({a0}-{a1}) | "
                   f"{fmt(r[:, 1])} ({b0}-{b1}) | {fmt(r[:, 2])} ({e0}-{e1}) | "
-                  f"{cw['states'][:, 0].mean():.1f} -> {cw['states'][:, 1].mean():.1f} |")
+                  f"{cw['states'][:, 0].mean():.1f} -> {cw['states'][:, 1].mean():.1f} -> "
+                  f"{cw['states'][:, 2].mean():.1f} |")
         m = np.nanmean(r, axis=0)
-        verdict.append((m[1] < m[0], m[2] > m[1], m[2] >= m[0],
-                        cw["states"][:, 1].mean() > cw["states"][:, 0].mean()))
+        sm = cw["states"].mean(axis=0)
+        verdict.append((m[1] < m[0], m[2] > m[1], m[2] >= m[0], sm[1] > sm[0], sm[2] > sm[0]))
     yn = lambda b: "yes" if b else "**no**"  # noqa: E731
     md += ["", "What must hold: success drops after each change "
            f"({', '.join(yn(v[0]) for v in verdict)}), rises again in the recovery window "
            f"({', '.join(yn(v[1]) for v in verdict)}; back to the level before the change: "
            f"{', '.join(yn(v[2]) for v in verdict)}), and the number of states grows after "
-           f"the change ({', '.join(yn(v[3]) for v in verdict)}).", ""]
+           f"the change (by the end of the recovery window: "
+           f"{', '.join(yn(v[4]) for v in verdict)}; within {w} trials: "
+           f"{', '.join(yn(v[3]) for v in verdict)}).", ""]
     gs = fin["greedy_success"]
     line = (f"Greedy policy on {cfg.train.eval_episodes} fresh starts per seed (start "
             f"difficulty {cfg.grid.train.eval_difficulty}, final ball, "

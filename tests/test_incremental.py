@@ -202,7 +202,8 @@ def test_fig9_change_windows_by_hand():
     np.testing.assert_allclose(w[0]["rates"], [[0.5, 0.0, 0.5], [0.5, 0.0, 0.0]])
     np.testing.assert_allclose(w[1]["rates"], [[0.5, 0.0, 0.0], [0.0, 0.0, 0.0]])
     assert w[1]["spans"] == [(16, 20), (20, 24), (36, 40)]
-    np.testing.assert_allclose(w[0]["states"], [[9.0, 14.0]] * 2)
+    np.testing.assert_allclose(w[0]["states"], [[9.0, 14.0, 19.0]] * 2)
+    np.testing.assert_allclose(w[1]["states"], [[19.0, 24.0, 39.0]] * 2)
 
 
 def _held_option_update(per_primitive, held, x_before, gamma=0.9, alpha=0.5):
