@@ -64,6 +64,7 @@ import numpy as np
 from flax import struct
 
 from vbl.agents.exploration import boltzmann_action
+from vbl.agents.monte_carlo import MCLog, mc_update
 from vbl.params import ParamError, param, validate
 
 __all__ = [
@@ -349,22 +350,16 @@ def log_decision(log: TrialLog, decide: jax.Array, x: jax.Array, a: jax.Array,
 def monte_carlo_update(q: jax.Array, seg: Segmentation, log: TrialLog, ended: jax.Array,
                        scored: jax.Array, clock: jax.Array, alpha: Any,
                        gamma: Any) -> tuple[jax.Array, TrialLog]:
-    """When the trial ``ended``: every logged decision (its box *now*, its primitive) gets
-    the return ``gamma^(clock - its clock)`` if the trial ``scored`` (``clock`` = the
-    scoring primitive's), else 0; a (box, primitive) with c decisions moves towards their
-    mean return by ``1 - (1 - alpha)^c`` (c updates towards the same mean); the log empties.
+    """When the trial ``ended`` (a time-limit end counts as a failure): every logged decision
+    (its box *now*, its primitive) gets the return ``gamma^(clock - its clock)`` if the
+    trial ``scored`` (``clock`` = the scoring primitive's), else 0; a (box, primitive) with
+    c decisions moves towards their mean return by ``1 - (1 - alpha)^c``
+    (:func:`vbl.agents.monte_carlo.mc_update` with one env); the log empties.
     Returns (q (L, A), log)."""
-    n_box, n_act = q.shape
-    valid = (jnp.arange(log.a.shape[0]) < log.n) & ended
-    ret = jnp.where(scored, jnp.asarray(gamma, F32) ** (jnp.asarray(clock, I32)
-                                                         - log.clock).astype(F32), 0.0)
-    idx = jnp.where(valid, leaf_of(seg, log.x) * n_act + log.a, n_box * n_act)
-    seg_sum = lambda w: jax.ops.segment_sum(w, idx, num_segments=n_box * n_act + 1)[  # noqa: E731
-        :n_box * n_act].reshape(n_box, n_act)
-    cnt = seg_sum(valid.astype(F32))
-    mean = seg_sum(jnp.where(valid, ret, 0.0)) / jnp.maximum(cnt, 1.0)
-    step = 1.0 - (1.0 - jnp.asarray(alpha, F32)) ** cnt
-    q = jnp.where(cnt > 0, q + step * (mean - q), q).astype(F32)
+    one = MCLog(s=leaf_of(seg, log.x)[None], a=log.a[None], clock=log.clock[None],
+                n=log.n[None])
+    q, _, _ = mc_update(q, one, jnp.asarray(ended)[None], jnp.asarray(scored)[None],
+                        jnp.asarray(clock, I32)[None], alpha, gamma)
     return q, log.replace(n=jnp.where(ended, 0, log.n).astype(I32))
 
 
