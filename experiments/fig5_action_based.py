@@ -62,6 +62,7 @@ from vbl.spaces.cell_refine import (
     RefineParams,
     initial_units,
     num_refined_states,
+    num_refined_units,
     refine_cell_map,
     refined_policy_action,
 )
@@ -253,11 +254,10 @@ def make_program(cfg: Fig5Config) -> Program:
             ok_r, _ = rollout_success(ENV, ep, k_ref,
                                       lambda o, _: refined_policy_action(sm, rm, feat(o)),
                                       cfg.eval.episodes, cfg.env.max_steps)
-            used = jnp.zeros(rm.policy.shape, bool).at[rm.unit_of].set(True)
             out.update(refined_success=jnp.mean(ok_r.astype(F32)),
                        refined_states=num_refined_states(rm, n_act, cfg.refine.max_transitions
                                                          ).astype(F32),
-                       refined_units=jnp.sum(used & (jnp.sum(rm.visits, -1) > 0)).astype(F32),
+                       refined_units=num_refined_units(rm).astype(F32),
                        refine_primitives=rm.primitives, refine_train_success=rm.train_success,
                        refined_policy=rm.policy.astype(F32),
                        refined_transitions=rm.transitions.astype(F32))

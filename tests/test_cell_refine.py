@@ -25,6 +25,7 @@ from vbl.spaces.cell_refine import (
     initial_units,
     make_refiner,
     num_refined_states,
+    num_refined_units,
     refine_cell_map,
     refined_policy_action,
 )
@@ -68,6 +69,7 @@ def test_unit_next_to_the_goal_scores_in_one_decision(corrupted, refined):
     assert int(refined.state[top]) == 1 * ENV.num_actions + F
     # one F state per transition count on the right, B states on the left: at least 2
     assert 2 <= int(num_refined_states(refined, ENV.num_actions, RP.max_transitions)) <= 2 * 12
+    assert int(num_refined_units(refined)) == 20          # every one of the 20 cells was tried
     # F in the top unit scores in the decision's own step (discount^0 = 1), but for the
     # few points within a float rounding of the cell's lower edge (one more step: 0.98)
     assert float(refined.score[top, F]) > RP.discount

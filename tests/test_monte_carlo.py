@@ -8,14 +8,15 @@ gamma * mean_b Q(s', b): the return counts the scoring primitive as k = 0).
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from flax import struct
 
 import vbl  # noqa: F401  (x64 on, as in every vbl program)
-from tests import toy_worlds
+from tests.test_qlearning import N_CHAIN as N
+from tests.test_qlearning import ChainEnv as Chain
+from tests.test_qlearning import ChainParams
+from tests.test_qlearning import chain_state_fn as state_fn
 from vbl.agents import (
     ExplorationParams,
     QLearningParams,
@@ -31,24 +32,7 @@ from vbl.agents.traces import TraceParams
 from vbl.params import ParamError
 from vbl.spaces.macro_action import MacroActionParams
 
-N = 5
-
-
-@struct.dataclass
-class LongParams:
-    max_steps: int = 2000   # truncation practically never happens
-
-
-class Chain(toy_worlds.ChainEnv):
-    n = N
-    default_params = LongParams()
-
-    def start(self, key, params):
-        return jax.random.randint(key, (), 0, N - 1, jnp.int32)
-
-
-def state_fn(obs):
-    return obs[..., 0].astype(jnp.int32)
+LONG = ChainParams(max_steps=2000)   # truncation practically never happens
 
 
 def random_policy_q(gamma: float) -> np.ndarray:
@@ -108,7 +92,7 @@ def test_runner_estimates_the_random_policys_values():
     params = _params()
     runner = make_qlearning_runner(Chain(), state_fn, params)
     bp = stack_for_learners(params, 2)
-    ep = stack_for_learners(Chain.default_params, 2)
+    ep = stack_for_learners(LONG, 2)
     carry = runner.init_batch(learner_keys(0, 2), bp, ep)
     for _ in range(5):
         carry, m = runner.run_chunk_batch(carry, bp, ep)
@@ -123,7 +107,7 @@ def test_async_macro_monte_carlo_learns_the_greedy_path():
     params = _params(lr=0.1, macro=True)
     runner = make_qlearning_runner(Chain(), state_fn, params)
     bp = stack_for_learners(params, 2)
-    ep = stack_for_learners(Chain.default_params, 2)
+    ep = stack_for_learners(LONG, 2)
     carry = runner.init_batch(learner_keys(3, 2), bp, ep)
     carry, _ = runner.run_chunk_batch(carry, bp, ep)
     assert np.all(np.asarray(carry.q[:, :N - 1, 1]) > np.asarray(carry.q[:, :N - 1, 0]))

@@ -348,8 +348,7 @@ def make_qlearning_runner(env: Any, state_fn: Callable, params: QRunnerParams,
             action = select_action(k_act, c.q[c.s], rate, "epsilon_greedy")
         s_from, macro, upd = c.s, c.macro, None
         prims, acts = 1, 1  # primitives and decisions of each env in this step
-        s_dec, a_dec = c.s, action  # the decision of this step (where an env decides)
-        decided = jnp.ones((n_envs,), bool)
+        decided = jnp.ones((n_envs,), bool)  # envs that choose an action at this step
         if async_macro:  # one primitive per env; an env whose action runs on keeps it
             keys = jax.random.split(k_env, n_envs)
             ep = env_params_at(env_params, c.lem.difficulty)
@@ -364,7 +363,6 @@ def make_qlearning_runner(env: Any, state_fn: Callable, params: QRunnerParams,
             obs, st, _, term, trunc, info, s_next = out
             term, trunc = jnp.asarray(term, bool), jnp.asarray(trunc, bool)
             acts = decided.astype(jnp.int32)
-            a_dec = action
         else:
             obs, st, r, term, trunc, info, n, s_next = env_transition(k_env, c, action, params,
                                                                       env_params)
@@ -373,14 +371,14 @@ def make_qlearning_runner(env: Any, state_fn: Callable, params: QRunnerParams,
         q, lem, tr, mc = c.q, c.lem, c.trace, c.mc
         td_abs = jnp.float32(0.0)
         if learn and monte_carlo:
-            # primitive index of the decision / of the trial's last primitive (from 0)
-            mc = mc_log(c.mc, decided, s_dec, a_dec, c.ep_primitives)
+            # a deciding env's state and action (the one now in force); primitive index of
+            # the decision / of the trial's last primitive (from 0)
+            mc = mc_log(c.mc, decided, c.s, action, c.ep_primitives)
             scored = jnp.asarray(info["success"]).astype(bool) & done
             keep = None if ap.truncation == "terminal" else ~(trunc & ~term)
-            q, mc, n_learned = mc_update(c.q, mc, done, scored, c.ep_primitives + prims - 1,
-                                         params.agent.learning_rate, params.agent.discount,
-                                         keep)
-            del n_learned               # td_abs stays 0: no TD errors
+            q, mc, _ = mc_update(c.q, mc, done, scored, c.ep_primitives + prims - 1,
+                                 params.agent.learning_rate, params.agent.discount, keep)
+            # td_abs stays 0: no TD errors
         elif learn:
             terminal, weight, s_boot = term, None, s_next
             if ap.truncation == "skip":

@@ -51,6 +51,7 @@ __all__ = [
     "refine_cell_map",
     "refined_policy_action",
     "num_refined_states",
+    "num_refined_units",
 ]
 
 F32 = jnp.float32
@@ -253,3 +254,10 @@ def num_refined_states(rm: RefinedMap, num_actions: int, max_transitions: int) -
     idx = jnp.where(rm.state >= 0, rm.state, size)
     used = jax.ops.segment_sum(jnp.ones_like(idx, dtype=I32), idx, num_segments=size + 1)
     return jnp.sum(used[:size] > 0).astype(I32)
+
+
+def num_refined_units(rm: RefinedMap) -> jax.Array:
+    """Rows of the policy table in use: units some cell maps to and the refinement tried,
+    int32."""
+    used = jnp.zeros(rm.policy.shape, bool).at[rm.unit_of].set(True)
+    return jnp.sum(used & (jnp.sum(rm.visits, -1) > 0)).astype(I32)
