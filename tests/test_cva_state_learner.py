@@ -120,6 +120,10 @@ def test_keep_beyond_order_keeps_the_fits_components():
     np.testing.assert_allclose(got(on), ref, rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(got(off)[:n], ref[:n], rtol=1e-5, atol=1e-6)
     assert np.all(got(off)[n:] == 0.0) and np.any(np.abs(ref[n:]) > 1e-3)
+    # the canonical correlations of the used components (0 where a component is dropped)
+    np.testing.assert_allclose(np.asarray(on.cancor), np.asarray(f.cancor[:4]), rtol=1e-5)
+    np.testing.assert_allclose(np.asarray(off.cancor)[:n], np.asarray(f.cancor[:n]), rtol=1e-5)
+    assert np.all(np.asarray(off.cancor)[n:] == 0.0)
 
 
 def test_bad_inputs():
@@ -213,7 +217,8 @@ def test_select_pads_each_object_block_for_a_per_object_quantiser():
             Uy=jnp.asarray(rng.normal(size=(n, 2, q)), jnp.float32),
             u_mean=jnp.zeros(2, jnp.float32), u_scale=jnp.ones(2, jnp.float32),
             y_mean=jnp.zeros(q, jnp.float32), y_scale=jnp.ones(q, jnp.float32),
-            lag=jnp.int32(2), n=jnp.int32(n), logdet=jnp.float32(0), aic=jnp.float32(0)))
+            lag=jnp.int32(2), n=jnp.int32(n), logdet=jnp.float32(0), aic=jnp.float32(0),
+            cancor=jnp.linspace(0.9, 0.5, n, dtype=jnp.float32)))
         hu.append(jnp.asarray(rng.normal(size=(2, 2)), jnp.float32))
         hy.append(jnp.asarray(rng.normal(size=(2, q)), jnp.float32))
     obs = jnp.asarray(rng.normal(size=(26,)), jnp.float32)
@@ -226,5 +231,13 @@ def test_select_pads_each_object_block_for_a_per_object_quantiser():
     np.testing.assert_allclose(x_cva[15:16], mus[2], rtol=1e-6)
     np.testing.assert_array_equal(x_cva[16:20], 0.0)
     np.testing.assert_array_equal(x_cur, np.asarray(obs[:20]))
+    # quantiser weights: each object's canonical correlations, 1 on padding; all 1 when off
+    w_on = np.asarray(fenv.component_weights(tuple(models), True))
+    np.testing.assert_allclose(w_on[0:4], np.linspace(0.9, 0.5, 4), rtol=1e-6)
+    np.testing.assert_allclose(w_on[4:6], [0.9, 0.5], rtol=1e-6)
+    np.testing.assert_array_equal(w_on[6:15], 1.0)
+    np.testing.assert_allclose(w_on[15:16], [0.9], rtol=1e-6)
+    np.testing.assert_array_equal(w_on[16:20], 1.0)
+    np.testing.assert_array_equal(np.asarray(fenv.component_weights(tuple(models), False)), 1.0)
     with pytest.raises(ParamError, match="group_codes"):
         make_cva_learner(env, p.replace(quantizer=pq.replace(group_codes=(4, 2))))

@@ -165,3 +165,31 @@ def test_product_vq_bad_groups():
         make_quantizer(p, 3, groups=(1, 1, 1))
     with pytest.raises(ParamError, match="group_codes"):
         make_quantizer(QuantizerParams(method="product_vq"), 3, groups=(3,))
+
+
+def test_component_weights_decide_what_kmeans_splits():
+    """Two tight clusters along x0 and a wide uniform nuisance along x1 (same z-scored
+    spread): with 2 codes, weights (1, 1e-3) split exactly along x0 (the clusters), weights
+    (1e-3, 1) along x1; the fitted scale is std / weight (analytic)."""
+    rng = np.random.default_rng(0)
+    n = 2000
+    side = rng.integers(0, 2, n) * 2 - 1
+    x = np.stack([side + 0.01 * rng.normal(size=n), rng.uniform(-3, 3, n)], 1)
+    p = QuantizerParams(method="vq", num_codes=2, kmeans_iters=30)
+    key = jax.random.PRNGKey(1)
+    qz = fit_quantizer(key, x, p, weights=jnp.array([1.0, 1e-3]))
+    idx = np.asarray(quantize(qz, x))
+    assert len(set(idx[side > 0])) == 1 and len(set(idx[side < 0])) == 1
+    assert idx[side > 0][0] != idx[side < 0][0]
+    np.testing.assert_allclose(np.asarray(qz.scale), x.std(0) / np.array([1.0, 1e-3]),
+                               rtol=1e-4)
+    qz2 = fit_quantizer(key, x, p, weights=jnp.array([1e-3, 1.0]))
+    idx2 = np.asarray(quantize(qz2, x))
+    a = idx2[x[:, 1] > 0.5]
+    b = idx2[x[:, 1] < -0.5]
+    assert len(set(a)) == 1 and len(set(b)) == 1 and a[0] != b[0]
+    # product VQ: the weights act inside each group
+    pq = QuantizerParams(method="product_vq", group_codes=(2, 1), kmeans_iters=30)
+    qz3 = fit_quantizer(key, x, pq, groups=(1, 1), weights=jnp.array([1.0, 1.0]))
+    qz4 = fit_quantizer(key, x, pq, groups=(1, 1))
+    np.testing.assert_array_equal(np.asarray(quantize(qz3, x)), np.asarray(quantize(qz4, x)))

@@ -115,6 +115,11 @@ class CVAStateParams:
                                     "AIC order n* among the n_used (False: they are 0, the "
                                     "paper's state); e.g. the ball's image velocity, which "
                                     "its AIC order 4 drops (docs/cva_learning.md)")
+    cancor_weight: bool = param(False, doc="weight each canonical component by its canonical "
+                                "correlation in the quantiser's distance (k-means then "
+                                "measures differences of the predicted future, so weakly "
+                                "predictive components count little); current features and "
+                                "extra slices keep weight 1")
     extra: tuple = param((), doc="extra obs_slices appended unfiltered to the state vector "
                          "(e.g. 'lost_side')", static=True)
     collect_steps: int = param(2000, doc="random-action steps collected per learner for the "
@@ -172,6 +177,7 @@ class ObjectModel:
     n: jax.Array        # () int32 AIC order n* at that l
     logdet: jax.Array   # () log det R(n*) at that l
     aic: jax.Array      # () AIC(n*) at that l
+    cancor: jax.Array   # (n_used,) canonical correlations of the used components at that l
 
 
 def collect(env: Any, key: jax.Array, env_params: Any, num_steps: int) -> dict[str, jax.Array]:
@@ -222,6 +228,7 @@ def identify_object(u: jax.Array, y: jax.Array, cva: CVAParams, n_used: int,
                                                     rows.dtype)])
         keep = (jnp.arange(n_used) < f.n) | jnp.asarray(keep_beyond_order, bool)
         rows = rows * keep[:, None]  # components beyond n* are 0 unless kept
+        cc = jnp.pad(f.cancor[:n_used], (0, max(0, n_used - f.cancor.shape[0])))
         uu = rows[:, :lag * m].reshape(n_used, lag, m)
         uy = rows[:, lag * m:].reshape(n_used, lag, q)
         pad = lag_max - lag
@@ -234,7 +241,8 @@ def identify_object(u: jax.Array, y: jax.Array, cva: CVAParams, n_used: int,
                                 y_scale=f.y_scale.astype(jnp.float32),
                                 lag=jnp.int32(lag), n=f.n.astype(jnp.int32),
                                 logdet=f.logdet[f.n].astype(jnp.float32),
-                                aic=f.aic[f.n].astype(jnp.float32)))
+                                aic=f.aic[f.n].astype(jnp.float32),
+                                cancor=(cc * keep).astype(jnp.float32)))
     # lag rule as a static sweep with a "stopped" flag
     chosen = fits[0]
     stopped = fits[0].logdet < cva.logdet_stop
@@ -326,6 +334,18 @@ class FilteredEnv:
         cva = jnp.concatenate([pad(v, k) for v, k in zip(cva, dims, strict=False)] + extra)
         cur = jnp.concatenate([pad(v, k) for v, k in zip(cur, dims, strict=False)] + extra)
         return jnp.where(jnp.asarray(use_cva, bool), cva, cur)
+
+    def component_weights(self, models, on) -> jax.Array:
+        """(d,) float32 quantiser weights: where ``on`` (traced bool), each object's
+        canonical components weigh their canonical correlation (components set to 0 weigh
+        0, i.e. the floor of :func:`fit_quantizer`); everything else (current features,
+        zero padding, extra slices) weighs 1."""
+        blocks = []
+        for mod, k in zip(models, self.block_dims(), strict=False):
+            w = jnp.pad(mod.cancor, (0, k - mod.cancor.shape[0]), constant_values=1.0)
+            blocks.append(jnp.where(jnp.asarray(on, bool), w, 1.0))
+        blocks += [jnp.ones((s.stop - s.start,), jnp.float32) for s in self.extra]
+        return jnp.concatenate(blocks).astype(jnp.float32)
 
     def _fresh_hist(self, obs):
         hu = tuple(jnp.zeros((self.lag_max, self.m), jnp.float32) for _ in self.slices)
@@ -444,7 +464,11 @@ def make_cva_learner(env: Any, p: CVAStateParams, m: int | None = None) -> CVALe
                            for sl, k in zip(fenv.slices, p.n_used_per_object(), strict=True))
         use_cva = jnp.asarray(pp.use_cva, bool)
         xs = _history_states(fenv, data, models, use_cva)
-        qz = fit_quantizer(k_q, xs, pp.quantizer, groups=groups)
+        weights = None
+        if p.state != "current":
+            weights = fenv.component_weights(models, use_cva & jnp.asarray(pp.cancor_weight,
+                                                                              bool))
+        qz = fit_quantizer(k_q, xs, pp.quantizer, groups=groups, weights=weights)
         return FilteredParams(inner=env_params, models=models, quantizer=qz, use_cva=use_cva)
 
     return CVALearner(prepare=prepare, runner=runner, env=fenv, num_states=s,

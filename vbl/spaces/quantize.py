@@ -87,7 +87,8 @@ class Quantizer:
 
     Attributes:
       lo, hi: float32 (d,), the fitted per-component range (method 'bins').
-      mean, scale: float32 (d,), z-scoring used before the codebook (method 'vq').
+      mean, scale: float32 (d,), z-scoring used before the codebook (methods 'vq',
+        'product_vq'; scale = std / component weight).
       codebook: float32 (K, d) in z-scored units (method 'vq'; (1, d) zeros for 'bins';
         'product_vq': the groups' codebooks stacked, (sum group_codes, d), each row zero
         outside its group's components).
@@ -161,6 +162,9 @@ def _check_groups(params: QuantizerParams, dim: int, groups) -> tuple[int, ...]:
     return groups
 
 
+#: Smallest component weight of :func:`fit_quantizer` (a weight of 0 would divide by 0).
+MIN_COMPONENT_WEIGHT = 1e-3
+
 # --------------------------------------------------------------------------- k-means
 
 
@@ -232,9 +236,14 @@ def kmeans(key: jax.Array, x: jax.Array, k: int, iters: int,
 
 def fit_quantizer(key: jax.Array, x: jax.Array, params: QuantizerParams,
                   mask: jax.Array | None = None,
-                  groups: tuple[int, ...] | None = None) -> Quantizer:
+                  groups: tuple[int, ...] | None = None,
+                  weights: jax.Array | None = None) -> Quantizer:
     """Fit a quantiser to collected states ``x`` (N, d) (rows with ``mask`` False ignored).
     ``groups`` (static sizes of consecutive component groups) is needed by 'product_vq'.
+    ``weights`` (d,) > 0 (methods 'vq', 'product_vq'): each z-scored component is multiplied
+    by its weight before k-means and before the nearest-code search (folded into ``scale``),
+    so a component of weight w counts w times in the distance; e.g. canonical correlations,
+    which make the distance that of the predicted future (:mod:`vbl.agents.cva_state`).
 
     Pure and jit/vmap-able (``params`` static fields set shapes). float32 throughout.
     """
@@ -246,6 +255,9 @@ def fit_quantizer(key: jax.Array, x: jax.Array, params: QuantizerParams,
     mean = jnp.sum(w[:, None] * x, axis=0) / wsum
     var = jnp.sum(w[:, None] * (x - mean) ** 2, axis=0) / wsum
     scale = jnp.where(var > 0, jnp.sqrt(var), 1.0).astype(jnp.float32)
+    if weights is not None:
+        wt = jnp.broadcast_to(jnp.asarray(weights, jnp.float32), (d,))
+        scale = scale / jnp.maximum(wt, MIN_COMPONENT_WEIGHT)
     xm = jnp.where(m[:, None], x, jnp.nan)
     q = jnp.asarray(params.range_quantile, jnp.float32)
     lo = jnp.nanquantile(xm, q, axis=0).astype(jnp.float32)
