@@ -193,3 +193,5 @@ def test_component_weights_decide_what_kmeans_splits():
     qz3 = fit_quantizer(key, x, pq, groups=(1, 1), weights=jnp.array([1.0, 1.0]))
     qz4 = fit_quantizer(key, x, pq, groups=(1, 1))
     np.testing.assert_array_equal(np.asarray(quantize(qz3, x)), np.asarray(quantize(qz4, x)))
+    with pytest.raises(ParamError, match="weights must have shape"):
+        fit_quantizer(key, x, p, weights=jnp.ones(3))

@@ -242,8 +242,9 @@ def fit_quantizer(key: jax.Array, x: jax.Array, params: QuantizerParams,
     ``groups`` (static sizes of consecutive component groups) is needed by 'product_vq'.
     ``weights`` (d,) > 0 (methods 'vq', 'product_vq'): each z-scored component is multiplied
     by its weight before k-means and before the nearest-code search (folded into ``scale``),
-    so a component of weight w counts w times in the distance; e.g. canonical correlations,
-    which make the distance that of the predicted future (:mod:`vbl.agents.cva_state`).
+    so its differences count w times (weights below ``MIN_COMPONENT_WEIGHT`` are raised to
+    it); e.g. canonical correlations, which make the distance that of the predicted future
+    (:mod:`vbl.agents.cva_state`).
 
     Pure and jit/vmap-able (``params`` static fields set shapes). float32 throughout.
     """
@@ -256,6 +257,9 @@ def fit_quantizer(key: jax.Array, x: jax.Array, params: QuantizerParams,
     var = jnp.sum(w[:, None] * (x - mean) ** 2, axis=0) / wsum
     scale = jnp.where(var > 0, jnp.sqrt(var), 1.0).astype(jnp.float32)
     if weights is not None:
+        if jnp.shape(weights) not in ((), (d,)):
+            raise ParamError(f"weights must have shape ({d},) (one per component) or be a "
+                             f"scalar, got shape {jnp.shape(weights)}")
         wt = jnp.broadcast_to(jnp.asarray(weights, jnp.float32), (d,))
         scale = scale / jnp.maximum(wt, MIN_COMPONENT_WEIGHT)
     xm = jnp.where(m[:, None], x, jnp.nan)
