@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-__all__ = ["MCLog", "mc_init", "mc_log", "mc_update"]
+__all__ = ["MCLog", "mc_init", "log_append", "mc_log", "mc_update"]
 
 F32 = jnp.float32
 I32 = jnp.int32
@@ -42,19 +42,30 @@ def mc_init(num_envs: int, length: int) -> MCLog:
     return MCLog(s=z, a=z, clock=z, n=jnp.zeros((num_envs,), I32))
 
 
+def log_append(fields: tuple, n: jax.Array, decided: jax.Array,
+               values: tuple) -> tuple[tuple, jax.Array]:
+    """Append one entry per env to per-env logs: ``fields`` (E, L, ...) arrays, ``n`` (E,)
+    int32 entries so far, ``values`` (E, ...) one per field (cast to the field's dtype),
+    written where ``decided`` (E,) bool and the log has room (a full log drops the entry).
+    Returns (fields, n)."""
+    length = fields[0].shape[1]
+    rows = jnp.arange(fields[0].shape[0])
+    i = jnp.minimum(n, length - 1)
+    w = jnp.asarray(decided, bool) & (n < length)
+
+    def put(arr, v):
+        v = jnp.asarray(v, arr.dtype)
+        keep = w.reshape(w.shape + (1,) * (arr.ndim - 2))
+        return arr.at[rows, i].set(jnp.where(keep, v, arr[rows, i]))
+
+    return tuple(put(f, v) for f, v in zip(fields, values, strict=True)), n + w.astype(I32)
+
+
 def mc_log(log: MCLog, decided: jax.Array, s: jax.Array, a: jax.Array,
            clock: jax.Array) -> MCLog:
     """Append (s, a, clock) (E,) where ``decided`` (E,) bool."""
-    length = log.s.shape[1]
-    rows = jnp.arange(log.s.shape[0])
-    i = jnp.minimum(log.n, length - 1)
-    w = jnp.asarray(decided, bool) & (log.n < length)
-
-    def put(arr, v):
-        return arr.at[rows, i].set(jnp.where(w, jnp.asarray(v, I32), arr[rows, i]))
-
-    return MCLog(s=put(log.s, s), a=put(log.a, a), clock=put(log.clock, clock),
-                 n=log.n + w.astype(I32))
+    (s, a, clock), n = log_append((log.s, log.a, log.clock), log.n, decided, (s, a, clock))
+    return MCLog(s=s, a=a, clock=clock, n=n)
 
 
 def mc_update(q: jax.Array, log: MCLog, ended: jax.Array, scored: jax.Array,

@@ -64,7 +64,7 @@ import numpy as np
 from flax import struct
 
 from vbl.agents.exploration import boltzmann_action
-from vbl.agents.monte_carlo import MCLog, mc_update
+from vbl.agents.monte_carlo import MCLog, log_append, mc_update
 from vbl.params import ParamError, param, validate
 
 __all__ = [
@@ -340,11 +340,10 @@ def log_decision(log: TrialLog, decide: jax.Array, x: jax.Array, a: jax.Array,
                  clock: jax.Array) -> TrialLog:
     """Append a decision (features x (D,), primitive a, clock) when ``decide``; a full log
     drops it."""
-    i = jnp.minimum(log.n, log.a.shape[0] - 1)
-    w = decide & (log.n < log.a.shape[0])
-    put = lambda arr, v: arr.at[i].set(jnp.where(w, v, arr[i]))  # noqa: E731
-    return TrialLog(x=put(log.x, x.astype(F32)), a=put(log.a, jnp.asarray(a, I32)),
-                    clock=put(log.clock, jnp.asarray(clock, I32)), n=log.n + w.astype(I32))
+    one = lambda v: jnp.asarray(v)[None]  # noqa: E731  (a batch of one env)
+    (xs, a_s, clocks), n = log_append((log.x[None], log.a[None], log.clock[None]),
+                                      log.n[None], one(decide), (one(x), one(a), one(clock)))
+    return TrialLog(x=xs[0], a=a_s[0], clock=clocks[0], n=n[0])
 
 
 def monte_carlo_update(q: jax.Array, seg: Segmentation, log: TrialLog, ended: jax.Array,
