@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
+from vbl.sysid.linalg import x64_scope
+
 __all__ = ["param_count", "aic"]
 
 
@@ -14,12 +16,13 @@ def param_count(n: jnp.ndarray, m: int, q: int, kind: str = "larimore") -> jnp.n
     Kalman gain and the innovation covariance, Larimore's count).
     ``"sippy"``: n(q + m) + qm (SIPPY's ``K = nq + mn (+ qm)``, with D).
     """
-    n = jnp.asarray(n)
-    if kind == "larimore":
-        return n * (2 * q + m) + q * m + q * (q + 1) / 2
-    if kind == "sippy":
+    if kind not in ("larimore", "sippy"):
+        raise ValueError(f"param_count kind {kind!r} unknown; choose 'larimore' or 'sippy'")
+    with x64_scope():
+        n = jnp.asarray(n)
+        if kind == "larimore":
+            return n * (2 * q + m) + q * m + q * (q + 1) / 2
         return n * (q + m) + q * m
-    raise ValueError(f"param_count kind {kind!r} unknown; choose 'larimore' or 'sippy'")
 
 
 def aic(logdet_r: jnp.ndarray, n: jnp.ndarray, n_samples: int | jnp.ndarray, m: int, q: int,
@@ -31,4 +34,5 @@ def aic(logdet_r: jnp.ndarray, n: jnp.ndarray, n_samples: int | jnp.ndarray, m: 
       n: state order(s), broadcastable with ``logdet_r``.
       n_samples: N - k - l + 1, the number of residuals averaged in R_hat.
     """
-    return n_samples * logdet_r + 2.0 * param_count(n, m, q, kind)
+    with x64_scope():
+        return n_samples * logdet_r + 2.0 * param_count(n, m, q, kind)

@@ -26,7 +26,7 @@ from flax import struct
 from jax.scipy.linalg import cho_solve, solve_triangular
 
 from vbl.sysid.aic import aic as aic_fn
-from vbl.sysid.linalg import svd_thin
+from vbl.sysid.linalg import svd_thin, x64_scope
 from vbl.sysid.params import CVAParams
 
 __all__ = ["CVAFit", "fit_one", "fit_batch", "n_identifiable", "stack_indices"]
@@ -99,7 +99,17 @@ def _normalise(x: jnp.ndarray, demean: bool, standardize: bool):
 
 def fit_one(u: jnp.ndarray, y: jnp.ndarray, params: CVAParams, *, lag: int, horizon: int,
             n_cap: int) -> CVAFit:
-    """CVA + order sweep on one data set ``u (N, m)``, ``y (N, q)`` (pure, jit/vmap-able)."""
+    """CVA + order sweep on one data set ``u (N, m)``, ``y (N, q)`` (pure, jit/vmap-able).
+
+    Computes in ``params.dtype`` whether or not ``jax_enable_x64`` is on globally (64-bit
+    types are switched on for the duration of the computation, :func:`x64_scope`).
+    """
+    with x64_scope():
+        return _fit_one(u, y, params, lag=lag, horizon=horizon, n_cap=n_cap)
+
+
+def _fit_one(u: jnp.ndarray, y: jnp.ndarray, params: CVAParams, *, lag: int, horizon: int,
+             n_cap: int) -> CVAFit:
     dt = jnp.float32 if params.dtype == "float32" else jnp.float64
     floor = jnp.asarray(params.floor(), dt)
     u = u.astype(dt)
@@ -183,12 +193,19 @@ def fit_one(u: jnp.ndarray, y: jnp.ndarray, params: CVAParams, *, lag: int, hori
                   y_scale=y_scale)
 
 
-@functools.partial(jax.jit, static_argnames=("lag", "horizon", "n_cap"))
 def fit_batch(u: jnp.ndarray, y: jnp.ndarray, params: CVAParams, *, lag: int, horizon: int,
               n_cap: int) -> CVAFit:
-    """:func:`fit_one` vmapped over data sets: ``u (B, N, m)``, ``y (B, N, q)``.
+    """:func:`fit_one` vmapped over data sets: ``u (B, N, m)``, ``y (B, N, q)`` (jitted).
 
-    No input checks (jitted): use :func:`vbl.sysid.identify` for validated entry.
+    No input checks: use :func:`vbl.sysid.identify` for validated entry. Pass NumPy arrays
+    (or arrays made with 64-bit types on) to keep float64 data exact when
+    ``jax_enable_x64`` is off: the call runs inside :func:`x64_scope`.
     """
-    fn = functools.partial(fit_one, params=params, lag=lag, horizon=horizon, n_cap=n_cap)
+    with x64_scope():
+        return _fit_batch(u, y, params, lag=lag, horizon=horizon, n_cap=n_cap)
+
+
+@functools.partial(jax.jit, static_argnames=("lag", "horizon", "n_cap"))
+def _fit_batch(u, y, params, *, lag, horizon, n_cap):
+    fn = functools.partial(_fit_one, params=params, lag=lag, horizon=horizon, n_cap=n_cap)
     return jax.vmap(fn)(u, y)

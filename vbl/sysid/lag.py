@@ -16,6 +16,7 @@ from flax import struct
 
 from vbl.params import validate
 from vbl.sysid.cva import CVAFit, fit_batch, n_identifiable
+from vbl.sysid.linalg import x64_scope
 from vbl.sysid.model import CVAModel
 from vbl.sysid.params import CVAParams
 from vbl.sysid.validate import check_data
@@ -90,7 +91,15 @@ def identify(u, y, params: CVAParams | None = None, *, model_dtype=jnp.float32
     Raises:
       ValueError / ParamError for bad parameters or data (shapes, NaN/inf, constant
       channels, records too short for the lags and horizon) and if a result is not finite.
+
+    Runs inside :func:`vbl.sysid.linalg.x64_scope`: the same numbers whether or not
+    ``jax_enable_x64`` is on globally (float fields of the result are float64 arrays).
     """
+    with x64_scope():
+        return _identify(u, y, params, model_dtype)
+
+
+def _identify(u, y, params, model_dtype) -> Identification:
     params = validate(params if params is not None else CVAParams())
     u, y, batched = check_data(u, y, params)
     b, _, m = u.shape

@@ -15,7 +15,18 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-__all__ = ["svd_thin"]
+__all__ = ["svd_thin", "x64_scope"]
+
+
+def x64_scope():
+    """Context manager: 64-bit types on (``jax.enable_x64(True)``) for the code inside it.
+
+    Every public function of :mod:`vbl.sysid` runs inside it, so identification computes in
+    the dtype its params ask for (float64 by default) and gives the same numbers whether or
+    not ``jax_enable_x64`` is on globally. Outside the scope the global setting applies again:
+    a float64 array returned from inside stays float64, but new arrays follow the global flag.
+    """
+    return jax.enable_x64(True)
 
 
 @jax.custom_batching.custom_vmap
