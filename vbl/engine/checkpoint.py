@@ -2,11 +2,14 @@
 
 A checkpoint at global step ``t`` (chunks completed, counted over groups) holds the carry
 of all learners of the current group gathered to the host (so a run can resume on another
-number of devices) and JSON metadata with the config fingerprint.
+number of devices) and JSON metadata with the config fingerprint and the sha256 of every
+leaf's bytes, compared with the restored arrays (a damaged file is an error, never a
+silently different result).
 """
 
 from __future__ import annotations
 
+import hashlib
 from pathlib import Path
 from typing import Any
 
@@ -34,10 +37,22 @@ def _to_storable(tree: Any) -> tuple[dict[str, np.ndarray], Any]:
     return out, treedef
 
 
-def _corrupt(where: Path, e: Exception) -> CheckpointError:
-    return CheckpointError(f"checkpoint {where} is corrupt or unreadable ({type(e).__name__}: "
-                           f"{str(e)[:300]}); delete that step folder to resume from an "
-                           f"earlier one, or start again with --overwrite")
+def _sha256(x: np.ndarray) -> str:
+    a = np.ascontiguousarray(x)
+    h = hashlib.sha256(f"{a.dtype.str}{a.shape}".encode())
+    h.update(a.reshape(-1).view(np.uint8))
+    return h.hexdigest()
+
+
+def _corrupt(where: Path, e: Exception | str, fallback: str) -> CheckpointError:
+    why = e if isinstance(e, str) else f"{type(e).__name__}: {_first_line(str(e))[:300]}"
+    return CheckpointError(f"checkpoint at step {where.name} ({where}) is corrupt or "
+                           f"unreadable ({why}); {fallback}")
+
+
+def _first_line(text: str) -> str:
+    lines = [x for x in text.strip().splitlines() if x.strip()]
+    return lines[0] if lines else ""
 
 
 class Checkpoints:
@@ -58,43 +73,62 @@ class Checkpoints:
     def latest_step(self) -> int | None:
         return self._mngr.latest_step()
 
+    def _fallback(self, step: int) -> str:
+        earlier = [s for s in self._mngr.all_steps() if s < step]
+        where = self.directory / str(step)
+        if earlier:
+            return (f"delete the folder {where} and --resume again to continue from the "
+                    f"checkpoint at step {max(earlier)}, or start again with --overwrite")
+        return "no earlier checkpoint is kept: start again with --overwrite (or another --out)"
+
     def save(self, step: int, carry: Any, meta: dict[str, Any]) -> None:
         """Save host (NumPy) ``carry`` at ``step`` (asynchronously; see :meth:`wait`)."""
         state, _ = _to_storable(carry)
-        meta = dict(meta, fingerprint=self.fingerprint, step=int(step))
+        meta = dict(meta, fingerprint=self.fingerprint, step=int(step),
+                    sha256={k: _sha256(v) for k, v in state.items()})
         self._mngr.save(int(step), args=ocp.args.Composite(
             state=ocp.args.StandardSave(state), meta=ocp.args.JsonSave(meta)), force=True)
 
-    def restore(self, step: int, like: Any) -> tuple[Any, dict[str, Any]]:
-        """Restore the carry at ``step`` into the structure/shapes/dtypes of ``like``.
-
-        Raises CheckpointError for an unreadable checkpoint, a config mismatch or a shape
-        mismatch.
-        """
-        target, treedef = _to_storable(like)
+    def check_meta(self, step: int) -> dict[str, Any]:
+        """The metadata of ``step``; CheckpointError if unreadable or of another config."""
         where = self.directory / str(step)
         try:
             meta = self._mngr.restore(step, args=ocp.args.Composite(
                 meta=ocp.args.JsonRestore()))["meta"]
         except Exception as e:  # noqa: BLE001
-            raise _corrupt(where, e) from e
+            raise _corrupt(where, e, self._fallback(step)) from e
         if not isinstance(meta, dict) or meta.get("fingerprint") != self.fingerprint:
             got = meta.get("fingerprint") if isinstance(meta, dict) else None
             raise CheckpointError(
                 f"checkpoint {where} was written by another config (fingerprint {got}, this run "
                 f"{self.fingerprint}); resume with the same experiment, --set, --sweep, --seeds, "
                 f"--seed and --quick, or start again with --overwrite / another --out")
+        return meta
+
+    def restore(self, step: int, like: Any) -> tuple[Any, dict[str, Any]]:
+        """Restore the carry at ``step`` into the structure/shapes/dtypes of ``like``.
+
+        Raises CheckpointError for an unreadable checkpoint, a config mismatch, a shape
+        mismatch or arrays whose sha256 differs from the one saved with them.
+        """
+        target, treedef = _to_storable(like)
+        where = self.directory / str(step)
+        meta = self.check_meta(step)
         try:
             state = self._mngr.restore(step, args=ocp.args.Composite(
                 state=ocp.args.StandardRestore(target)))["state"]
         except Exception as e:  # noqa: BLE001
-            raise _corrupt(where, e) from e
+            raise _corrupt(where, e, self._fallback(step)) from e
+        sums = meta.get("sha256")  # absent in checkpoints written before checksums
         leaves = []
         for k in sorted(target):
             got, want = np.asarray(state[k]), target[k]
             if got.shape != want.shape or got.dtype != want.dtype:
                 raise CheckpointError(f"checkpoint {where}: {k} has shape {got.shape} "
                                       f"{got.dtype}, expected {want.shape} {want.dtype}")
+            if isinstance(sums, dict) and sums.get(k) != _sha256(got):
+                raise _corrupt(where, f"{k} does not match the checksum saved with it: the "
+                               f"files changed after they were written", self._fallback(step))
             leaves.append(got)
         return jax.tree_util.tree_unflatten(treedef, leaves), meta
 

@@ -12,13 +12,25 @@ from typing import Any
 import jax
 import numpy as np
 
-from vbl.params import ParamError, get_path, iter_params, replace_path, static_paths, validate
+from vbl.params import (
+    ParamError,
+    _check_bounds,
+    get_path,
+    iter_params,
+    replace_path,
+    static_paths,
+    validate,
+)
 
 __all__ = [
     "EngineError", "parse_value", "parse_assignment", "parse_sweep", "split_values",
     "apply_overrides", "is_static", "config_to_dict", "fingerprint", "stack_traced",
-    "traced_dtype",
+    "traced_dtype", "check_dtypes", "set_value", "INT32", "INT64",
 ]
+
+INT32 = (-2**31, 2**31 - 1)
+INT64 = (-2**63, 2**63 - 1)
+_F32_MAX = float(np.finfo(np.float32).max)
 
 
 class EngineError(RuntimeError):
@@ -105,13 +117,85 @@ def parse_sweep(text: str, config: Any) -> tuple[str, list[Any]]:
     return path, vals
 
 
+def set_value(config: Any, path: str, value: Any) -> Any:
+    """:func:`vbl.params.replace_path` whose unexpected errors (a value numpy cannot
+    compare, say) become :class:`ParamError` naming the field."""
+    try:
+        return replace_path(config, path, value)
+    except ParamError:
+        raise
+    except (TypeError, ValueError, ArithmeticError) as e:
+        raise ParamError(f"{path}={value!r} is not a valid value: {e}") from None
+
+
 def apply_overrides(config: Any, overrides: Mapping[str, Any] | Iterable[tuple[str, Any]]
                     ) -> Any:
-    """Return ``config`` with every ``path -> value`` set (each validated), then validated."""
+    """Return ``config`` with every ``path -> value`` set (each validated, also in the dtype
+    it will have, see :func:`check_dtypes`), then the whole config validated (its
+    ``check()`` rules; an error other than ParamError there becomes a ParamError)."""
     items = overrides.items() if isinstance(overrides, Mapping) else overrides
     for path, value in items:
-        config = replace_path(config, path, value)
-    return validate(config)
+        config = set_value(config, path, value)
+    check_dtypes(config)
+    try:
+        return validate(config)
+    except ParamError:
+        raise
+    except Exception as e:  # noqa: BLE001 - a check() rule failed in another way
+        raise ParamError(f"the config is invalid: {type(e).__name__}: {e}") from None
+
+
+def _numbers(x: Any) -> bool:
+    return isinstance(x, int | float | np.integer | np.floating)
+
+
+def check_dtypes(config: Any) -> None:
+    """Check every number in the dtype it will have in a program.
+
+    Traced ints become int32 and traced floats float32 (:func:`traced_dtype`): an int must
+    fit int32, a float must stay finite in float32 and keep its bounds after the cast
+    (``gt=0`` with ``1e-50`` rounds to 0). Static ints must fit int64. A tuple whose
+    default holds numbers must hold numbers. Raises ParamError.
+    """
+    statics = set(static_paths(config))
+    for path, f, value in iter_params(config):
+        default = None if f.default is dataclasses.MISSING else f.default
+        if isinstance(default, tuple) and default and all(_numbers(x) for x in default):
+            if not isinstance(value, tuple | list) or not all(
+                    _numbers(x) and not isinstance(x, bool) for x in value):
+                raise ParamError(f"{path}={value!r} must be a tuple of numbers, like its "
+                                 f"default {default!r}")
+        if isinstance(value, str | bool | np.bool_) or value is None:
+            continue
+        try:
+            a = np.asarray(value)
+        except (TypeError, ValueError, OverflowError):
+            continue
+        if a.dtype == object and a.size and all(isinstance(x, int) for x in a.ravel()):
+            lo, hi = INT64
+            raise ParamError(f"{path}={value!r} is too large: ints must lie in [{lo}, {hi}]")
+        traced = path not in statics
+        if a.dtype.kind in "iu":
+            lo, hi = INT32 if traced else INT64
+            if a.size and (int(a.min()) < lo or int(a.max()) > hi):
+                kind = "a traced int (int32 in the program)" if traced else "an int"
+                raise ParamError(f"{path}={value!r} does not fit {kind}: allowed "
+                                 f"[{lo}, {hi}]")
+        elif a.dtype.kind == "f" and traced:
+            finite = np.isfinite(a)
+            if np.any(finite & (np.abs(np.where(finite, a, 0.0)) > _F32_MAX)):
+                raise ParamError(f"{path}={value!r} does not fit float32 (traced floats are "
+                                 f"float32 in the program: |x| <= {_F32_MAX:.7g})")
+            as32 = a.astype(np.float32)
+            try:
+                _check_bounds(path, as32, dict(f.metadata))
+            except ParamError:
+                m = f.metadata
+                bounds = ", ".join(f"{sym} {m[k]}" for k, sym in (("ge", ">="), ("gt", ">"),
+                                   ("le", "<="), ("lt", "<")) if m.get(k) is not None)
+                raise ParamError(f"{path}={value!r} rounds to {as32.tolist()!r} in float32 "
+                                 f"(the program's dtype), outside its range ({bounds})"
+                                 ) from None
 
 
 def is_static(config: Any, path: str) -> bool:

@@ -10,7 +10,16 @@ import numpy as np
 
 from vbl.engine.results import t_quantile_975
 
-__all__ = ["point_label", "plot_curves"]
+__all__ = ["point_label", "plot_curves", "plot_names"]
+
+
+def _file_name(metric: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]", "_", metric) + ".png"
+
+
+def plot_names(curves: dict[str, np.ndarray]) -> list[str]:
+    """The file names :func:`plot_curves` writes for ``curves``."""
+    return [_file_name(k) for k, a in curves.items() if k != "episodes" and a.ndim == 3]
 
 
 def point_label(values: dict[str, Any]) -> str:
@@ -58,7 +67,7 @@ def plot_curves(curves: dict[str, np.ndarray], points: list[dict[str, Any]], out
             ax.legend(fontsize="small")
         ax.grid(alpha=0.3)
         fig.tight_layout()
-        path = Path(out_dir) / (re.sub(r"[^A-Za-z0-9_.-]", "_", name) + ".png")
+        path = Path(out_dir) / _file_name(name)
         fig.savefig(path, dpi=100)
         plt.close(fig)
         paths.append(path)

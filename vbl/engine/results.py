@@ -5,8 +5,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import shutil
-import time
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -15,7 +13,7 @@ import numpy as np
 
 from vbl.engine.config import EngineError
 
-__all__ = ["prepare_run_dir", "MetricsLog", "seed_stats", "t_quantile_975", "read_metrics",
+__all__ = ["MetricsLog", "seed_stats", "t_quantile_975", "read_metrics",
            "write_json", "read_json"]
 
 
@@ -66,49 +64,18 @@ def seed_stats(values: np.ndarray) -> dict[str, Any]:
 
 
 def write_json(path: Path, obj: Any) -> None:
+    """Write ``obj`` as JSON atomically (a temporary file, then a rename)."""
     tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=1, default=_clean) + "\n")
-    os.replace(tmp, path)
+    try:
+        tmp.write_text(json.dumps(obj, indent=1, default=_clean) + "\n")
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def read_json(path: Path) -> Any:
     return json.loads(Path(path).read_text())
-
-
-def prepare_run_dir(out: str | Path | None, name: str, *, resume: bool, overwrite: bool,
-                    primary: bool = True) -> Path:
-    """Create (or reuse, for ``resume``) the run folder and check that it is writable.
-
-    Never overwrites: an existing non-empty folder needs ``resume`` or ``overwrite``; and
-    ``overwrite`` only deletes folders that hold a vbl run (a ``config.json``).
-    """
-    if resume and overwrite:
-        raise EngineError("--resume and --overwrite exclude each other")
-    stamp = time.strftime("%Y%m%d-%H%M%S")
-    path = Path(out) if out is not None else Path("runs") / f"{name}-{stamp}"
-    if not primary:  # process 0 checks and creates the folder
-        return path
-    if path.exists() and not path.is_dir():
-        raise EngineError(f"output folder {path} exists and is not a folder")
-    nonempty = path.is_dir() and any(path.iterdir())
-    if nonempty and not resume:
-        if not overwrite:
-            raise EngineError(f"output folder {path} exists and is not empty; use --resume to "
-                              f"continue it, --overwrite to replace it, or another --out")
-        if not (path / "config.json").exists():
-            raise EngineError(f"refusing to --overwrite {path}: it holds no vbl run "
-                              f"(no config.json); remove it yourself or pick another --out")
-        if primary:
-            shutil.rmtree(path)
-    if primary:
-        try:
-            path.mkdir(parents=True, exist_ok=True)
-            probe = path / f".write-test-{os.getpid()}"
-            probe.write_text("ok")
-            probe.unlink()
-        except OSError as e:
-            raise EngineError(f"cannot write to output folder {path}: {e.strerror or e}") from e
-    return path
 
 
 class MetricsLog:
@@ -127,32 +94,62 @@ class MetricsLog:
             f.flush()
 
     def truncate_after(self, step: int) -> int:
-        """Keep rows with ``row["step"] <= step`` (and drop a torn last line); return kept."""
+        """Keep rows with ``row["step"] <= step`` (a torn last line is dropped; any other
+        malformed line is an error); return how many were kept."""
         if not self.enabled or not self.path.exists():
             return 0
-        keep = []
-        for line in self.path.read_text().splitlines():
-            try:
-                row = json.loads(line)
-            except json.JSONDecodeError:
-                continue
-            if int(row.get("step", 0)) <= step:
-                keep.append(line + "\n")
+        keep = [line + "\n" for line, row in _lines(self.path) if row["step"] <= step]
         tmp = self.path.with_suffix(".jsonl.tmp")
-        tmp.write_text("".join(keep))
-        os.replace(tmp, self.path)
+        try:
+            tmp.write_text("".join(keep))
+            os.replace(tmp, self.path)
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
         return len(keep)
 
 
+def _lines(path: Path) -> list[tuple[str, dict[str, Any]]]:
+    """``(line, row)`` of every complete line of a ``metrics.jsonl``.
+
+    Rows are appended whole, so only the last line can be torn (a crash or a full disk in
+    the middle of a write): a last line without its newline that does not parse is
+    ignored. Any other line that is not a metrics row raises EngineError.
+    """
+    try:
+        text = Path(path).read_bytes().decode()
+    except (OSError, UnicodeDecodeError) as e:
+        raise EngineError(f"cannot read {path}: {e}") from e
+    lines = text.split("\n")
+    tail = lines.pop()  # "" when the file ends with a newline
+    out = []
+    for i, line in enumerate(lines, 1):
+        row = _row(line)
+        if row is None:
+            raise EngineError(f"{path} line {i} is not a metrics row ({line[:60]!r}); the file "
+                              f"was changed or damaged: restore it, or start again with "
+                              f"--overwrite")
+        out.append((line, row))
+    row = _row(tail) if tail else None
+    if row is not None:
+        out.append((tail, row))
+    return out
+
+
+def _row(line: str) -> dict[str, Any] | None:
+    try:
+        row = json.loads(line)
+    except ValueError:
+        return None
+    ok = isinstance(row, dict) and isinstance(row.get("step"), int) and not isinstance(
+        row["step"], bool)
+    return row if ok else None
+
+
 def read_metrics(path: Path) -> list[dict[str, Any]]:
-    """All rows of a ``metrics.jsonl`` (a torn last line is ignored)."""
-    rows = []
+    """All rows of a ``metrics.jsonl`` (a torn last line is ignored; any other malformed
+    line raises EngineError)."""
     p = Path(path)
     if not p.exists():
-        return rows
-    for line in p.read_text().splitlines():
-        try:
-            rows.append(json.loads(line))
-        except json.JSONDecodeError:
-            continue
-    return rows
+        return []
+    return [row for _, row in _lines(p)]

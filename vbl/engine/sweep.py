@@ -8,7 +8,9 @@ the learners are ``(point, seed)`` pairs in point-major order, learner ``i`` = p
 
 from __future__ import annotations
 
+import functools
 import itertools
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -16,11 +18,15 @@ from typing import Any
 import jax
 import numpy as np
 
-from vbl.engine.config import apply_overrides, stack_traced
+from vbl.engine.config import INT32, apply_overrides, set_value, stack_traced
 from vbl.engine.experiment import Experiment, Program
-from vbl.params import ParamError, get_path, replace_path, static_paths
+from vbl.params import ParamError, get_path, static_paths
 
-__all__ = ["Group", "SweepPlan", "make_plan", "learner_keys", "program_for"]
+__all__ = ["Group", "SweepPlan", "make_plan", "learner_keys", "program_for", "MAX_POINTS",
+           "MAX_SEED"]
+
+MAX_POINTS = 1_000_000  #: most sweep points (the product of the sweep's value counts)
+MAX_SEED = INT32[1]  #: largest --seed and --seeds (keys are folded from int32 seeds)
 
 # (make_program, static values) -> Program: repeated runs in one process (tests, notebooks,
 # `vbl reproduce`) reuse the same functions, hence jax's compilation cache.
@@ -60,8 +66,10 @@ def learner_keys(base_seed: int, seeds: int) -> tuple[np.ndarray, np.ndarray]:
 class Group:
     """Points sharing static values: one program, one compilation.
 
-    ``configs`` holds the stacked traced leaves (``[points * seeds, ...]`` NumPy arrays);
-    ``point_ids`` indexes :attr:`SweepPlan.points`.
+    ``point_configs`` holds one validated config per point; :attr:`configs` stacks their
+    traced leaves (``[points * seeds, ...]`` NumPy arrays), built on first use so that a
+    plan can be checked (memory) before anything large is allocated. ``point_ids`` indexes
+    :attr:`SweepPlan.points`.
     """
 
     index: int
@@ -69,7 +77,7 @@ class Group:
     point_ids: list[int]
     base_config: Any
     program: Program
-    configs: Any
+    point_configs: list[Any]
     step_offset: int
     seeds: int
 
@@ -81,6 +89,10 @@ class Group:
     def num_learners(self) -> int:
         return len(self.point_ids) * self.seeds
 
+    @functools.cached_property
+    def configs(self) -> Any:
+        return stack_traced(self.point_configs, self.seeds)
+
 
 @dataclass
 class SweepPlan:
@@ -90,8 +102,6 @@ class SweepPlan:
     seeds: int
     base_seed: int
     groups: list[Group]
-    init_keys: np.ndarray  # uint32[seeds, 2]
-    final_keys: np.ndarray
 
     @property
     def total_steps(self) -> int:
@@ -101,20 +111,44 @@ class SweepPlan:
     def num_learners(self) -> int:
         return len(self.points) * self.seeds
 
+    @functools.cached_property
+    def _keys(self) -> tuple[np.ndarray, np.ndarray]:
+        return learner_keys(self.base_seed, self.seeds)
+
+    @property
+    def init_keys(self) -> np.ndarray:
+        """uint32[seeds, 2] (built on first use)."""
+        return self._keys[0]
+
+    @property
+    def final_keys(self) -> np.ndarray:
+        return self._keys[1]
+
+
+def check_counts(seeds: Any, base_seed: Any) -> None:
+    """ParamError unless ``1 <= seeds <= MAX_SEED`` and ``0 <= base_seed <= MAX_SEED``."""
+    if isinstance(seeds, bool) or not isinstance(seeds, int) or not 1 <= seeds <= MAX_SEED:
+        raise ParamError(f"seeds must be an int in [1, {MAX_SEED}], got {seeds!r}")
+    if isinstance(base_seed, bool) or not isinstance(base_seed, int) or not (
+            0 <= base_seed <= MAX_SEED):
+        raise ParamError(f"the base seed must be an int in [0, {MAX_SEED}], got {base_seed!r}")
+
 
 def make_plan(experiment: Experiment, config: Any, sweep: Mapping[str, Sequence[Any]],
               seeds: int, base_seed: int = 0) -> SweepPlan:
-    """Validate every sweep value and build the groups (calls ``make_program`` per group)."""
-    if not isinstance(seeds, int) or seeds < 1:
-        raise ParamError(f"seeds must be an int >= 1, got {seeds!r}")
-    if not isinstance(base_seed, int) or base_seed < 0:
-        raise ParamError(f"base seed must be an int >= 0, got {base_seed!r}")
+    """Validate every sweep value and point and build the groups (calls ``make_program``
+    per group). Per-learner arrays (keys, stacked configs) are built on first use."""
+    check_counts(seeds, base_seed)
     sweep = {p: list(v) for p, v in sweep.items()}
     for path, values in sweep.items():
         if not values:
             raise ParamError(f"sweep of {path!r} has no values")
         for v in values:
-            replace_path(config, path, v)  # type/range check with a clear message
+            set_value(config, path, v)  # type/range check with a clear message
+    npoints = math.prod(len(v) for v in sweep.values())
+    if npoints > MAX_POINTS:
+        raise ParamError(f"the sweep has {npoints:,} points (the product of its value "
+                         f"counts); at most {MAX_POINTS:,}")
     statics = set(static_paths(config))
     paths = list(sweep)
     points = [dict(zip(paths, combo, strict=True))
@@ -125,14 +159,12 @@ def make_plan(experiment: Experiment, config: Any, sweep: Mapping[str, Sequence[
     for i, pt in enumerate(points):
         key = tuple((p, repr(v)) for p, v in pt.items() if p in statics)
         by_static.setdefault(key, []).append(i)
-    init_keys, final_keys = learner_keys(base_seed, seeds)
     groups, offset = [], 0
     for gi, ids in enumerate(by_static.values()):
         static_values = {p: v for p, v in points[ids[0]].items() if p in statics}
         base = apply_overrides(config, static_values)
         cfgs = [apply_overrides(config, points[i]) for i in ids]
         program = program_for(experiment, base)
-        groups.append(Group(gi, static_values, ids, base, program,
-                            stack_traced(cfgs, seeds), offset, seeds))
+        groups.append(Group(gi, static_values, ids, base, program, cfgs, offset, seeds))
         offset += program.num_chunks
-    return SweepPlan(config, sweep, points, seeds, base_seed, groups, init_keys, final_keys)
+    return SweepPlan(config, sweep, points, seeds, base_seed, groups)

@@ -1,0 +1,70 @@
+"""One-line errors for the ``vbl`` command, and XLA's C++ log kept quiet unless asked."""
+
+from __future__ import annotations
+
+import errno
+import os
+
+__all__ = ["one_line", "quiet_xla_log", "debug_requested"]
+
+_DISK = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
+
+
+def debug_requested() -> bool:
+    """True when ``VBL_DEBUG`` is set to something other than 0/false/no/empty."""
+    return os.environ.get("VBL_DEBUG", "").strip().lower() not in ("", "0", "false", "no")
+
+
+def _chain(e: BaseException):
+    seen = set()
+    while e is not None and id(e) not in seen:
+        seen.add(id(e))
+        yield e
+        e = e.__cause__ or e.__context__
+
+
+def _first_line(text: str) -> str:
+    lines = [x.strip() for x in str(text).strip().splitlines() if x.strip()]
+    return lines[0] if lines else ""
+
+
+def one_line(e: BaseException) -> str:
+    """A one-line description of an unexpected exception (what failed, and what to do)."""
+    for x in _chain(e):
+        if (isinstance(x, OSError) and x.errno in _DISK) or "No space left on device" in str(x):
+            where = f" {x.filename}" if getattr(x, "filename", None) else ""
+            why = (x.strerror if isinstance(x, OSError) and x.strerror else
+                   "No space left on device")
+            return (f"cannot write{where}: {why}; free some space (or raise the file size "
+                    f"limit), then continue the run with --resume")
+    for x in _chain(e):
+        if isinstance(x, MemoryError):
+            return ("out of memory; use fewer --seeds, sweep values or environments "
+                    "(the estimate before the run is a floor)")
+    msg = _first_line(str(e)) or "(no message)"
+    if len(msg) > 400:
+        msg = msg[:400] + "..."
+    return (f"unexpected {type(e).__name__}: {msg} (run with --debug or VBL_DEBUG=1 for the "
+            f"traceback)")
+
+
+def quiet_xla_log() -> None:
+    """Keep XLA's C++ log to fatal errors unless asked for.
+
+    Programs loaded from the persistent compilation cache make XLA print error-level lines
+    that are harmless here ("cpu_aot_loader.cc ... Target machine feature ... is not
+    supported ... could lead to execution errors such as SIGILL"). ``VBL_XLA_LOGS=1``
+    keeps XLA's own level (``TF_CPP_MIN_LOG_LEVEL``); so does a ``TF_CPP_MIN_LOG_LEVEL``
+    of 0 or 1 (a request for more).
+    """
+    if os.environ.get("VBL_XLA_LOGS", "").strip().lower() not in ("", "0", "false", "no"):
+        return
+    if os.environ.get("TF_CPP_MIN_LOG_LEVEL", "").strip() in ("0", "1"):
+        return
+    os.environ["TF_CPP_MIN_LOG_LEVEL"] = "3"  # for processes started from here
+    try:
+        from jaxlib import utils
+
+        utils.absl_set_min_log_level(3)  # the C++ library read the variable at import
+    except (ImportError, AttributeError):  # another jaxlib: the variable has to do
+        pass

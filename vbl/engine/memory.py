@@ -1,0 +1,107 @@
+"""Memory estimate of a run, checked before anything is allocated.
+
+A group's learners all live at once: their carries on the devices (the step's input and
+output), a host copy gathered for each checkpoint, and orbax's copy while it writes. The
+carry's shape comes from ``jax.eval_shape`` of the program's ``init`` (no allocation), so
+the estimate is ``learners x carry bytes x CARRY_COPIES`` plus keys and configs, for the
+largest group. Temporaries inside a step are not counted: the estimate is a floor with a
+margin, meant to refuse runs that cannot fit, not to promise that others do.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+from vbl.engine.config import EngineError, traced_dtype
+
+__all__ = ["MemoryError_", "CARRY_COPIES", "available_memory", "estimate", "check_memory",
+           "fmt_bytes"]
+
+CARRY_COPIES = 4  #: carries held at once per learner (step in + out, host gather, save)
+
+
+class MemoryError_(EngineError):  # noqa: N801 - not the builtin MemoryError
+    """A run's memory estimate exceeds the memory available."""
+
+
+def fmt_bytes(n: float) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB", "PiB"):
+        if abs(n) < 1024 or unit == "PiB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024
+    raise AssertionError
+
+
+def _meminfo_available() -> int | None:
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def _cgroup_available() -> int | None:
+    """Room left under a cgroup v2 memory limit (containers), if there is one."""
+    try:
+        base = Path("/sys/fs/cgroup")
+        limit = (base / "memory.max").read_text().strip()
+        if limit == "max":
+            return None
+        return max(0, int(limit) - int((base / "memory.current").read_text().strip()))
+    except (OSError, ValueError):
+        return None
+
+
+def available_memory() -> int:
+    """Bytes this process may still allocate: ``MemAvailable`` (or physical memory), capped
+    by a cgroup limit."""
+    avail = _meminfo_available()
+    if avail is None:
+        try:
+            avail = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+        except (ValueError, OSError, AttributeError):
+            avail = 0
+    cg = _cgroup_available()
+    return min(avail, cg) if cg is not None else avail
+
+
+def _nbytes(tree: Any) -> int:
+    return sum(int(np.prod(x.shape, dtype=object)) * np.dtype(x.dtype).itemsize
+               for x in jax.tree_util.tree_leaves(tree))
+
+
+def estimate(plan) -> tuple[int, dict[str, Any]]:
+    """``(bytes, details)`` for the largest group of ``plan`` (a :class:`SweepPlan`)."""
+    worst, details = 0, {}
+    for g in plan.groups:
+        one = jax.tree.map(lambda x: jax.ShapeDtypeStruct(np.shape(x), traced_dtype(x)),
+                           g.point_configs[0])
+        carry = _nbytes(jax.eval_shape(g.program.init,
+                                       jax.ShapeDtypeStruct((2,), np.uint32), one))
+        n = g.num_learners
+        total = n * (CARRY_COPIES * carry + _nbytes(one) + 16)
+        if total >= worst:
+            worst = total
+            details = {"group": g.index, "learners": n, "carry_bytes": carry}
+    return worst, details
+
+
+def check_memory(plan) -> int:
+    """Raise :class:`MemoryError_` if :func:`estimate` exceeds :func:`available_memory`;
+    return the estimate."""
+    need, d = estimate(plan)
+    have = available_memory()
+    if have and need > have:
+        raise MemoryError_(
+            f"this run needs about {fmt_bytes(need)} of memory ({d['learners']:,} learners x "
+            f"{fmt_bytes(d['carry_bytes'])} state each x {CARRY_COPIES} copies) but "
+            f"{fmt_bytes(have)} is available; use fewer --seeds, sweep values or "
+            f"environments, or --no-memory-check to try anyway")
+    return need
