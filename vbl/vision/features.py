@@ -1,17 +1,18 @@
 """Image features of the ball, the goal and another robot, by projecting geometry.
 
 Nothing is rasterised: every feature is a closed-form function of the camera pose and
-the object geometry (pure JAX, float32, jit/vmap-able). Exact definitions, clipping and
-occlusion rules are in ``docs/vision.md``; in short
+the object geometry (pure JAX, float32, jit/vmap-able, no data-dependent branches).
+Exact definitions, clipping and occlusion rules are in ``docs/vision.md``; in short
 
 * the ball (a sphere) images to an ellipse (the cone of rays tangent to the sphere cut
   by the image plane); its visible part is that ellipse intersected with the image
   rectangle, and extents are computed exactly from the conic;
 * straight edges (goal posts, crossbar, robot box edges) are clipped to the near plane
   in 3-D, projected, and clipped to the image rectangle (Liang-Barsky);
-* areas and centroids of planar polygons use Green's theorem on the clipped boundary
-  (the boundary of polygon-inside-rectangle is the polygon's edges clipped to the
-  rectangle plus the rectangle's edges clipped to the polygon);
+* areas and centroids of planar regions (the goal mouth, the other robot's silhouette)
+  use Green's theorem on their boundary, a set of directed segments in any order (the
+  robot's silhouette edges, the near plane's chords), mapped into a rectangle by the
+  clamp onto it (:func:`_chain_in_rects`);
 * an object the camera cannot see at all is *lost*; its lost side is -1 when its
   reference point lies left of the camera's vertical mid-plane (camera X < 0), else +1.
 """
@@ -20,6 +21,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from vbl.vision.camera import F32, CameraParams, camera_frame, focal_lengths, to_camera
@@ -49,7 +51,12 @@ SEC3_GOAL_DIM = 11
 SEC3_OTHER_DIM = 5
 SEC3_DIM = SEC3_BALL_DIM + SEC3_GOAL_DIM + SEC3_OTHER_DIM + 3 + 3
 
+#: Smallest |denominator| of a division; smaller ones are replaced by +-_TINY (no NaN).
 _TINY = 1e-12
+#: Stand-in for "no candidate" in min/max reductions over image coordinates, px.
+_BIG = 1e9
+#: Smallest visible area of a region (goal, other robot), px^2: below it the object is lost.
+_MIN_AREA = 1e-6
 
 
 def _safe_div(a, b):
@@ -84,37 +91,36 @@ def _chord(p, xf, xb, z, k):
     return _safe_div(bh - sq, a), _safe_div(bh + sq, a), exists
 
 
-def _ellipse_extent(xa, xb, z, r, ha, hb):
-    """Extent along axis ``a`` of (sphere image ellipse) ∩ ([-ha, ha] x [-hb, hb]).
+def _extremes(xa, xb, z, r, ha, hb):
+    """The ellipse's two extreme points along axis ``a`` (normalised coordinates).
 
-    Normalised coordinates. Exact: the extreme points of the convex intersection are the
-    ellipse's own extreme points inside the rectangle, the ends of its chords along the
-    rectangle's edges ``b = ±hb``, or the rectangle's sides ``a = ±ha`` crossed by it.
-    Returns (lo, hi, any).
+    Returns their ``a`` coordinates (2,) and whether each lies inside the rectangle
+    ``[-ha, ha] x [-hb, hb]`` (2,) bool.
     """
-    k = xa * xa + xb * xb + z * z - r * r
     den = z * z - r * r
     root = r * jnp.sqrt(jnp.maximum(xa * xa + z * z - r * r, 0.0))
     a_ext = jnp.stack([_safe_div(xa * z - root, den), _safe_div(xa * z + root, den)])
     b_ext = _safe_div(xb * (xa * a_ext + z), xa * xa + z * z - r * r)
-    ok_ext = (jnp.abs(a_ext) <= ha) & (jnp.abs(b_ext) <= hb)
-    # chords along the rows b = -hb, +hb (free coordinate a)
-    rows = jnp.stack([-hb, hb])
-    rl, rh, rex = _chord(rows, xb, xa, z, k)
-    rlo, rhi = jnp.maximum(rl, -ha), jnp.minimum(rh, ha)
-    ok_row = rex & (rlo <= rhi)
-    # chords along the columns a = -ha, +ha (free coordinate b)
-    cols = jnp.stack([-ha, ha])
-    cl, ch, cex = _chord(cols, xa, xb, z, k)
-    ok_col = cex & (jnp.maximum(cl, -hb) <= jnp.minimum(ch, hb))
-    big = jnp.asarray(1e9, F32)
+    return a_ext, (jnp.abs(a_ext) <= ha) & (jnp.abs(b_ext) <= hb)
+
+
+def _axis_extent(a_ext, ok_ext, lo_c, hi_c, ok_c, ok_side, ha):
+    """Extent along axis ``a`` of (ellipse ∩ rectangle) from its candidates.
+
+    Exact: the extreme points of the convex intersection are the ellipse's own extreme
+    points inside the rectangle (``a_ext``, ``ok_ext``), the ends of its chords along the
+    rectangle's edges ``b = ±hb`` clipped to ``|a| <= ha`` (``lo_c``, ``hi_c``, ``ok_c``,
+    each (2,)), or the rectangle's sides ``a = -ha, +ha`` where the ellipse crosses them
+    (``ok_side`` (2,)). Returns (lo, hi, any).
+    """
+    big = jnp.asarray(_BIG, F32)
     lo = jnp.minimum(jnp.where(ok_ext[0], a_ext[0], big),
-                     jnp.minimum(jnp.min(jnp.where(ok_row, rlo, big)),
-                                 jnp.where(ok_col[0], -ha, big)))
+                     jnp.minimum(jnp.min(jnp.where(ok_c, lo_c, big)),
+                                 jnp.where(ok_side[0], -ha, big)))
     hi = jnp.maximum(jnp.where(ok_ext[1], a_ext[1], -big),
-                     jnp.maximum(jnp.max(jnp.where(ok_row, rhi, -big)),
-                                 jnp.where(ok_col[1], ha, -big)))
-    anyv = jnp.any(ok_ext) | jnp.any(ok_row) | jnp.any(ok_col)
+                     jnp.maximum(jnp.max(jnp.where(ok_c, hi_c, -big)),
+                                 jnp.where(ok_side[1], ha, -big)))
+    anyv = jnp.any(ok_ext) | jnp.any(ok_c) | jnp.any(ok_side)
     return jnp.where(anyv, lo, 0.0), jnp.where(anyv, hi, 0.0), anyv
 
 
@@ -137,7 +143,8 @@ def ball_image(ball_cam: jnp.ndarray, radius, cam: CameraParams) -> BallImage:
 
     The sphere must lie wholly beyond the near plane (``Z - r >= near_plane``); otherwise
     it is treated as not visible (``valid`` False; unreachable with the default robot,
-    whose body keeps the ball away from the camera).
+    whose body keeps the ball away from the camera). The four chords of the ellipse along
+    the image's edges serve both extents (u and v).
     """
     fu, fv = focal_lengths(cam)
     ht = jnp.asarray(cam.image_width, F32) / 2 / fu
@@ -145,9 +152,18 @@ def ball_image(ball_cam: jnp.ndarray, radius, cam: CameraParams) -> BallImage:
     r = jnp.asarray(radius, F32)
     x, y, z = ball_cam[0], ball_cam[1], ball_cam[2]
     valid = z - r >= jnp.asarray(cam.near_plane, F32)
-    zs = jnp.where(valid, z, r + 1.0)  # keep the algebra finite where invalid
-    tlo, thi, tany = _ellipse_extent(x, y, zs, r, ht, hs)
-    slo, shi, sany = _ellipse_extent(y, x, zs, r, hs, ht)
+    z = jnp.where(valid, z, r + 1.0)  # keep the algebra finite where invalid
+    k = x * x + y * y + z * z - r * r
+    # chords along the rows s = ±hs (t-intervals) and the columns t = ±ht (s-intervals)
+    rl, rh, rex = _chord(jnp.stack([-hs, hs]), y, x, z, k)
+    cl, ch, cex = _chord(jnp.stack([-ht, ht]), x, y, z, k)
+    rl, rh = jnp.maximum(rl, -ht), jnp.minimum(rh, ht)
+    cl, ch = jnp.maximum(cl, -hs), jnp.minimum(ch, hs)
+    row_ok, col_ok = rex & (rl <= rh), cex & (cl <= ch)
+    t_ext, t_ok = _extremes(x, y, z, r, ht, hs)
+    s_ext, s_ok = _extremes(y, x, z, r, hs, ht)
+    tlo, thi, tany = _axis_extent(t_ext, t_ok, rl, rh, row_ok, col_ok, ht)
+    slo, shi, sany = _axis_extent(s_ext, s_ok, cl, ch, col_ok, row_ok, hs)
     vis = valid & tany & sany & (thi > tlo) & (shi > slo)
     m = vis.astype(F32)
     return BallImage(u_lo=m * fu * tlo, u_hi=m * fu * thi, v_lo=m * fv * slo,
@@ -168,20 +184,34 @@ def _ball_column_chord(bi: BallImage, u, cam: CameraParams):
 
 # ----------------------------------------------------------------------------- segments
 
-def _near_clip(pa, pb, zn):
-    """Clip the 3-D segment pa->pb (camera coords) to Z >= zn. Returns (pa', pb', ok)."""
-    za, zb = pa[..., 2:3], pb[..., 2:3]
-    ok = jnp.maximum(za, zb)[..., 0] >= zn
-    t = _safe_div(zn - za, zb - za)
-    pa2 = jnp.where(za < zn, pa + t * (pb - pa), pa)
-    pb2 = jnp.where(zb < zn, pa + t * (pb - pa), pb)
-    return pa2, pb2, ok
+@struct.dataclass
+class Segments:
+    """Near-clipped, projected 3-D segments a->b: image ends (S, 2) px and flags (S,)."""
+
+    p0: jnp.ndarray      # (S, 2) image of the clipped start
+    p1: jnp.ndarray      # (S, 2) image of the clipped end
+    ok: jnp.ndarray      # (S,) bool: some of the segment is in front of the near plane
+    cross: jnp.ndarray   # (S, 2) image of the crossing with the near plane (if any)
+    exit_fwd: jnp.ndarray  # (S,) bool: a in front, b behind (a->b leaves the near plane)
+    exit_bwd: jnp.ndarray  # (S,) bool: b in front, a behind
 
 
 def _proj(p, fu, fv, zn):
     """Camera coords (..., 3) with Z >= zn -> px (..., 2)."""
     z = jnp.maximum(p[..., 2], zn)
     return jnp.stack([fu * p[..., 0] / z, fv * p[..., 1] / z], axis=-1)
+
+
+def _segments(pa, pb, zn, fu, fv) -> Segments:
+    """Clip the 3-D segments pa->pb (S, 3) (camera coords) to Z >= zn and project them."""
+    za, zb = pa[..., 2:3], pb[..., 2:3]
+    ina, inb = pa[..., 2] >= zn, pb[..., 2] >= zn
+    t = _safe_div(zn - za, zb - za)
+    x = pa + t * (pb - pa)
+    pa2 = jnp.where(za < zn, x, pa)
+    pb2 = jnp.where(zb < zn, x, pb)
+    return Segments(p0=_proj(pa2, fu, fv, zn), p1=_proj(pb2, fu, fv, zn), ok=ina | inb,
+                    cross=_proj(x, fu, fv, zn), exit_fwd=ina & ~inb, exit_bwd=inb & ~ina)
 
 
 def _clip_rect(p0, p1, lo, hi):
@@ -237,24 +267,36 @@ class GoalEnds:
     visible: jnp.ndarray  # bool
 
 
-def _goal_ends(pc, cam: CameraParams, fu, fv):
-    """Visible ends of the goal from its corners in camera coordinates ``pc`` (4, 3).
+#: Goal segments (corner indices a -> b; corners left-bottom, left-top, right-top,
+#: right-bottom): left post, right post, bottom edge, crossbar.
+_GOAL_A = (0, 3, 0, 1)
+_GOAL_B = (1, 2, 3, 2)
+#: Direction of each goal segment in the mouth's boundary cycle LB->LT->RT->RB->LB.
+_GOAL_CYCLE = np.array([1.0, -1.0, -1.0, 1.0], np.float32)
+
+
+def _goal_segments(pc, cam: CameraParams, fu, fv) -> Segments:
+    """The goal's four segments (``_GOAL_A`` -> ``_GOAL_B``) from its camera-frame
+    corners ``pc`` (4, 3), near-clipped and projected."""
+    zn = jnp.asarray(cam.near_plane, F32)
+    a = jnp.stack([pc[i] for i in _GOAL_A])
+    b = jnp.stack([pc[i] for i in _GOAL_B])
+    return _segments(a, b, zn, fu, fv)
+
+
+def _goal_ends(seg: Segments, cam: CameraParams) -> GoalEnds:
+    """Visible ends of the goal from its projected segments (:func:`_goal_segments`).
 
     End rule: a post whose projected segment meets the image is its own end (clipped to
     the image); otherwise the end is the goal's extent on the image border column on that
     side (u = -W/2 for the left post, +W/2 for the right), between the projected
     bottom edge and crossbar, clipped to the image.
     """
-    zn = jnp.asarray(cam.near_plane, F32)
     hw = jnp.asarray(cam.image_width, F32) / 2
     hh = jnp.asarray(cam.image_height, F32) / 2
     lo = jnp.stack([-hw, -hh])
     hi = jnp.stack([hw, hh])
-    # segments: posts (bottom -> top) left, right; edges bottom (LB->RB), top (LT->RT)
-    a = jnp.stack([pc[0], pc[3], pc[0], pc[1]])
-    b = jnp.stack([pc[1], pc[2], pc[3], pc[2]])
-    a2, b2, ok = _near_clip(a, b, zn)
-    ia, ib = _proj(a2, fu, fv, zn), _proj(b2, fu, fv, zn)
+    ia, ib, ok = seg.p0, seg.p1, seg.ok
     # posts clipped to the image
     qa, qb, qok = _clip_rect(ia[:2], ib[:2], lo, hi)
     post_ok = ok[:2] & qok
@@ -341,11 +383,11 @@ def _section2(robot_pose, ball_xy, ball_radius, goal_corners, cam: CameraParams,
     bi = ball_image(ball_c, r, cam)
     corners = jnp.asarray(goal_corners, F32)
     pc = to_camera(corners, frame)
-    ends = _goal_ends(pc, cam, fu, fv)
+    ends = _goal_ends(_goal_segments(pc, cam, fu, fv), cam)
     # the ball hides the goal behind it when it is on the camera's side of the goal plane
     occ = (_plane_side(corners, ball_w) * _plane_side(corners, frame.c) > 0) & bi.valid
     u_end = 0.5 * (ends.bot[:, 0] + ends.top[:, 0])
-    clo, chi, cex = jax.vmap(lambda u: _ball_column_chord(bi, u, cam))(u_end)
+    clo, chi, cex = _ball_column_chord(bi, u_end, cam)
     vlo, vhi = _subtract_interval(ends.bot[:, 1], ends.top[:, 1], clo, chi, occ & cex)
     h = vhi - vlo
     bu = 0.5 * (bi.u_lo + bi.u_hi)
@@ -427,121 +469,164 @@ class Section3Obs:
     lost_side: jnp.ndarray
 
 
-def _near_clip_polygon(pc, zn):
-    """Clip a convex planar polygon (N, 3) (camera coords) to Z >= zn.
-
-    Fixed size output (2N, 3): each edge i contributes [V_i or filler, crossing point or
-    copy]; removed vertices are replaced by a point of the near-plane chord, so the
-    output is the clipped polygon with repeated / collinear extra vertices (which change
-    neither its area nor its boundary). Returns (points, ok).
-    """
-    nxt = jnp.roll(pc, -1, axis=0)
-    z0, z1 = pc[:, 2], nxt[:, 2]
-    inside = z0 >= zn
-    cross = (z0 >= zn) != (z1 >= zn)
-    t = _safe_div(zn - z0, z1 - z0)[:, None]
-    ipt = pc + t * (nxt - pc)
-    filler = ipt[jnp.argmax(cross)]
-    first = jnp.where(inside[:, None], pc, filler)
-    second = jnp.where(cross[:, None], ipt, first)
-    pts = jnp.stack([first, second], axis=1).reshape(-1, 3)
-    return pts, jnp.any(inside)
-
-
-def _seg_moments(q0, q1, w):
-    """Green's-theorem area and first moments of directed segments (..., 2), weights w."""
-    cr = q0[..., 0] * q1[..., 1] - q1[..., 0] * q0[..., 1]
-    a = 0.5 * jnp.sum(w * cr)
-    mu = jnp.sum(w * (q0[..., 0] + q1[..., 0]) * cr) / 6.0
-    mv = jnp.sum(w * (q0[..., 1] + q1[..., 1]) * cr) / 6.0
-    return a, mu, mv
-
-
 @struct.dataclass
 class Region:
-    """Area (px^2), first moments (px^3) and bounding box (px) of a visible region."""
+    """Area (px^2), first moments (px^3) and bounding box (px) of regions, one per box."""
 
-    area: jnp.ndarray
-    mu: jnp.ndarray
-    mv: jnp.ndarray
-    lo: jnp.ndarray   # (2,) u_lo, v_lo
-    hi: jnp.ndarray   # (2,) u_hi, v_hi
-
-    @property
-    def visible(self):
-        return (self.area > 0) & jnp.all(self.hi > self.lo)
+    area: jnp.ndarray  # (R,)
+    mu: jnp.ndarray    # (R,)
+    mv: jnp.ndarray    # (R,)
+    lo: jnp.ndarray    # (R, 2) u_lo, v_lo
+    hi: jnp.ndarray    # (R, 2) u_hi, v_hi
 
 
-def _poly_in_rect(poly, ok, lo, hi) -> Region:
-    """Exact area, moments and bbox of (convex polygon ``poly`` (N, 2) px) ∩ box [lo, hi].
+def _chain_in_rects(p0, p1, w, lo, hi) -> Region:
+    """Signed area, first moments and bounding box of a region inside R boxes.
 
-    The boundary of the intersection is the polygon's edges clipped to the box
-    (Liang-Barsky) plus the box's edges clipped to the polygon (Cyrus-Beck); Green's
-    theorem sums them segment by segment. Repeated vertices are allowed.
+    The region is given by its boundary: directed segments ``p0 -> p1`` (S, 2) px with
+    weights ``w`` (S,) (+1, -1, 0) that form closed cycles when summed, in any order.
+    Boxes ``[lo[j], hi[j]]`` (R, 2). Exact (Green's theorem): the clamp onto a box maps
+    the boundary to a closed path inside the box that winds around each point of the box
+    as the boundary does, so integrating over the clamped path integrates over region ∩
+    box. With the forms ``x dy``, ``x^2/2 dy``, ``x y dy`` only the part of each segment
+    inside the box's row band ``lo_v <= v <= hi_v`` counts (clamped elsewhere it runs
+    along a box row, dy = 0); that part is split where it crosses the columns
+    ``u = lo_u, hi_u`` into three straight pieces, clamped. The bounding box of region ∩
+    box comes from the same clipped parts: its u-extent is the u-range of the segments'
+    parts inside the row band, cut to the box's columns (likewise for v). The moments
+    are summed about the bounding box's centre (float32 sums stay small) and returned
+    about the image origin; area and moments are signed by the boundary's orientation.
+    Returns a :class:`Region` of (R,)-shaped fields (bounding box lo > hi when empty).
     """
-    nxt = jnp.roll(poly, -1, axis=0)
-    e = nxt - poly
-    elen = jnp.sqrt(jnp.sum(e * e, axis=-1))
-    real = elen > 1e-6
-    signed = 0.5 * jnp.sum(poly[:, 0] * nxt[:, 1] - nxt[:, 0] * poly[:, 1])
-    o = jnp.where(signed < 0, jnp.float32(-1.0), jnp.float32(1.0))
-    box_ok = ok & jnp.all(hi > lo) & (jnp.abs(signed) > 1e-6)
-    # polygon edges clipped to the box
-    q0, q1, qok = _clip_rect(poly, nxt, lo, hi)
-    w1 = (qok & real & box_ok).astype(F32) * o
-    a1, mu1, mv1 = _seg_moments(q0, q1, w1)
-    # box edges (counter-clockwise) clipped to the polygon
-    corners = jnp.stack([lo, jnp.stack([hi[0], lo[1]]), hi, jnp.stack([lo[0], hi[1]])])
-    rnext = jnp.roll(corners, -1, axis=0)
-    nrm = o * jnp.stack([-e[:, 1], e[:, 0]], axis=-1) / jnp.maximum(elen, 1e-6)[:, None]
-    # constraint per (box edge j, polygon edge i): nrm_i . (a_j + t d_j - p_i) >= 0
-    d = rnext - corners
-    num = jnp.einsum("ik,jik->ji", nrm, corners[:, None, :] - poly[None, :, :])
-    den = jnp.einsum("ik,jk->ji", nrm, d)
-    par = (jnp.abs(den) < 1e-9) | ~real[None, :]
-    tt = _safe_div(-num, den)
-    t0 = jnp.max(jnp.where(~par & (den > 0), tt, 0.0), axis=1)
-    t1 = jnp.min(jnp.where(~par & (den < 0), tt, 1.0), axis=1)
-    rok = (t0 < t1) & ~jnp.any(par & real[None, :] & (num < 0), axis=1)
-    r0 = corners + t0[:, None] * d
-    r1 = corners + t1[:, None] * d
-    w2 = (rok & box_ok).astype(F32)
-    a2, mu2, mv2 = _seg_moments(r0, r1, w2)
-    big = jnp.asarray(1e9, F32)
-    m1 = (w1 != 0)[:, None]
-    m2 = (w2 != 0)[:, None]
-    lo_b = jnp.minimum(jnp.min(jnp.where(m1, jnp.minimum(q0, q1), big), axis=0),
-                       jnp.min(jnp.where(m2, jnp.minimum(r0, r1), big), axis=0))
-    hi_b = jnp.maximum(jnp.max(jnp.where(m1, jnp.maximum(q0, q1), -big), axis=0),
-                       jnp.max(jnp.where(m2, jnp.maximum(r0, r1), -big), axis=0))
-    area = a1 + a2
-    anyv = box_ok & (area > 0)
-    z = jnp.zeros((), F32)
-    return Region(area=jnp.where(anyv, area, z), mu=jnp.where(anyv, mu1 + mu2, z),
-                  mv=jnp.where(anyv, mv1 + mv2, z), lo=jnp.where(anyv, lo_b, 0.0),
-                  hi=jnp.where(anyv, hi_b, 0.0))
+    x0, y0 = p0[:, 0], p0[:, 1]                          # (S,)
+    dx, dy = p1[:, 0] - x0, p1[:, 1] - y0
+    ix, iy = _safe_div(1.0, dx), _safe_div(1.0, dy)
+    lu, lv = lo[:, 0:1], lo[:, 1:2]                      # (R, 1)
+    hu, hv = hi[:, 0:1], hi[:, 1:2]
+    # parameter range inside the row band, and the column crossings
+    r0, r1 = (lv - y0) * iy, (hv - y0) * iy              # (R, S)
+    ta = jnp.maximum(jnp.minimum(r0, r1), 0.0)
+    tb = jnp.minimum(jnp.maximum(r0, r1), 1.0)
+    in_band = ta <= tb
+    tb = jnp.maximum(tb, ta)
+    c0, c1 = (lu - x0) * ix, (hu - x0) * ix
+    cmin, cmax = jnp.minimum(c0, c1), jnp.maximum(c0, c1)
+    ts = jnp.stack([ta, jnp.clip(cmin, ta, tb), jnp.clip(cmax, ta, tb), tb], axis=-1)
+    xs = x0[:, None] + ts * dx[:, None]                  # (R, S, 4) unclamped
+    ys = y0[:, None] + ts * dy[:, None]
+    # bounding box: u-range of the parts in the row band, v-range of those in the columns
+    big = jnp.asarray(_BIG, F32)
+    real = w != 0
+    uok = (in_band & real)[..., None]
+    sa, sb = jnp.maximum(cmin, 0.0), jnp.minimum(cmax, 1.0)
+    vok = ((sa <= sb) & real)[..., None]
+    ue, ve = xs[..., ::3], y0[:, None] + jnp.stack([sa, sb], axis=-1) * dy[:, None]
+    u_lo = jnp.maximum(lu[:, 0], jnp.min(jnp.where(uok, ue, big), axis=(-2, -1)))
+    u_hi = jnp.minimum(hu[:, 0], jnp.max(jnp.where(uok, ue, -big), axis=(-2, -1)))
+    v_lo = jnp.maximum(lv[:, 0], jnp.min(jnp.where(vok, ve, big), axis=(-2, -1)))
+    v_hi = jnp.minimum(hv[:, 0], jnp.max(jnp.where(vok, ve, -big), axis=(-2, -1)))
+    ou = jnp.clip(0.5 * (u_lo + u_hi), lu[:, 0], hu[:, 0])[:, None, None]
+    ov = jnp.clip(0.5 * (v_lo + v_hi), lv[:, 0], hv[:, 0])[:, None, None]
+    # clamped points about the origin (ou, ov); three pieces per segment
+    xs = jnp.clip(xs, lu[..., None], hu[..., None]) - ou
+    ys = jnp.clip(ys, lv[..., None], hv[..., None]) - ov
+    xa, xb, ya, yb = xs[..., :3], xs[..., 1:], ys[..., :3], ys[..., 1:]
+    dyp = yb - ya
+    area = 0.5 * jnp.sum(w * jnp.sum((xa + xb) * dyp, axis=-1), axis=-1)
+    mu = jnp.sum(w * jnp.sum((xa * (xa + xb) + xb * xb) * dyp, axis=-1), axis=-1) / 6.0
+    mv = jnp.sum(w * jnp.sum((xa * (ya + ya + yb) + xb * (ya + yb + yb)) * dyp, axis=-1),
+                 axis=-1) / 6.0
+    return Region(area=area, mu=mu + ou[:, 0, 0] * area, mv=mv + ov[:, 0, 0] * area,
+                  lo=jnp.stack([u_lo, v_lo], axis=-1), hi=jnp.stack([u_hi, v_hi], axis=-1))
 
 
-def _project_polygon(pc, cam, fu, fv):
+def _oriented(reg: Region, sign) -> Region:
+    """Region with area and moments multiplied by ``sign`` (+-1: the boundary's turn)."""
+    return reg.replace(area=sign * reg.area, mu=sign * reg.mu, mv=sign * reg.mv)
+
+
+def _near_chords(seg: Segments, fwd, bwd):
+    """Near-plane chords of near-clipped convex polygons, one per polygon.
+
+    ``fwd`` / ``bwd`` (P, S) float 0/1: polygon p runs through segment s forwards /
+    backwards. A polygon cut by the near plane leaves it on one edge and comes back on
+    another; its clipped boundary is closed by the chord from the leaving point to the
+    returning point (both on the near plane). Returns (start (P, 2), end (P, 2), has (P,)).
+    """
+    xf = seg.exit_fwd.astype(F32)
+    xb = seg.exit_bwd.astype(F32)
+    leave = fwd * xf + bwd * xb                           # (P, S)
+    back = fwd * xb + bwd * xf
+    start = jnp.sum(leave[..., None] * seg.cross, axis=-2)
+    end = jnp.sum(back[..., None] * seg.cross, axis=-2)
+    return start, end, jnp.sum(leave, axis=-1) > 0
+
+
+def _goal_chain(seg: Segments):
+    """Boundary of the near-clipped goal mouth: (p0, p1 (5, 2), w (5,)): 4 edges + chord."""
+    cyc = jnp.asarray(_GOAL_CYCLE)
+    fwd, bwd = (cyc > 0).astype(F32)[None], (cyc < 0).astype(F32)[None]
+    c0, c1, has = _near_chords(seg, fwd, bwd)
+    p0 = jnp.concatenate([seg.p0, c0])
+    p1 = jnp.concatenate([seg.p1, c1])
+    w = jnp.concatenate([cyc * seg.ok.astype(F32), has.astype(F32)])
+    return p0, p1, w
+
+
+def _box_tables():
+    """Static tables of a box's 12 edges from its 6 outward-oriented faces.
+
+    Corners: signs ``(sx, sy, sz)`` of (half-length, half-width, height), sz in {0, 1};
+    faces in the order +x, -x, +y, -y, top, bottom (local axes), each a corner cycle
+    counter-clockwise seen from outside. Returns (edge start signs (12, 3), edge vectors
+    in units of (half-length, half-width, height) (12, 3), face-runs-edge-forwards
+    (6, 12), face-runs-edge-backwards (6, 12)), float32 numpy arrays.
+    """
+    sx = [1, -1, -1, 1, 1, -1, -1, 1]
+    sy = [1, 1, -1, -1, 1, 1, -1, -1]
+    sz = [0, 0, 0, 0, 1, 1, 1, 1]
+    faces = [[0, 4, 7, 3], [1, 2, 6, 5], [0, 1, 5, 4], [3, 7, 6, 2], [4, 5, 6, 7],
+             [0, 3, 2, 1]]
+    edges, fwd, bwd = [], np.zeros((6, 12), np.float32), np.zeros((6, 12), np.float32)
+    for f, cyc in enumerate(faces):
+        for a, b in zip(cyc, cyc[1:] + cyc[:1], strict=True):
+            if (b, a) in edges:
+                bwd[f, edges.index((b, a))] = 1.0
+            else:
+                edges.append((a, b))
+                fwd[f, len(edges) - 1] = 1.0
+    sgn = np.array([sx, sy, sz], np.float32).T
+    start = np.stack([sgn[a] for a, _ in edges])
+    vec = np.stack([sgn[b] - sgn[a] for a, b in edges])
+    return start, vec, fwd, bwd
+
+
+_BOX_START, _BOX_VEC, _BOX_FWD, _BOX_BWD = _box_tables()
+
+
+def _box_chain(base_c, axes_c, front, cam: CameraParams, fu, fv):
+    """Boundary of the other robot's silhouette: (p0, p1 (18, 2), w (18,)).
+
+    ``base_c`` (3,): the box's bottom centre in camera coordinates; ``axes_c`` (3, 3):
+    rows = camera-frame vectors of half its length, half its width and its height;
+    ``front`` (6,) bool: faces (order of :func:`_box_tables`) turned towards the camera.
+    The silhouette is the sum of the near-clipped front faces; its boundary is every edge
+    between a front and a back face (weight ``front[f+] - front[f-]``, interior edges
+    cancel) plus each front face's near-plane chord.
+    """
     zn = jnp.asarray(cam.near_plane, F32)
-    pts, ok = _near_clip_polygon(pc, zn)
-    return _proj(pts, fu, fv, zn), ok
-
-
-def _box_corners_world(pose, size):
-    """(8, 3) corners of a robot box: footprint length x width around (x, y), z in [0, h]."""
-    x, y, th = pose[0], pose[1], pose[2]
-    hl, hw, h = size[0] / 2, size[1] / 2, size[2]
-    c, s = jnp.cos(th), jnp.sin(th)
-    sx = jnp.array([1, -1, -1, 1, 1, -1, -1, 1], F32) * hl
-    sy = jnp.array([1, 1, -1, -1, 1, 1, -1, -1], F32) * hw
-    sz = jnp.array([0, 0, 0, 0, 1, 1, 1, 1], F32) * h
-    return jnp.stack([x + c * sx - s * sy, y + s * sx + c * sy, sz], axis=-1)
-
-
-# faces of the box as corner indices (any consistent winding; orientation is recomputed)
-_BOX_FACES = jnp.array([[0, 1, 2, 3], [4, 5, 6, 7], [0, 3, 7, 4], [1, 2, 6, 5],
-                        [0, 1, 5, 4], [3, 2, 6, 7]], jnp.int32)
+    st, vec = jnp.asarray(_BOX_START), jnp.asarray(_BOX_VEC)
+    a = base_c + st[:, 0:1] * axes_c[0] + st[:, 1:2] * axes_c[1] + st[:, 2:3] * axes_c[2]
+    d = vec[:, 0:1] * axes_c[0] + vec[:, 1:2] * axes_c[1] + vec[:, 2:3] * axes_c[2]
+    seg = _segments(a, a + d, zn, fu, fv)
+    fwd, bwd = jnp.asarray(_BOX_FWD), jnp.asarray(_BOX_BWD)
+    fr = front.astype(F32)
+    w_edge = jnp.sum(fr[:, None] * (fwd - bwd), axis=0) * seg.ok.astype(F32)
+    c0, c1, has = _near_chords(seg, fwd, bwd)
+    p0 = jnp.concatenate([seg.p0, c0])
+    p1 = jnp.concatenate([seg.p1, c1])
+    w = jnp.concatenate([w_edge, fr * has.astype(F32)])
+    return p0, p1, w
 
 
 def _rect_inter(lo1, hi1, lo2, hi2):
@@ -551,6 +636,11 @@ def _rect_inter(lo1, hi1, lo2, hi2):
 def _empty_rect():
     z = jnp.zeros((2,), F32)
     return z, z
+
+
+def _sign(x):
+    """+1 where x >= 0, else -1 (float32)."""
+    return jnp.where(x < 0, jnp.float32(-1.0), jnp.float32(1.0))
 
 
 def section3_features(robot_pose, ball_xy, ball_radius, goal_corners, other_pose, other_size,
@@ -577,6 +667,7 @@ def section3_features(robot_pose, ball_xy, ball_radius, goal_corners, other_pose
     hw = jnp.asarray(cam.image_width, F32) / 2
     hh = jnp.asarray(cam.image_height, F32) / 2
     img_lo, img_hi = jnp.stack([-hw, -hh]), jnp.stack([hw, hh])
+    e_lo, e_hi = _empty_rect()
     # ball
     r = jnp.asarray(ball_radius, F32)
     bxy = jnp.asarray(ball_xy, F32)
@@ -588,78 +679,76 @@ def section3_features(robot_pose, ball_xy, ball_radius, goal_corners, other_pose
     # goal
     corners = jnp.asarray(goal_corners, F32)
     pc = to_camera(corners, frame)
-    ends = _goal_ends(pc, cam, fu, fv)
-    gpoly, gok = _project_polygon(pc, cam, fu, fv)
-    # other robot: front-facing faces
+    gseg = _goal_segments(pc, cam, fu, fv)
+    ends = _goal_ends(gseg, cam)
+    # other robot: the box in its own frame (local axes along its heading)
     opose = jnp.asarray(other_pose, F32)
     osize = jnp.asarray(other_size, F32)
-    bw = _box_corners_world(opose, osize)
-    faces_w = bw[_BOX_FACES]                                      # (6, 4, 3)
-    fcen = jnp.mean(faces_w, axis=1)
-    ocen = jnp.mean(bw, axis=0)
-    front = jnp.sum((fcen - ocen) * (frame.c - fcen), axis=-1) > 0
-    faces_c = to_camera(faces_w, frame)
-    fpoly, fok = jax.vmap(lambda q: _project_polygon(q, cam, fu, fv))(faces_c)
-    fok = fok & front
+    c, s = jnp.cos(opose[2]), jnp.sin(opose[2])
+    half = jnp.stack([osize[0] / 2, osize[1] / 2, osize[2] / 2])
+    ocen = jnp.stack([opose[0], opose[1], half[2]])
 
-    def robot_region(lo, hi):
-        regs = jax.vmap(lambda p, k: _poly_in_rect(p, k, lo, hi))(fpoly, fok)
-        m = (regs.area > 0)[:, None]
-        big = jnp.asarray(1e9, F32)
-        rlo = jnp.min(jnp.where(m, regs.lo, big), axis=0)
-        rhi = jnp.max(jnp.where(m, regs.hi, -big), axis=0)
-        anyv = jnp.any(m)
-        return Region(area=jnp.sum(regs.area), mu=jnp.sum(regs.mu), mv=jnp.sum(regs.mv),
-                      lo=jnp.where(anyv, rlo, 0.0), hi=jnp.where(anyv, rhi, 0.0))
+    def local(p):
+        rel = p - ocen
+        return jnp.stack([c * rel[0] + s * rel[1], -s * rel[0] + c * rel[1], rel[2]])
 
-    o_full = robot_region(img_lo, img_hi)
+    locc = local(frame.c)
+    front = jnp.stack([locc[0] > half[0], locc[0] < -half[0], locc[1] > half[1],
+                       locc[1] < -half[1], locc[2] > half[2], locc[2] < -half[2]])
+    zero = jnp.zeros((), F32)
+    axes_w = jnp.stack([jnp.stack([c * half[0], s * half[0], zero]),
+                        jnp.stack([-s * half[1], c * half[1], zero]),
+                        jnp.stack([zero, zero, osize[2]])])
+    axes_c = jnp.sum(axes_w[:, None, :] * frame.rot[None, :, :], axis=-1)
+    base_c = to_camera(jnp.stack([opose[0], opose[1], zero]), frame)
+    op0, op1, ow = _box_chain(base_c, axes_c, front, cam, fu, fv)
     # depth order
     goal_cam_side = _plane_side(corners, frame.c)
     ball_before_goal = (_plane_side(corners, ball_w) * goal_cam_side > 0) & bi.valid
     robot_before_goal = _plane_side(corners, ocen) * goal_cam_side > 0
     # ball vs robot: the robot face plane the ball centre is farthest outside of separates
-    c, s = jnp.cos(opose[2]), jnp.sin(opose[2])
-    rel = ball_w - ocen
-    loc = jnp.stack([c * rel[0] + s * rel[1], -s * rel[0] + c * rel[1], rel[2]])
-    half = jnp.stack([osize[0] / 2, osize[1] / 2, osize[2] / 2])
-    excess = jnp.abs(loc) / half
-    ax = jnp.argmax(excess)
-    sgn = jnp.sign(loc[ax])
-    relc = frame.c - ocen
-    locc = jnp.stack([c * relc[0] + s * relc[1], -s * relc[0] + c * relc[1], relc[2]])
-    cam_out = sgn * locc[ax] > half[ax]
+    loc = local(ball_w)
+    ax = jnp.argmax(jnp.abs(loc) / half)
+    cam_out = jnp.sign(loc[ax]) * locc[ax] > half[ax]
     ball_before_robot = cam_out & bi.valid
-    # ball box occluded by the robot (bounding boxes)
-    occ_r = ~ball_before_robot & o_full.visible
-    ulo, uhi = _subtract_cover(b_lo, b_hi, o_full.lo, o_full.hi, occ_r)
-    ball_vis = bi.visible & jnp.all(uhi > ulo)
-    # robot occluded by the ball box
+    # robot silhouette in the image, and inside the ball's box when the ball is in front
     occ_b = ball_before_robot & bi.visible
-    e_lo, e_hi = _empty_rect()
     ob_lo, ob_hi = _rect_inter(img_lo, img_hi, b_lo, b_hi)
     ob_lo, ob_hi = jnp.where(occ_b, ob_lo, e_lo), jnp.where(occ_b, ob_hi, e_hi)
-    o_occ = robot_region(ob_lo, ob_hi)
-    o_area = jnp.maximum(o_full.area - o_occ.area, 0.0)
-    olo, ohi = _subtract_cover(o_full.lo, o_full.hi, b_lo, b_hi, occ_b & o_full.visible)
-    other_vis = (o_area > 1e-6) & jnp.all(ohi > olo)
-    o_cu = _safe_div(o_full.mu - o_occ.mu, o_area)
-    o_cv = _safe_div(o_full.mv - o_occ.mv, o_area)
+    oreg = _chain_in_rects(op0, op1, ow, jnp.stack([img_lo, ob_lo]), jnp.stack([img_hi, ob_hi]))
+    oreg = _oriented(oreg, _sign(oreg.area[0]))
+    o_full_lo, o_full_hi = oreg.lo[0], oreg.hi[0]
+    o_full_vis = (oreg.area[0] > 0) & jnp.all(o_full_hi > o_full_lo)
+    o_full_lo = jnp.where(o_full_vis, o_full_lo, 0.0)
+    o_full_hi = jnp.where(o_full_vis, o_full_hi, 0.0)
+    # ball box occluded by the robot (bounding boxes)
+    occ_r = ~ball_before_robot & o_full_vis
+    ulo, uhi = _subtract_cover(b_lo, b_hi, o_full_lo, o_full_hi, occ_r)
+    ball_vis = bi.visible & jnp.all(uhi > ulo)
+    # robot occluded by the ball box
+    o_in = jnp.where(o_full_vis, oreg.area[0], 0.0)
+    o_occ = jnp.where(o_full_vis, oreg.area[1], 0.0)
+    o_area = jnp.maximum(o_in - o_occ, 0.0)
+    olo, ohi = _subtract_cover(o_full_lo, o_full_hi, b_lo, b_hi, occ_b & o_full_vis)
+    other_vis = (o_area > _MIN_AREA) & jnp.all(ohi > olo)
+    o_cu = _safe_div(oreg.mu[0] - oreg.mu[1], o_area)
+    o_cv = _safe_div(oreg.mv[0] - oreg.mv[1], o_area)
     # goal area minus nearer occluders (bounding boxes; inclusion-exclusion)
     g1_lo, g1_hi = _rect_inter(img_lo, img_hi, b_lo, b_hi)
     g1_lo = jnp.where(ball_before_goal & bi.visible, g1_lo, e_lo)
     g1_hi = jnp.where(ball_before_goal & bi.visible, g1_hi, e_hi)
-    g2_lo, g2_hi = _rect_inter(img_lo, img_hi, o_full.lo, o_full.hi)
-    g2_lo = jnp.where(robot_before_goal & o_full.visible, g2_lo, e_lo)
-    g2_hi = jnp.where(robot_before_goal & o_full.visible, g2_hi, e_hi)
+    g2_lo, g2_hi = _rect_inter(img_lo, img_hi, o_full_lo, o_full_hi)
+    g2_lo = jnp.where(robot_before_goal & o_full_vis, g2_lo, e_lo)
+    g2_hi = jnp.where(robot_before_goal & o_full_vis, g2_hi, e_hi)
     g12_lo, g12_hi = _rect_inter(g1_lo, g1_hi, g2_lo, g2_hi)
-    los = jnp.stack([img_lo, g1_lo, g2_lo, g12_lo])
-    his = jnp.stack([img_hi, g1_hi, g2_hi, g12_hi])
-    gr = jax.vmap(lambda lo, hi: _poly_in_rect(gpoly, gok, lo, hi))(los, his)
-    sgn4 = jnp.array([1.0, -1.0, -1.0, 1.0], F32)
+    gp0, gp1, gw = _goal_chain(gseg)
+    gr = _chain_in_rects(gp0, gp1, gw, jnp.stack([img_lo, g1_lo, g2_lo, g12_lo]),
+                         jnp.stack([img_hi, g1_hi, g2_hi, g12_hi]))
+    sgn4 = jnp.array([1.0, -1.0, -1.0, 1.0], F32) * _sign(gr.area[0])
     g_area = jnp.maximum(jnp.sum(sgn4 * gr.area), 0.0)
     g_cu = _safe_div(jnp.sum(sgn4 * gr.mu), g_area)
     g_cv = _safe_div(jnp.sum(sgn4 * gr.mv), g_area)
-    goal_vis = ends.visible & (g_area > 1e-6)
+    goal_vis = ends.visible & (g_area > _MIN_AREA)
     gpts = jnp.stack([ends.bot[0], ends.top[0], ends.top[1], ends.bot[1]]).reshape(-1)
     ball_f = jnp.stack([0.5 * (ulo[0] + uhi[0]), 0.5 * (ulo[1] + uhi[1]),
                         uhi[0] - ulo[0], uhi[1] - ulo[1]])
@@ -674,7 +763,7 @@ def section3_features(robot_pose, ball_xy, ball_radius, goal_corners, other_pose
         other_f = other_f.at[2:4].set(jnp.maximum(other_f[2:4], 0.0))
     vis = jnp.stack([ball_vis, goal_vis, other_vis])
     gcen = jnp.mean(pc, axis=0)
-    ocen_c = to_camera(ocen, frame)
+    ocen_c = base_c + 0.5 * axes_c[2]
     lost = jnp.where(vis, 0.0, jnp.stack([_lost_side(ball_c[0]), _lost_side(gcen[0]),
                                           _lost_side(ocen_c[0])]))
     return Section3Obs(ball=jnp.where(ball_vis, ball_f, 0.0).astype(F32),
