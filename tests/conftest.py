@@ -7,3 +7,9 @@ import sys
 _ROOT = str(pathlib.Path(__file__).resolve().parents[1])
 if _ROOT not in sys.path:
     sys.path.insert(0, _ROOT)
+
+# The suite compiles the same programs in every run: keep them on disk as the ``vbl``
+# command does (VBL_JAX_CACHE=0 turns it off).
+from vbl.engine.jax_setup import use_compilation_cache  # noqa: E402
+
+use_compilation_cache()

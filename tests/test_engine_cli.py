@@ -148,7 +148,13 @@ def test_vbl_host_devices_sets_the_jax_device_count(monkeypatch):
 
     monkeypatch.delenv("XLA_FLAGS", raising=False)
     monkeypatch.delenv("VBL_HOST_DEVICES", raising=False)
-    assert use_all_cores() == 0 and "XLA_FLAGS" not in os.environ  # off by default
+    cores = len(os.sched_getaffinity(0))
+    if cores > 1:  # by default every usable core is a device
+        assert use_all_cores() == cores
+        assert f"--xla_force_host_platform_device_count={cores}" in os.environ["XLA_FLAGS"]
+        monkeypatch.delenv("XLA_FLAGS")
+    monkeypatch.setenv("VBL_HOST_DEVICES", "1")
+    assert use_all_cores() == 0 and "XLA_FLAGS" not in os.environ  # one device: unchanged
     monkeypatch.setenv("VBL_HOST_DEVICES", "3")
     assert use_all_cores() == 3
     assert "--xla_force_host_platform_device_count=3" in os.environ["XLA_FLAGS"]

@@ -26,6 +26,14 @@ from vbl.spaces.incremental import (
     temperature_at,
 )
 
+
+@pytest.fixture(autouse=True, scope="module")
+def _x64():
+    """The learner's statistics are float64 (the engine runs it with 64-bit types on)."""
+    with jax.enable_x64(True):
+        yield
+
+
 ENV = TwoRegionWorld()
 M = 1024
 # the model-error criterion alone (value-driven splits off; they are tested below)

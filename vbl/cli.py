@@ -12,6 +12,18 @@ from pathlib import Path
 __all__ = ["main", "main_for", "build_parser"]
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with a one-line ``vbl: error: ...`` for bad command lines (exit 2)."""
+
+    def error(self, message: str):
+        self.exit(2, f"vbl: error: {message} (see {self.prog} --help)\n")
+
+
+def _add_debug(p: argparse.ArgumentParser, default=False) -> None:
+    p.add_argument("--debug", action="store_true", default=default,
+                   help="show the traceback of an error (or set VBL_DEBUG=1)")
+
+
 def _add_run_options(p: argparse.ArgumentParser) -> None:
     from vbl.engine.runner import DEFAULT_CHECKPOINT_EVERY, DEFAULT_LEARNER_BATCH
 
@@ -38,13 +50,18 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
                    help="number of processes (or VBL_NUM_PROCESSES)")
     p.add_argument("--process-id", type=int, default=None,
                    help="this process's id (or VBL_PROCESS_ID)")
+    p.add_argument("--no-memory-check", action="store_true",
+                   help="run even when the memory estimate exceeds the memory available")
+    _add_debug(p, argparse.SUPPRESS)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="vbl", description="vbl: vmapped, sharded, "
-                                     "checkpointed robot-learning experiments")
-    sub = parser.add_subparsers(dest="command", required=True)
-    sub.add_parser("list", help="list registered experiments (* = paper result)")
+    parser = _Parser(prog="vbl", description="vbl: vmapped, sharded, checkpointed "
+                     "robot-learning experiments")
+    _add_debug(parser)
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    p = sub.add_parser("list", help="list registered experiments (* = paper result)")
+    _add_debug(p, argparse.SUPPRESS)
     p = sub.add_parser("run", help="run one experiment")
     p.add_argument("experiment")
     _add_run_options(p)
@@ -61,15 +78,19 @@ def build_parser() -> argparse.ArgumentParser:
                    help="experiments run in N worker processes at once (default: one per "
                         "CPU core; 1 = one after the other in this process, with progress "
                         "bars)")
+    _add_debug(p, argparse.SUPPRESS)
     p = sub.add_parser("bench", help="run benchmarks/*.py")
     p.add_argument("--quick", action="store_true")
     p.add_argument("names", nargs="*", help="benchmark names (default: all)")
+    _add_debug(p, argparse.SUPPRESS)
     p = sub.add_parser("params", help="the parameter table of an experiment (Markdown)")
     p.add_argument("experiment")
+    _add_debug(p, argparse.SUPPRESS)
     return parser
 
 
 def _error(msg: str, code: int) -> int:
+    msg = "; ".join(x.strip() for x in str(msg).splitlines() if x.strip())
     print(f"vbl: error: {msg}", file=sys.stderr)
     return code
 
@@ -94,17 +115,25 @@ def _run(experiment, args) -> int:
     from vbl.engine.config import parse_assignment, parse_sweep
     from vbl.engine.report import default_section
     from vbl.engine.runner import run_experiment
+    from vbl.params import ParamError
 
     cfg = experiment.default_config
     sets = dict(parse_assignment(s, cfg) for s in args.sets)
-    sweep = dict(parse_sweep(s, cfg) for s in args.sweep)
+    sweep: dict = {}
+    for text in args.sweep:
+        path, values = parse_sweep(text, cfg)
+        if path in sweep:
+            raise ParamError(f"--sweep {path} is given twice; give all its values in one "
+                             f"--sweep {path}=V1,V2,...")
+        sweep[path] = values
     t0 = time.perf_counter()
     result = run_experiment(experiment, sets=sets, sweep=sweep, seeds=args.seeds,
                             base_seed=args.seed, out=args.out, resume=args.resume,
                             overwrite=args.overwrite, quick=args.quick,
                             quiet=True if args.quiet else None,
                             checkpoint_every=args.checkpoint_every,
-                            learner_batch=args.learner_batch)
+                            learner_batch=args.learner_batch,
+                            memory_check=not args.no_memory_check)
     import jax
 
     if jax.process_index() == 0:
@@ -173,35 +202,51 @@ def _dispatch(args) -> int:
     raise AssertionError(args.command)
 
 
-def _guarded(fn, *a) -> int:
+def _guarded(fn, *a, debug: bool = False) -> int:
+    """Run ``fn``; every failure ends in one ``vbl: error: ...`` line and a non-zero exit
+    (with ``debug`` or ``VBL_DEBUG=1`` the traceback comes first)."""
+    import traceback
+
     from vbl.engine.config import EngineError
+    from vbl.engine.errors import debug_requested, one_line
     from vbl.params import ParamError
 
+    debug = debug or debug_requested()
     try:
         return fn(*a)
-    except ParamError as e:
-        return _error(str(e), 2)
-    except EngineError as e:
-        return _error(str(e), 1)
     except KeyboardInterrupt:
         return _error("interrupted", 130)
+    except Exception as e:  # noqa: BLE001 - the command's last word on any failure
+        if debug:
+            traceback.print_exc()
+        if isinstance(e, ParamError):
+            return _error(str(e), 2)
+        if isinstance(e, EngineError):
+            return _error(str(e), 1)
+        return _error(one_line(e), 1)
+
+
+def _usable_cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
 
 
 def use_all_cores() -> int:
-    """Expose CPU cores as JAX host devices if asked (call before JAX's first computation).
+    """Expose every usable CPU core as a JAX host device (call before JAX starts).
 
-    ``VBL_HOST_DEVICES=N`` (N > 1) sets ``--xla_force_host_platform_device_count=N``: the
-    engine then shards the learner axis over N devices (results do not depend on N), and
-    the env benchmark runs 2.3x faster on 2 devices than on one on a 2-core machine. Off
-    by default (one device) until multi-device runs of every experiment are measured; the
-    hang first seen there (concurrent batched SVDs, see ``vbl.sysid.linalg``) is fixed.
-    An ``XLA_FLAGS`` that already sets the count wins. Returns the count set (0 when
-    nothing was changed).
+    Sets ``--xla_force_host_platform_device_count=N`` with N = the cores this process may
+    use, or ``VBL_HOST_DEVICES=N`` when given (1: one device, as plain JAX). The engine
+    shards the learner axis over the N devices (results do not depend on N, up to the
+    last-bit effect of the per-device batch size described in docs/engine.md). An
+    ``XLA_FLAGS`` that already sets the count wins. Returns the count set (0 when nothing
+    was changed).
     """
     flags = os.environ.get("XLA_FLAGS", "")
     if "xla_force_host_platform_device_count" in flags:
         return 0
-    raw = os.environ.get("VBL_HOST_DEVICES", "1") or "1"
+    raw = os.environ.get("VBL_HOST_DEVICES", "").strip() or str(_usable_cores())
     try:
         n = int(raw)
     except ValueError:
@@ -218,8 +263,18 @@ def use_all_cores() -> int:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``vbl`` console script; returns the exit code."""
     args = build_parser().parse_args(argv)
-    os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
-    return _guarded(_dispatch, args)
+    _quiet_xla()
+    return _guarded(_dispatch, args, debug=args.debug)
+
+
+def _quiet_xla() -> None:
+    """XLA's log kept quiet and the persistent compilation cache on: settings of the
+    ``vbl`` command's process, not of ``import vbl``."""
+    from vbl.engine.errors import quiet_xla_log
+    from vbl.engine.jax_setup import use_compilation_cache
+
+    quiet_xla_log()
+    use_compilation_cache()
 
 
 def console_main() -> int:
@@ -230,17 +285,19 @@ def console_main() -> int:
 
 def main_for(experiment, argv: list[str] | None = None) -> None:
     """``python experiments/x.py [run options]``: the same as ``vbl run x [run options]``."""
-    parser = argparse.ArgumentParser(prog=f"python {sys.argv[0]}",
-                                     description=f"{experiment.name}: {experiment.description}")
+    parser = _Parser(prog=f"python {sys.argv[0]}",
+                     description=f"{experiment.name}: {experiment.description}")
     _add_run_options(parser)
     args = parser.parse_args(argv)
+    use_all_cores()
+    _quiet_xla()
 
     def go() -> int:
         _init_distributed(args)
         return _run(experiment, args)
 
-    sys.exit(_guarded(go))
+    sys.exit(_guarded(go, debug=getattr(args, "debug", False)))
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(console_main())

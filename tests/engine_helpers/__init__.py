@@ -27,7 +27,7 @@ def experiments_dir(tmp: Path) -> Path:
 
 def env_for(exp_dir: Path, **extra: str) -> dict[str, str]:
     env = dict(os.environ, VBL_EXPERIMENTS_DIR=str(exp_dir), CI="true",
-               TF_CPP_MIN_LOG_LEVEL="3")
+               TF_CPP_MIN_LOG_LEVEL="3", VBL_HOST_DEVICES="1")  # one device: the reference
     env.pop("XLA_FLAGS", None)
     env.update(extra)
     return env

@@ -8,8 +8,10 @@ import traceback
 from pathlib import Path
 from typing import Any
 
+from vbl.engine.config import EngineError
 from vbl.engine.experiment import Experiment, ReportSection, RunResult
 from vbl.engine.registry import all_experiments, discover, import_errors
+from vbl.engine.runfolder import record_files
 
 __all__ = ["default_section", "default_jobs", "reproduce", "paper_experiments"]
 
@@ -68,7 +70,11 @@ def _run_one(name: str, out: Path, quick: bool, quiet: bool | None, resume: bool
             exp = paper_experiments()[name]
         result = run_experiment(exp, out=out / name, quick=quick, quiet=quiet,
                                 resume=resume and (out / name).exists(), overwrite=overwrite)
-        section = exp.report(result) if exp.report is not None else default_section(result)
+        before = {p.name for p in result.out_dir.iterdir()}
+        try:
+            section = exp.report(result) if exp.report is not None else default_section(result)
+        finally:  # figures the report wrote belong to the run folder (--overwrite)
+            record_files(result.out_dir, {p.name for p in result.out_dir.iterdir()} - before)
         status = "ok"
     except Exception as e:  # noqa: BLE001 - report and continue with the others
         status = f"failed: {type(e).__name__}: {e}"
@@ -90,6 +96,11 @@ def _run_one(name: str, out: Path, quick: bool, quiet: bool | None, resume: bool
 def _run_chain(names: list[str], out: Path, quick: bool, resume: bool, overwrite: bool
                ) -> dict[str, dict]:
     """Worker task: run experiments one after the other (one :attr:`Experiment.group`)."""
+    from vbl.engine.errors import quiet_xla_log
+    from vbl.engine.jax_setup import use_compilation_cache
+
+    quiet_xla_log()
+    use_compilation_cache()
     return {n: _run_one(n, out, quick, True, resume, overwrite) for n in names}
 
 
@@ -140,15 +151,21 @@ def reproduce(out: Path, *, quick: bool, quiet: bool | None, resume: bool = Fals
     Returns ``(report path, all succeeded)``. A failing experiment is reported and the
     others still run.
     """
-    from vbl.engine.results import prepare_run_dir
+    from vbl.engine.runfolder import check_new_folder
 
     exps = paper_experiments()
     if names:
-        exps = {n: exps[n] for n in names if n in exps}
+        bad = [n for n in names if n not in exps]
+        if bad:
+            raise EngineError(f"unknown paper experiment(s) {bad}; valid: {sorted(exps)}")
+        exps = {n: exps[n] for n in names}
     out = Path(out)
-    if out.is_dir() and any(out.iterdir()) and not (resume or overwrite):
-        prepare_run_dir(out, "reproduce", resume=False, overwrite=False)  # raises clearly
-    out.mkdir(parents=True, exist_ok=True)
+    if not (resume or overwrite):
+        check_new_folder(out, resume=False, overwrite=False)  # raises clearly
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise EngineError(f"cannot write to output folder {out}: {e.strerror or e}") from e
     jobs = default_jobs(len(exps)) if jobs is None else max(1, min(int(jobs), len(exps) or 1))
     t_start = time.perf_counter()
     if jobs > 1:

@@ -3,6 +3,8 @@ jitted and sharded, checkpoint, log metrics, summarise and plot."""
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -14,24 +16,28 @@ from jax.experimental import multihost_utils
 
 from vbl.engine.checkpoint import Checkpoints
 from vbl.engine.config import (
+    INT32,
     EngineError,
     apply_overrides,
     config_to_dict,
     fingerprint,
 )
 from vbl.engine.experiment import Experiment, RunContext, RunResult
-from vbl.engine.plots import plot_curves
+from vbl.engine.jax_setup import engine_precision
+from vbl.engine.memory import check_memory
+from vbl.engine.plots import plot_curves, plot_names
 from vbl.engine.progress import Progress, auto_quiet
 from vbl.engine.results import (
     MetricsLog,
-    prepare_run_dir,
     read_json,
     read_metrics,
     seed_stats,
     write_json,
 )
+from vbl.engine.runfolder import RunFolder, open_run_folder
 from vbl.engine.sharding import batch_layout, learner_sharding, pad_index, put, to_host
 from vbl.engine.sweep import Group, SweepPlan, make_plan
+from vbl.params import ParamError
 
 __all__ = ["run_experiment", "resolve", "load_result"]
 
@@ -50,6 +56,11 @@ def resolve(experiment: Experiment, sets: Mapping[str, Any] | None = None,
     config = apply_overrides(config, sets or {})
     full_sweep = {p: list(v) for p, v in experiment.sweep.items()}
     full_sweep.update({p: list(v) for p, v in (sweep or {}).items()})
+    both = sorted(set(sets or {}) & set(full_sweep))
+    if both:
+        p = both[0]
+        raise ParamError(f"{p} is both set and swept (sweep values {full_sweep[p]}); choose "
+                         f"its values with --sweep {p}=V1,V2,... alone")
     if seeds is None:
         seeds = experiment.quick_seeds if (quick and experiment.quick_seeds) else experiment.seeds
     spec = {"experiment": experiment.name, "config": config_to_dict(config),
@@ -63,12 +74,23 @@ def _sync(name: str) -> None:
         multihost_utils.sync_global_devices(name)
 
 
+def _in_engine_precision(fn):
+    """Run ``fn`` inside :func:`vbl.engine.jax_setup.engine_precision`."""
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        with engine_precision():
+            return fn(*args, **kwargs)
+    return wrapper
+
+
+@_in_engine_precision
 def run_experiment(experiment: Experiment, *, sets: Mapping[str, Any] | None = None,
                    sweep: Mapping[str, Sequence[Any]] | None = None, seeds: int | None = None,
                    base_seed: int = 0, out: str | Path | None = None, resume: bool = False,
                    overwrite: bool = False, quick: bool = False, quiet: bool | None = None,
                    checkpoint_every: int = DEFAULT_CHECKPOINT_EVERY,
-                   learner_batch: int = DEFAULT_LEARNER_BATCH, plots: bool = True) -> RunResult:
+                   learner_batch: int = DEFAULT_LEARNER_BATCH, plots: bool = True,
+                   memory_check: bool = True) -> RunResult:
     """Run ``experiment`` over ``sweep`` x ``seeds`` and write its run folder.
 
     Args:
@@ -76,40 +98,80 @@ def run_experiment(experiment: Experiment, *, sets: Mapping[str, Any] | None = N
         (the grid is the product). ``seeds``: seeds per sweep point (default: the
         experiment's). ``base_seed``: see :func:`vbl.engine.sweep.learner_keys`.
       out: run folder (default ``runs/<name>-<timestamp>``). ``resume``: continue from the
-        folder's last checkpoint. ``overwrite``: replace an existing run folder.
+        folder's last checkpoint. ``overwrite``: replace a run folder vbl wrote.
       checkpoint_every: chunks between checkpoints. ``learner_batch``: most learners per
         compiled call (larger grids run in several batches; same results).
+      memory_check: refuse a run whose memory estimate exceeds the memory available
+        (:mod:`vbl.engine.memory`).
+    Everything is checked (values, memory, folder) before the folder is written; the folder
+    is locked while the run writes it (:mod:`vbl.engine.runfolder`).
     Returns: a :class:`RunResult` (curves/final as NumPy arrays, on process 0).
-    Raises: ParamError (bad overrides), EngineError / CheckpointError (folder, checkpoint).
+    Raises: ParamError (bad overrides), EngineError / CheckpointError (folder, checkpoint,
+    memory).
     """
-    if not isinstance(checkpoint_every, int) or checkpoint_every < 1:
-        raise EngineError(f"checkpoint_every must be an int >= 1, got {checkpoint_every!r}")
-    if not isinstance(learner_batch, int) or learner_batch < 1:
-        raise EngineError(f"learner_batch must be an int >= 1, got {learner_batch!r}")
+    for name, v in (("checkpoint_every", checkpoint_every), ("learner_batch", learner_batch)):
+        if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= INT32[1]:
+            raise ParamError(f"{name} must be an int in [1, {INT32[1]}], got {v!r}")
     primary = jax.process_index() == 0
     if jax.process_count() > 1 and out is None:
         raise EngineError("a multi-process run needs --out on a shared file system")
     config, full_sweep, seeds, spec = resolve(experiment, sets, sweep, seeds, base_seed, quick)
     plan = make_plan(experiment, config, full_sweep, seeds, base_seed) \
         if experiment.make_program is not None else None
+    if plan is not None and memory_check:
+        check_memory(plan)
     quiet = (auto_quiet() if quiet is None else quiet) or not primary
 
-    run_dir = prepare_run_dir(out, experiment.name, resume=resume, overwrite=overwrite,
-                              primary=primary)
+    folder = open_run_folder(out, experiment.name, resume=resume, overwrite=overwrite,
+                             primary=primary)
+    try:
+        return _run_in(folder, experiment, config, full_sweep, seeds, base_seed, spec, plan,
+                       resume, quick, quiet, checkpoint_every, learner_batch, plots, primary)
+    finally:
+        folder.release()
+
+
+def _check_config_json(run_dir: Path, spec: dict) -> bool:
+    """On resume: compare ``config.json`` with ``spec``; False when it is missing."""
     cfg_path = run_dir / "config.json"
-    if resume and cfg_path.exists():
+    if not cfg_path.exists():
+        return False
+    try:
         old = read_json(cfg_path)
-        if old.get("fingerprint") != spec["fingerprint"]:
-            diff = sorted(k for k in set(old.get("config", {})) | set(spec["config"])
-                          if old.get("config", {}).get(k) != spec["config"].get(k))
-            other = [k for k in ("experiment", "sweep", "seeds", "base_seed")
-                     if old.get(k) != spec.get(k)]
-            raise EngineError(f"cannot resume {run_dir}: it was run with another config "
-                              f"(differs in {other + diff}); use the same options, or "
-                              f"--overwrite / another --out")
-    elif primary:
+        if not isinstance(old, dict):
+            raise ValueError("not a JSON object")
+    except (OSError, ValueError) as e:
+        raise EngineError(f"cannot resume {run_dir}: its config.json is unreadable "
+                          f"({type(e).__name__}: {e}); restore it, or start again with "
+                          f"--overwrite / another --out") from None
+    if old.get("fingerprint") != spec["fingerprint"]:
+        oc = old.get("config") if isinstance(old.get("config"), dict) else {}
+        diff = sorted(k for k in set(oc) | set(spec["config"])
+                      if oc.get(k) != spec["config"].get(k))
+        other = [k for k in ("experiment", "sweep", "seeds", "base_seed")
+                 if old.get(k) != spec.get(k)]
+        raise EngineError(f"cannot resume {run_dir}: it was run with another config "
+                          f"(differs in {other + diff}); use the same options, or "
+                          f"--overwrite / another --out")
+    return True
+
+
+def _run_in(folder, experiment, config, full_sweep, seeds, base_seed, spec, plan, resume,
+            quick, quiet, checkpoint_every, learner_batch, plots, primary) -> RunResult:
+    run_dir = folder.path
+    cfg_path = run_dir / "config.json"
+    has_config = resume and primary and _check_config_json(run_dir, spec)
+    ckpts = None
+    if plan is not None:
+        ckpts = Checkpoints(run_dir / "checkpoints", spec["fingerprint"])
+        folder.record("checkpoints")
+        if resume and not has_config and ckpts.latest_step() is not None:
+            ckpts.check_meta(ckpts.latest_step())  # before config.json is written
+    if primary and not has_config:
+        folder.record("config.json")
         write_json(cfg_path, spec)
     _sync("vbl-run-dir")
+    folder.record("metrics.jsonl")
     log = MetricsLog(run_dir / "metrics.jsonl", enabled=primary)
     t_start = time.perf_counter()
 
@@ -120,16 +182,20 @@ def run_experiment(experiment: Experiment, *, sets: Mapping[str, Any] | None = N
         def log_fn(step, metrics):
             log.append([{"step": int(step), "metrics": dict(metrics)}])
 
+        before = {p.name for p in run_dir.iterdir()}
         ctx = RunContext(config, seeds, base_seed, run_dir, quick, log_fn, quiet)
-        extra = experiment.run(ctx) or {}
+        try:
+            extra = experiment.run(ctx) or {}
+        finally:
+            folder.record(*({p.name for p in run_dir.iterdir()} - before))
         summary = {"experiment": experiment.name, "fingerprint": spec["fingerprint"],
                    "result": extra, "wall_time_s": time.perf_counter() - t_start}
         if primary:
+            folder.record("summary.json")
             write_json(run_dir / "summary.json", summary)
         return RunResult(experiment.name, run_dir, config, full_sweep, [{}], seeds, {}, {},
                          summary, sorted(run_dir.glob("*.png")), dict(extra))
 
-    ckpts = Checkpoints(run_dir / "checkpoints", spec["fingerprint"])
     start = (ckpts.latest_step() or 0) if resume else 0
     if resume and primary:
         log.truncate_after(start)
@@ -141,16 +207,22 @@ def run_experiment(experiment: Experiment, *, sets: Mapping[str, Any] | None = N
                 continue
             _run_group(plan, group, sharding, ckpts, log, progress, start, checkpoint_every,
                        learner_batch)
-    finally:
+    except BaseException:
         progress.close()
-        ckpts.close()
+        with contextlib.suppress(Exception):  # the first error is the one to report
+            ckpts.close()
+        raise
+    progress.close()
+    ckpts.close()
     wall = time.perf_counter() - t_start
     _sync("vbl-run-done")
-    result = load_result(run_dir, experiment, config, plan, plots=plots and primary)
+    result = load_result(run_dir, experiment, config, plan, plots=plots and primary,
+                         folder=folder)
     result.summary.update(wall_time_s=wall, resumed_from_step=start,
                           learners=plan.num_learners, devices=jax.device_count(),
                           processes=jax.process_count())
     if primary:
+        folder.record("summary.json")
         write_json(run_dir / "summary.json", result.summary)
     return result
 
@@ -233,9 +305,15 @@ def _rows(plan: SweepPlan, group: Group, step: int, chunk: int | str,
 
 
 def load_result(run_dir: Path, experiment: Experiment, config: Any, plan: SweepPlan,
-                plots: bool = True) -> RunResult:
+                plots: bool = True, folder: RunFolder | None = None) -> RunResult:
     """Rebuild curves/final arrays from ``metrics.jsonl``; write plots and the summary dict."""
     rows = read_metrics(run_dir / "metrics.jsonl")
+    for i, r in enumerate(rows, 1):
+        if not (isinstance(r.get("point"), int) and 0 <= r["point"] < len(plan.points)
+                and isinstance(r.get("metrics"), dict)
+                and (r.get("chunk") == "final" or isinstance(r.get("chunk"), int))):
+            raise EngineError(f"{run_dir / 'metrics.jsonl'} line {i} is not a metrics row of "
+                              f"this run; restore the file, or start again with --overwrite")
     npts, chunks = len(plan.points), max(g.num_chunks for g in plan.groups)
     curves: dict[str, np.ndarray] = {}
     final: dict[str, np.ndarray] = {}
@@ -256,8 +334,12 @@ def load_result(run_dir: Path, experiment: Experiment, config: Any, plan: SweepP
                                if len(v)}
         entry["final"] = {k: seed_stats(a[p]) for k, a in final.items()}
         points.append(entry)
-    figures = plot_curves(curves, plan.points, run_dir, experiment.name) if plots and curves \
-        else sorted(run_dir.glob("*.png"))
+    if plots and curves:
+        if folder is not None:
+            folder.record(*plot_names(curves))
+        figures = plot_curves(curves, plan.points, run_dir, experiment.name)
+    else:
+        figures = sorted(run_dir.glob("*.png"))
     summary = {"experiment": experiment.name, "seeds": plan.seeds, "sweep": plan.sweep,
                "chunks": plan.total_steps, "points": points}
     return RunResult(experiment.name, run_dir, config, plan.sweep, plan.points, plan.seeds,

@@ -90,6 +90,15 @@ __all__ = [
 
 F32 = jnp.float32
 F64 = jnp.float64
+
+
+def _require_x64() -> None:
+    """The local-model statistics are float64: refuse to trace them with 64-bit types off
+    (JAX would silently compute them in float32)."""
+    if not jax.config.jax_enable_x64:
+        raise RuntimeError("the on-line learner's statistics need 64-bit types: call it "
+                           "inside `with jax.enable_x64(True):` (the engine runs every "
+                           "experiment so)")
 I32 = jnp.int32
 
 
@@ -565,6 +574,7 @@ def structure_update(lr: Learner, p: IncrementalParams) -> tuple[Learner, jax.Ar
 
     Returns (learner, split happened () bool, merge happened () bool).
     """
+    _require_x64()
     seg = lr.seg
     cap, dim = seg.lo.shape
     n_act = lr.q.shape[1]
