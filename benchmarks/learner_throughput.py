@@ -37,10 +37,12 @@ import numpy as np
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-if "--devices" in sys.argv:  # forced host devices must be set before jax is imported
-    _n = sys.argv[sys.argv.index("--devices") + 1]
-    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "")
-                               + f" --xla_force_host_platform_device_count={_n}")
+# host devices must be set before jax is imported: --devices N, default every usable core
+# (as the vbl command)
+DEVICES = int(sys.argv[sys.argv.index("--devices") + 1]) if "--devices" in sys.argv else len(
+    os.sched_getaffinity(0))
+os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "")
+                           + f" --xla_force_host_platform_device_count={DEVICES}")
 os.environ.setdefault("VBL_JAX_CACHE", "0")  # time real compilations
 
 import jax  # noqa: E402
@@ -49,6 +51,7 @@ import vbl  # noqa: E402,F401
 from benchmarks.env_throughput import time_jax  # noqa: E402
 from benchmarks.hardware import hardware_info  # noqa: E402
 from vbl.engine import registry  # noqa: E402
+from vbl.engine.jax_setup import engine_precision  # noqa: E402
 from vbl.engine.runner import _compiled, resolve  # noqa: E402
 from vbl.engine.sharding import learner_sharding, put  # noqa: E402
 from vbl.engine.sweep import make_plan  # noqa: E402
@@ -94,6 +97,13 @@ def _sum_metrics(acc, metrics):
 
 
 def time_experiment(name: str, chunks: int, reps: int) -> dict:
+    """One row: the experiment's step as the engine compiles and runs it (inside
+    :func:`vbl.engine.jax_setup.engine_precision`) beside its raw env."""
+    with engine_precision():
+        return _time_experiment(name, chunks, reps)
+
+
+def _time_experiment(name: str, chunks: int, reps: int) -> dict:
     exp = registry.get(name)
     spec = SPECS[name]
     config, sweep, seeds, _ = resolve(exp)
@@ -161,7 +171,8 @@ def main(argv=None):
     ap.add_argument("--chunks", type=int, default=3, help="chunks timed per repetition")
     ap.add_argument("--reps", type=int, default=2)
     ap.add_argument("--quick", action="store_true", help="one chunk, one repetition")
-    ap.add_argument("--devices", type=int, default=1, help="forced CPU devices")
+    ap.add_argument("--devices", type=int, default=DEVICES,
+                    help="JAX host devices (default: every usable core)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" /
                                          "learner_throughput"))
     args = ap.parse_args(argv)
@@ -178,7 +189,7 @@ def main(argv=None):
     out.parent.mkdir(parents=True, exist_ok=True)
     out.with_suffix(".json").write_text(json.dumps(result, indent=2))
     cmd = "python benchmarks/learner_throughput.py" + (" --quick" if args.quick else "") + (
-        f" --devices {args.devices}" if args.devices > 1 else "")
+        f" --devices {args.devices}" if "--devices" in (argv or sys.argv) else "")
     text = markdown(result, cmd)
     out.with_suffix(".md").write_text(text)
     print(text)

@@ -217,6 +217,41 @@ def test_lr_scale_schedule_sets_the_step_size_per_chunk():
     assert np.any(np.asarray(q1) != 0.0)
 
 
+def test_eval_every_trains_the_same_and_sums_the_chunks():
+    """train.eval_every=k: one program step trains k chunks, then evaluates once. Training
+    is that of k steps of eval_every=1 (same Q-table, key and LEM state, bit for bit);
+    episodes, successes and primitives are the sums over the k chunks, epsilon and the
+    difficulty those after the last one."""
+    def run(every: int, steps: int):
+        cfg = ChainConfig()
+        cfg = cfg.replace(train=cfg.train.replace(eval_every=every))
+        prog = make_q_program(ChainEnv(), chain_state, cfg, num_states=N)
+        carry = prog.init(jax.random.PRNGKey(3), cfg)
+        ms = []
+        for _ in range(steps):
+            carry, m = jax.jit(prog.step)(carry, cfg)
+            ms.append(jax.tree.map(np.asarray, m))
+        return prog, carry, ms
+
+    p1, c1, m1 = run(1, 4)
+    p2, c2, m2 = run(2, 2)
+    assert (p1.num_chunks, p2.num_chunks) == (4, 2)
+    for a, b in zip(jax.tree.leaves(c1), jax.tree.leaves(c2), strict=True):
+        np.testing.assert_array_equal(a, b)
+    for i in range(2):
+        pair = m1[2 * i:2 * i + 2]
+        for k in ("episodes", "successes"):
+            assert m2[i][k] == pair[0][k] + pair[1][k]
+        prims = sum(m["mean_primitives"] * max(m["episodes"], 1.0) for m in pair)
+        np.testing.assert_allclose(m2[i]["mean_primitives"] * max(m2[i]["episodes"], 1.0),
+                                   prims, rtol=1e-5)
+        for k in ("epsilon", "difficulty", "lem_raises"):
+            assert m2[i][k] == pair[1][k]
+    with pytest.raises(ParamError, match="multiple of train.eval_every"):
+        make_q_program(ChainEnv(), chain_state, ChainConfig().replace(
+            train=_train().replace(eval_every=3)))
+
+
 def test_bad_config_errors():
     @struct.dataclass
     class NoTrain:

@@ -14,21 +14,22 @@ plus whatever the state function reads (e.g. a ``grid`` section for
 :func:`vbl.spaces.grid.grid_state`). ``state_fn(obs, config) -> int32`` gets one
 learner's config, so its parameters are traced and sweepable.
 
-Per chunk (metrics per learner, scalars):
+Per engine chunk (``train.eval_every`` training chunks; metrics per learner, scalars):
 
-* ``episodes``: training episodes (trials) finished in the chunk; ``successes``: of those,
-  how many scored; ``train_success_rate``: successes / episodes (0 when none finished),
+* ``episodes``: training episodes (trials) finished in the engine chunk; ``successes``:
+  of those, how many scored; ``train_success_rate``: successes / episodes (0 when none finished),
   under the start distribution in effect (with LEM: the curriculum's); per finished
   episode, hence biased towards short (successful) episodes.
 * ``success_rate``: the greedy policy (no learning; a uniform action with probability
-  ``train.curve_epsilon``, default 0) after the chunk on ``train.eval_envs`` fresh starts at
-  ``train.eval_difficulty``: fraction whose first episode scores (with ``train.eval_curve``
-  off: equal to ``train_success_rate``).
+  ``train.curve_epsilon``, default 0) after the engine chunk on ``train.eval_envs`` fresh
+  starts at ``train.eval_difficulty``: fraction whose first episode scores (with
+  ``train.eval_curve`` off: equal to ``train_success_rate``).
 * ``mean_primitives``: mean primitives per finished training episode (0 when none).
 * ``difficulty``: LEM start difficulty at the end of the chunk; ``lem_raises``: raises so
   far; ``epsilon``: exploration rate (epsilon or temperature) at the end of the chunk;
-  ``td_abs``: mean absolute TD error over the chunk; ``learning_rate``: the step size of the
-  chunk (``agent.agent.learning_rate`` times ``train.lr_scale`` at the chunks done).
+  ``td_abs``: mean absolute TD error (mean over the training chunks); ``learning_rate``:
+  the step size of the last training chunk (``agent.agent.learning_rate`` times
+  ``train.lr_scale`` at the training chunks done).
 
 ``final`` (once, independent key): ``greedy_success``, ``near_greedy_success`` and
 ``random_success`` (the greedy policy of the learned table, the same with a uniform action
@@ -67,11 +68,15 @@ class QTrainParams:
     """Run length and evaluation of a Q-learning program (one chunk = ``agent.chunk_steps``
     learner steps of ``agent.num_envs`` environments)."""
 
-    num_chunks: int = param(40, doc="chunks per run (one metrics line and curve point each)",
+    num_chunks: int = param(40, doc="training chunks per run (a curve point and metrics "
+                            "line every eval_every of them)", static=True, ge=1)
+    eval_curve: bool = param(True, doc="evaluate the greedy policy for the success_rate "
+                             "curve (every eval_every chunks); off: success_rate = training "
+                             "success", static=True)
+    eval_every: int = param(1, doc="training chunks per curve point: one engine chunk (a "
+                            "metrics line, the checkpoint unit) trains this many chunks, then "
+                            "evaluates once; num_chunks must be a multiple of it",
                             static=True, ge=1)
-    eval_curve: bool = param(True, doc="evaluate the greedy policy after every chunk (the "
-                             "success_rate curve); off: success_rate = training success",
-                             static=True)
     eval_envs: int = param(32, doc="fresh starts per greedy evaluation (one episode each)",
                            static=True, ge=1)
     eval_steps: int = param(300, doc="cap on actions per evaluation episode (an episode not "
@@ -92,6 +97,11 @@ class QTrainParams:
         lambda: ScheduleParams(kind="constant", init_value=1.0),
         doc="factor on agent.agent.learning_rate in each training chunk, count = chunks done "
         "(default constant 1: the agent's step size throughout)")
+
+    def check(self) -> None:
+        if self.num_chunks % self.eval_every:
+            raise ParamError(f"train.num_chunks={self.num_chunks} must be a multiple of "
+                             f"train.eval_every={self.eval_every}")
 
 
 def _require(cfg: Any, names: tuple[str, ...]) -> None:
@@ -143,23 +153,37 @@ def make_q_program(env: Any, state_fn: Callable[[jax.Array, Any], jax.Array], cf
     def init(key, c) -> QRunnerState:
         return runners(c)[0].init(key, c.agent, c.env)
 
-    def step(carry: QRunnerState, c):
-        run, ev = runners(c)
+    def train_chunk(carry: QRunnerState, c):
+        """One training chunk: (carry, totals of the chunk)."""
+        run, _ = runners(c)
         chunk = carry.steps // cfg.agent.chunk_steps
         lr = c.agent.agent.learning_rate * schedule_value(c.train.lr_scale, chunk)
         agent = c.agent.replace(agent=c.agent.agent.replace(learning_rate=lr))
         carry, m = run.run_chunk(carry, agent, c.env)
-        episodes = jnp.sum(m["episodes"]).astype(F32)
-        successes = jnp.sum(m["successes"]).astype(F32)
-        n = jnp.maximum(episodes, 1.0)
-        train_rate = successes / n
-        out = dict(episodes=episodes, successes=successes, train_success_rate=train_rate,
-                   mean_primitives=jnp.sum(m["primitives"]).astype(F32) / n,
+        return carry, dict(episodes=jnp.sum(m["episodes"]).astype(F32),
+                           successes=jnp.sum(m["successes"]).astype(F32),
+                           primitives=jnp.sum(m["primitives"]).astype(F32),
+                           epsilon=m["rate"][-1].astype(F32),
+                           td_abs=jnp.mean(m["td_abs"]).astype(F32),
+                           learning_rate=jnp.asarray(lr, F32))
+
+    def step(carry: QRunnerState, c):
+        if train.eval_every == 1:
+            carry, t = train_chunk(carry, c)
+        else:  # eval_every chunks, totals summed (rates: the last chunk's; td_abs: mean)
+            carry, ts = jax.lax.scan(lambda cr, _: train_chunk(cr, c), carry, None,
+                                     length=train.eval_every)
+            t = {k: (jnp.sum(v) if k in ("episodes", "successes", "primitives") else
+                     jnp.mean(v) if k == "td_abs" else v[-1]) for k, v in ts.items()}
+        n = jnp.maximum(t["episodes"], 1.0)
+        train_rate = t["successes"] / n
+        out = dict(episodes=t["episodes"], successes=t["successes"],
+                   train_success_rate=train_rate, mean_primitives=t["primitives"] / n,
                    difficulty=carry.lem.difficulty.astype(F32),
-                   lem_raises=carry.lem.raises.astype(F32),
-                   epsilon=m["rate"][-1].astype(F32), td_abs=jnp.mean(m["td_abs"]).astype(F32),
-                   learning_rate=jnp.asarray(lr, F32))
+                   lem_raises=carry.lem.raises.astype(F32), epsilon=t["epsilon"],
+                   td_abs=t["td_abs"], learning_rate=t["learning_rate"])
         if train.eval_curve:
+            _, ev = runners(c)
             res = ev.evaluate(jax.random.fold_in(carry.key, EVAL_STREAM), carry.q,
                               c.agent, eval_env(c), train.eval_steps, c.train.curve_epsilon)
             out["success_rate"] = res["success_rate"].astype(F32)
@@ -189,7 +213,8 @@ def make_q_program(env: Any, state_fn: Callable[[jax.Array, Any], jax.Array], cf
                     num_states=jnp.asarray(cfg.agent.agent.num_states, F32),
                     states_with_value=jnp.sum(moved).astype(F32))
 
-    return Program(init=init, step=step, num_chunks=train.num_chunks, final=final)
+    return Program(init=init, step=step, num_chunks=train.num_chunks // train.eval_every,
+                   final=final)
 
 
 def trials_to_level(success: Any, episodes: Any, level: float, window: int = 1) -> Any:
