@@ -1,18 +1,28 @@
-"""Present a vbl env (gymnax-1.0 style, discrete actions) as a ``brax.envs.base.Env``.
+"""Present a vbl env (gymnax style, discrete actions) as a ``brax.envs.base.Env``.
 
-* Actions: brax passes a continuous vector of size ``action_size = env.num_actions``;
-  the adapter takes the **argmax** as the discrete primitive index (logits/one-hot in,
-  ties to the lowest index).
-* Randomness: brax's ``step`` has no key, so the adapter keeps a PRNG key in
-  ``state.info["rng"]`` and splits it every step.
-* Episode ends: the adapter uses the env's ``step_env`` (no internal auto-reset) and sets
-  ``done = terminated | truncated`` (float32), so brax's own wrappers
-  (``brax.envs.wrappers.training.wrap``: Vmap, Episode, AutoReset) manage episodes.
-  Note brax's ``AutoResetWrapper`` restarts from the *first* start drawn at ``reset``
-  (its documented behaviour); call ``reset`` again for new starts, or use the vbl env's
-  own ``step`` for a fresh draw at every reset.
-* ``state.pipeline_state`` holds the vbl env state; ``metrics`` has ``success``;
-  ``info`` has ``rng``, ``success``, ``truncated`` (float32).
+Conventions (those of brax's training wrappers, ``brax.envs.wrappers.training.wrap``):
+
+* ``done`` is 1.0 only on **termination** (goal, ball out, ...); reaching the env's
+  ``max_steps`` sets ``state.info["truncation"]`` to 1.0 with ``done`` 0. Under brax's
+  ``EpisodeWrapper`` use ``episode_length = adapter.episode_length`` (the env's
+  ``max_steps``): the wrapper then ends the episode and flags the truncation at the same
+  step, and PPO bootstraps the value there (``brax.training.agents.ppo.losses.compute_gae``).
+* Actions: an integer primitive index ``()`` (e.g. from
+  :class:`vbl.agents.ppo.CategoricalDistribution`), or a float vector ``(num_actions,)``
+  whose argmax is the primitive (ties to the lowest index).
+* Fresh starts (``fresh_starts=True``, default): every step also draws the next start and
+  writes it to ``info["first_pipeline_state"]`` / ``info["first_obs"]`` when brax's
+  ``AutoResetWrapper`` is present, so each episode starts from a new draw (the wrapper
+  itself restores the start drawn at ``reset``). Costs one start draw and one observation
+  per step.
+* Start difficulty: tasks whose params have ``start_difficulty``
+  (:class:`vbl.envs.shooting.ShootingEnv`) keep it in ``state.info["difficulty"]`` ()
+  float32; fresh starts are drawn at that value, so a curriculum sets it with
+  :func:`set_difficulty`. ``adapter.has_difficulty`` says whether the task has one.
+* Randomness: brax's ``step`` takes no key; the adapter keeps one in ``info["rng"]``.
+* Observations, rewards and flags are float32 whatever ``jax_enable_x64`` says.
+
+``state.pipeline_state`` holds the vbl env state; ``metrics`` has ``success``.
 """
 
 from __future__ import annotations
@@ -23,53 +33,60 @@ import jax
 import jax.numpy as jnp
 from brax.envs.base import Env, State
 
-__all__ = ["BraxAdapter"]
+__all__ = ["BraxAdapter", "set_difficulty"]
+
+F32 = jnp.float32
+DIFFICULTY_FIELD = "start_difficulty"  #: env params field a curriculum drives
+
+
+def _is_traced(tree: Any) -> bool:
+    return any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(tree))
+
+
+def set_difficulty(state: State, difficulty: Any) -> State:
+    """``state`` with ``info["difficulty"]`` set to ``difficulty`` (scalar or batch-shaped,
+    in [0, 1]) for the starts drawn from now on."""
+    if "difficulty" not in state.info:
+        raise ValueError("this state has no info['difficulty']: the adapted task has no "
+                         f"{DIFFICULTY_FIELD!r} parameter (only ShootingEnv has one)")
+    old = state.info["difficulty"]
+    info = dict(state.info)
+    info["difficulty"] = jnp.broadcast_to(jnp.asarray(difficulty, F32), old.shape)
+    return state.replace(info=info)
 
 
 class BraxAdapter(Env):
-    """A brax Env around a vbl env (e.g. :class:`vbl.envs.shooting.ShootingEnv`).
+    """A brax Env around a vbl env (:class:`~vbl.envs.shooting.ShootingEnv`,
+    :class:`~vbl.envs.shoot_pass.ShootPassEnv`, or a wrapper with the same API).
 
     Args:
-      env: object with ``reset(key, params)``, ``step_env(key, state, action, params)``,
-        ``num_actions``, ``observation_shape``, ``default_params``, ``validate(params)``.
-      params: env parameters (validated here); ``None`` uses ``env.default_params``.
+      env: object with ``reset(key, params)``, ``step_env(key, state, action, params)``
+        (no auto-reset), ``num_actions``, ``observation_shape``, ``default_params``.
+      params: env parameters (validated when concrete); ``None`` uses ``env.default_params``.
+        May be traced (e.g. per-learner params inside a vmapped program).
+      fresh_starts: draw a new start for every episode under ``AutoResetWrapper``.
     """
 
-    def __init__(self, env: Any, params: Any = None):
+    def __init__(self, env: Any, params: Any = None, fresh_starts: bool = True):
         for attr in ("reset", "step_env", "num_actions", "observation_shape", "default_params"):
             if not hasattr(env, attr):
                 raise TypeError(f"{type(env).__name__} is not a vbl env: it lacks {attr!r}")
         self.vbl_env = env
         self.params = env.default_params if params is None else params
-        if hasattr(env, "validate"):
+        self.fresh_starts = bool(fresh_starts)
+        if hasattr(env, "validate") and not _is_traced(self.params):
             env.validate(self.params)
 
-    def reset(self, rng: jax.Array) -> State:
-        """rng: a raw uint32 (2,) key (``jax.random.PRNGKey``; brax's wrappers take the batch
-        shape from ``rng.shape[:-1]``, so use raw keys with them). Returns the brax State."""
-        k_reset, k_next = jax.random.split(rng)
-        obs, st = self.vbl_env.reset(k_reset, self.params)
-        zero = jnp.zeros((), jnp.float32)
-        return State(pipeline_state=st, obs=obs, reward=zero, done=zero,
-                     metrics={"success": zero},
-                     info={"rng": k_next, "success": zero, "truncated": zero})
+    # ------------------------------------------------------------------ metadata
+    @property
+    def has_difficulty(self) -> bool:
+        """True when the task's params have a start difficulty a curriculum can drive."""
+        return hasattr(self.params, DIFFICULTY_FIELD)
 
-    def step(self, state: State, action: jax.Array) -> State:
-        """action: (num_actions,) float; the primitive is its argmax."""
-        if action.shape != (self.action_size,):
-            raise ValueError(f"action must have shape ({self.action_size},) (one score per "
-                             f"primitive; argmax is taken), got {action.shape}")
-        k_step, k_next = jax.random.split(state.info["rng"])
-        index = jnp.argmax(action).astype(jnp.int32)
-        obs, st, reward, terminated, truncated, info = self.vbl_env.step_env(
-            k_step, state.pipeline_state, index, self.params)
-        done = (terminated | truncated).astype(jnp.float32)
-        success = info["success"].astype(jnp.float32)
-        new_info = dict(state.info)
-        new_info.update(rng=k_next, success=success, truncated=truncated.astype(jnp.float32))
-        return state.replace(pipeline_state=st, obs=obs, reward=reward.astype(jnp.float32),
-                             done=done, metrics={**state.metrics, "success": success},
-                             info=new_info)
+    @property
+    def episode_length(self) -> int:
+        """The env's time limit (primitives): the ``episode_length`` for EpisodeWrapper."""
+        return int(self.params.max_steps)
 
     @property
     def observation_size(self) -> int:
@@ -83,3 +100,58 @@ class BraxAdapter(Env):
     @property
     def backend(self) -> str:
         return "vbl"
+
+    # ------------------------------------------------------------------ core
+    def _params_at(self, difficulty: jax.Array | None) -> Any:
+        if difficulty is None:
+            return self.params
+        return self.params.replace(**{DIFFICULTY_FIELD: difficulty})
+
+    def _draw(self, key: jax.Array, difficulty: jax.Array | None):
+        obs, st = self.vbl_env.reset(key, self._params_at(difficulty))
+        return obs.astype(F32), st
+
+    def reset(self, rng: jax.Array) -> State:
+        """rng: a raw uint32 (2,) key (brax's wrappers take the batch shape from
+        ``rng.shape[:-1]``). Returns the brax State of a fresh episode."""
+        k_reset, k_next = jax.random.split(rng)
+        info = {"rng": k_next, "success": jnp.zeros((), F32), "truncation": jnp.zeros((), F32)}
+        difficulty = None
+        if self.has_difficulty:
+            difficulty = jnp.asarray(getattr(self.params, DIFFICULTY_FIELD), F32)
+            info["difficulty"] = difficulty
+        obs, st = self._draw(k_reset, difficulty)
+        zero = jnp.zeros((), F32)
+        return State(pipeline_state=st, obs=obs, reward=zero, done=zero,
+                     metrics={"success": zero}, info=info)
+
+    def _index(self, action: jax.Array) -> jax.Array:
+        action = jnp.asarray(action)
+        if action.shape == () and jnp.issubdtype(action.dtype, jnp.integer):
+            if not _is_traced(action) and not 0 <= int(action) < self.action_size:
+                raise ValueError(f"action index must be in [0, {self.action_size}), got "
+                                 f"{int(action)}")
+            return action.astype(jnp.int32)
+        if action.shape != (self.action_size,):
+            raise ValueError(f"action must be an integer index () or a vector "
+                             f"({self.action_size},) of scores (argmax is taken), got shape "
+                             f"{action.shape} dtype {action.dtype}")
+        return jnp.argmax(action).astype(jnp.int32)
+
+    def step(self, state: State, action: jax.Array) -> State:
+        """One primitive. action: integer index () or scores (num_actions,)."""
+        index = self._index(action)
+        k_step, k_start, k_next = jax.random.split(state.info["rng"], 3)
+        obs, st, reward, terminated, truncated, info = self.vbl_env.step_env(
+            k_step, state.pipeline_state, index, self.params)
+        success = jnp.asarray(info["success"]).astype(F32)
+        new_info = dict(state.info)
+        new_info.update(rng=k_next, success=success,
+                        truncation=(truncated & ~terminated).astype(F32))
+        if self.fresh_starts and "first_pipeline_state" in state.info:
+            f_obs, f_st = self._draw(k_start, state.info.get("difficulty"))
+            new_info.update(first_pipeline_state=f_st, first_obs=f_obs)
+        return state.replace(pipeline_state=st, obs=obs.astype(F32),
+                             reward=jnp.asarray(reward).astype(F32),
+                             done=jnp.asarray(terminated).astype(F32),
+                             metrics={**state.metrics, "success": success}, info=new_info)

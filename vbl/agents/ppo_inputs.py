@@ -1,0 +1,166 @@
+"""What a deep-RL learner sees: current features, a stack of frames, or CVA states.
+
+:class:`InputEnv` wraps a vbl env (gymnax style, ``step_env`` without auto-reset, e.g.
+:class:`vbl.envs.shoot_pass.ShootPassEnv`) and replaces its observation by
+
+* ``"current"``: the env's own observation y(t) (26,) (Section 3 features);
+* ``"stack"``: the last ``frames`` observations [y(t), y(t-1), ...] concatenated
+  (frames x 26,), an episode's first observation repeated at its start;
+* ``"cva"``: the CVA state vector of the tabular learner of Table 2,
+  ``[mu_ball, mu_goal, mu_other]`` (:meth:`vbl.agents.cva_state.FilteredEnv.state_vector`,
+  unquantised), filtered from the same histories of outputs and motor commands with the
+  learner's own fitted models (:func:`prepare_models`).
+
+It keeps the API the brax adapter needs (``reset``, ``step_env``, ``num_actions``,
+``observation_shape``, ``default_params``); its params (:class:`InputParams`) carry the
+per-learner CVA models, so they vmap over learners.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from vbl.agents.cva_state import CVAStateParams, FilteredEnv, collect, identify_object
+from vbl.params import ParamError
+
+__all__ = ["INPUTS", "KINDS", "InputParams", "InputState", "InputEnv", "prepare_models"]
+
+INPUTS = ("current", "stack", "cva")
+#: InputEnv kinds: one input, or "select": all three, zero-padded to one length, the traced
+#: ``InputParams.index`` picks one per learner (one compilation for all three inputs)
+KINDS = (*INPUTS, "select")
+F32 = jnp.float32
+
+
+@struct.dataclass
+class InputParams:
+    """inner: the wrapped env's params; models: one CVA ObjectModel per object ('cva',
+    'select'); index: () int32 into :data:`INPUTS` (kind 'select' only)."""
+
+    inner: Any
+    models: tuple = ()
+    index: Any = 0
+
+    @property
+    def max_steps(self) -> int:
+        return self.inner.max_steps
+
+
+@struct.dataclass
+class InputState:
+    """inner: the wrapped env's state; stack: (frames, obs_dim) newest first ('stack');
+    hist_y / hist_u: per object (lag, q) outputs / (lag, m) motor commands ('cva')."""
+
+    inner: Any
+    stack: Any = None
+    hist_y: tuple = ()
+    hist_u: tuple = ()
+
+
+def _push(h: jax.Array, row: jax.Array) -> jax.Array:
+    return jnp.roll(h, 1, axis=0).at[0].set(row.astype(F32))
+
+
+class InputEnv:
+    """``env`` seen through input ``kind`` (see the module docstring).
+
+    Args:
+      env: vbl env with ``obs_slices`` and ``info["u"]`` (for 'cva').
+      kind: one of :data:`KINDS`. frames: observations stacked ('stack', >= 1).
+      cva: the tabular learner's pipeline parameters (objects, n_used, CVA lags; 'cva').
+      m: motor command dimension (``info["u"]``; 'cva').
+    """
+
+    def __init__(self, env: Any, kind: str, frames: int = 3, cva: CVAStateParams | None = None,
+                 m: int = 2):
+        if kind not in KINDS:
+            raise ParamError(f"input kind={kind!r} is not allowed; choose one of {list(KINDS)}")
+        if int(frames) < 1:
+            raise ParamError(f"frames={frames} must be >= 1")
+        if kind in ("cva", "select") and cva is None:
+            raise ParamError(f"input {kind!r} needs the CVA pipeline parameters (cva=...)")
+        self.env, self.kind, self.frames, self.m = env, kind, int(frames), int(m)
+        self.num_actions = env.num_actions
+        self.default_params = InputParams(env.default_params)
+        self.use_stack = kind in ("stack", "select")
+        self.use_cva = kind in ("cva", "select")
+        self.cva = cva.replace(state="cva") if self.use_cva else None
+        self.filtered = FilteredEnv(env, self.cva, m) if self.use_cva else None
+
+    def dims(self) -> dict[str, int]:
+        """Observation length of each input."""
+        d = int(self.env.observation_shape[0])
+        out = {"current": d, "stack": self.frames * d}
+        if self.use_cva:
+            out["cva"] = int(sum(self.filtered.block_dims()))
+        return out
+
+    @property
+    def observation_shape(self) -> tuple[int, ...]:
+        dims = self.dims()
+        return (max(dims.values()),) if self.kind == "select" else (dims[self.kind],)
+
+    def validate(self, params: InputParams) -> InputParams:
+        if hasattr(self.env, "validate"):
+            self.env.validate(params.inner)
+        return params
+
+    def _fresh(self, obs: jax.Array, inner: Any) -> InputState:
+        st = InputState(inner)
+        if self.use_stack:
+            st = st.replace(stack=jnp.broadcast_to(obs.astype(F32), (self.frames,) + obs.shape))
+        if self.use_cva:
+            lag = self.filtered.lag_max
+            st = st.replace(
+                hist_y=tuple(jnp.broadcast_to(obs[s].astype(F32), (lag, s.stop - s.start))
+                             for s in self.filtered.slices),
+                hist_u=tuple(jnp.zeros((lag, self.m), F32) for _ in self.filtered.slices))
+        return st
+
+    def _obs(self, obs: jax.Array, st: InputState, params: InputParams) -> jax.Array:
+        out = {"current": obs.astype(F32)}
+        if self.use_stack:
+            out["stack"] = st.stack.reshape(-1)
+        if self.use_cva:
+            out["cva"] = self.filtered.state_vector(st.hist_u, st.hist_y, obs, params.models)
+        if self.kind != "select":
+            return out[self.kind]
+        n = self.observation_shape[0]
+        padded = jnp.stack([jnp.pad(out[k], (0, n - out[k].shape[0])) for k in INPUTS])
+        return padded[jnp.asarray(params.index, jnp.int32)]
+
+    def reset(self, key: jax.Array, params: InputParams):
+        obs, inner = self.env.reset(key, params.inner)
+        st = self._fresh(obs, inner)
+        return self._obs(obs, st, params), st
+
+    def step_env(self, key: jax.Array, state: InputState, action: jax.Array,
+                 params: InputParams):
+        obs, inner, r, term, trunc, info = self.env.step_env(key, state.inner, action,
+                                                             params.inner)
+        st = InputState(inner)
+        if self.use_stack:
+            st = st.replace(stack=_push(state.stack, obs))
+        if self.use_cva:
+            u = jnp.asarray(info["u"], F32)
+            # decision-time rule of FilteredEnv: row 1 = the command just taken, row 0 = 0
+            st = st.replace(
+                hist_u=tuple(jnp.roll(h, 1, axis=0).at[1].set(u).at[0].set(0.0)
+                             for h in state.hist_u),
+                hist_y=tuple(_push(h, obs[s]) for h, s in zip(state.hist_y,
+                                                               self.filtered.slices,
+                                                               strict=True)))
+        return self._obs(obs, st, params), st, r, term, trunc, info
+
+
+def prepare_models(env: Any, key: jax.Array, cva: CVAStateParams, env_params: Any) -> tuple:
+    """The tabular learner's CVA models for one learner: ``cva.collect_steps`` random-action
+    steps, one model per object (:func:`vbl.agents.cva_state.identify_object`)."""
+    data = collect(env, key, env_params, cva.collect_steps)
+    slices = [env.obs_slices[o] for o in cva.objects]
+    return tuple(identify_object(data["u"], data["obs"][:, sl], cva.cva, k, cva.keep_beyond_order)
+                 for sl, k in zip(slices, cva.n_used_per_object(), strict=True))

@@ -1,0 +1,284 @@
+"""brax's PPO as pure functions of one learner, so the engine can ``vmap`` it over seeds.
+
+``brax.training.agents.ppo.train`` is a host-side loop (``pmap``, timing, callbacks); this
+module assembles the same training step from brax's own parts (``acting.generate_unroll``,
+``ppo.losses.compute_ppo_loss`` with its GAE and truncation bootstrap,
+``acme.running_statistics``, the training wrappers) and optax's Adam, without the host
+loop: :func:`make_ppo_learner` returns ``init`` / ``train_chunk`` / ``evaluate`` that are
+jit- and vmap-able. The env is built per learner by ``make_env(env_params, difficulty)``
+(e.g. a :class:`vbl.envs.brax_adapter.BraxAdapter` whose params hold a learner's CVA
+models), so per-learner data stays in the carry.
+
+Curriculum (Learning from Easy Missions for PPO, :class:`CurriculumParams`): the start
+difficulty lives in the carry; after every chunk the deterministic policy is evaluated at
+the current difficulty and the difficulty rises by ``step`` when its success reaches
+``success_level``. Off, every episode starts at ``task_difficulty``.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import optax
+from brax.envs.wrappers import training as wrappers
+from brax.training import acting
+from brax.training.acme import running_statistics, specs
+from brax.training.agents.ppo import losses as ppo_losses
+from brax.training.agents.ppo import networks as ppo_networks
+from flax import struct
+
+from vbl.agents.ppo import PPONetParams, make_categorical_ppo_networks
+from vbl.envs.brax_adapter import set_difficulty
+from vbl.params import ParamError, param, section
+
+__all__ = ["PPOParams", "CurriculumParams", "PPOCarry", "PPOLearner", "make_ppo_learner"]
+
+F32 = jnp.float32
+EXTRA_FIELDS = ("truncation", "episode_metrics", "episode_done")
+
+
+@struct.dataclass
+class CurriculumParams:
+    """LEM for PPO: raise the start difficulty as the evaluation success passes a level."""
+
+    enabled: bool = param(False, doc="curriculum on (traced: both arms share a compilation)")
+    initial_difficulty: float = param(0.0, doc="start difficulty of the first chunk", ge=0.0,
+                                      le=1.0)
+    step: float = param(0.1, doc="difficulty added after a chunk whose evaluation at the "
+                        "current difficulty succeeds at >= success_level", gt=0.0, le=1.0)
+    success_level: float = param(0.8, doc="deterministic-policy success at the current "
+                                 "difficulty that raises it", gt=0.0, le=1.0)
+
+
+@struct.dataclass
+class PPOParams:
+    """brax PPO hyperparameters (names as in ``brax.training.agents.ppo.train``)."""
+
+    net: PPONetParams = section(PPONetParams, doc="network sizes")
+    num_envs: int = param(64, doc="parallel envs per learner", static=True, ge=1)
+    unroll_length: int = param(20, doc="env steps per trajectory of the PPO loss", unit="step",
+                               static=True, ge=1)
+    batch_size: int = param(32, doc="trajectories per minibatch", static=True, ge=1)
+    num_minibatches: int = param(4, doc="minibatches per pass over a batch", static=True,
+                                 ge=1)
+    num_updates_per_batch: int = param(4, doc="SGD passes over each batch", static=True, ge=1)
+    steps_per_chunk: int = param(20, doc="training steps (batches) per engine chunk",
+                                 static=True, ge=1)
+    normalize_observations: bool = param(True, doc="running mean/std normalisation of the "
+                                         "observations (brax's running_statistics)",
+                                         static=True)
+    learning_rate: float = param(3e-4, doc="Adam step size", gt=0.0)
+    entropy_cost: float = param(1e-2, doc="weight of the entropy bonus", ge=0.0)
+    discounting: float = param(0.99, doc="discount per primitive (0.1 s)", gt=0.0, le=1.0)
+    gae_lambda: float = param(0.95, doc="GAE lambda", ge=0.0, le=1.0)
+    clipping_epsilon: float = param(0.2, doc="PPO ratio clipping", gt=0.0)
+    reward_scaling: float = param(1.0, doc="factor on rewards", gt=0.0)
+    max_grad_norm: float = param(0.5, doc="global gradient-norm clip", gt=0.0)
+    eval_envs: int = param(32, doc="fresh starts per evaluation after each chunk "
+                           "(deterministic policy, first episode of each)", static=True, ge=1)
+    curriculum: CurriculumParams = section(CurriculumParams, doc="LEM for PPO")
+
+    def check(self) -> None:
+        n = self.batch_size * self.num_minibatches
+        if n % self.num_envs:
+            raise ParamError(f"batch_size x num_minibatches = {n} must be a multiple of "
+                             f"num_envs = {self.num_envs} (each env unrolls whole "
+                             "trajectories)")
+
+    @property
+    def env_steps_per_training_step(self) -> int:
+        return self.batch_size * self.num_minibatches * self.unroll_length
+
+    @property
+    def env_steps_per_chunk(self) -> int:
+        return self.env_steps_per_training_step * self.steps_per_chunk
+
+
+@struct.dataclass
+class PPOCarry:
+    """One learner: network params, Adam state, normaliser, the batched env state, the
+    per-learner env params, the start difficulty () float32, key, env steps () float32."""
+
+    params: ppo_losses.PPONetworkParams
+    opt_state: Any
+    normalizer: running_statistics.RunningStatisticsState
+    env_state: Any
+    env_params: Any
+    difficulty: jax.Array
+    key: jax.Array
+    env_steps: jax.Array
+
+
+class PPOLearner(struct.PyTreeNode):
+    """Pure functions of one learner, from :func:`make_ppo_learner`."""
+
+    init: Callable = struct.field(pytree_node=False)
+    train_chunk: Callable = struct.field(pytree_node=False)
+    evaluate: Callable = struct.field(pytree_node=False)
+    networks: Any = struct.field(pytree_node=False)
+
+
+def _x32(fn: Callable) -> Callable:
+    """Trace ``fn`` with 32-bit defaults: brax's wrappers create their counters with the
+    default float type, which must match the adapter's float32 (``jax_enable_x64`` on)."""
+    @functools.wraps(fn)
+    def wrapped(*args, **kwargs):
+        with jax.enable_x64(False):
+            return fn(*args, **kwargs)
+    return wrapped
+
+
+def _optimizer(p: PPOParams) -> optax.GradientTransformation:
+    return optax.chain(optax.clip_by_global_norm(p.max_grad_norm),
+                       optax.adam(learning_rate=p.learning_rate))
+
+
+def make_ppo_learner(make_env: Callable[[Any, jax.Array], Any], obs_size: int,
+                     num_actions: int, p: PPOParams, task_difficulty: float = 1.0
+                     ) -> PPOLearner:
+    """Build one learner's pure functions (static fields of ``p`` fixed here).
+
+    make_env(env_params, difficulty): a brax Env of one env (unbatched; e.g. a
+      ``BraxAdapter``) whose resets draw starts at ``difficulty`` (() float32; ignored by
+      tasks without one); its ``episode_length`` is the time limit.
+    Functions (``p`` there may be traced; its static fields must match):
+      init(key, env_params, p) -> PPOCarry
+      train_chunk(carry, p) -> (carry, metrics): ``steps_per_chunk`` PPO training steps,
+        the evaluations at the task and the current difficulty, the curriculum update.
+      evaluate(carry, key, difficulty, num) -> () success rate of the deterministic policy
+        over ``num`` fresh starts (first episode of each).
+    """
+    norm = running_statistics.normalize if p.normalize_observations else (lambda x, y: x)
+    nets = make_categorical_ppo_networks(obs_size, num_actions, preprocess_observations_fn=norm,
+                                         **p.net.kwargs())
+    make_policy = ppo_networks.make_inference_fn(nets)
+    unrolls = p.batch_size * p.num_minibatches // p.num_envs
+    task_d = jnp.asarray(task_difficulty, F32)
+
+    def train_env(env_params, difficulty):
+        env = make_env(env_params, difficulty)
+        return wrappers.wrap(env, episode_length=env.episode_length), env
+
+    def init(key, env_params, pp: PPOParams) -> PPOCarry:
+        k_pol, k_val, k_env, k_run = jax.random.split(key, 4)
+        cur = pp.curriculum
+        d0 = jnp.where(jnp.asarray(cur.enabled, bool), jnp.asarray(cur.initial_difficulty, F32),
+                       task_d)
+        env, _ = train_env(env_params, d0)
+        env_state = env.reset(jax.random.split(k_env, p.num_envs))
+        params = ppo_losses.PPONetworkParams(policy=nets.policy_network.init(k_pol),
+                                             value=nets.value_network.init(k_val))
+        normalizer = running_statistics.init_state(specs.Array((obs_size,), jnp.dtype(F32)))
+        return PPOCarry(params, _optimizer(pp).init(params), normalizer, env_state, env_params,
+                        d0, k_run, jnp.zeros((), F32))
+
+    def training_step(pp: PPOParams, env, carry, _):
+        params, opt_state, normalizer, env_state, key = carry
+        k_sgd, k_unroll, k_next = jax.random.split(key, 3)
+        policy = make_policy((normalizer, params.policy, params.value))
+
+        def unroll(c, _):
+            st, k = c
+            k, k_u = jax.random.split(k)
+            st, data = acting.generate_unroll(env, st, policy, k_u, p.unroll_length,
+                                              extra_fields=EXTRA_FIELDS)
+            return (st, k), data
+
+        (env_state, _), data = jax.lax.scan(unroll, (env_state, k_unroll), (), length=unrolls)
+        # (unrolls, T, envs, ...) -> (unrolls * envs, T, ...)
+        data = jax.tree.map(lambda x: jnp.swapaxes(x, 1, 2), data)
+        data = jax.tree.map(lambda x: jnp.reshape(x, (-1,) + x.shape[2:]), data)
+        normalizer = running_statistics.update(normalizer, data.observation)
+        loss = functools.partial(
+            ppo_losses.compute_ppo_loss, ppo_network=nets, entropy_cost=pp.entropy_cost,
+            discounting=pp.discounting, reward_scaling=pp.reward_scaling,
+            gae_lambda=pp.gae_lambda, clipping_epsilon=pp.clipping_epsilon,
+            normalize_advantage=True)
+        grad_fn = jax.value_and_grad(loss, has_aux=True)
+        opt = _optimizer(pp)
+
+        def minibatch(c, mb):
+            o_state, prm, k = c
+            k, k_loss = jax.random.split(k)
+            (_, metrics), grads = grad_fn(prm, normalizer, mb, k_loss)
+            updates, o_state = opt.update(grads, o_state, prm)
+            return (o_state, optax.apply_updates(prm, updates), k), metrics
+
+        def epoch(c, _):
+            o_state, prm, k = c
+            k, k_perm, k_mb = jax.random.split(k, 3)
+            shuffled = jax.tree.map(lambda x: jnp.reshape(
+                jax.random.permutation(k_perm, x), (p.num_minibatches, -1) + x.shape[1:]), data)
+            (o_state, prm, _), metrics = jax.lax.scan(minibatch, (o_state, prm, k_mb), shuffled)
+            return (o_state, prm, k), metrics
+
+        (opt_state, params, _), metrics = jax.lax.scan(
+            epoch, (opt_state, params, k_sgd), (), length=p.num_updates_per_batch)
+        ex = data.extras["state_extras"]
+        done = ex["episode_done"]
+        stats = {"episodes": jnp.sum(done),
+                 "successes": jnp.sum(done * ex["episode_metrics"]["success"]),
+                 "loss": jnp.mean(metrics["total_loss"]),
+                 "entropy": -jnp.mean(metrics["entropy_loss"]) / jnp.maximum(
+                     pp.entropy_cost, 1e-12)}
+        return (params, opt_state, normalizer, env_state, k_next), stats
+
+    def evaluate(carry: PPOCarry, key, difficulty, num: int) -> jax.Array:
+        _, base = train_env(carry.env_params, jnp.asarray(difficulty, F32))
+        env = wrappers.EvalWrapper(wrappers.EpisodeWrapper(wrappers.VmapWrapper(base),
+                                                           base.episode_length, 1))
+        k_reset, k_run = jax.random.split(key)
+        st = env.reset(jax.random.split(k_reset, num))
+        policy = make_policy((carry.normalizer, carry.params.policy, carry.params.value),
+                             deterministic=True)
+
+        def cond(c):
+            s, _, t = c
+            return (t < base.episode_length) & jnp.any(s.info["eval_metrics"].active_episodes
+                                                       > 0)
+
+        def body(c):
+            s, k, t = c
+            k, k_a = jax.random.split(k)
+            s, _ = acting.actor_step(env, s, policy, k_a)
+            return s, k, t + 1
+
+        st, _, _ = jax.lax.while_loop(cond, body, (st, k_run, jnp.zeros((), jnp.int32)))
+        return jnp.mean((st.info["eval_metrics"].episode_metrics["success"] > 0).astype(F32))
+
+    def train_chunk(carry: PPOCarry, pp: PPOParams):
+        env, _ = train_env(carry.env_params, carry.difficulty)
+        c0 = (carry.params, carry.opt_state, carry.normalizer, carry.env_state, carry.key)
+        (params, opt_state, normalizer, env_state, key), stats = jax.lax.scan(
+            functools.partial(training_step, pp, env), c0, (), length=p.steps_per_chunk)
+        k_task, k_level, key = jax.random.split(key, 3)
+        carry = carry.replace(params=params, opt_state=opt_state, normalizer=normalizer,
+                              env_state=env_state, key=key,
+                              env_steps=carry.env_steps + p.env_steps_per_chunk)
+        # one traced evaluation for both difficulties (the task's, the curriculum's)
+        task_sr, level_sr = jax.vmap(evaluate, in_axes=(None, 0, 0, None))(
+            carry, jnp.stack([k_task, k_level]), jnp.stack([task_d, carry.difficulty]),
+            p.eval_envs)
+        cur = pp.curriculum
+        on = jnp.asarray(cur.enabled, bool)
+        raise_ = on & (level_sr >= cur.success_level)
+        new_d = jnp.where(raise_, jnp.minimum(carry.difficulty + cur.step, task_d),
+                          carry.difficulty)
+        # the envs' next starts are drawn at the new difficulty
+        env_state = carry.env_state
+        if "difficulty" in env_state.info:
+            env_state = set_difficulty(env_state, new_d)
+        eps = jnp.sum(stats["episodes"])
+        metrics = {"env_steps": carry.env_steps, "success_rate": task_sr,
+                   "level_success_rate": level_sr, "difficulty": carry.difficulty,
+                   "episodes": eps,
+                   "train_success_rate": jnp.sum(stats["successes"]) / jnp.maximum(eps, 1.0),
+                   "loss": jnp.mean(stats["loss"]), "entropy": jnp.mean(stats["entropy"])}
+        return carry.replace(difficulty=new_d, env_state=env_state), metrics
+
+    return PPOLearner(init=_x32(init), train_chunk=_x32(train_chunk), evaluate=_x32(evaluate),
+                      networks=nets)
