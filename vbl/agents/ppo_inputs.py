@@ -9,7 +9,10 @@
 * ``"cva"``: the CVA state vector of the tabular learner of Table 2,
   ``[mu_ball, mu_goal, mu_other]`` (:meth:`vbl.agents.cva_state.FilteredEnv.state_vector`,
   unquantised), filtered from the same histories of outputs and motor commands with the
-  learner's own fitted models (:func:`prepare_models`).
+  learner's own fitted models (:func:`prepare_models`);
+* ``"select"``: all three, zero-padded to the longest, and the traced
+  ``InputParams.index`` picks one per learner (one compilation for all inputs; the
+  padding is constant 0 and carries no signal).
 
 It keeps the API the brax adapter needs (``reset``, ``step_env``, ``num_actions``,
 ``observation_shape``, ``default_params``); its params (:class:`InputParams`) carry the

@@ -32,7 +32,7 @@ from vbl.envs.shooting import ShootingEnv
 from vbl.params import ParamError, param
 
 __all__ = ["PPORunParams", "InputChoice", "make_shooting_program", "make_shoot_pass_program",
-           "ci95", "plot_success_vs_steps"]
+           "ci95", "welch_ci", "plot_success_vs_steps", "input_label"]
 
 
 @struct.dataclass
@@ -117,6 +117,16 @@ def ci95(x: Any) -> tuple[float, float]:
         return float(x.mean()), float("nan")
     return float(x.mean()), float(stats.t.ppf(0.975, x.size - 1) * x.std(ddof=1)
                                   / np.sqrt(x.size))
+
+
+def welch_ci(a: Any, b: Any) -> tuple[float, float]:
+    """(mean(a) - mean(b), Welch 95 % half-width) of two samples (e.g. seeds of two arms)."""
+    from scipy import stats
+
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    va, vb = a.var(ddof=1) / a.size, b.var(ddof=1) / b.size
+    dof = (va + vb) ** 2 / (va ** 2 / (a.size - 1) + vb ** 2 / (b.size - 1) + 1e-30)
+    return float(a.mean() - b.mean()), float(stats.t.ppf(0.975, dof) * np.sqrt(va + vb))
 
 
 def plot_success_vs_steps(curves: dict, labels: list[str], path: Path, title: str) -> Path:

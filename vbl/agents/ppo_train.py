@@ -4,10 +4,10 @@
 module assembles the same training step from brax's own parts (``acting.generate_unroll``,
 ``ppo.losses.compute_ppo_loss`` with its GAE and truncation bootstrap,
 ``acme.running_statistics``, the training wrappers) and optax's Adam, without the host
-loop: :func:`make_ppo_learner` returns ``init`` / ``train_chunk`` / ``evaluate`` that are
-jit- and vmap-able. The env is built per learner by ``make_env(env_params, difficulty)``
-(e.g. a :class:`vbl.envs.brax_adapter.BraxAdapter` whose params hold a learner's CVA
-models), so per-learner data stays in the carry.
+loop: :func:`make_ppo_learner` returns ``init`` / ``train`` / ``train_chunk`` /
+``evaluate``, all jit- and vmap-able. The env is built per learner by
+``make_env(env_params, difficulty)`` (e.g. a :class:`vbl.envs.brax_adapter.BraxAdapter`
+whose params hold a learner's CVA models), so per-learner data stays in the carry.
 
 Curriculum (Learning from Easy Missions for PPO, :class:`CurriculumParams`): the start
 difficulty lives in the carry; after every chunk the deterministic policy is evaluated at
@@ -18,6 +18,7 @@ the current difficulty and the difficulty rises by ``step`` when its success rea
 from __future__ import annotations
 
 import functools
+import warnings
 from collections.abc import Callable
 from typing import Any
 
@@ -117,6 +118,7 @@ class PPOLearner(struct.PyTreeNode):
     """Pure functions of one learner, from :func:`make_ppo_learner`."""
 
     init: Callable = struct.field(pytree_node=False)
+    train: Callable = struct.field(pytree_node=False)
     train_chunk: Callable = struct.field(pytree_node=False)
     evaluate: Callable = struct.field(pytree_node=False)
     networks: Any = struct.field(pytree_node=False)
@@ -147,7 +149,9 @@ def make_ppo_learner(make_env: Callable[[Any, jax.Array], Any], obs_size: int,
       tasks without one); its ``episode_length`` is the time limit.
     Functions (``p`` there may be traced; its static fields must match):
       init(key, env_params, p) -> PPOCarry
-      train_chunk(carry, p) -> (carry, metrics): ``steps_per_chunk`` PPO training steps,
+      train(carry, p) -> (carry, stats): ``steps_per_chunk`` PPO training steps (no
+        evaluation; stats per training step: episodes, successes, loss, entropy).
+      train_chunk(carry, p) -> (carry, metrics): ``train``,
         the evaluations at the task and the current difficulty, the curriculum update.
       evaluate(carry, key, difficulty, num) -> () success rate of the deterministic policy
         over ``num`` fresh starts (first episode of each).
@@ -172,7 +176,9 @@ def make_ppo_learner(make_env: Callable[[Any, jax.Array], Any], obs_size: int,
         env_state = env.reset(jax.random.split(k_env, p.num_envs))
         params = ppo_losses.PPONetworkParams(policy=nets.policy_network.init(k_pol),
                                              value=nets.value_network.init(k_val))
-        normalizer = running_statistics.init_state(specs.Array((obs_size,), jnp.dtype(F32)))
+        with warnings.catch_warnings():  # brax asks float64 when x64 is on globally
+            warnings.filterwarnings("ignore", "Explicitly requested dtype float64")
+            normalizer = running_statistics.init_state(specs.Array((obs_size,), jnp.dtype(F32)))
         return PPOCarry(params, _optimizer(pp).init(params), normalizer, env_state, env_params,
                         d0, k_run, jnp.zeros((), F32))
 
@@ -250,15 +256,19 @@ def make_ppo_learner(make_env: Callable[[Any, jax.Array], Any], obs_size: int,
         st, _, _ = jax.lax.while_loop(cond, body, (st, k_run, jnp.zeros((), jnp.int32)))
         return jnp.mean((st.info["eval_metrics"].episode_metrics["success"] > 0).astype(F32))
 
-    def train_chunk(carry: PPOCarry, pp: PPOParams):
+    def train(carry: PPOCarry, pp: PPOParams):
         env, _ = train_env(carry.env_params, carry.difficulty)
         c0 = (carry.params, carry.opt_state, carry.normalizer, carry.env_state, carry.key)
         (params, opt_state, normalizer, env_state, key), stats = jax.lax.scan(
             functools.partial(training_step, pp, env), c0, (), length=p.steps_per_chunk)
-        k_task, k_level, key = jax.random.split(key, 3)
-        carry = carry.replace(params=params, opt_state=opt_state, normalizer=normalizer,
-                              env_state=env_state, key=key,
-                              env_steps=carry.env_steps + p.env_steps_per_chunk)
+        return carry.replace(params=params, opt_state=opt_state, normalizer=normalizer,
+                             env_state=env_state, key=key,
+                             env_steps=carry.env_steps + p.env_steps_per_chunk), stats
+
+    def train_chunk(carry: PPOCarry, pp: PPOParams):
+        carry, stats = train(carry, pp)
+        k_task, k_level, key = jax.random.split(carry.key, 3)
+        carry = carry.replace(key=key)
         # one traced evaluation for both difficulties (the task's, the curriculum's)
         task_sr, level_sr = jax.vmap(evaluate, in_axes=(None, 0, 0, None))(
             carry, jnp.stack([k_task, k_level]), jnp.stack([task_d, carry.difficulty]),
@@ -280,5 +290,5 @@ def make_ppo_learner(make_env: Callable[[Any, jax.Array], Any], obs_size: int,
                    "loss": jnp.mean(stats["loss"]), "entropy": jnp.mean(stats["entropy"])}
         return carry.replace(difficulty=new_d, env_state=env_state), metrics
 
-    return PPOLearner(init=_x32(init), train_chunk=_x32(train_chunk), evaluate=_x32(evaluate),
-                      networks=nets)
+    return PPOLearner(init=_x32(init), train=_x32(train), train_chunk=_x32(train_chunk),
+                      evaluate=_x32(evaluate), networks=nets)
