@@ -480,64 +480,117 @@ class Region:
     hi: jnp.ndarray    # (R, 2) u_hi, v_hi
 
 
-def _chain_in_rects(p0, p1, w, lo, hi) -> Region:
+def _boxes_and_origins(lo, hi, origin):
+    """Boxes (R, 2) as scalar tuples (lu, lv, hu, hv) and ``origin`` clamped into each."""
+    boxes = [(lo[j, 0], lo[j, 1], hi[j, 0], hi[j, 1]) for j in range(lo.shape[0])]
+    orig = [(jnp.clip(origin[0], b[0], b[2]), jnp.clip(origin[1], b[1], b[3])) for b in boxes]
+    return boxes, orig
+
+
+def _green_init(n_box):
+    """Empty sums: (area, mu, mv) per box and the box-0 bounding box (lo > hi)."""
+    zero, big = jnp.zeros((), F32), jnp.asarray(_BIG, F32)
+    return tuple((zero, zero, zero) for _ in range(n_box)), (big, big, -big, -big)
+
+
+def _green_step(carry, seg, boxes, orig):
+    """Add one directed segment ``(x0, y0, x1, y1, w)`` (scalars, px) to the sums.
+
+    See :func:`_chain_in_rects`: the part of the segment inside each box's row band is
+    split at the box's columns into three pieces; each, clamped into the box and taken
+    about the box's origin, adds ``∫ x dy``, ``∫ x^2 dy`` and ``∫ x y dy`` (closed form
+    for a straight piece), times the weight ``w``. The box-0 bounding box grows by the
+    u-range of the part inside its row band and the v-range of the part inside its
+    column band (segments of weight 0 are not boundary and add nothing).
+    """
+    sums, (u_lo, v_lo, u_hi, v_hi) = carry
+    x0, y0, x1, y1, ws = seg
+    dx, dy = x1 - x0, y1 - y0
+    ix, iy = _safe_div(1.0, dx), _safe_div(1.0, dy)
+    big = jnp.asarray(_BIG, F32)
+    zero = jnp.zeros((), F32)
+    new = []
+    for j, ((lu, lv, hu, hv), (ou, ov)) in enumerate(zip(boxes, orig, strict=True)):
+        r0, r1 = (lv - y0) * iy, (hv - y0) * iy
+        ta = jnp.maximum(jnp.minimum(r0, r1), 0.0)
+        tb = jnp.minimum(jnp.maximum(r0, r1), 1.0)
+        c0, c1 = (lu - x0) * ix, (hu - x0) * ix
+        cmin, cmax = jnp.minimum(c0, c1), jnp.maximum(c0, c1)
+        if j == 0:
+            real = ws != 0
+            ua, ub = x0 + ta * dx, x0 + tb * dx
+            uok = (ta <= tb) & real
+            u_lo = jnp.minimum(u_lo, jnp.where(uok, jnp.minimum(ua, ub), big))
+            u_hi = jnp.maximum(u_hi, jnp.where(uok, jnp.maximum(ua, ub), -big))
+            sa, sb = jnp.maximum(cmin, 0.0), jnp.minimum(cmax, 1.0)
+            va, vb = y0 + sa * dy, y0 + sb * dy
+            vok = (sa <= sb) & real
+            v_lo = jnp.minimum(v_lo, jnp.where(vok, jnp.minimum(va, vb), big))
+            v_hi = jnp.maximum(v_hi, jnp.where(vok, jnp.maximum(va, vb), -big))
+        tb = jnp.maximum(tb, ta)
+        ts = (ta, jnp.clip(cmin, ta, tb), jnp.clip(cmax, ta, tb), tb)
+        xs = [jnp.clip(x0 + t * dx, lu, hu) - ou for t in ts]
+        ys = [jnp.clip(y0 + t * dy, lv, hv) - ov for t in ts]
+        a = m = n = zero
+        for k in range(3):
+            xa, xb, ya, yb = xs[k], xs[k + 1], ys[k], ys[k + 1]
+            d = yb - ya
+            a = a + (xa + xb) * d
+            m = m + (xa * (xa + xb) + xb * xb) * d
+            n = n + (xa * (ya + ya + yb) + xb * (ya + yb + yb)) * d
+        sa_, sm, sn = sums[j]
+        new.append((sa_ + ws * a, sm + ws * m, sn + ws * n))
+    return tuple(new), (u_lo, v_lo, u_hi, v_hi)
+
+
+def _green_region(carry, boxes, orig) -> Region:
+    """The :class:`Region` of summed Green integrals (moments moved to the image origin)."""
+    sums, (u_lo, v_lo, u_hi, v_hi) = carry
+    area = jnp.stack([0.5 * a for a, _, _ in sums])
+    mu = jnp.stack([m / 6.0 for _, m, _ in sums]) + jnp.stack([o[0] for o in orig]) * area
+    mv = jnp.stack([n / 6.0 for _, _, n in sums]) + jnp.stack([o[1] for o in orig]) * area
+    b0 = boxes[0]
+    return Region(area=area, mu=mu, mv=mv,
+                  lo=jnp.stack([jnp.maximum(u_lo, b0[0]), jnp.maximum(v_lo, b0[1])]),
+                  hi=jnp.stack([jnp.minimum(u_hi, b0[2]), jnp.minimum(v_hi, b0[3])]))
+
+
+def _green_scan(carry, p0, p1, w, boxes, orig):
+    """:func:`_green_step` over segments ``p0 -> p1`` (S, 2) px, weights ``w`` (S,)."""
+    def step(c, seg):
+        return _green_step(c, seg, boxes, orig), None
+
+    carry, _ = jax.lax.scan(step, carry, (p0[:, 0], p0[:, 1], p1[:, 0], p1[:, 1], w))
+    return carry
+
+
+def _chain_in_rects(p0, p1, w, lo, hi, origin) -> Region:
     """Signed area, first moments and bounding box of a region inside R boxes.
 
     The region is given by its boundary: directed segments ``p0 -> p1`` (S, 2) px with
     weights ``w`` (S,) (+1, -1, 0) that form closed cycles when summed, in any order.
-    Boxes ``[lo[j], hi[j]]`` (R, 2). Exact (Green's theorem): the clamp onto a box maps
-    the boundary to a closed path inside the box that winds around each point of the box
-    as the boundary does, so integrating over the clamped path integrates over region ∩
-    box. With the forms ``x dy``, ``x^2/2 dy``, ``x y dy`` only the part of each segment
-    inside the box's row band ``lo_v <= v <= hi_v`` counts (clamped elsewhere it runs
-    along a box row, dy = 0); that part is split where it crosses the columns
-    ``u = lo_u, hi_u`` into three straight pieces, clamped. The bounding box of region ∩
-    box comes from the same clipped parts: its u-extent is the u-range of the segments'
-    parts inside the row band, cut to the box's columns (likewise for v). The moments
-    are summed about the bounding box's centre (float32 sums stay small) and returned
-    about the image origin; area and moments are signed by the boundary's orientation.
-    Returns a :class:`Region` of (R,)-shaped fields (bounding box lo > hi when empty).
+    Boxes ``[lo[j], hi[j]]`` (R, 2). Exact (Green's theorem): the clamp onto a box is a
+    retraction onto it, and the segment from a point to its clamp never enters the
+    box's interior, so the clamped boundary winds around each interior point of the box
+    as the boundary does; integrating over the clamped path integrates over region ∩
+    box. With the forms ``x dy`` (area), ``x^2/2 dy`` and ``x y dy`` (first moments)
+    only the part of each segment inside the box's row band ``lo_v <= v <= hi_v``
+    counts (clamped elsewhere it runs along a box row, dy = 0); that part is split where
+    it crosses the columns ``u = lo_u, hi_u`` into three straight pieces, clamped, each
+    integrated in closed form (:func:`_green_step`). The bounding box of region ∩
+    (box 0) comes from the same parts: its u-extent is the u-range of the segments'
+    parts inside the row band, cut to the box's columns (likewise for v). Sums are
+    taken about ``origin`` (2,) px clamped into each box (a point near the region keeps
+    float32 sums small) and returned about the image origin, signed by the boundary's
+    orientation.
+
+    A ``lax.scan`` runs over the segments (each step: one segment, all boxes), so every
+    operation works on one number per env and XLA vectorises it over the batch.
+    Returns a :class:`Region`: area, mu, mv (R,); lo, hi (2,) of box 0 (lo > hi: empty).
     """
-    x0, y0 = p0[:, 0], p0[:, 1]                          # (S,)
-    dx, dy = p1[:, 0] - x0, p1[:, 1] - y0
-    ix, iy = _safe_div(1.0, dx), _safe_div(1.0, dy)
-    lu, lv = lo[:, 0:1], lo[:, 1:2]                      # (R, 1)
-    hu, hv = hi[:, 0:1], hi[:, 1:2]
-    # parameter range inside the row band, and the column crossings
-    r0, r1 = (lv - y0) * iy, (hv - y0) * iy              # (R, S)
-    ta = jnp.maximum(jnp.minimum(r0, r1), 0.0)
-    tb = jnp.minimum(jnp.maximum(r0, r1), 1.0)
-    in_band = ta <= tb
-    tb = jnp.maximum(tb, ta)
-    c0, c1 = (lu - x0) * ix, (hu - x0) * ix
-    cmin, cmax = jnp.minimum(c0, c1), jnp.maximum(c0, c1)
-    ts = jnp.stack([ta, jnp.clip(cmin, ta, tb), jnp.clip(cmax, ta, tb), tb], axis=-1)
-    xs = x0[:, None] + ts * dx[:, None]                  # (R, S, 4) unclamped
-    ys = y0[:, None] + ts * dy[:, None]
-    # bounding box: u-range of the parts in the row band, v-range of those in the columns
-    big = jnp.asarray(_BIG, F32)
-    real = w != 0
-    uok = (in_band & real)[..., None]
-    sa, sb = jnp.maximum(cmin, 0.0), jnp.minimum(cmax, 1.0)
-    vok = ((sa <= sb) & real)[..., None]
-    ue, ve = xs[..., ::3], y0[:, None] + jnp.stack([sa, sb], axis=-1) * dy[:, None]
-    u_lo = jnp.maximum(lu[:, 0], jnp.min(jnp.where(uok, ue, big), axis=(-2, -1)))
-    u_hi = jnp.minimum(hu[:, 0], jnp.max(jnp.where(uok, ue, -big), axis=(-2, -1)))
-    v_lo = jnp.maximum(lv[:, 0], jnp.min(jnp.where(vok, ve, big), axis=(-2, -1)))
-    v_hi = jnp.minimum(hv[:, 0], jnp.max(jnp.where(vok, ve, -big), axis=(-2, -1)))
-    ou = jnp.clip(0.5 * (u_lo + u_hi), lu[:, 0], hu[:, 0])[:, None, None]
-    ov = jnp.clip(0.5 * (v_lo + v_hi), lv[:, 0], hv[:, 0])[:, None, None]
-    # clamped points about the origin (ou, ov); three pieces per segment
-    xs = jnp.clip(xs, lu[..., None], hu[..., None]) - ou
-    ys = jnp.clip(ys, lv[..., None], hv[..., None]) - ov
-    xa, xb, ya, yb = xs[..., :3], xs[..., 1:], ys[..., :3], ys[..., 1:]
-    dyp = yb - ya
-    area = 0.5 * jnp.sum(w * jnp.sum((xa + xb) * dyp, axis=-1), axis=-1)
-    mu = jnp.sum(w * jnp.sum((xa * (xa + xb) + xb * xb) * dyp, axis=-1), axis=-1) / 6.0
-    mv = jnp.sum(w * jnp.sum((xa * (ya + ya + yb) + xb * (ya + yb + yb)) * dyp, axis=-1),
-                 axis=-1) / 6.0
-    return Region(area=area, mu=mu + ou[:, 0, 0] * area, mv=mv + ov[:, 0, 0] * area,
-                  lo=jnp.stack([u_lo, v_lo], axis=-1), hi=jnp.stack([u_hi, v_hi], axis=-1))
+    boxes, orig = _boxes_and_origins(lo, hi, origin)
+    carry = _green_scan(_green_init(len(boxes)), p0, p1, w, boxes, orig)
+    return _green_region(carry, boxes, orig)
 
 
 def _oriented(reg: Region, sign) -> Region:
@@ -604,29 +657,64 @@ def _box_tables():
 _BOX_START, _BOX_VEC, _BOX_FWD, _BOX_BWD = _box_tables()
 
 
-def _box_chain(base_c, axes_c, front, cam: CameraParams, fu, fv):
-    """Boundary of the other robot's silhouette: (p0, p1 (18, 2), w (18,)).
+def _box_region(base_c, axes_c, front, cam: CameraParams, fu, fv, lo, hi, origin) -> Region:
+    """The other robot's silhouette inside R boxes (see :func:`_chain_in_rects`).
 
     ``base_c`` (3,): the box's bottom centre in camera coordinates; ``axes_c`` (3, 3):
     rows = camera-frame vectors of half its length, half its width and its height;
-    ``front`` (6,) bool: faces (order of :func:`_box_tables`) turned towards the camera.
-    The silhouette is the sum of the near-clipped front faces; its boundary is every edge
-    between a front and a back face (weight ``front[f+] - front[f-]``, interior edges
-    cancel) plus each front face's near-plane chord.
+    ``front`` (6,) bool: faces (order of :func:`_box_tables`) turned towards the camera;
+    boxes ``lo``, ``hi`` (R, 2) px; ``origin`` (2,) px near the silhouette.
+
+    The silhouette is the sum of the near-clipped front faces (disjoint for a convex
+    body); its boundary is every edge between a front and a back face (weight
+    ``front[f+] - front[f-]``: an edge between two front faces cancels) plus each front
+    face's near-plane chord. One ``lax.scan`` over the 12 edges builds each edge
+    (corner, near-plane clip, projection) and adds it; a second adds the 6 chords.
     """
     zn = jnp.asarray(cam.near_plane, F32)
-    st, vec = jnp.asarray(_BOX_START), jnp.asarray(_BOX_VEC)
-    a = base_c + st[:, 0:1] * axes_c[0] + st[:, 1:2] * axes_c[1] + st[:, 2:3] * axes_c[2]
-    d = vec[:, 0:1] * axes_c[0] + vec[:, 1:2] * axes_c[1] + vec[:, 2:3] * axes_c[2]
-    seg = _segments(a, a + d, zn, fu, fv)
-    fwd, bwd = jnp.asarray(_BOX_FWD), jnp.asarray(_BOX_BWD)
+    boxes, orig = _boxes_and_origins(lo, hi, origin)
+    base = [base_c[i] for i in range(3)]
+    axes = [[axes_c[k, i] for i in range(3)] for k in range(3)]
     fr = front.astype(F32)
-    w_edge = jnp.sum(fr[:, None] * (fwd - bwd), axis=0) * seg.ok.astype(F32)
-    c0, c1, has = _near_chords(seg, fwd, bwd)
-    p0 = jnp.concatenate([seg.p0, c0])
-    p1 = jnp.concatenate([seg.p1, c1])
-    w = jnp.concatenate([w_edge, fr * has.astype(F32)])
-    return p0, p1, w
+    frs = [fr[f] for f in range(6)]
+
+    def edge(carry, tab):
+        st, vec, wf = tab
+        pa = [base[i] + st[0] * axes[0][i] + st[1] * axes[1][i] + st[2] * axes[2][i]
+              for i in range(3)]
+        d = [vec[0] * axes[0][i] + vec[1] * axes[1][i] + vec[2] * axes[2][i]
+             for i in range(3)]
+        zb = pa[2] + d[2]
+        ina, inb = pa[2] >= zn, zb >= zn
+        t = _safe_div(zn - pa[2], d[2])
+        cu, cv = fu * (pa[0] + t * d[0]) / zn, fv * (pa[1] + t * d[1]) / zn
+        iza, izb = 1.0 / jnp.maximum(pa[2], zn), 1.0 / jnp.maximum(zb, zn)
+        u0 = jnp.where(ina, fu * pa[0] * iza, cu)
+        v0 = jnp.where(ina, fv * pa[1] * iza, cv)
+        u1 = jnp.where(inb, fu * (pa[0] + d[0]) * izb, cu)
+        v1 = jnp.where(inb, fv * (pa[1] + d[1]) * izb, cv)
+        w = sum(frs[f] * wf[f] for f in range(6)) * (ina | inb).astype(F32)
+        carry = _green_step(carry, (u0, v0, u1, v1, w), boxes, orig)
+        return carry, (cu, cv, (ina & ~inb).astype(F32), (inb & ~ina).astype(F32))
+
+    tables = (jnp.asarray(_BOX_START), jnp.asarray(_BOX_VEC),
+              jnp.asarray((_BOX_FWD - _BOX_BWD).T))
+    carry, (cu, cv, xf, xb) = jax.lax.scan(edge, _green_init(len(boxes)), tables)
+    # near-plane chords: face f leaves the near plane on one edge and returns on another
+    ends = {k: [] for k in ("u0", "v0", "u1", "v1", "w")}
+    for f in range(6):
+        terms = [(e, _BOX_FWD[f, e] > 0) for e in range(12) if _BOX_FWD[f, e] + _BOX_BWD[f, e]]
+        leave = [xf[e] if fw else xb[e] for e, fw in terms]
+        back = [xb[e] if fw else xf[e] for e, fw in terms]
+        ends["u0"].append(sum(m * cu[e] for m, (e, _) in zip(leave, terms, strict=True)))
+        ends["v0"].append(sum(m * cv[e] for m, (e, _) in zip(leave, terms, strict=True)))
+        ends["u1"].append(sum(m * cu[e] for m, (e, _) in zip(back, terms, strict=True)))
+        ends["v1"].append(sum(m * cv[e] for m, (e, _) in zip(back, terms, strict=True)))
+        ends["w"].append(frs[f] * jnp.minimum(sum(leave), 1.0))
+    c = {k: jnp.stack(v) for k, v in ends.items()}
+    carry = _green_scan(carry, jnp.stack([c["u0"], c["v0"]], axis=-1),
+                        jnp.stack([c["u1"], c["v1"]], axis=-1), c["w"], boxes, orig)
+    return _green_region(carry, boxes, orig)
 
 
 def _rect_inter(lo1, hi1, lo2, hi2):
@@ -701,7 +789,6 @@ def section3_features(robot_pose, ball_xy, ball_radius, goal_corners, other_pose
                         jnp.stack([zero, zero, osize[2]])])
     axes_c = jnp.sum(axes_w[:, None, :] * frame.rot[None, :, :], axis=-1)
     base_c = to_camera(jnp.stack([opose[0], opose[1], zero]), frame)
-    op0, op1, ow = _box_chain(base_c, axes_c, front, cam, fu, fv)
     # depth order
     goal_cam_side = _plane_side(corners, frame.c)
     ball_before_goal = (_plane_side(corners, ball_w) * goal_cam_side > 0) & bi.valid
@@ -715,9 +802,12 @@ def section3_features(robot_pose, ball_xy, ball_radius, goal_corners, other_pose
     occ_b = ball_before_robot & bi.visible
     ob_lo, ob_hi = _rect_inter(img_lo, img_hi, b_lo, b_hi)
     ob_lo, ob_hi = jnp.where(occ_b, ob_lo, e_lo), jnp.where(occ_b, ob_hi, e_hi)
-    oreg = _chain_in_rects(op0, op1, ow, jnp.stack([img_lo, ob_lo]), jnp.stack([img_hi, ob_hi]))
+    ocen_c = to_camera(ocen, frame)
+    o_origin = _proj(ocen_c, fu, fv, jnp.asarray(cam.near_plane, F32))
+    oreg = _box_region(base_c, axes_c, front, cam, fu, fv, jnp.stack([img_lo, ob_lo]),
+                       jnp.stack([img_hi, ob_hi]), o_origin)
     oreg = _oriented(oreg, _sign(oreg.area[0]))
-    o_full_lo, o_full_hi = oreg.lo[0], oreg.hi[0]
+    o_full_lo, o_full_hi = oreg.lo, oreg.hi
     o_full_vis = (oreg.area[0] > 0) & jnp.all(o_full_hi > o_full_lo)
     o_full_lo = jnp.where(o_full_vis, o_full_lo, 0.0)
     o_full_hi = jnp.where(o_full_vis, o_full_hi, 0.0)
@@ -742,8 +832,10 @@ def section3_features(robot_pose, ball_xy, ball_radius, goal_corners, other_pose
     g2_hi = jnp.where(robot_before_goal & o_full_vis, g2_hi, e_hi)
     g12_lo, g12_hi = _rect_inter(g1_lo, g1_hi, g2_lo, g2_hi)
     gp0, gp1, gw = _goal_chain(gseg)
+    gcen = jnp.mean(pc, axis=0)
+    g_origin = _proj(gcen, fu, fv, jnp.asarray(cam.near_plane, F32))
     gr = _chain_in_rects(gp0, gp1, gw, jnp.stack([img_lo, g1_lo, g2_lo, g12_lo]),
-                         jnp.stack([img_hi, g1_hi, g2_hi, g12_hi]))
+                         jnp.stack([img_hi, g1_hi, g2_hi, g12_hi]), g_origin)
     sgn4 = jnp.array([1.0, -1.0, -1.0, 1.0], F32) * _sign(gr.area[0])
     g_area = jnp.maximum(jnp.sum(sgn4 * gr.area), 0.0)
     g_cu = _safe_div(jnp.sum(sgn4 * gr.mu), g_area)
@@ -762,8 +854,6 @@ def section3_features(robot_pose, ball_xy, ball_radius, goal_corners, other_pose
         ball_f = ball_f.at[2:].set(jnp.maximum(ball_f[2:], 0.0))
         other_f = other_f.at[2:4].set(jnp.maximum(other_f[2:4], 0.0))
     vis = jnp.stack([ball_vis, goal_vis, other_vis])
-    gcen = jnp.mean(pc, axis=0)
-    ocen_c = base_c + 0.5 * axes_c[2]
     lost = jnp.where(vis, 0.0, jnp.stack([_lost_side(ball_c[0]), _lost_side(gcen[0]),
                                           _lost_side(ocen_c[0])]))
     return Section3Obs(ball=jnp.where(ball_vis, ball_f, 0.0).astype(F32),
