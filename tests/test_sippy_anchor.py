@@ -12,8 +12,7 @@ import numpy as np
 import pytest
 from reference.sysid_systems import pole_error, simulate_batch
 
-import vbl  # noqa: F401
-from vbl.sysid import CVAParams, identify
+from vbl.sysid import identify
 
 sippy = pytest.importorskip("sippy_unipi.OLSims_methods")
 
@@ -30,7 +29,7 @@ def _compare(draws: int, seed: int, f: int, noise: float = 0.05):
     rng = np.random.default_rng(seed)
     orders = rng.integers(1, 7, draws)
     u, y, poles = simulate_batch(rng, orders, 1000, 2, 2, noise=noise, min_separation=0.15)
-    res = identify(u, y, CVAParams(lag=4))
+    res = identify(u, y)                        # vbl's defaults
     ours_n = np.asarray(res.n)
     ours_err, sip_err, sip_n = [], [], []
     for i in range(draws):
@@ -47,12 +46,12 @@ def _compare(draws: int, seed: int, f: int, noise: float = 0.05):
 
 def test_sippy_anchor_small():
     ours, sip, e_ours, e_sip = _compare(8, 5, f=5, noise=0.02)
-    assert ours >= sip - 0.25, (ours, sip)
-    assert e_ours < 3 * e_sip + 0.01, (e_ours, e_sip)
+    assert ours >= sip - 0.25, (ours, sip)     # 8 draws: one miss is 0.125
+    assert e_ours < 1.5 * e_sip + 0.002, (e_ours, e_sip)
 
 
 @pytest.mark.slow
 def test_sippy_anchor_rates():
     ours, sip, e_ours, e_sip = _compare(100, 7, f=10)
-    assert ours >= sip - 0.07, (ours, sip)
-    assert e_ours < 2 * e_sip + 0.005, (e_ours, e_sip)
+    assert ours >= sip - 0.05, (ours, sip)
+    assert e_ours < 1.5 * e_sip + 0.002, (e_ours, e_sip)

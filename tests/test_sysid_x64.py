@@ -1,8 +1,8 @@
 """vbl.sysid computes in float64 by itself: the same numbers with jax_enable_x64 on or off.
 
-The identification runs once in this process (``import vbl`` turns x64 on) and once in a
-subprocess with x64 off (``JAX_ENABLE_X64=0`` and the flag reset after ``import vbl``); the
-results must be equal.
+The identification runs once in this process with 64-bit types on (``jax.enable_x64``) and
+once in a subprocess with them off (``JAX_ENABLE_X64=0`` and the flag reset after
+``import vbl``); the results must be equal.
 """
 
 import subprocess
@@ -14,7 +14,6 @@ import jax.numpy as jnp
 import numpy as np
 from reference.sysid_systems import simulate_batch
 
-import vbl  # noqa: F401
 from vbl.sysid import CVAParams, aic, fit_one, identify
 
 FIELDS = ("lag", "n", "logdet_R", "aic", "aic_curve", "logdet_curve", "cancor")
@@ -38,10 +37,11 @@ SCRIPT = textwrap.dedent("""
         for f in %(fields)r:
             out[f"{tag}_{f}"] = np.asarray(getattr(res, f))
         out[f"{tag}_A"] = np.asarray(res.model.A)
-    # fit_one inside a caller's jit (float32 data, as the CVA learner passes it)
-    f = jax.jit(lambda u, y: fit_one(u, y, CVAParams(lag=2), lag=2, horizon=4, n_cap=8).logdet)
-    out["jit_logdet"] = np.asarray(f(jnp.asarray(d["u"][0], jnp.float32),
-                                     jnp.asarray(d["y"][0], jnp.float32)))
+    # fit_one inside a caller's jit(vmap) (float32 data, as the CVA learner passes it)
+    f = jax.jit(jax.vmap(lambda u, y: fit_one(u, y, CVAParams(lag=2), lag=2, horizon=4,
+                                              n_cap=8).logdet))
+    out["jit_logdet"] = np.asarray(f(jnp.asarray(d["u"], jnp.float32),
+                                     jnp.asarray(d["y"], jnp.float32)))
     out["aic"] = np.asarray(aic(np.float64(-0.123456789), 3, 997, 2, 2))
     assert out["jit_logdet"].dtype == np.float64, out["jit_logdet"].dtype
     np.savez(sys.argv[2], **out)
@@ -56,15 +56,13 @@ def _in_process(u, y) -> dict:
         for f in FIELDS:
             out[f"{tag}_{f}"] = np.asarray(getattr(res, f))
         out[f"{tag}_A"] = np.asarray(res.model.A)
-    f = jax.jit(lambda a, b: fit_one(a, b, P64, lag=2, horizon=4, n_cap=8).logdet)
-    out["jit_logdet"] = np.asarray(f(jnp.asarray(u[0], jnp.float32),
-                                     jnp.asarray(y[0], jnp.float32)))
+    f = jax.jit(jax.vmap(lambda a, b: fit_one(a, b, P64, lag=2, horizon=4, n_cap=8).logdet))
+    out["jit_logdet"] = np.asarray(f(jnp.asarray(u, jnp.float32), jnp.asarray(y, jnp.float32)))
     out["aic"] = np.asarray(aic(np.float64(-0.123456789), 3, 997, 2, 2))
     return out
 
 
 def test_identify_same_numbers_with_x64_off(tmp_path):
-    assert jax.config.jax_enable_x64
     rng = np.random.default_rng(3)
     u, y, _ = simulate_batch(rng, np.array([1, 3, 5]), 400, 2, 2, noise=0.05,
                              min_separation=0.15)
@@ -75,7 +73,8 @@ def test_identify_same_numbers_with_x64_off(tmp_path):
                           timeout=300, env=env)
     assert proc.returncode == 0 and proc.stdout.startswith("OK"), proc.stderr[-3000:]
     off = dict(np.load(tmp_path / "off.npz"))
-    on = _in_process(u, y)
+    with jax.enable_x64(True):
+        on = _in_process(u, y)
     assert set(on) == set(off)
     for k in on:
         assert on[k].dtype == off[k].dtype, (k, on[k].dtype, off[k].dtype)

@@ -29,7 +29,7 @@ from vbl.sysid.aic import aic as aic_fn
 from vbl.sysid.linalg import svd_thin, x64_scope
 from vbl.sysid.params import CVAParams
 
-__all__ = ["CVAFit", "fit_one", "fit_batch", "n_identifiable", "stack_indices"]
+__all__ = ["CVAFit", "fit_one", "fit_batch", "n_identifiable", "stack_indices", "first_argmin"]
 
 
 @struct.dataclass
@@ -144,6 +144,27 @@ def _fit_one(u: jnp.ndarray, y: jnp.ndarray, params: CVAParams, *, lag: int, hor
     mw = solve_triangular(lf, x.T, lower=True).T              # ... L_f^-T
     ua, s, _ = svd_thin(mw)                                   # (dp, r), (r,)
     umat = solve_triangular(lp, ua, lower=True, trans="T").T  # U = U_aux^T L_p^-1, (r, dp)
+    return _order_sweep(g, ix, umat, s, params, floor, m=m, q=q, ne=ne, n_cap=n_cap,
+                        n_ident=n_identifiable(lag, horizon, m, q),
+                        means=(u_mean, u_scale, y_mean, y_scale))
+
+
+def first_argmin(a: jnp.ndarray) -> jnp.ndarray:
+    """Index (int32) of the first minimum of a 1-D array (``jnp.argmin`` for finite input).
+
+    Written with ``min`` and ``where``: ``jnp.argmin`` fails to lower when 64-bit types are
+    switched on only inside a caller's ``jit(vmap(...))``.
+    """
+    idx = jnp.arange(a.shape[0], dtype=jnp.int32)
+    return jnp.min(jnp.where(a == jnp.min(a), idx, a.shape[0] - 1)).astype(jnp.int32)
+
+
+def _order_sweep(g, ix, umat, s, params, floor, *, m, q, ne, n_cap, n_ident, means) -> CVAFit:
+    """Eq. (2) for every order n = 0..n_cap from the Gram matrix ``g`` and the state map
+    ``umat`` (r, dp), canonical correlations ``s`` (r,); AIC (Eq. 6) picks n* among
+    ``n_min <= n <= n_ident``."""
+    dt = g.dtype
+    p = ix["p"]
     r = s.shape[0]
     dp = p.shape[0]
     if r >= n_cap:
@@ -178,9 +199,10 @@ def _fit_one(u: jnp.ndarray, y: jnp.ndarray, params: CVAParams, *, lag: int, hor
     ns = jnp.arange(c + 1)
     logdet, rs = jax.vmap(logdet_r)(ns)
     a = aic_fn(logdet, ns, ne, m, q, params.param_count)
-    valid = (ns >= params.n_min) & (ns <= n_identifiable(lag, horizon, m, q))
+    # an order whose residual covariance is numerically singular (NaN) is not identifiable
+    valid = (ns >= params.n_min) & (ns <= n_ident) & jnp.isfinite(logdet)
     a = jnp.where(valid, a, jnp.inf)
-    n_star = jnp.argmin(a).astype(jnp.int32)
+    n_star = first_argmin(a)
 
     # Theta of Eq. (2) at n*: [mu(t+1); y(t)] = Theta [mu(t); u(t)].
     lx, w = masked(n_star)
@@ -189,8 +211,8 @@ def _fit_one(u: jnp.ndarray, y: jnp.ndarray, params: CVAParams, *, lag: int, hor
     theta = theta * rows[:, None]
     return CVAFit(cancor=jnp.clip(s, 0.0, 1.0), logdet=logdet, aic=a, n=n_star, U=umat,
                   A=theta[:c, :c], B=theta[:c, c:], C=theta[c:, :c], D=theta[c:, c:],
-                  R=rs[n_star], u_mean=u_mean, u_scale=u_scale, y_mean=y_mean,
-                  y_scale=y_scale)
+                  R=rs[n_star], u_mean=means[0], u_scale=means[1], y_mean=means[2],
+                  y_scale=means[3])
 
 
 def fit_batch(u: jnp.ndarray, y: jnp.ndarray, params: CVAParams, *, lag: int, horizon: int,

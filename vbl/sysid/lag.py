@@ -1,13 +1,20 @@
-"""Validated entry point: CVA for a batch of data sets with the lag rule of Sec. 3.1.2.
+"""Validated entry point: CVA for a batch of data sets, the order by AIC and the lag.
 
-Lag rule (per data set, all data sets at once): for l = 1, 2, ... identify (AIC picks n);
-stop at the first l with log det R_hat(n*) < ``logdet_stop`` (keep that l); otherwise stop
-when AIC(n*) at l is not lower than at l - 1 (keep l - 1); ``lag_max`` caps l. A Python loop
-runs over the few l values (each l changes shapes); the data-set axis is vmapped, and the loop
-ends early once every data set has stopped.
+With ``lag = 0`` the lag is chosen per data set by ``params.lag_rule``:
+
+* ``'predictor'`` (default, :mod:`vbl.sysid.sweep`): every l = 1 .. lag_max in one program
+  on a common sample window, n*(l) by Eq. (6), l* by the AIC of the whole one-step predictor
+  (Eq. 6 plus the state map's coefficients). The same choice in any units.
+* ``'paper'`` (Sec. 3.1.2): for l = 1, 2, ... identify (AIC picks n); stop at the first l
+  with log det R_hat(n*) < ``logdet_stop`` (keep that l); otherwise stop when AIC(n*) at l is
+  not lower than at l - 1 (keep l - 1); ``lag_max`` caps l. Each l has its own sample window
+  (shapes change with l): a Python loop over the few l values, the data-set axis vmapped, and
+  the loop ends early once every data set has stopped.
 """
 
 from __future__ import annotations
+
+import warnings
 
 import jax
 import jax.numpy as jnp
@@ -19,9 +26,14 @@ from vbl.sysid.cva import CVAFit, fit_batch, n_identifiable
 from vbl.sysid.linalg import x64_scope
 from vbl.sysid.model import CVAModel
 from vbl.sysid.params import CVAParams
-from vbl.sysid.validate import check_data
+from vbl.sysid.sweep import fit_select_batch
+from vbl.sysid.validate import check_data, prepare_scale, warn_collinear
 
-__all__ = ["Identification", "identify", "select_lag", "n_cap_for"]
+__all__ = ["Identification", "identify", "select_lag", "n_cap_for", "OrderCapWarning"]
+
+
+class OrderCapWarning(UserWarning):
+    """n* equals the largest order the chosen lag and horizon can identify."""
 
 
 @struct.dataclass
@@ -41,6 +53,10 @@ class Identification:
     cancor: jnp.ndarray       # (B, c) canonical correlations at the selected l
     lag_aic: jnp.ndarray      # (B, L) AIC(n*) for each lag tried (nan = not computed)
     lag_logdet: jnp.ndarray   # (B, L) log det R_hat(n*) for each lag tried
+    lag_n: jnp.ndarray        # (B, L) int32 n* for each lag tried (-1 = not computed)
+    lag_criterion: jnp.ndarray  # (B, L) predictor AIC PE(l) ('predictor' rule; else nan)
+    n_ident: jnp.ndarray      # (B,) int32 largest identifiable order min(l(m+q), kq) at l
+    n_at_cap: jnp.ndarray     # (B,) bool n* == n_ident: the true order may be larger
     model: CVAModel           # batched filtering model (float32 unless asked otherwise)
 
 
@@ -79,18 +95,22 @@ def _pad_u(umat: np.ndarray, lag: int, h: int, m: int, q: int) -> np.ndarray:
 
 def identify(u, y, params: CVAParams | None = None, *, model_dtype=jnp.float32
              ) -> Identification:
-    """Identify every data set: CVA, AIC order n* and (if ``params.lag == 0``) the lag rule.
+    """Identify every data set: CVA, AIC order n* and (if ``params.lag == 0``) the lag.
 
     Args:
       u: inputs ``(B, N, m)`` (or one data set ``(N, m)``), any units.
       y: outputs ``(B, N, q)`` (or ``(N, q)``).
-      params: :class:`CVAParams` (validated here).
+      params: :class:`CVAParams` (validated here); default: lag by the predictor AIC.
       model_dtype: floating type of the returned filtering model.
     Returns:
       :class:`Identification` (without the B axis for unbatched input).
     Raises:
       ValueError / ParamError for bad parameters or data (shapes, NaN/inf, constant
-      channels, records too short for the lags and horizon) and if a result is not finite.
+      channels, records too short, values beyond the dtype's safe range when not
+      standardised) and if a result is not finite.
+    Warns:
+      :class:`OrderCapWarning` when n* is the largest identifiable order;
+      :class:`vbl.sysid.validate.CollinearWarning` for duplicated / collinear channels.
 
     Runs inside :func:`vbl.sysid.linalg.x64_scope`: the same numbers whether or not
     ``jax_enable_x64`` is on globally (float fields of the result are float64 arrays).
@@ -102,7 +122,74 @@ def identify(u, y, params: CVAParams | None = None, *, model_dtype=jnp.float32
 def _identify(u, y, params, model_dtype) -> Identification:
     params = validate(params if params is not None else CVAParams())
     u, y, batched = check_data(u, y, params)
+    warn_collinear(u, y, params.collinear_tol)
+    u, y, shift = prepare_scale(u, y, params)
     b, _, m = u.shape
+    q = y.shape[2]
+    if params.lag == 0 and params.lag_rule == "predictor":
+        out = _by_predictor(u, y, params)
+    else:
+        out = _by_lag(u, y, params)
+    _check_finite(out, params)
+    return _assemble(out, shift, params, b, m, q, batched, model_dtype)
+
+
+def _check_finite(out: dict, params: CVAParams) -> None:
+    bad = ~np.isfinite(out["logdet_R"]) | ~np.isfinite(out["aic"])
+    for k in ("U", "A", "B", "C", "D", "R"):
+        bad |= ~np.isfinite(out[k]).reshape(len(bad), -1).all(1)
+    if bad.any():
+        raise ValueError(_ill_conditioned(np.flatnonzero(bad), params))
+
+
+def _ill_conditioned(ds: np.ndarray, params: CVAParams, lag: int | None = None) -> str:
+    """Message for non-finite results of data in range (so the cause is conditioning)."""
+    at = f" at lag {lag}" if lag is not None else ""
+    return (f"identification{at} gave non-finite results for data sets {ds[:10].tolist()}: "
+            "the covariance matrices are too ill-conditioned for the regularisation floor "
+            f"(dtype={params.dtype}, reg={params.reg:g}, reg_float32={params.reg_float32:g}); "
+            "raise params.reg (reg_float32 for float32) or drop collinear channels")
+
+
+def _check_model_range(out: dict, shift, model_dtype) -> None:
+    """The model's channel means and scales (raw units) must fit its dtype."""
+    fi = np.finfo(np.dtype(model_dtype))
+    for name, off, mul, key in (("u", shift[0], shift[1], "u"), ("y", shift[2], shift[3], "y")):
+        mean = np.abs(off + mul * np.asarray(out[key + "_mean"], np.float64))
+        scale = mul * np.asarray(out[key + "_scale"], np.float64)
+        if (mean > fi.max).any() or (scale > fi.max).any() or (scale < fi.tiny).any():
+            raise ValueError(f"{name}'s channel means / scales (up to {mean.max():.3g} / "
+                             f"{scale.max():.3g}, down to scale {scale.min():.3g}) do not fit "
+                             f"the {fi.dtype} filtering model; pass model_dtype=jnp.float64 or "
+                             f"rescale {name}")
+
+
+def _by_predictor(u, y, params: CVAParams) -> dict:
+    """Lag rule 'predictor': one program for all lags (:mod:`vbl.sysid.sweep`)."""
+    b, n_samp, m = u.shape
+    q = y.shape[2]
+    lags = np.asarray(params.lags())
+    hors = np.asarray([params.horizon_for(int(lg)) for lg in lags])
+    c = n_cap_for(params, m, q)
+    fit, j, (ln, la, lld, lpe) = jax.device_get(
+        fit_select_batch(u, y, params, n_cap=c))
+    j = np.asarray(j)
+    n = np.asarray(fit.n, np.int32)
+    rows = np.arange(b)
+    return dict(lag=lags[j].astype(np.int32), horizon=hors[j], n=n,
+                n_samples=np.full(b, n_samp - lags.max() - hors.max() + 1, np.int32),
+                logdet_R=np.asarray(lld)[rows, j], aic=np.asarray(la)[rows, j],
+                aic_curve=fit.aic, logdet_curve=fit.logdet, cancor=fit.cancor,
+                lag_aic=np.asarray(la), lag_logdet=np.asarray(lld),
+                lag_n=np.asarray(ln, np.int32), lag_criterion=np.asarray(lpe),
+                U=np.asarray(fit.U), A=fit.A, B=fit.B, C=fit.C, D=fit.D, R=fit.R,
+                u_mean=fit.u_mean, u_scale=fit.u_scale, y_mean=fit.y_mean,
+                y_scale=fit.y_scale)
+
+
+def _by_lag(u, y, params: CVAParams) -> dict:
+    """A fixed lag, or lag_rule 'paper' (a loop over lags, each vmapped over data sets)."""
+    b, n_samp, m = u.shape
     q = y.shape[2]
     lags = params.lags()
     c = n_cap_for(params, m, q)
@@ -110,18 +197,17 @@ def _identify(u, y, params, model_dtype) -> Identification:
     fits: list[CVAFit] = []
     ld = np.full((b, len(lags)), np.nan)
     ai = np.full((b, len(lags)), np.nan)
-    uj, yj = jnp.asarray(u), jnp.asarray(y)
+    ln = np.full((b, len(lags)), -1, np.int32)
     for j, lag in enumerate(lags):
-        fit = jax.device_get(fit_batch(uj, yj, params, lag=lag,
+        fit = jax.device_get(fit_batch(u, y, params, lag=lag,
                                        horizon=params.horizon_for(lag), n_cap=c))
         idx = np.arange(b)
         ld[:, j] = fit.logdet[idx, fit.n]
         ai[:, j] = fit.aic[idx, fit.n]
+        ln[:, j] = fit.n
         bad = ~np.isfinite(ld[:, j]) | ~np.isfinite(ai[:, j])
         if bad.any():
-            raise ValueError(f"identification at lag {lag} gave non-finite log det R for data "
-                             f"sets {np.flatnonzero(bad)[:10].tolist()}: ill-conditioned data; "
-                             "raise params.reg or check the data")
+            raise ValueError(_ill_conditioned(np.flatnonzero(bad), params, lag))
         fits.append(fit)
         if len(lags) > 1 and select_lag(ld, ai, params.logdet_stop)[1].all():
             break
@@ -135,31 +221,57 @@ def _identify(u, y, params, model_dtype) -> Identification:
         return stack[chosen, np.arange(b)]
 
     lag_arr = np.asarray(lags, np.int32)[chosen]
-    n = pick(lambda j, f: f.n).astype(np.int32)
-    umat = pick(lambda j, f: _pad_u(np.asarray(f.U), lags[j], h, m, q))
-    umat = umat * (np.arange(c)[None, :, None] < n[:, None, None])   # mu masked beyond n*
+    hor = np.asarray([params.horizon_for(int(lg)) for lg in lag_arr])
+    out = dict(lag=lag_arr, horizon=hor, n=pick(lambda j, f: f.n).astype(np.int32),
+               n_samples=(n_samp - hor - lag_arr + 1).astype(np.int32),
+               logdet_R=ld[np.arange(b), chosen], aic=ai[np.arange(b), chosen],
+               lag_aic=ai, lag_logdet=ld, lag_n=ln, lag_criterion=np.full(ld.shape, np.nan),
+               U=pick(lambda j, f: _pad_u(np.asarray(f.U), lags[j], h, m, q)))
+    for k in ("aic_curve", "logdet_curve", "cancor", "A", "B", "C", "D", "R", "u_mean",
+              "u_scale", "y_mean", "y_scale"):
+        key = {"aic_curve": "aic", "logdet_curve": "logdet"}.get(k, k)
+        out[k] = pick(lambda j, f, key=key: getattr(f, key))
+    return out
+
+
+def _assemble(out: dict, shift, params, b, m, q, batched, model_dtype) -> Identification:
+    """Build the result and the model (raw units restored), warn when n* hits the cap."""
+    n = out["n"]
+    c = out["A"].shape[-1]
+    umat = out["U"] * (np.arange(c)[None, :, None] < n[:, None, None])   # mu masked beyond n*
+    n_id = np.asarray([n_identifiable(int(lg), int(k), m, q)
+                       for lg, k in zip(out["lag"], out["horizon"], strict=True)], np.int32)
+    at_cap = n == n_id
+    if at_cap.any():
+        ds = np.flatnonzero(at_cap)
+        warnings.warn(OrderCapWarning(
+            f"n* equals the largest identifiable order min(l(m+q), kq) for "
+            f"{len(ds)} data set(s) (first {ds[:10].tolist()}: l={int(out['lag'][ds[0]])}, "
+            f"k={int(out['horizon'][ds[0]])}, n*={int(n[ds[0]])}): the true order may be "
+            "larger; fix a larger lag, lag_max or horizon"), stacklevel=4)
+    u_off, u_mul, y_off, y_mul = shift
     md = model_dtype
+    _check_model_range(out, shift, md)
 
     def cast(a):
         return jnp.asarray(a, md)
 
-    model = CVAModel(U=cast(umat), A=cast(pick(lambda j, f: f.A)), B=cast(pick(lambda j, f: f.B)),
-                     C=cast(pick(lambda j, f: f.C)), D=cast(pick(lambda j, f: f.D)),
-                     R=cast(pick(lambda j, f: f.R)), n=jnp.asarray(n), lag=jnp.asarray(lag_arr),
-                     u_mean=cast(pick(lambda j, f: f.u_mean)),
-                     u_scale=cast(pick(lambda j, f: f.u_scale)),
-                     y_mean=cast(pick(lambda j, f: f.y_mean)),
-                     y_scale=cast(pick(lambda j, f: f.y_scale)))
-    n_samples = np.asarray([u.shape[1] - params.horizon_for(int(lg)) - int(lg) + 1
-                            for lg in lag_arr], np.int32)
+    model = CVAModel(U=cast(umat), A=cast(out["A"]), B=cast(out["B"]), C=cast(out["C"]),
+                     D=cast(out["D"]), R=cast(out["R"]), n=jnp.asarray(n),
+                     lag=jnp.asarray(out["lag"]),
+                     u_mean=cast(u_off + u_mul * np.asarray(out["u_mean"], np.float64)),
+                     u_scale=cast(u_mul * np.asarray(out["u_scale"], np.float64)),
+                     y_mean=cast(y_off + y_mul * np.asarray(out["y_mean"], np.float64)),
+                     y_scale=cast(y_mul * np.asarray(out["y_scale"], np.float64)))
     res = Identification(
-        lag=jnp.asarray(lag_arr), n=jnp.asarray(n),
-        logdet_R=jnp.asarray(ld[np.arange(b), chosen]), aic=jnp.asarray(ai[np.arange(b), chosen]),
-        n_samples=jnp.asarray(n_samples),
-        aic_curve=jnp.asarray(pick(lambda j, f: f.aic)),
-        logdet_curve=jnp.asarray(pick(lambda j, f: f.logdet)),
-        cancor=jnp.asarray(pick(lambda j, f: f.cancor)),
-        lag_aic=jnp.asarray(ai), lag_logdet=jnp.asarray(ld), model=model)
+        lag=jnp.asarray(out["lag"]), n=jnp.asarray(n),
+        logdet_R=jnp.asarray(out["logdet_R"]), aic=jnp.asarray(out["aic"]),
+        n_samples=jnp.asarray(out["n_samples"]),
+        aic_curve=jnp.asarray(out["aic_curve"]), logdet_curve=jnp.asarray(out["logdet_curve"]),
+        cancor=jnp.asarray(out["cancor"]), lag_aic=jnp.asarray(out["lag_aic"]),
+        lag_logdet=jnp.asarray(out["lag_logdet"]), lag_n=jnp.asarray(out["lag_n"]),
+        lag_criterion=jnp.asarray(out["lag_criterion"]), n_ident=jnp.asarray(n_id),
+        n_at_cap=jnp.asarray(at_cap), model=model)
     if not batched:
         res = jax.tree_util.tree_map(lambda a: a[0], res)
     return res

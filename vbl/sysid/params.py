@@ -9,8 +9,9 @@ from flax import struct
 
 from vbl.params import ParamError, param
 
-__all__ = ["CVAParams", "METHODS", "PARAM_COUNTS", "DTYPES"]
+__all__ = ["CVAParams", "METHODS", "PARAM_COUNTS", "DTYPES", "LAG_RULES"]
 
+LAG_RULES = ("predictor", "paper")
 METHODS = ("projected", "paper")
 PARAM_COUNTS = ("larimore", "sippy")
 DTYPES = ("float64", "float32")
@@ -20,9 +21,15 @@ DTYPES = ("float64", "float32")
 class CVAParams:
     """Options of batched CVA identification with AIC order and lag selection."""
 
-    lag: int = param(0, doc="past lag l of the stack p(t); 0 selects l per data set by the "
-                     "lag rule of Sec. 3.1.2 (l = 1 .. lag_max)", source="P/C",
-                     static=True, ge=0)
+    lag: int = param(0, doc="past lag l of the stack p(t); 0 selects l per data set by "
+                     "lag_rule among l = 1 .. lag_max", source="P/C", static=True, ge=0)
+    lag_rule: str = param("predictor", doc="lag selection when lag = 0: 'predictor' (default): "
+                          "every l on one common sample window, n*(l) by AIC (Eq. 6), then the "
+                          "l minimising the AIC of the whole one-step predictor, Eq. (6) plus "
+                          "2 n* l (m+q) for the state map's coefficients (the same in any "
+                          "units); 'paper': the rule of Sec. 3.1.2 (stop at the first l with "
+                          "log det R < logdet_stop, else while AIC decreases; depends on the "
+                          "units of y)", source="C", static=True, choices=LAG_RULES)
     lag_max: int = param(6, doc="largest lag the lag rule tries", static=True, ge=1)
     horizon: int = param(0, doc="future horizon k of the stack f(t); 0 means k = 2l "
                          "(measured: recovers the order more often than k = l)",
@@ -48,10 +55,14 @@ class CVAParams:
                        "to every covariance before a Cholesky factorisation", ge=0.0, lt=1.0)
     reg_float32: float = param(1e-6, doc="regularisation floor used when dtype='float32'",
                                ge=0.0, lt=1.0)
-    logdet_stop: float = param(0.0, doc="lag rule: stop growing l once log det R < this",
-                               source="P")
+    logdet_stop: float = param(0.0, doc="lag_rule='paper' only: stop growing l once "
+                               "log det R < this", source="P")
     const_tol: float = param(1e-9, doc="a channel whose std <= const_tol * max|x| is "
                              "constant (error)", ge=0.0, lt=1.0)
+    collinear_tol: float = param(1e-8, doc="warn when two channels of u (or of y) have "
+                                 "|correlation| >= 1 - collinear_tol, or the channels' "
+                                 "correlation matrix has an eigenvalue below it (collinear)",
+                                 ge=0.0, lt=1.0)
     min_samples_factor: float = param(2.0, doc="require N-k-l+1 >= this x (l+k)(m+q) "
                                       "samples in the covariance estimates", ge=1.0)
 

@@ -2,11 +2,18 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from vbl.sysid.params import CVAParams
 
-__all__ = ["check_data", "min_length"]
+__all__ = ["check_data", "min_length", "prepare_scale", "warn_collinear", "safe_range",
+           "CollinearWarning"]
+
+
+class CollinearWarning(UserWarning):
+    """Duplicated or collinear channels of u or y (identification regularises them)."""
 
 
 def min_length(lag: int, horizon: int, m: int, q: int, factor: float) -> int:
@@ -65,3 +72,81 @@ def check_data(u, y, params: CVAParams) -> tuple[np.ndarray, np.ndarray, bool]:
                              f"({int(const.sum())} constant channel(s) in all); CVA needs "
                              "every channel to vary: drop it or add excitation")
     return u, y, batched
+
+
+def safe_range(dtype: str) -> tuple[float, float]:
+    """Magnitudes ``(lo, hi)`` = 2^-(e/4), 2^(e/4) (e = the dtype's largest binary exponent)
+    within which sums of squares over any record neither overflow nor lose all precision."""
+    e = np.finfo(np.float32 if dtype == "float32" else np.float64).maxexp
+    return 2.0 ** -(e // 4), 2.0 ** (e // 4)
+
+
+def prepare_scale(u: np.ndarray, y: np.ndarray, params: CVAParams):
+    """Bring data near float limits into range without changing the identification.
+
+    Per data set and channel: with ``dtype='float32'`` and ``demean`` the mean is removed in
+    float64 first (a mean of 1e7 would leave float32 no digits for the variation); with
+    ``standardize`` a channel whose magnitude is outside :func:`safe_range` is divided by a
+    power of two (exact, so the standardised data are the same bits). Returns ``u, y`` and
+    ``(u_off, u_mul, y_off, y_mul)`` (B, m) / (B, q) with raw = off + mul * prepared.
+    Raises ValueError for out-of-range data that is not standardised.
+    """
+    lo, hi = safe_range(params.dtype)
+    out = []
+    for name, x in (("u", u), ("y", y)):
+        off = np.zeros(x.shape[::2])
+        if params.dtype == "float32" and params.demean:
+            off = x.mean(axis=1)
+            x = x - off[:, None, :]
+        mag = np.abs(x).max(axis=1)
+        bad = (mag > hi) | (mag < lo)
+        mul = np.ones_like(mag)
+        if bad.any() and not params.standardize:
+            ds, ch = np.argwhere(bad)[0]
+            raise ValueError(
+                f"{name} channel {ch} of data set {ds} reaches {mag[ds, ch]:.3g} in magnitude: "
+                f"with standardize=False and dtype={params.dtype} identification needs "
+                f"magnitudes in [{lo:.3g}, {hi:.3g}] (its covariances would overflow or "
+                f"underflow); rescale {name} or set standardize=True")
+        if bad.any():
+            mul = np.where(bad, np.exp2(np.floor(np.log2(mag))), 1.0)
+            x = x / mul[:, None, :]
+        out += [x, off, mul]
+    u, u_off, u_mul, y, y_off, y_mul = out
+    return u, y, (u_off, u_mul, y_off, y_mul)
+
+
+def _collinear(x: np.ndarray, tol: float):
+    """Per data set: duplicate channel pairs (|corr| >= 1 - tol) and collinearity flags."""
+    xc = x - x.mean(axis=1, keepdims=True)
+    xc = xc / np.maximum(np.linalg.norm(xc, axis=1, keepdims=True), np.finfo(float).tiny)
+    corr = np.einsum("btc,btd->bcd", xc, xc)
+    ch = corr.shape[-1]
+    iu = np.triu_indices(ch, 1)
+    dup = np.abs(corr[:, iu[0], iu[1]]) >= 1.0 - tol           # (B, pairs)
+    flat = np.linalg.eigvalsh(corr)[:, 0] <= tol                # (B,)
+    return [(int(iu[0][k]), int(iu[1][k])) for k in range(len(iu[0]))], dup, flat
+
+
+def warn_collinear(u: np.ndarray, y: np.ndarray, tol: float) -> None:
+    """Warn (:class:`CollinearWarning`) naming duplicated or collinear channels of u and y."""
+    for name, x in (("u", u), ("y", y)):
+        if x.shape[-1] < 2:
+            continue
+        pairs, dup, flat = _collinear(x, tol)
+        if dup.any():
+            k = int(np.argwhere(dup.any(axis=0))[0, 0])
+            ds = np.flatnonzero(dup[:, k])
+            warnings.warn(CollinearWarning(
+                f"{name} channels {pairs[k][0]} and {pairs[k][1]} are duplicates (|correlation| "
+                f">= 1 - {tol:g}) in {len(ds)} data set(s) (first {ds[:10].tolist()}); "
+                f"{int(dup.any(axis=1).sum())} data set(s) have duplicated {name} channels in "
+                "all: identification regularises them, but drop one of each pair"),
+                stacklevel=4)
+        elif flat.any():
+            ds = np.flatnonzero(flat)
+            warnings.warn(CollinearWarning(
+                f"{name} channels are collinear (one is a linear combination of the others; "
+                f"smallest eigenvalue of their correlation matrix <= {tol:g}) in {len(ds)} "
+                f"data set(s) (first {ds[:10].tolist()}): identification regularises them, "
+                f"but drop the redundant {name} channel"), stacklevel=4)

@@ -1,0 +1,177 @@
+"""identify(u, y) with its defaults: the predictor lag rule against the NumPy oracle, the
+order-cap and collinearity warnings, and data near float limits."""
+
+import warnings
+
+import numpy as np
+import pytest
+from reference.cva_np import cva_reference
+from reference.sysid_systems import simulate_batch
+
+from vbl.sysid import CVAParams, identify, param_count
+from vbl.sysid.lag import OrderCapWarning
+from vbl.sysid.validate import CollinearWarning
+
+LAG_MAX = 3
+
+
+@pytest.fixture(scope="module")
+def data():
+    rng = np.random.default_rng(7)
+    u, y, _ = simulate_batch(rng, np.array([1, 3, 5, 2]), 500, 2, 2, noise=0.05,
+                             min_separation=0.15)
+    return u, y
+
+
+def _standardised(x):
+    return (x - x.mean(axis=1, keepdims=True)) / x.std(axis=1, keepdims=True)
+
+
+def test_predictor_rule_matches_oracle_on_common_window(data):
+    """Every lag is the oracle's CVA on the common window t = L .. N-K; l* = argmin of
+    AIC(n*(l)) + 2 n*(l) l (m+q); the result is the oracle's fit at l*."""
+    u, y = map(_standardised, data)
+    p = CVAParams(lag_max=LAG_MAX)
+    res = identify(u, y, p)
+    m = q = 2
+    big_k = 2 * LAG_MAX
+    for i in range(len(u)):
+        refs = []
+        for lag in range(1, LAG_MAX + 1):
+            sl = slice(LAG_MAX - lag, u.shape[1] - (big_k - 2 * lag))
+            refs.append(cva_reference(u[i, sl], y[i, sl], lag, 2 * lag, demean=False,
+                                      standardize=False, n_max=12))
+        n_ref = np.array([r["n"] for r in refs])
+        aic_ref = np.array([r["aic"][r["n"]] for r in refs])
+        pe = aic_ref + 2 * n_ref * np.arange(1, LAG_MAX + 1) * (m + q)
+        np.testing.assert_array_equal(np.asarray(res.lag_n[i]), n_ref)
+        np.testing.assert_allclose(np.asarray(res.lag_aic[i]), aic_ref, atol=1e-4)
+        np.testing.assert_allclose(np.asarray(res.lag_criterion[i]), pe, atol=1e-4)
+        best = int(np.argmin(pe))
+        assert int(res.lag[i]) == best + 1 and int(res.n[i]) == n_ref[best]
+        ref = refs[best]
+        k = len(ref["cancor"])
+        np.testing.assert_allclose(np.asarray(res.cancor[i])[:k], ref["cancor"], atol=1e-9)
+        np.testing.assert_allclose(np.asarray(res.logdet_curve[i])[:len(ref["logdet"])],
+                                   ref["logdet"], atol=1e-7)
+        assert int(res.n_samples[i]) == u.shape[1] - big_k - LAG_MAX + 1
+
+
+def test_predictor_rule_same_in_any_units(data):
+    """A change of y's unit shifts log det R by the same constant at every lag: the lag and
+    order stay, also without standardisation (where the paper rule's log det R < 0 stop
+    moves: at 300x it never fires, at 0.01x it fires at l = 1)."""
+    u, y = data
+    a = identify(u, y, CVAParams(lag_max=LAG_MAX, standardize=False))
+    for unit in (300.0, 0.01):
+        b = identify(u, y * unit, CVAParams(lag_max=LAG_MAX, standardize=False))
+        np.testing.assert_array_equal(np.asarray(a.lag), np.asarray(b.lag))
+        np.testing.assert_array_equal(np.asarray(a.n), np.asarray(b.n))
+        # identified components; the regularisation floor scales with the mean variance of
+        # u and y together, so it moves the small (noise) correlations by up to ~1e-2
+        for i, n in enumerate(np.asarray(a.n)):
+            np.testing.assert_allclose(np.asarray(a.cancor[i, :n]), np.asarray(b.cancor[i, :n]),
+                                       atol=1e-3)
+        np.testing.assert_allclose(np.asarray(b.logdet_R) - np.asarray(a.logdet_R),
+                                   2 * 2 * np.log(unit), atol=1e-2)
+
+
+def test_order_cap_warning_and_field():
+    """Order 6 with l = 1, k = 2: at most min(1 * 4, 2 * 2) = 4 states identifiable."""
+    rng = np.random.default_rng(0)
+    u, y, _ = simulate_batch(rng, np.array([6, 6]), 600, 2, 2, noise=0.01, min_separation=0.15)
+    with pytest.warns(OrderCapWarning, match="largest identifiable order"):
+        res = identify(u, y, CVAParams(lag=1))
+    assert np.all(np.asarray(res.n_ident) == 4)
+    np.testing.assert_array_equal(np.asarray(res.n_at_cap), np.asarray(res.n) == 4)
+    assert np.asarray(res.n_at_cap).any()
+
+
+def test_no_cap_warning_when_order_is_below_cap(data):
+    u, y = data
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", OrderCapWarning)
+        res = identify(u, y, CVAParams(lag=3))
+    assert not np.asarray(res.n_at_cap).any()
+
+
+def test_duplicate_output_channel_warning(data):
+    u, y = data
+    y3 = np.concatenate([y, -2.5 * y[..., :1]], axis=-1)
+    with pytest.warns(CollinearWarning, match="y channels 0 and 2 are duplicates"):
+        res = identify(u, y3, CVAParams(lag=2))
+    assert np.all(np.isfinite(np.asarray(res.logdet_R)))
+
+
+def test_collinear_input_warning(data):
+    u, y = data
+    u3 = np.concatenate([u, u[..., :1] - 0.5 * u[..., 1:]], axis=-1)
+    with pytest.warns(CollinearWarning, match="u channels are collinear"):
+        identify(u3, y, CVAParams(lag=2))
+
+
+def test_no_collinear_warning_on_clean_data(data):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", CollinearWarning)
+        identify(*data, CVAParams(lag=2))
+
+
+def _finite_model(res):
+    for k in ("U", "A", "B", "C", "D", "R", "u_mean", "u_scale", "y_mean", "y_scale"):
+        assert np.all(np.isfinite(np.asarray(getattr(res.model, k)))), k
+
+
+@pytest.mark.parametrize("scale", [1e100, 1e-100])
+def test_huge_and_tiny_values_are_handled(data, scale):
+    """Standardised identification of data scaled by 1e+-100 is the same identification
+    (exact power-of-two prescaling); the model maps raw units."""
+    u, y = data
+    p = CVAParams(lag=2)
+    ref = identify(u, y, p)
+    with pytest.raises(ValueError, match="do not fit the float32 filtering model"):
+        identify(u * scale, y * scale, p)
+    res = identify(u * scale, y * scale, p, model_dtype=np.float64)
+    _finite_model(res)
+    np.testing.assert_array_equal(np.asarray(res.n), np.asarray(ref.n))
+    np.testing.assert_allclose(np.asarray(res.cancor), np.asarray(ref.cancor), atol=1e-12)
+    np.testing.assert_allclose(np.asarray(res.logdet_R), np.asarray(ref.logdet_R), atol=1e-9)
+    np.testing.assert_allclose(np.asarray(res.model.y_scale, np.float64),
+                               scale * np.asarray(ref.model.y_scale, np.float64), rtol=1e-6)
+
+
+def test_huge_values_without_standardisation_error(data):
+    u, y = data
+    with pytest.raises(ValueError, match="reaches .*e\\+100 in magnitude.*standardize=True"):
+        identify(u, y * 1e100, CVAParams(lag=2, standardize=False))
+
+
+def test_float32_with_large_means(data):
+    """Means around 1e7 with the float32 kernel: the means are removed in float64 first, so
+    float32 identifies as float64 does (a float32 mean removal would keep ~1 digit)."""
+    u, y = data
+    r64 = identify(u + 1e7, y - 3e7, CVAParams(lag=2))
+    r32 = identify(u + 1e7, y - 3e7, CVAParams(lag=2, dtype="float32"))
+    _finite_model(r32)
+    np.testing.assert_array_equal(np.asarray(r32.n), np.asarray(r64.n))
+    np.testing.assert_allclose(np.asarray(r32.cancor), np.asarray(r64.cancor), atol=2e-4)
+    np.testing.assert_allclose(np.asarray(r32.model.y_mean[0]), y[0].mean(0) - 3e7, rtol=1e-7)
+
+
+def test_ill_conditioned_message_names_the_cause(data):
+    """Without any regularisation floor, duplicated channels make the covariances singular:
+    the error says so (and not for the scaled data above, which is handled)."""
+    u, y = data
+    u3 = np.concatenate([u, u[..., :1]], axis=-1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", CollinearWarning)
+        try:
+            res = identify(u3, y, CVAParams(lag=2, reg=0.0))
+        except ValueError as e:
+            assert "ill-conditioned" in str(e) and "raise params.reg" in str(e)
+        else:
+            _finite_model(res)
+
+
+def test_param_count_used_by_criterion():
+    # the predictor criterion adds n l (m+q) coefficients of the state map to Eq. (6)'s count
+    assert float(param_count(3, 2, 2)) + 3 * 2 * 4 == 3 * 6 + 4 + 3 + 24
