@@ -126,7 +126,7 @@ def test_macro_params_validation():
         validate(MacroActionParams(min_repeats=0))
 
 
-def train_counter(mode: str, transition_steps: float, chunk_steps: int):
+def train_counter(mode: str, transition_steps: float, chunk_steps: int, trace=None):
     """One chunk of Q-learning on the blocks (state = counter // 3) with macro actions
     (``mode`` 'sync' or 'async'), 2 learners x 8 envs; returns (carry, metrics)."""
     from vbl.agents import ExplorationParams, ScheduleParams
@@ -135,7 +135,8 @@ def train_counter(mode: str, transition_steps: float, chunk_steps: int):
         agent=QLearningParams(num_states=GOAL // BLOCK + 1, num_actions=3, discount=0.9,
                               exploration=ExplorationParams(schedule=ScheduleParams(
                                   kind="linear", init_value=1.0, end_value=0.0,
-                                  transition_steps=transition_steps))),
+                                  transition_steps=transition_steps)),
+                              **({} if trace is None else {"trace": trace})),
         macro=MacroActionParams(enabled=True, max_repeats=5, mode=mode),
         lem=LEMParams(enabled=False), num_envs=8, chunk_steps=chunk_steps)
     runner = make_qlearning_runner(ENV, block_of, params)
@@ -236,9 +237,15 @@ def test_async_macro_gives_the_same_transitions_as_macro_step():
     np.testing.assert_array_equal(got["next"], np.asarray(ref.next_state))
 
 
-def test_runner_with_async_macro_actions_learns_the_counter():
-    """The same learning with async macro actions (runner steps = primitives)."""
-    carry, m = train_counter("async", 200.0, 300)
+@pytest.mark.parametrize("trace", [None, "peng", "watkins"])
+def test_runner_with_async_macro_actions_learns_the_counter(trace):
+    """The same learning with async macro actions (runner steps = primitives), with
+    one-step updates and with multi-step returns (each env's window advances only when
+    its action ends)."""
+    from vbl.agents.traces import TraceParams
+
+    tp = None if trace is None else TraceParams(enabled=True, kind=trace, lam=0.9, length=4)
+    carry, m = train_counter("async", 200.0, 300, tp)
     prim, act = np.asarray(m["primitives"]), np.asarray(m["actions"])
     assert np.all(prim >= act) and prim.sum() > act.sum()
     np.testing.assert_array_equal(np.argmax(np.asarray(carry.q)[:, :GOAL // BLOCK], -1), 0)

@@ -10,7 +10,7 @@ import pytest
 from flax import struct
 from reference.qlearning_np import trace_step_loop, value_iteration
 
-import vbl  # noqa: F401  (x64 on, as in every vbl program)
+import vbl  # noqa: F401
 from tests.test_qlearning import N_CHAIN, ChainEnv, chain_state_fn, chain_tables
 from vbl.agents import (
     ExplorationParams,
@@ -55,7 +55,8 @@ def run_jax(q0, traj, lr, gamma, lam, length, kind, rule):
         q, delta, tr = trace_update(q, tr, x["s"], x["a"], x["r"], x["s_next"], x["term"],
                                     x["term"] | x["trunc"], lr, gamma, lam, kind=kind,
                                     duplicates=rule, weight=~x["trunc"],
-                                    num_primitives=x["n"], a_boot=x["a_next"])
+                                    num_primitives=x["n"], a_boot=x["a_next"],
+                                    advance=x.get("advance"))
         return (q, tr), q
 
     xs = {k: jnp.asarray(v) for k, v in traj.items()}
@@ -71,7 +72,8 @@ def run_np(q0, traj, lr, gamma, lam, length, kind, rule):
                             traj["s_next"][t], traj["term"][t],
                             traj["term"][t] | traj["trunc"][t], lr, gamma, lam, length,
                             kind=kind, rule=rule, weight=~traj["trunc"][t],
-                            num_primitives=traj["n"][t], a_boot=traj["a_next"][t])
+                            num_primitives=traj["n"][t], a_boot=traj["a_next"][t],
+                            advance=traj["advance"][t] if "advance" in traj else None)
         out.append(q.copy())
     return np.stack(out)
 
@@ -89,6 +91,27 @@ def test_matches_numpy_loop_reference(kind, rule):
         np.testing.assert_allclose(np.asarray(got), want, rtol=1e-4, atol=1e-4,
                                    err_msg=f"{kind} {rule} lam={lam} L={length}")
     assert got.dtype == jnp.float32
+
+
+@pytest.mark.parametrize("kind", ["peng", "naive", "watkins"])
+def test_envs_whose_action_runs_on_keep_their_window(kind):
+    """Asynchronous macro actions: at each step only the envs whose action ended
+    (``advance``; always at an episode end) push a pair and update; the others' windows
+    stay as they are. Against the NumPy loop that skips those envs."""
+    traj = random_trajectory(5)
+    rng = np.random.default_rng(6)
+    traj["advance"] = (rng.random((T, E)) < 0.5) | traj["term"] | traj["trunc"]
+    q0 = rng.normal(size=(S, A)).astype(np.float32)
+    for rule in ("mean", "sum"):
+        got = jax.jit(run_jax, static_argnums=(5, 6, 7))(q0, traj, 0.3, 0.9, 0.8, 4, kind,
+                                                         rule)
+        want = run_np(q0, traj, 0.3, 0.9, 0.8, 4, kind, rule)
+        np.testing.assert_allclose(np.asarray(got), want, rtol=1e-4, atol=1e-4,
+                                   err_msg=f"{kind} {rule}")
+    # the mask matters: ignoring it gives another table
+    plain = run_np(q0, {k: v for k, v in traj.items() if k != "advance"}, 0.3, 0.9, 0.8, 4,
+                   kind, "mean")
+    assert not np.allclose(plain[-1], run_np(q0, traj, 0.3, 0.9, 0.8, 4, kind, "mean")[-1])
 
 
 @pytest.mark.parametrize("kind", ["peng", "naive", "watkins"])
@@ -243,3 +266,7 @@ def test_traces_error_for_bad_parameters():
     with pytest.raises(ParamError, match="a_boot"):
         trace_update(q, trace_init(2, 2), z, z, z, z, z > 0, z > 0, 0.1, 0.9, 0.5,
                      kind="sarsa")
+    sarsa_async = chain_params(TraceParams(enabled=True, kind="sarsa"), RANDOM).replace(
+        macro=MacroActionParams(enabled=True, mode="async"))
+    with pytest.raises(ParamError, match="sarsa"):
+        make_qlearning_runner(ChainEnv(), lambda o: o[0].astype(jnp.int32), sarsa_async)

@@ -70,7 +70,7 @@ def epsilon_greedy_np(rng: np.random.Generator, q_row: np.ndarray, epsilon: floa
 def trace_step_loop(q: np.ndarray, windows: list, s, a, r, s_boot, terminal, done,
                     lr: float, gamma: float, lam: float, length: int, kind: str = "peng",
                     rule: str = "mean", weight=None, num_primitives=None,
-                    a_boot=None) -> np.ndarray:
+                    a_boot=None, advance=None) -> np.ndarray:
     """One synchronous step of truncated-trace Q(lambda) / Sarsa(lambda), env by env.
 
     ``windows[i]`` is env i's list of ``[state, action, eligibility]``, newest first, at
@@ -81,11 +81,14 @@ def trace_step_loop(q: np.ndarray, windows: list, s, a, r, s_boot, terminal, don
     B = max Q[s'] (Sarsa: Q[s', a']). Contributions (eligibility, error) are grouped by
     (s, a); "mean": lr * sum(e d) / max(sum e, 1), "sum": lr * sum(e d). Afterwards every
     eligibility is multiplied by gamma**n * lam and the window is emptied at episode end.
+    An env with ``advance[i]`` False is skipped altogether (its action runs on).
     """
     frozen = np.array(q, dtype=np.float64)
     out = np.array(q, dtype=np.float64)
     groups: dict[tuple[int, int], list[tuple[float, float]]] = defaultdict(list)
     for i in range(len(s)):
+        if advance is not None and not advance[i]:
+            continue
         si, ai = int(s[i]), int(a[i])
         n = 1 if num_primitives is None else int(num_primitives[i])
         g = gamma ** n

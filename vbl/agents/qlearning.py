@@ -291,9 +291,10 @@ def make_qlearning_runner(env: Any, state_fn: Callable, params: QRunnerParams,
     if monte_carlo and ap.truncation == "bootstrap":
         raise ParamError("agent.update='monte_carlo' does not bootstrap; use "
                          "agent.truncation='skip' or 'terminal'")
-    if async_macro and tp.enabled:
-        raise ParamError("macro.mode='async' does not support agent.trace yet (each env's trace "
-                         "would have to advance only when its action ends); use macro.mode='sync'")
+    if async_macro and sarsa:
+        raise ParamError("macro.mode='async' does not support agent.trace.kind='sarsa' (the "
+                         "next action of an env is chosen only when its action ends); use "
+                         "kind 'peng', 'watkins' or 'naive', or macro.mode='sync'")
 
     def env_params_at(env_params, difficulty):
         if lp.enabled:
@@ -412,7 +413,7 @@ def make_qlearning_runner(env: Any, state_fn: Callable, params: QRunnerParams,
                     c.q, c.trace, s_from, action, r, s_boot, terminal, done,
                     params.agent.learning_rate, params.agent.discount, params.agent.trace.lam,
                     kind=tp.kind, duplicates=ap.duplicates, weight=weight, num_primitives=n,
-                    a_boot=a_boot)
+                    a_boot=a_boot, advance=upd)
                 if sarsa:
                     tr = tr.replace(a_next=a_next)
             wsum = jnp.float32(n_envs) if weight is None else jnp.sum(weight.astype(jnp.float32))

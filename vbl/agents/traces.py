@@ -114,7 +114,8 @@ def trace_update(q: jax.Array, tr: TraceState, s: jax.Array, a: jax.Array, r: ja
                  s_boot: jax.Array, terminal: jax.Array, done: jax.Array, learning_rate: Any,
                  discount: Any, lam: Any, *, kind: str = "peng", duplicates: str = "mean",
                  weight: jax.Array | None = None, num_primitives: jax.Array | None = None,
-                 a_boot: jax.Array | None = None) -> tuple[jax.Array, jax.Array, TraceState]:
+                 a_boot: jax.Array | None = None, advance: jax.Array | None = None
+                 ) -> tuple[jax.Array, jax.Array, TraceState]:
     """One synchronous trace update of one table by the E transitions of a learner step.
 
     Args:
@@ -129,6 +130,8 @@ def trace_update(q: jax.Array, tr: TraceState, s: jax.Array, a: jax.Array, r: ja
       weight: (E,) optional 0/1 mask (0: the transition updates nothing).
       num_primitives: (E,) optional int, the action's discount is ``discount ** n``.
       a_boot: (E,) int32, Sarsa only: the action taken next in ``s_boot``.
+      advance: (E,) optional bool; False: the env's action runs on (asynchronous macro
+        actions), so it pushes nothing, updates nothing and keeps its window as it is.
 
     Returns (new table, TD errors of the current pairs (E,) float32 (0 where weight is 0),
     the window for the next step: decayed by ``discount**n * lam``, cleared where ``done``).
@@ -149,6 +152,8 @@ def trace_update(q: jax.Array, tr: TraceState, s: jax.Array, a: jax.Array, r: ja
     s_boot = jnp.asarray(s_boot, jnp.int32)
     mask = (jnp.ones(s.shape, jnp.float32) if weight is None
             else jnp.asarray(weight).astype(jnp.float32))
+    if advance is not None:
+        mask = mask * jnp.asarray(advance).astype(jnp.float32)
     g = gamma if num_primitives is None else gamma ** jnp.asarray(num_primitives, jnp.float32)
     v_s = jnp.max(q[s], axis=-1)
     q_sa = q[s, a]
@@ -178,4 +183,8 @@ def trace_update(q: jax.Array, tr: TraceState, s: jax.Array, a: jax.Array, r: ja
     new = q.reshape(-1).at[flat].add(lr * d).reshape(n_states, n_actions)
     decay = (g * jnp.asarray(lam, jnp.float32))[..., None] * jnp.ones_like(ee)
     e_next = jnp.where(jnp.asarray(done, bool)[:, None], 0.0, ee * decay)
+    if advance is not None:  # envs whose action runs on keep their window
+        keep = ~jnp.asarray(advance, bool)[:, None]
+        ss, aa = jnp.where(keep, tr.s, ss), jnp.where(keep, tr.a, aa)
+        e_next = jnp.where(keep, tr.e, e_next)
     return new, delta, tr.replace(s=ss, a=aa, e=e_next.astype(jnp.float32))
