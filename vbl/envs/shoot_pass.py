@@ -177,8 +177,9 @@ class ShootPassParams:
                               "rest after the pass/kick (shoot) or at all (pass)")
     robot_height: float = param(0.3, doc="height of a robot body (what the other camera "
                                 "sees)", unit="m", gt=0.0)
-    max_steps: int = param(100, doc="time limit: primitives per episode (10 s at 0.1 s)",
-                           static=True, ge=1)
+    max_steps: int = param(100, doc="time limit: primitives per episode (each "
+                           "world.action_dt long; the library default 100 is 10 s)",
+                           unit="primitives", static=True, ge=1)
     task_pass: bool = param(False, doc="env task 'select' only: False = shoot (learner = "
                             "shooter), True = pass (learner = passer); traced, so one "
                             "compiled program serves both tasks (ignored by a fixed task)")

@@ -88,8 +88,9 @@ class ShootingParams:
     start_difficulty: float = param(1.0, doc="start distribution: 0 easy (near the goal, "
                                     "ball in front), 1 full random; interpolated between",
                                     ge=0.0, le=1.0)
-    max_steps: int = param(300, doc="time limit: action primitives per episode (30 s at "
-                           "0.1 s)", static=True, ge=1)
+    max_steps: int = param(300, doc="time limit: action primitives per episode (each "
+                           "world.action_dt long; the library default 300 is 30 s)",
+                           unit="primitives", static=True, ge=1)
 
 
 @struct.dataclass
