@@ -252,6 +252,20 @@ def test_eval_every_trains_the_same_and_sums_the_chunks():
             train=_train().replace(eval_every=3)))
 
 
+def test_difficulty_metric_is_the_one_in_effect_with_lem_off():
+    """LEM off: episodes start at the env's own start_difficulty, and the difficulty
+    metric reports that value (not the curriculum's unused cap)."""
+    cfg = ChainConfig()
+    cfg = cfg.replace(env=cfg.env.replace(start_difficulty=0.25),
+                      agent=cfg.agent.replace(lem=cfg.agent.lem.replace(enabled=False)))
+    prog = make_q_program(ChainEnv(), chain_state, cfg, num_states=N)
+    carry = prog.init(jax.random.PRNGKey(0), cfg)
+    # the starts really are at that difficulty: position floor((1 - 0.25) * 4) = 3
+    np.testing.assert_array_equal(np.asarray(carry.env_state.s), 3)
+    carry, m = jax.jit(prog.step)(carry, cfg)
+    assert float(m["difficulty"]) == 0.25
+
+
 def test_bad_config_errors():
     @struct.dataclass
     class NoTrain:

@@ -42,8 +42,9 @@ __all__ = ["LEMParams", "LEMState", "lem_init", "lem_update", "q_change"]
 class LEMParams:
     """On/off switch and thresholds of the Learning-from-Easy-Missions curriculum."""
 
-    enabled: bool = param(True, doc="use the curriculum; off: difficulty stays at "
-                          "max_difficulty (random starts)", static=True)
+    enabled: bool = param(True, doc="use the curriculum; off: episodes start at the env's "
+                          "own start_difficulty (the difficulty metric reports it)",
+                          static=True)
     initial_difficulty: float = param(0.0, doc="start difficulty of the first episodes "
                                       "(0 easiest, 1 fully random)", ge=0.0, le=1.0)
     max_difficulty: float = param(1.0, doc="difficulty the curriculum stops at", ge=0.0,
@@ -107,7 +108,8 @@ def q_change(q: jax.Array, ref: jax.Array, statistic: str) -> jax.Array:
 def lem_init(p: LEMParams, q: jax.Array) -> LEMState:
     """Initial curriculum state for the Q-table ``q`` (S, A).
 
-    Disabled: the difficulty is ``max_difficulty`` and never changes."""
+    Disabled: the state is carried but unused (the env's own ``start_difficulty``
+    applies); its difficulty is ``max_difficulty`` and never changes."""
     start = p.initial_difficulty if p.enabled else p.max_difficulty
     q = q.astype(jnp.float32)
     return LEMState(difficulty=jnp.asarray(start, jnp.float32), q_snapshot=q, q_at_raise=q,

@@ -25,7 +25,8 @@ Per engine chunk (``train.eval_every`` training chunks; metrics per learner, sca
   starts at ``train.eval_difficulty``: fraction whose first episode scores (with
   ``train.eval_curve`` off: equal to ``train_success_rate``).
 * ``mean_primitives``: mean primitives per finished training episode (0 when none).
-* ``difficulty``: LEM start difficulty at the end of the chunk; ``lem_raises``: raises so
+* ``difficulty``: start difficulty of the training episodes at the end of the chunk (LEM's;
+  with LEM off the env's own ``start_difficulty``); ``lem_raises``: raises so
   far; ``epsilon``: exploration rate (epsilon or temperature) at the end of the chunk;
   ``td_abs``: mean absolute TD error (mean over the training chunks); ``learning_rate``:
   the step size of the last training chunk (``agent.agent.learning_rate`` times
@@ -179,7 +180,8 @@ def make_q_program(env: Any, state_fn: Callable[[jax.Array, Any], jax.Array], cf
         train_rate = t["successes"] / n
         out = dict(episodes=t["episodes"], successes=t["successes"],
                    train_success_rate=train_rate, mean_primitives=t["primitives"] / n,
-                   difficulty=carry.lem.difficulty.astype(F32),
+                   difficulty=(carry.lem.difficulty if cfg.agent.lem.enabled else
+                               jnp.asarray(c.env.start_difficulty)).astype(F32),
                    lem_raises=carry.lem.raises.astype(F32), epsilon=t["epsilon"],
                    td_abs=t["td_abs"], learning_rate=t["learning_rate"])
         if train.eval_curve:
