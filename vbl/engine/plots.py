@@ -10,7 +10,27 @@ import numpy as np
 
 from vbl.engine.results import t_quantile_975
 
-__all__ = ["point_label", "plot_curves", "plot_names"]
+__all__ = ["point_label", "plot_curves", "plot_names", "is_rate", "band"]
+
+LINESTYLES = ("-", "--", ":", "-.")  #: one per sweep point (cycled): coinciding lines stay visible
+
+
+def is_rate(metric: str) -> bool:
+    """A metric that is a fraction in [0, 1] (its name says so: ``*rate*``, ``*success*``)."""
+    return "rate" in metric or "success" in metric
+
+
+def band(metric: str, values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(mean, lower, upper) over seeds of ``values`` (chunks, seeds): the Student t 95 %
+    interval of the mean, clipped to [0, 1] for a rate (:func:`is_rate`)."""
+    m = values.mean(axis=1)
+    seeds = values.shape[1]
+    h = (t_quantile_975(seeds - 1) * values.std(axis=1, ddof=1) / np.sqrt(seeds)
+         if seeds > 1 else np.zeros_like(m))
+    lo, hi = m - h, m + h
+    if is_rate(metric):
+        lo, hi = np.clip(lo, 0.0, 1.0), np.clip(hi, 0.0, 1.0)
+    return m, lo, hi
 
 
 def _file_name(metric: str) -> str:
@@ -31,7 +51,8 @@ def plot_curves(curves: dict[str, np.ndarray], points: list[dict[str, Any]], out
     """Write ``<metric>.png`` for every scalar metric of ``curves[metric][point, chunk, seed]``.
 
     The x axis is cumulative episodes (mean over seeds) when an ``episodes`` metric exists,
-    else the chunk number. Bands: Student t 95% interval of the mean over seeds.
+    else the chunk number. Bands: :func:`band`. Each sweep point has its own line style, so
+    coinciding curves stay visible.
     """
     import matplotlib
 
@@ -55,11 +76,11 @@ def plot_curves(curves: dict[str, np.ndarray], points: list[dict[str, Any]], out
             else:
                 x = np.arange(1, y.shape[0] + 1)
                 xlabel = "chunk"
-            m = y.mean(axis=1)
-            (line,) = ax.plot(x, m, label=point_label(values))
+            m, lo, hi = band(name, y)
+            (line,) = ax.plot(x, m, label=point_label(values),
+                              linestyle=LINESTYLES[p % len(LINESTYLES)], lw=1.5 + 0.5 * (p == 0))
             if seeds > 1:
-                h = t_quantile_975(seeds - 1) * y.std(axis=1, ddof=1) / np.sqrt(seeds)
-                ax.fill_between(x, m - h, m + h, color=line.get_color(), alpha=0.2, lw=0)
+                ax.fill_between(x, lo, hi, color=line.get_color(), alpha=0.2, lw=0)
         ax.set_xlabel(xlabel)
         ax.set_ylabel(name)
         ax.set_title(f"{title} ({seeds} seeds, 95% band)" if title else f"{seeds} seeds")

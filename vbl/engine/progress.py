@@ -3,13 +3,23 @@
 from __future__ import annotations
 
 import os
+import shutil
 import sys
 import time
 from typing import Any
 
 import numpy as np
 
-__all__ = ["auto_quiet", "Progress"]
+__all__ = ["auto_quiet", "Progress", "bar_width"]
+
+DEFAULT_COLUMNS = 100  #: bar width when the terminal reports no usable width
+MIN_COLUMNS = 40  #: narrower reported widths are taken as unusable (e.g. 0 in some IDEs)
+
+
+def bar_width() -> int | None:
+    """None (follow the terminal) when it reports a usable width, else DEFAULT_COLUMNS."""
+    cols = shutil.get_terminal_size((0, 0)).columns
+    return None if cols >= MIN_COLUMNS else DEFAULT_COLUMNS
 
 
 def auto_quiet() -> bool:
@@ -27,8 +37,9 @@ class Progress:
         if not quiet:
             from tqdm.auto import tqdm
 
+            width = bar_width()
             self._bar = tqdm(total=total, initial=initial, desc=desc, unit="chunk",
-                             dynamic_ncols=True, file=sys.stderr)
+                             dynamic_ncols=width is None, ncols=width, file=sys.stderr)
         self._t = time.perf_counter()
 
     def update(self, metrics: dict[str, Any], seconds: float | None = None) -> None:

@@ -1,0 +1,54 @@
+"""Plots and the progress bar as a user sees them: rate bands inside [0, 1], every sweep
+point's line visible, a sane bar width when the terminal reports none."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from vbl.engine.plots import band, plot_curves
+from vbl.engine.progress import DEFAULT_COLUMNS, bar_width
+
+
+def test_rate_band_is_the_t_interval_clipped_to_the_unit_interval():
+    # 2 seeds at 0 and 1: the t interval of the mean is 0.5 +- 12.7 * 0.5
+    y = np.array([[0.0, 1.0], [0.5, 0.5]])
+    m, lo, hi = band("success_rate", y)
+    np.testing.assert_allclose(m, [0.5, 0.5])
+    np.testing.assert_allclose(lo, [0.0, 0.5])
+    np.testing.assert_allclose(hi, [1.0, 0.5])
+    # not a rate: the plain interval (scipy's t quantile)
+    h = stats.t.ppf(0.975, 1) * np.std([0.0, 1.0], ddof=1) / np.sqrt(2)
+    _, lo, hi = band("td_abs", y)
+    np.testing.assert_allclose([lo[0], hi[0]], [0.5 - h, 0.5 + h], rtol=1e-6)
+
+
+def test_every_point_gets_its_own_line_style(tmp_path, monkeypatch):
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    styles = []
+    real = plt.Figure.savefig
+
+    def record(fig, *a, **k):
+        styles.extend(line.get_linestyle() for line in fig.axes[0].get_lines())
+        return real(fig, *a, **k)
+
+    monkeypatch.setattr(plt.Figure, "savefig", record)
+    same = np.full((3, 4, 2), 0.5)  # three points with identical curves
+    plot_curves({"success_rate": same}, [{"a": 1}, {"a": 2}, {"a": 3}], tmp_path)
+    assert len(styles) == 3 and len(set(styles)) == 3
+    assert (tmp_path / "success_rate.png").stat().st_size > 1000
+
+
+@pytest.mark.parametrize("columns, want", [("0", DEFAULT_COLUMNS), ("120", None)])
+def test_bar_width_when_the_terminal_reports_none(monkeypatch, columns, want):
+    monkeypatch.setenv("COLUMNS", columns)
+    monkeypatch.setenv("LINES", "24")
+    assert bar_width() == want
+    assert os.environ["COLUMNS"] == columns
