@@ -8,7 +8,8 @@ camera sees the ball, the goal and the passer) and of ``ShootingEnv`` (Section 2
 ``--batch``. Each timed program is ``T`` calls of ``vmap(camera)`` in a ``lax.scan``; call
 ``i`` turns every robot by ``i * 1e-4`` rad (so XLA cannot hoist the camera out of the
 loop) and the sum of every output is folded into the carry (so it cannot drop any of it).
-Timing: after a warm-up call, best of ``--reps`` of process CPU time (``time.process_time``)
+Timing (the persistent compilation cache off unless ``VBL_JAX_CACHE`` says otherwise):
+after a warm-up call, best of ``--reps`` of process CPU time (``time.process_time``)
 and wall time with ``block_until_ready``; ``compile s`` is the first call (trace + compile
 + one run). The machine is shared: read the ratio of two rows of one run, not absolute
 figures across runs.
@@ -35,6 +36,8 @@ import numpy as np
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+# compile times are measured, so the persistent compilation cache of vbl is off by default
+os.environ.setdefault("VBL_JAX_CACHE", "off")
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402

@@ -19,6 +19,8 @@ Exact definitions, clipping and occlusion rules are in ``docs/vision.md``; in sh
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -184,62 +186,37 @@ def _ball_column_chord(bi: BallImage, u, cam: CameraParams):
 
 # ----------------------------------------------------------------------------- segments
 
-@struct.dataclass
-class Segments:
-    """Near-clipped, projected 3-D segments a->b: image ends (S, 2) px and flags (S,)."""
-
-    p0: jnp.ndarray      # (S, 2) image of the clipped start
-    p1: jnp.ndarray      # (S, 2) image of the clipped end
-    ok: jnp.ndarray      # (S,) bool: some of the segment is in front of the near plane
-    cross: jnp.ndarray   # (S, 2) image of the crossing with the near plane (if any)
-    exit_fwd: jnp.ndarray  # (S,) bool: a in front, b behind (a->b leaves the near plane)
-    exit_bwd: jnp.ndarray  # (S,) bool: b in front, a behind
-
-
 def _proj(p, fu, fv, zn):
     """Camera coords (..., 3) with Z >= zn -> px (..., 2)."""
     z = jnp.maximum(p[..., 2], zn)
     return jnp.stack([fu * p[..., 0] / z, fv * p[..., 1] / z], axis=-1)
 
 
-def _segments(pa, pb, zn, fu, fv) -> Segments:
-    """Clip the 3-D segments pa->pb (S, 3) (camera coords) to Z >= zn and project them."""
-    za, zb = pa[..., 2:3], pb[..., 2:3]
-    ina, inb = pa[..., 2] >= zn, pb[..., 2] >= zn
-    t = _safe_div(zn - za, zb - za)
-    x = pa + t * (pb - pa)
-    pa2 = jnp.where(za < zn, x, pa)
-    pb2 = jnp.where(zb < zn, x, pb)
-    return Segments(p0=_proj(pa2, fu, fv, zn), p1=_proj(pb2, fu, fv, zn), ok=ina | inb,
-                    cross=_proj(x, fu, fv, zn), exit_fwd=ina & ~inb, exit_bwd=inb & ~ina)
-
-
 def _clip_rect(p0, p1, lo, hi):
-    """Liang-Barsky: clip 2-D segments p0->p1 (..., 2) to the box [lo, hi] (each (2,)).
-
-    Returns clipped (q0, q1, ok).
-    """
-    d = p1 - p0
+    """Liang-Barsky: clip the image segment p0 -> p1 ((u, v) scalars) to the box [lo, hi]
+    ((u, v) scalars). Returns clipped (q0, q1, ok)."""
+    d = (p1[0] - p0[0], p1[1] - p0[1])
     # inequalities  -d t <= p0 - lo   and   d t <= hi - p0  per axis
-    pp = jnp.concatenate([-d, d], axis=-1)
-    qq = jnp.concatenate([p0 - lo, hi - p0], axis=-1)
-    par = jnp.abs(pp) < _TINY
-    ratio = _safe_div(qq, pp)
-    t0 = jnp.max(jnp.where(~par & (pp < 0), ratio, 0.0), axis=-1)
-    t1 = jnp.min(jnp.where(~par & (pp > 0), ratio, 1.0), axis=-1)
-    ok = (t0 <= t1) & ~jnp.any(par & (qq < 0), axis=-1)
-    q0 = p0 + t0[..., None] * d
-    q1 = p0 + t1[..., None] * d
-    return q0, q1, ok
+    pp = (-d[0], -d[1], d[0], d[1])
+    qq = (p0[0] - lo[0], p0[1] - lo[1], hi[0] - p0[0], hi[1] - p0[1])
+    t0, t1 = jnp.zeros((), F32), jnp.ones((), F32)
+    ok = jnp.ones((), bool)
+    for p, q in zip(pp, qq, strict=True):
+        par = jnp.abs(p) < _TINY
+        ratio = _safe_div(q, p)
+        t0 = jnp.where(~par & (p < 0), jnp.maximum(t0, ratio), t0)
+        t1 = jnp.where(~par & (p > 0), jnp.minimum(t1, ratio), t1)
+        ok = ok & ~(par & (q < 0))
+    ok = ok & (t0 <= t1)
+    return (p0[0] + t0 * d[0], p0[1] + t0 * d[1]), (p0[0] + t1 * d[0], p0[1] + t1 * d[1]), ok
 
 
 def _interp_v(a, b, ok, u):
-    """v of the image segment a->b at column u; (v, valid)."""
-    du = b[..., 0] - a[..., 0]
-    inside = ok & (jnp.minimum(a[..., 0], b[..., 0]) <= u) & (u <= jnp.maximum(
-        a[..., 0], b[..., 0])) & (jnp.abs(du) > 1e-6)
-    v = a[..., 1] + _safe_div(u - a[..., 0], du) * (b[..., 1] - a[..., 1])
-    return v, inside
+    """v of the image segment a -> b ((u, v) scalars) at column u; (v, valid)."""
+    du = b[0] - a[0]
+    inside = ok & (jnp.minimum(a[0], b[0]) <= u) & (u <= jnp.maximum(a[0], b[0])) & (
+        jnp.abs(du) > 1e-6)
+    return a[1] + _safe_div(u - a[0], du) * (b[1] - a[1]), inside
 
 
 def _subtract_interval(lo, hi, olo, ohi, occ):
@@ -267,24 +244,63 @@ class GoalEnds:
     visible: jnp.ndarray  # bool
 
 
+class GoalSegs(NamedTuple):
+    """The goal's 4 segments (``_GOAL_SEGS``) near-clipped and projected; fields (4,)."""
+
+    u0: jnp.ndarray    # image of the clipped start, px
+    v0: jnp.ndarray
+    u1: jnp.ndarray    # image of the clipped end, px
+    v1: jnp.ndarray
+    ok: jnp.ndarray    # bool: some of the segment lies in front of the near plane
+    cu: jnp.ndarray    # image of its crossing with the near plane (where it crosses), px
+    cv: jnp.ndarray
+    xf: jnp.ndarray    # 1.0 where start in front, end behind (else 0.0)
+    xb: jnp.ndarray    # 1.0 where end in front, start behind
+    q: tuple           # (q0u, q0v, q1u, q1v, ok): the image segment clipped to the image
+    col: tuple         # (v, ok) at the left border column, (v, ok) at the right one
+
+
 #: Goal segments (corner indices a -> b; corners left-bottom, left-top, right-top,
 #: right-bottom): left post, right post, bottom edge, crossbar.
-_GOAL_A = (0, 3, 0, 1)
-_GOAL_B = (1, 2, 3, 2)
-#: Direction of each goal segment in the mouth's boundary cycle LB->LT->RT->RB->LB.
-_GOAL_CYCLE = np.array([1.0, -1.0, -1.0, 1.0], np.float32)
+_GOAL_SEGS = ((0, 1), (3, 2), (0, 3), (1, 2))
+#: The goal mouth's boundary cycle LB->LT->RT->RB->LB: (segment, runs it forwards).
+_GOAL_CYCLE = ((0, True), (3, True), (1, False), (2, False))
 
 
-def _goal_segments(pc, cam: CameraParams, fu, fv) -> Segments:
-    """The goal's four segments (``_GOAL_A`` -> ``_GOAL_B``) from its camera-frame
-    corners ``pc`` (4, 3), near-clipped and projected."""
+def _goal_segments(pc, cam: CameraParams, fu, fv) -> GoalSegs:
+    """The goal's segments from its camera-frame corners ``pc`` (4, 3) m: one
+    ``lax.scan`` step per segment clips it to the near plane, projects it, clips the
+    image segment to the image and reads its v at the two border columns."""
     zn = jnp.asarray(cam.near_plane, F32)
-    a = jnp.stack([pc[i] for i in _GOAL_A])
-    b = jnp.stack([pc[i] for i in _GOAL_B])
-    return _segments(a, b, zn, fu, fv)
+    hw = jnp.asarray(cam.image_width, F32) / 2
+    hh = jnp.asarray(cam.image_height, F32) / 2
+    pcs = [[pc[k, i] for i in range(3)] for k in range(4)]
+
+    def step(carry, tab):
+        sa, sb = tab
+        pa = [sum(sa[k] * pcs[k][i] for k in range(4)) for i in range(3)]
+        pb = [sum(sb[k] * pcs[k][i] for k in range(4)) for i in range(3)]
+        ina, inb = pa[2] >= zn, pb[2] >= zn
+        t = _safe_div(zn - pa[2], pb[2] - pa[2])
+        cu = fu * (pa[0] + t * (pb[0] - pa[0])) / zn
+        cv = fv * (pa[1] + t * (pb[1] - pa[1])) / zn
+        iza, izb = 1.0 / jnp.maximum(pa[2], zn), 1.0 / jnp.maximum(pb[2], zn)
+        p0 = (jnp.where(ina, fu * pa[0] * iza, cu), jnp.where(ina, fv * pa[1] * iza, cv))
+        p1 = (jnp.where(inb, fu * pb[0] * izb, cu), jnp.where(inb, fv * pb[1] * izb, cv))
+        ok = ina | inb
+        q0, q1, qok = _clip_rect(p0, p1, (-hw, -hh), (hw, hh))
+        col = [_interp_v(p0, p1, ok, c) for c in (-hw, hw)]
+        return carry, (*p0, *p1, ok, cu, cv, (ina & ~inb).astype(F32),
+                       (inb & ~ina).astype(F32), (*q0, *q1, qok), tuple(col))
+
+    eye = np.eye(4, dtype=np.float32)
+    tabs = (jnp.asarray(eye[[a for a, _ in _GOAL_SEGS]]),
+            jnp.asarray(eye[[b for _, b in _GOAL_SEGS]]))
+    _, ys = jax.lax.scan(step, jnp.zeros((), F32), tabs)
+    return GoalSegs(*ys)
 
 
-def _goal_ends(seg: Segments, cam: CameraParams) -> GoalEnds:
+def _goal_ends(seg: GoalSegs, cam: CameraParams) -> GoalEnds:
     """Visible ends of the goal from its projected segments (:func:`_goal_segments`).
 
     End rule: a post whose projected segment meets the image is its own end (clipped to
@@ -294,30 +310,42 @@ def _goal_ends(seg: Segments, cam: CameraParams) -> GoalEnds:
     """
     hw = jnp.asarray(cam.image_width, F32) / 2
     hh = jnp.asarray(cam.image_height, F32) / 2
-    lo = jnp.stack([-hw, -hh])
-    hi = jnp.stack([hw, hh])
-    ia, ib, ok = seg.p0, seg.p1, seg.ok
-    # posts clipped to the image
-    qa, qb, qok = _clip_rect(ia[:2], ib[:2], lo, hi)
-    post_ok = ok[:2] & qok
-    # border columns for ends whose post is out of the image
-    cols = jnp.stack([-hw, hw])
-    vb, okb = _interp_v(ia[2], ib[2], ok[2], cols)
-    vt, okt = _interp_v(ia[3], ib[3], ok[3], cols)
-    col_lo = jnp.clip(jnp.minimum(vb, vt), -hh, hh)
-    col_hi = jnp.clip(jnp.maximum(vb, vt), -hh, hh)
-    col_ok = okb & okt & (col_hi > col_lo)
-    # lower/upper point of each post segment
-    post_low = jnp.where((qa[:, 1] <= qb[:, 1])[:, None], qa, qb)
-    post_up = jnp.where((qa[:, 1] <= qb[:, 1])[:, None], qb, qa)
-    col_low = jnp.stack([cols, col_lo], axis=-1)
-    col_up = jnp.stack([cols, col_hi], axis=-1)
-    end_ok = post_ok | col_ok
-    m = end_ok[:, None]
-    bot = jnp.where(m, jnp.where(post_ok[:, None], post_low, col_low), 0.0)
-    top = jnp.where(m, jnp.where(post_ok[:, None], post_up, col_up), 0.0)
-    visible = jnp.any(end_ok & (top[:, 1] > bot[:, 1]))
-    return GoalEnds(bot=bot, top=top, visible=visible)
+    q0u, q0v, q1u, q1v, qok = seg.q
+    bot, top, vis = [], [], jnp.zeros((), bool)
+    for k, col in ((0, -hw), (1, hw)):           # left post, right post
+        post_ok = seg.ok[k] & qok[k]
+        # the border column, for an end whose post is out of the image
+        (vb, okb), (vt, okt) = ((seg.col[k][0][i], seg.col[k][1][i]) for i in (2, 3))
+        col_lo = jnp.clip(jnp.minimum(vb, vt), -hh, hh)
+        col_hi = jnp.clip(jnp.maximum(vb, vt), -hh, hh)
+        col_ok = okb & okt & (col_hi > col_lo)
+        a_low = q0v[k] <= q1v[k]
+        low = (jnp.where(a_low, q0u[k], q1u[k]), jnp.where(a_low, q0v[k], q1v[k]))
+        up = (jnp.where(a_low, q1u[k], q0u[k]), jnp.where(a_low, q1v[k], q0v[k]))
+        end_ok = post_ok | col_ok
+        b = [jnp.where(end_ok, jnp.where(post_ok, low[i], (col, col_lo)[i]), 0.0)
+             for i in range(2)]
+        t = [jnp.where(end_ok, jnp.where(post_ok, up[i], (col, col_hi)[i]), 0.0)
+             for i in range(2)]
+        vis = vis | (end_ok & (t[1] > b[1]))
+        bot.append(jnp.stack(b))
+        top.append(jnp.stack(t))
+    return GoalEnds(bot=jnp.stack(bot), top=jnp.stack(top), visible=vis)
+
+
+def _goal_chain(seg: GoalSegs):
+    """Boundary of the near-clipped goal mouth: (p0, p1 (5, 2), w (5,)): 4 edges + the
+    near-plane chord from where the cycle leaves the near plane to where it returns."""
+    w = jnp.stack([jnp.where(seg.ok[k], jnp.float32(1.0 if fw else -1.0), 0.0)
+                   for k, fw in sorted(_GOAL_CYCLE)])
+    leave = [seg.xf[k] if fw else seg.xb[k] for k, fw in _GOAL_CYCLE]
+    back = [seg.xb[k] if fw else seg.xf[k] for k, fw in _GOAL_CYCLE]
+    idx = [k for k, _ in _GOAL_CYCLE]
+    c0 = [sum(m * f[k] for m, k in zip(leave, idx, strict=True)) for f in (seg.cu, seg.cv)]
+    c1 = [sum(m * f[k] for m, k in zip(back, idx, strict=True)) for f in (seg.cu, seg.cv)]
+    p0 = jnp.concatenate([jnp.stack([seg.u0, seg.v0], axis=-1), jnp.stack(c0)[None]])
+    p1 = jnp.concatenate([jnp.stack([seg.u1, seg.v1], axis=-1), jnp.stack(c1)[None]])
+    return p0, p1, jnp.concatenate([w, jnp.minimum(sum(leave), 1.0)[None]])
 
 
 def _plane_side(corners, p):
@@ -596,34 +624,6 @@ def _chain_in_rects(p0, p1, w, lo, hi, origin) -> Region:
 def _oriented(reg: Region, sign) -> Region:
     """Region with area and moments multiplied by ``sign`` (+-1: the boundary's turn)."""
     return reg.replace(area=sign * reg.area, mu=sign * reg.mu, mv=sign * reg.mv)
-
-
-def _near_chords(seg: Segments, fwd, bwd):
-    """Near-plane chords of near-clipped convex polygons, one per polygon.
-
-    ``fwd`` / ``bwd`` (P, S) float 0/1: polygon p runs through segment s forwards /
-    backwards. A polygon cut by the near plane leaves it on one edge and comes back on
-    another; its clipped boundary is closed by the chord from the leaving point to the
-    returning point (both on the near plane). Returns (start (P, 2), end (P, 2), has (P,)).
-    """
-    xf = seg.exit_fwd.astype(F32)
-    xb = seg.exit_bwd.astype(F32)
-    leave = fwd * xf + bwd * xb                           # (P, S)
-    back = fwd * xb + bwd * xf
-    start = jnp.sum(leave[..., None] * seg.cross, axis=-2)
-    end = jnp.sum(back[..., None] * seg.cross, axis=-2)
-    return start, end, jnp.sum(leave, axis=-1) > 0
-
-
-def _goal_chain(seg: Segments):
-    """Boundary of the near-clipped goal mouth: (p0, p1 (5, 2), w (5,)): 4 edges + chord."""
-    cyc = jnp.asarray(_GOAL_CYCLE)
-    fwd, bwd = (cyc > 0).astype(F32)[None], (cyc < 0).astype(F32)[None]
-    c0, c1, has = _near_chords(seg, fwd, bwd)
-    p0 = jnp.concatenate([seg.p0, c0])
-    p1 = jnp.concatenate([seg.p1, c1])
-    w = jnp.concatenate([cyc * seg.ok.astype(F32), has.astype(F32)])
-    return p0, p1, w
 
 
 def _box_tables():
