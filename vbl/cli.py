@@ -277,10 +277,48 @@ def _quiet_xla() -> None:
     use_compilation_cache()
 
 
+def quiet_xla_env() -> bool:
+    """Set ``TF_CPP_MIN_LOG_LEVEL=3`` (XLA's C++ log: fatal errors only) unless
+    ``VBL_XLA_LOGS`` asks for the log or ``TF_CPP_MIN_LOG_LEVEL`` is 0 or 1. XLA reads the
+    variable when JAX loads, so the command calls this first. Returns whether it is set."""
+    if os.environ.get("VBL_XLA_LOGS", "").strip().lower() not in ("", "0", "false", "no"):
+        return False
+    if os.environ.get("TF_CPP_MIN_LOG_LEVEL", "").strip() in ("0", "1"):
+        return False
+    os.environ["TF_CPP_MIN_LOG_LEVEL"] = "3"
+    return True
+
+
+def _end(code: int, argv: list[str]) -> int:
+    """After a failure's ``vbl: error:`` line, nothing more reaches stderr (background
+    threads of the checkpoint library can print at interpreter exit); ``--debug`` /
+    ``VBL_DEBUG`` keep it."""
+    from vbl.engine.errors import debug_requested
+
+    if code and not ("--debug" in argv or debug_requested()):
+        sys.stderr.flush()
+        fd = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(fd, 2)
+        os.close(fd)
+    return code
+
+
+def _quiet_process(argv: list[str]) -> None:
+    """Settings of a ``vbl`` process (not of ``main`` called in-process): XLA's log level
+    before JAX loads, and no library noise after a failure unless debugging."""
+    quiet_xla_env()
+    if "--debug" not in argv:
+        from vbl.engine.errors import debug_requested, drop_closed_loop_noise
+
+        if not debug_requested():
+            drop_closed_loop_noise()
+
+
 def console_main() -> int:
     """The installed ``vbl`` command: :func:`use_all_cores`, then :func:`main`."""
     use_all_cores()
-    return main()
+    _quiet_process(sys.argv[1:])
+    return _end(main(), sys.argv[1:])
 
 
 def main_for(experiment, argv: list[str] | None = None) -> None:
@@ -290,13 +328,15 @@ def main_for(experiment, argv: list[str] | None = None) -> None:
     _add_run_options(parser)
     args = parser.parse_args(argv)
     use_all_cores()
+    _quiet_process(sys.argv[1:] if argv is None else argv)
     _quiet_xla()
 
     def go() -> int:
         _init_distributed(args)
         return _run(experiment, args)
 
-    sys.exit(_guarded(go, debug=getattr(args, "debug", False)))
+    code = _guarded(go, debug=getattr(args, "debug", False))
+    sys.exit(_end(code, sys.argv[1:] if argv is None else argv))
 
 
 if __name__ == "__main__":

@@ -45,7 +45,10 @@ def _sha256(x: np.ndarray) -> str:
 
 
 def _corrupt(where: Path, e: Exception | str, fallback: str) -> CheckpointError:
-    why = e if isinstance(e, str) else f"{type(e).__name__}: {_first_line(str(e))[:300]}"
+    if not isinstance(e, str):
+        text = _first_line(str(e))
+        e = f"{type(e).__name__}: {text[:240]}{'...' if len(text) > 240 else ''}"
+    why = e
     return CheckpointError(f"checkpoint at step {where.name} ({where}) is corrupt or "
                            f"unreadable ({why}); {fallback}")
 

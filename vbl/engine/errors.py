@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import errno
 import os
+import sys
 
-__all__ = ["one_line", "quiet_xla_log", "debug_requested"]
+__all__ = ["one_line", "quiet_xla_log", "debug_requested", "drop_closed_loop_noise"]
 
 _DISK = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
 
@@ -57,14 +58,26 @@ def quiet_xla_log() -> None:
     keeps XLA's own level (``TF_CPP_MIN_LOG_LEVEL``); so does a ``TF_CPP_MIN_LOG_LEVEL``
     of 0 or 1 (a request for more).
     """
-    if os.environ.get("VBL_XLA_LOGS", "").strip().lower() not in ("", "0", "false", "no"):
+    from vbl.cli import quiet_xla_env
+
+    if not quiet_xla_env():
         return
-    if os.environ.get("TF_CPP_MIN_LOG_LEVEL", "").strip() in ("0", "1"):
-        return
-    os.environ["TF_CPP_MIN_LOG_LEVEL"] = "3"  # for processes started from here
     try:
         from jaxlib import utils
 
         utils.absl_set_min_log_level(3)  # the C++ library read the variable at import
     except (ImportError, AttributeError):  # another jaxlib: the variable has to do
         pass
+
+
+def _unraisable(u) -> None:
+    if isinstance(u.exc_value, RuntimeError) and str(u.exc_value) == "Event loop is closed":
+        return
+    sys.__unraisablehook__(u)
+
+
+def drop_closed_loop_noise() -> None:
+    """Drop the ``RuntimeError: Event loop is closed`` tracebacks that the checkpoint
+    library's reads print when one read fails and the others finish after it (a process
+    setting of the ``vbl`` command; other unraisable exceptions print as usual)."""
+    sys.unraisablehook = _unraisable

@@ -197,16 +197,16 @@ def _run_in(folder, experiment, config, full_sweep, seeds, base_seed, spec, plan
                          summary, sorted(run_dir.glob("*.png")), dict(extra))
 
     start = (ckpts.latest_step() or 0) if resume else 0
-    if resume and primary:
-        log.truncate_after(start)
     progress = Progress(plan.total_steps, start, experiment.name, quiet)
     sharding = learner_sharding()
+    truncate = resume and primary
     try:
         for group in plan.groups:
             if group.step_offset + group.num_chunks <= start:
                 continue
             _run_group(plan, group, sharding, ckpts, log, progress, start, checkpoint_every,
-                       learner_batch)
+                       learner_batch, truncate)
+            truncate = False  # once, before the first new row
     except BaseException:
         progress.close()
         with contextlib.suppress(Exception):  # the first error is the one to report
@@ -228,7 +228,11 @@ def _run_in(folder, experiment, config, full_sweep, seeds, base_seed, spec, plan
 
 
 def _run_group(plan: SweepPlan, group: Group, sharding, ckpts: Checkpoints, log: MetricsLog,
-               progress: Progress, start: int, every: int, learner_batch: int) -> None:
+               progress: Progress, start: int, every: int, learner_batch: int,
+               truncate: bool = False) -> None:
+    """Run ``group`` from global step ``start``; with ``truncate``, drop the rows of
+    ``metrics.jsonl`` past ``start`` once the checkpoint is restored (a checkpoint that
+    cannot be restored leaves the file as it was)."""
     prog = group.program
     n = group.num_learners
     nb, size = batch_layout(n, len(sharding.mesh.devices.flat), learner_batch)
@@ -258,6 +262,8 @@ def _run_group(plan: SweepPlan, group: Group, sharding, ckpts: Checkpoints, log:
         carries = batches(carry_host)
     else:
         carries = [init_fn(k, c) for k, c in zip(batches(init_keys), cfgs, strict=True)]
+    if truncate:
+        log.truncate_after(start)
 
     for chunk in range(done, prog.num_chunks):
         t0 = time.perf_counter()
