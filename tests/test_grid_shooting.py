@@ -190,21 +190,27 @@ def test_trials_to_level_hand_computed():
         trials_to_level(success, episodes, 0.5, window=0)
 
 
+def run_chain_program(train: QTrainParams, steps: int, seed: int = 0):
+    """The chain's Q program with ``train``, stepped ``steps`` times outside the engine:
+    (program, final carry, per-step metrics as NumPy)."""
+    cfg = ChainConfig().replace(train=train)
+    prog = make_q_program(ChainEnv(), chain_state, cfg, num_states=N)
+    carry = prog.init(jax.random.PRNGKey(seed), cfg)
+    ms = []
+    for _ in range(steps):
+        carry, m = jax.jit(prog.step)(carry, cfg)
+        ms.append(jax.tree.map(np.asarray, m))
+    return prog, carry, ms
+
+
 def test_lr_scale_schedule_sets_the_step_size_per_chunk():
     """train.lr_scale multiplies the agent's learning rate per chunk (hand values of the
     linear schedule); scale 0 leaves the Q-table untouched, scale 1 moves it."""
     from vbl.agents.exploration import ScheduleParams
 
     def run(scale: ScheduleParams, chunks: int):
-        cfg = ChainConfig()
-        cfg = cfg.replace(train=cfg.train.replace(lr_scale=scale))
-        prog = make_q_program(ChainEnv(), chain_state, cfg, num_states=N)
-        carry = prog.init(jax.random.PRNGKey(0), cfg)
-        lrs = []
-        for _ in range(chunks):
-            carry, m = jax.jit(prog.step)(carry, cfg)
-            lrs.append(float(m["learning_rate"]))
-        return carry.q, lrs
+        _, carry, ms = run_chain_program(_train().replace(lr_scale=scale), chunks)
+        return carry.q, [float(m["learning_rate"]) for m in ms]
 
     lin = ScheduleParams(kind="linear", init_value=1.0, end_value=0.2, transition_begin=1.0,
                          transition_steps=2.0)
@@ -222,19 +228,8 @@ def test_eval_every_trains_the_same_and_sums_the_chunks():
     is that of k steps of eval_every=1 (same Q-table, key and LEM state, bit for bit);
     episodes, successes and primitives are the sums over the k chunks, epsilon and the
     difficulty those after the last one."""
-    def run(every: int, steps: int):
-        cfg = ChainConfig()
-        cfg = cfg.replace(train=cfg.train.replace(eval_every=every))
-        prog = make_q_program(ChainEnv(), chain_state, cfg, num_states=N)
-        carry = prog.init(jax.random.PRNGKey(3), cfg)
-        ms = []
-        for _ in range(steps):
-            carry, m = jax.jit(prog.step)(carry, cfg)
-            ms.append(jax.tree.map(np.asarray, m))
-        return prog, carry, ms
-
-    p1, c1, m1 = run(1, 4)
-    p2, c2, m2 = run(2, 2)
+    p1, c1, m1 = run_chain_program(_train().replace(eval_every=1), 4, seed=3)
+    p2, c2, m2 = run_chain_program(_train().replace(eval_every=2), 2, seed=3)
     assert (p1.num_chunks, p2.num_chunks) == (4, 2)
     for a, b in zip(jax.tree.leaves(c1), jax.tree.leaves(c2), strict=True):
         np.testing.assert_array_equal(a, b)
