@@ -668,8 +668,10 @@ def _box_region(base_c, axes_c, front, cam: CameraParams, fu, fv, lo, hi, origin
     The silhouette is the sum of the near-clipped front faces (disjoint for a convex
     body); its boundary is every edge between a front and a back face (weight
     ``front[f+] - front[f-]``: an edge between two front faces cancels) plus each front
-    face's near-plane chord. One ``lax.scan`` over the 12 edges builds each edge
-    (corner, near-plane clip, projection) and adds it; a second adds the 6 chords.
+    face's near-plane chord. One ``lax.scan`` over the 12 edges builds them (corners,
+    near-plane clip, projection); :func:`_green_scan` then adds the 12 edges and the 6
+    chords (building and adding in one step makes XLA recompute the edge in every
+    loop that writes one of the step's outputs).
     """
     zn = jnp.asarray(cam.near_plane, F32)
     boxes, orig = _boxes_and_origins(lo, hi, origin)
@@ -694,12 +696,14 @@ def _box_region(base_c, axes_c, front, cam: CameraParams, fu, fv, lo, hi, origin
         u1 = jnp.where(inb, fu * (pa[0] + d[0]) * izb, cu)
         v1 = jnp.where(inb, fv * (pa[1] + d[1]) * izb, cv)
         w = sum(frs[f] * wf[f] for f in range(6)) * (ina | inb).astype(F32)
-        carry = _green_step(carry, (u0, v0, u1, v1, w), boxes, orig)
-        return carry, (cu, cv, (ina & ~inb).astype(F32), (inb & ~ina).astype(F32))
+        return carry, (u0, v0, u1, v1, w, cu, cv, (ina & ~inb).astype(F32),
+                       (inb & ~ina).astype(F32))
 
     tables = (jnp.asarray(_BOX_START), jnp.asarray(_BOX_VEC),
               jnp.asarray((_BOX_FWD - _BOX_BWD).T))
-    carry, (cu, cv, xf, xb) = jax.lax.scan(edge, _green_init(len(boxes)), tables)
+    _, (u0, v0, u1, v1, w, cu, cv, xf, xb) = jax.lax.scan(edge, jnp.zeros((), F32), tables)
+    carry = _green_scan(_green_init(len(boxes)), jnp.stack([u0, v0], axis=-1),
+                        jnp.stack([u1, v1], axis=-1), w, boxes, orig)
     # near-plane chords: face f leaves the near plane on one edge and returns on another
     ends = {k: [] for k in ("u0", "v0", "u1", "v1", "w")}
     for f in range(6):
