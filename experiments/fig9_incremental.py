@@ -118,12 +118,12 @@ def _grid_default():
 
 
 def _learner_default() -> IncrementalParams:
-    """The library's segmentation with Monte Carlo value updates (session 7): every decision
+    """The library's segmentation with Monte Carlo value updates: every decision
     of a trial learns from the trial's discounted outcome, no bootstrapping through aliased
     boxes; learning rate 0.02, Boltzmann temperature 0.01. 4 seeds: greedy 0.63 against 0.12
     with one-step Q-learning (``--set learner.value_update=q_learning --set
     learner.alpha=0.25 --set learner.temperature=0.02``: the library defaults);
-    docs/state_spaces.md, "Figure 9: session 7"."""
+    docs/state_spaces.md, "Figure 9"."""
     return IncrementalParams(value_update="monte_carlo", alpha=0.02, temperature=0.01)
 
 

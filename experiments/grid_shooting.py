@@ -156,8 +156,8 @@ LR_SCALE = ScheduleParams(kind="linear", init_value=1.0, end_value=0.2,
                           transition_begin=60.0, transition_steps=20.0)
 """Step size over training (factor on the learning rate, per chunk): 0.1 for 60 chunks,
 then linearly down to 0.02 by chunk 80 (a decreasing step size lets the tabular estimates
-settle; with a constant 0.1 the learned policy kept swinging between 0.0 and 0.66, measured
-in session 3)."""
+settle; with a constant 0.1 the learned policy kept swinging between 0.0 and 0.66,
+measured)."""
 
 
 def _train() -> QTrainParams:

@@ -46,7 +46,7 @@ def default_learner() -> CVAStateParams:
     # R^2 0.01-0.3 against 0.96). No unfiltered lost-side flags. One k-means codebook per
     # object (product VQ): ball 64 x goal 8 x other robot 8 = 4,096 states for both state
     # vectors. 16 seeds: pass CVA 59.5 % vs current 22.4 %, shoot 16.8 vs 16.5 % (the
-    # session-3 allocation, 4 ball components on 16 codes, 1,024 states: pass 42.7 vs
+    # earlier allocation, 4 ball components on 16 codes, 1,024 states: pass 42.7 vs
     # 40.9 %, shoot 25.8 vs 40.9 %; docs/cva_learning.md).
     return CVAStateParams(
         state="select", objects=("ball", "goal", "other"), n_used=4,

@@ -261,7 +261,7 @@ def test_fig5_categorical_dims_need_lost_side_features():
     exp = get("fig5_action_based")
     cfg = exp.default_config
     assert cfg.build.categorical_dims == 2 and cfg.features.lost_sides
-    # session 5: chain reliability and the time rank are Figure 5's construction
+    # chain reliability and the time rank are Figure 5's construction
     assert cfg.build.chain_reliability and cfg.build.rank == "time"
     assert cfg.build.min_reliability == pytest.approx(0.4)
     bad = cfg.replace(features=cfg.features.replace(lost_sides=False))

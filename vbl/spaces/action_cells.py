@@ -10,7 +10,7 @@ seen / lost left / lost right") is its own set of cells, and a state is the unio
 cells labelled with the same primitive at the same iteration (the paper's "a hyper-
 ellipsoid, or a union of them", with axis-aligned boxes). Cells cannot spill across a
 boundary the way a Gaussian ellipsoid fitted to a mixed cluster does
-(docs/state_spaces.md, "Figure 5: session 6").
+(docs/state_spaces.md, "Figure 5").
 
 Iteration ``i = 0, 1, ...`` (all fixed-shape, jit- and vmap-able):
 
