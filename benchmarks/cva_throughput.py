@@ -1,11 +1,16 @@
-"""CVA identification throughput (full order sweep) vs SIPPY and the NumPy oracle loop.
+"""CVA identification throughput: identify's defaults and a fixed lag vs SIPPY and NumPy.
 
 Data: random stable systems (orders 1-6), N = 500 samples, q = 4 outputs, m = 2 inputs.
-vbl: ``identify(u, y, CVAParams(lag=3))`` (k = 6, orders 1..12 swept, AIC argmin), timed after
-a warm-up compile with ``block_until_ready``. Baselines in the same run: the float64 NumPy
-oracle (tests/reference/cva_np.py) looped over data sets, and SIPPY's CVA with AIC order
-selection (orders 1-10, f = 6), timed on a handful of data sets and extrapolated per
-identification.
+vbl, timed after a warm-up compile with ``block_until_ready`` (wall and process CPU time):
+
+* ``default``: ``identify(u, y)`` - lag selection included (l = 1..6, k = 2l, every lag in
+  one program, orders 1..24 swept);
+* ``fixed l=3``: ``identify(u, y, CVAParams(lag=3))`` (k = 6, orders 1..12).
+
+Baselines in the same run, per identification: the float64 NumPy oracle
+(tests/reference/cva_np.py) looped over data sets - at l = 3 for the fixed lag, summed over
+l = 1..6 for the default - and SIPPY's CVA with AIC order selection (orders 1-10, f = 6) in a
+subprocess with one BLAS thread (OMP/OPENBLAS/MKL_NUM_THREADS=1 set before NumPy loads).
 
     python benchmarks/cva_throughput.py [--quick]
 """
@@ -13,10 +18,9 @@ identification.
 from __future__ import annotations
 
 import argparse
-import contextlib
-import io
 import json
 import os
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -31,39 +35,62 @@ sys.path.insert(0, str(ROOT))
 from reference.cva_np import cva_reference  # noqa: E402
 from reference.sysid_systems import simulate_batch  # noqa: E402
 
-import vbl  # noqa: E402,F401
 from benchmarks.hardware import cpu_model  # noqa: E402
 from vbl.sysid import CVAParams, identify  # noqa: E402
 
-N, Q, M, LAG, SIPPY_F = 500, 4, 2, 3, 6
+N, Q, M, LAG, LAG_MAX, SIPPY_F = 500, 4, 2, 3, 6, 6
+CONFIGS = {"default": None, "fixed l=3": CVAParams(lag=LAG)}
+
+SIPPY_SCRIPT = """
+import contextlib, io, sys, time
+import numpy as np
+from sippy_unipi import OLSims_methods as ols
+d = np.load(sys.argv[1]); u, y = d["u"], d["y"]
+t0, c0 = time.perf_counter(), time.process_time()
+for i in range(len(u)):
+    with contextlib.redirect_stdout(io.StringIO()):
+        ols.select_order_SIM(y[i].T.copy(), u[i].T.copy(), f=SIPPY_F, weights="CVA",
+                             method="AIC", orders=[1, 10], D_required=True)
+print((time.perf_counter() - t0) / len(u), (time.process_time() - c0) / len(u))
+""".replace("SIPPY_F", str(SIPPY_F))
 
 
-def time_vbl(u, y, params, repeats: int) -> float:
-    jax.block_until_ready(identify(u, y, params).model.U)     # compile
-    best = np.inf
+def _run(u, y, params):
+    res = identify(u, y) if params is None else identify(u, y, params)
+    jax.block_until_ready(res.model.U)
+    return res
+
+
+def time_vbl(u, y, params, repeats: int) -> tuple[float, float]:
+    """Best wall and CPU seconds of one batched identification (after a warm-up)."""
+    _run(u, y, params)
+    best, cpu = np.inf, np.inf
     for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(identify(u, y, params).model.U)
+        t0, c0 = time.perf_counter(), time.process_time()
+        _run(u, y, params)
         best = min(best, time.perf_counter() - t0)
-    return best
+        cpu = min(cpu, time.process_time() - c0)
+    return best, cpu
 
 
-def time_numpy(u, y, count: int) -> float:
-    t0 = time.perf_counter()
+def time_numpy(u, y, count: int, lags) -> float:
+    """CPU seconds per identification of the NumPy oracle, summed over ``lags``."""
+    c0 = time.process_time()
     for i in range(count):
-        cva_reference(u[i], y[i], LAG, 2 * LAG, n_max=None)
-    return (time.perf_counter() - t0) / count
+        for lag in lags:
+            cva_reference(u[i], y[i], lag, 2 * lag, n_max=None)
+    return (time.process_time() - c0) / count
 
 
-def time_sippy(u, y, count: int) -> float:
-    from sippy_unipi import OLSims_methods as ols
-
-    t0 = time.perf_counter()
-    for i in range(count):
-        with contextlib.redirect_stdout(io.StringIO()):
-            ols.select_order_SIM(y[i].T.copy(), u[i].T.copy(), f=SIPPY_F, weights="CVA",
-                                 method="AIC", orders=[1, 10], D_required=True)
-    return (time.perf_counter() - t0) / count
+def time_sippy(u, y, count: int, tmp: Path) -> tuple[float, float]:
+    """SIPPY wall and CPU seconds per identification, one BLAS thread, in a subprocess."""
+    np.savez(tmp, u=u[:count], y=y[:count])
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
+           "MKL_NUM_THREADS": "1"}
+    out = subprocess.run([sys.executable, "-c", SIPPY_SCRIPT, str(tmp)], capture_output=True,
+                         text=True, env=env, check=True)
+    wall, cpu = map(float, out.stdout.split()[-2:])
+    return wall, cpu
 
 
 def main() -> None:
@@ -76,36 +103,50 @@ def main() -> None:
     bmax = max(sizes)
     u, y, _ = simulate_batch(rng, rng.integers(1, 7, bmax), N, M, Q, noise=0.05,
                              min_separation=0.15)
-    params = CVAParams(lag=LAG)
-    t_np = time_numpy(u, y, n_base)
-    t_sippy = time_sippy(u, y, max(2, n_base // 4))
+    res_dir = ROOT / "benchmarks" / "results"
+    res_dir.mkdir(parents=True, exist_ok=True)
+    load0 = os.getloadavg()
+    base = {"default": time_numpy(u, y, n_base, range(1, LAG_MAX + 1)),
+            "fixed l=3": time_numpy(u, y, n_base, [LAG])}
+    sippy_wall, sippy_cpu = time_sippy(u, y, max(2, n_base // 2), res_dir / "_sippy_data.npz")
+    (res_dir / "_sippy_data.npz").unlink()
     rows = []
-    for b in sizes:
-        t = time_vbl(u[:b], y[:b], params, repeats=2 if b >= 1024 else 3)
-        rows.append(dict(datasets=b, seconds=t, ident_per_s=b / t,
-                         speedup_vs_numpy=(b / t) * t_np, speedup_vs_sippy=(b / t) * t_sippy))
-        print(f"B={b:5d}: {t:8.3f} s  {b / t:10.1f} ident/s  x{(b / t) * t_np:7.1f} numpy  "
-              f"x{(b / t) * t_sippy:8.1f} sippy", flush=True)
+    for name, params in CONFIGS.items():
+        for b in sizes:
+            t, c = time_vbl(u[:b], y[:b], params, repeats=2 if b >= 1024 else 3)
+            r = dict(config=name, datasets=b, seconds=t, cpu_seconds=c, ident_per_s=b / t,
+                     cpu_ms_per_ident=1e3 * c / b, x_numpy_cpu=base[name] * b / c,
+                     x_sippy_cpu=sippy_cpu * b / c, x_sippy_wall=sippy_wall * b / t)
+            rows.append(r)
+            print(f"{name:10s} B={b:5d}: {t:8.3f} s wall, {c:8.3f} s CPU, "
+                  f"x{r['x_numpy_cpu']:7.1f} numpy (CPU), x{r['x_sippy_cpu']:8.1f} sippy (CPU)",
+                  flush=True)
     out = dict(
         benchmark="cva_throughput", quick=args.quick,
         hardware=dict(cpu=cpu_model(), cores=os.cpu_count(), jax=jax.__version__,
-                      backend=jax.default_backend(), load_avg=os.getloadavg()),
-        setting=dict(N=N, q=Q, m=M, lag=LAG, horizon=2 * LAG, orders_swept="1..12",
-                     dtype="float64", sippy_f=SIPPY_F, sippy_orders="1..10"),
-        baseline_seconds_per_identification=dict(numpy_oracle=t_np, sippy=t_sippy),
-        rows=rows)
-    res_dir = ROOT / "benchmarks" / "results"
-    res_dir.mkdir(parents=True, exist_ok=True)
+                      backend=jax.default_backend(), load_avg_start=load0,
+                      load_avg_end=os.getloadavg()),
+        setting=dict(N=N, q=Q, m=M, default="lag_rule=predictor, l=1..6, k=2l, orders 1..24",
+                     fixed=f"l={LAG}, k={2 * LAG}, orders 1..12", dtype="float64",
+                     sippy_f=SIPPY_F, sippy_orders="1..10", sippy_blas_threads=1),
+        baseline_cpu_seconds_per_identification=dict(
+            numpy_oracle_all_lags=base["default"], numpy_oracle_l3=base["fixed l=3"],
+            sippy=sippy_cpu),
+        sippy_wall_seconds_per_identification=sippy_wall, rows=rows)
     (res_dir / "cva_throughput.json").write_text(json.dumps(out, indent=2))
-    md = [f"CVA throughput (N={N}, q={Q}, m={M}, l={LAG}, k={2 * LAG}, full order sweep, "
-          f"float64) on {out['hardware']['cpu']} ({os.cpu_count()} cores, shared), "
-          f"jax {jax.__version__}. Baselines per identification: NumPy oracle "
-          f"{t_np * 1e3:.1f} ms, SIPPY CVA {t_sippy * 1e3:.1f} ms.", "",
-          "| data sets | time (s) | identifications/s | x NumPy loop | x SIPPY |",
-          "|---|---|---|---|---|"]
+    md = [f"CVA throughput (N={N}, q={Q}, m={M}, float64) on {out['hardware']['cpu']} "
+          f"({os.cpu_count()} cores shared with other jobs: load average {load0[0]:.1f} at the "
+          f"start, {out['hardware']['load_avg_end'][0]:.1f} at the end), jax {jax.__version__}. "
+          "Ratios use process CPU time of the same run. Baselines, CPU per identification: "
+          f"NumPy oracle {base['fixed l=3'] * 1e3:.1f} ms at l=3, "
+          f"{base['default'] * 1e3:.1f} ms for l=1..6; SIPPY CVA (one BLAS thread) "
+          f"{sippy_cpu * 1e3:.1f} ms ({sippy_wall * 1e3:.1f} ms wall).", "",
+          "| config | data sets | wall (s) | CPU (s) | CPU ms / ident | x NumPy (CPU) | "
+          "x SIPPY (CPU) | x SIPPY (wall) |", "|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        md.append(f"| {r['datasets']} | {r['seconds']:.3f} | {r['ident_per_s']:.0f} | "
-                  f"{r['speedup_vs_numpy']:.1f} | {r['speedup_vs_sippy']:.0f} |")
+        md.append(f"| {r['config']} | {r['datasets']} | {r['seconds']:.3f} | "
+                  f"{r['cpu_seconds']:.3f} | {r['cpu_ms_per_ident']:.2f} | "
+                  f"{r['x_numpy_cpu']:.1f} | {r['x_sippy_cpu']:.0f} | {r['x_sippy_wall']:.0f} |")
     (res_dir / "cva_throughput.md").write_text("\n".join(md) + "\n")
     print("\n".join(md))
 

@@ -48,7 +48,7 @@ class Table1Config:
     collect: CollectParams = section(lambda: CollectParams(num_steps=500),
                                      doc="common data-collection setup")
     rows: RowSetup = section(RowSetup, doc="per-row collection changes")
-    ident: CVAParams = section(lambda: CVAParams(standardize=False, lag_max=6),
+    ident: CVAParams = section(lambda: CVAParams(standardize=False, lag_max=6, lag_rule="paper"),
                                doc="CVA/AIC/lag rule (outputs in y_unit px, not standardised: "
                                    "standardised residuals always give log det R <= 0, so "
                                    "the lag rule would always stop at l = 1)")

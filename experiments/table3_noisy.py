@@ -50,7 +50,7 @@ class Table3Config:
     bodies: ShootPassParams = section(ShootPassParams, doc="the two robots (cameras, "
                                       "passer_body); world.four_wheel is the shooter's body")
     noise: NoiseParams = section(lambda: NOISE_ON, doc="noise model (on)")
-    ident: CVAParams = section(lambda: CVAParams(standardize=False, lag_max=6),
+    ident: CVAParams = section(lambda: CVAParams(standardize=False, lag_max=6, lag_rule="paper"),
                                doc="CVA/AIC/lag rule (as Table 1)")
     y_unit: float = param(4.0, doc="unit of the identification outputs", unit="px", gt=0.0)
 

@@ -159,10 +159,30 @@ def first_argmin(a: jnp.ndarray) -> jnp.ndarray:
     return jnp.min(jnp.where(a == jnp.min(a), idx, a.shape[0] - 1)).astype(jnp.int32)
 
 
-def _order_sweep(g, ix, umat, s, params, floor, *, m, q, ne, n_cap, n_ident, means) -> CVAFit:
+def _nested_logdet(sxx, sxy, syy, floor, *, m: int, c: int):
+    """log det R_hat(n) (c+1,) and R_hat(n) (c+1, q, q) for n = 0..c regressors mu_1..mu_n
+    beside u(t): one Cholesky of the covariance of [u(t); mu(t)] (rows of L^-1 S_xy are the
+    successive reductions of the residual covariance)."""
+    order = np.r_[c:c + m, 0:c]                               # [u(t); mu_1..mu_c]
+    lx = jnp.linalg.cholesky(_ridge(sxx[order][:, order], floor))
+    w = solve_triangular(lx, sxy[order], lower=True)          # (m+c, q)
+    red = jnp.cumsum(w[:, :, None] * w[:, None, :], axis=0)   # (m+c, q, q)
+    rs = jax.vmap(lambda r: _ridge(syy - r, floor))(red[m - 1:])
+    logdet = 2.0 * jnp.sum(jnp.log(jnp.diagonal(jnp.linalg.cholesky(rs), axis1=-2,
+                                                axis2=-1)), axis=-1)
+    return logdet, rs
+
+
+def _order_sweep(g, ix, umat, s, params, floor, *, m, q, ne, n_cap, n_ident, means,
+                 nested: bool = False) -> CVAFit:
     """Eq. (2) for every order n = 0..n_cap from the Gram matrix ``g`` and the state map
     ``umat`` (r, dp), canonical correlations ``s`` (r,); AIC (Eq. 6) picks n* among
-    ``n_min <= n <= n_ident``."""
+    ``n_min <= n <= n_ident``.
+
+    ``nested=False``: one masked Cholesky per order (O(c^4)); ``nested=True``: the residual
+    covariances of all orders from one Cholesky of the regressors ordered [u(t); mu(t)]
+    (regressing on a prefix of them, O(c^3)); equal up to the regularisation floor.
+    """
     dt = g.dtype
     p = ix["p"]
     r = s.shape[0]
@@ -197,7 +217,10 @@ def _order_sweep(g, ix, umat, s, params, floor, *, m, q, ne, n_cap, n_ident, mea
         return 2.0 * jnp.sum(jnp.log(jnp.diag(jnp.linalg.cholesky(rr)))), rr
 
     ns = jnp.arange(c + 1)
-    logdet, rs = jax.vmap(logdet_r)(ns)
+    if nested:
+        logdet, rs = _nested_logdet(sxx, sxy, syy, floor, m=m, c=c)
+    else:
+        logdet, rs = jax.vmap(logdet_r)(ns)
     a = aic_fn(logdet, ns, ne, m, q, params.param_count)
     # an order whose residual covariance is numerically singular (NaN) is not identifiable
     valid = (ns >= params.n_min) & (ns <= n_ident) & jnp.isfinite(logdet)

@@ -87,7 +87,7 @@ def _fit_lag(g, ix, dl, params, floor, lag, horizon, *, m, q, ne, n_cap, means) 
     umat = umat * wp[None, :]          # exact zeros on masked past entries
     n_ident = jnp.minimum(lag * (m + q), horizon * q)
     return _order_sweep(g, ix, umat, s, params, floor, m=m, q=q, ne=ne, n_cap=n_cap,
-                        n_ident=n_ident, means=means)
+                        n_ident=n_ident, means=means, nested=True)
 
 
 def fit_select_one(u, y, params: CVAParams, *, n_cap: int):
