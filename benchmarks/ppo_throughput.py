@@ -82,7 +82,7 @@ def time_train(task: str, net: str, learners: int, p: PPOParams, reps: int) -> d
 def markdown(result: dict, cmd: str) -> str:
     hw = result["hardware"]
     lines = [f"# PPO throughput\n\n`{cmd}`; {hw['cpu']}, {hw['cores']} cores, jax "
-             f"{hw['jax']}, load average {hw['load_average']} at the start (shared machine)."
+             f"{hw['jax']}, load average {hw['load_average']:.1f} at the start (shared machine)."
              f"\n\nOne training call = {result['ppo']['steps_per_chunk']} PPO training steps "
              f"x {result['ppo']['env_steps_per_training_step']:,} env steps per learner "
              f"({result['ppo']['num_envs']} envs x unroll {result['ppo']['unroll_length']}, "
