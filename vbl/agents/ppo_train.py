@@ -36,7 +36,8 @@ from vbl.agents.ppo import PPONetParams, make_categorical_ppo_networks
 from vbl.envs.brax_adapter import set_difficulty
 from vbl.params import ParamError, param, section
 
-__all__ = ["PPOParams", "CurriculumParams", "PPOCarry", "PPOLearner", "make_ppo_learner"]
+__all__ = ["PPOParams", "CurriculumParams", "curriculum_update", "PPOCarry", "PPOLearner",
+           "make_ppo_learner"]
 
 F32 = jnp.float32
 EXTRA_FIELDS = ("truncation", "episode_metrics", "episode_done")
@@ -122,6 +123,16 @@ class PPOLearner(struct.PyTreeNode):
     train_chunk: Callable = struct.field(pytree_node=False)
     evaluate: Callable = struct.field(pytree_node=False)
     networks: Any = struct.field(pytree_node=False)
+
+
+def curriculum_update(cur: CurriculumParams, difficulty: jax.Array, level_success: jax.Array,
+                      task_difficulty: jax.Array) -> jax.Array:
+    """The next start difficulty () float32: ``difficulty + cur.step`` (at most
+    ``task_difficulty``) when the curriculum is on and ``level_success`` (evaluation at
+    ``difficulty``) reaches ``cur.success_level``; else unchanged."""
+    up = jnp.asarray(cur.enabled, bool) & (level_success >= cur.success_level)
+    raised = jnp.minimum(difficulty + cur.step, task_difficulty)
+    return jnp.where(up, raised, difficulty).astype(F32)
 
 
 def _x32(fn: Callable) -> Callable:
@@ -273,11 +284,7 @@ def make_ppo_learner(make_env: Callable[[Any, jax.Array], Any], obs_size: int,
         task_sr, level_sr = jax.vmap(evaluate, in_axes=(None, 0, 0, None))(
             carry, jnp.stack([k_task, k_level]), jnp.stack([task_d, carry.difficulty]),
             p.eval_envs)
-        cur = pp.curriculum
-        on = jnp.asarray(cur.enabled, bool)
-        raise_ = on & (level_sr >= cur.success_level)
-        new_d = jnp.where(raise_, jnp.minimum(carry.difficulty + cur.step, task_d),
-                          carry.difficulty)
+        new_d = curriculum_update(pp.curriculum, carry.difficulty, level_sr, task_d)
         # the envs' next starts are drawn at the new difficulty
         env_state = carry.env_state
         if "difficulty" in env_state.info:
