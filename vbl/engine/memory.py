@@ -82,7 +82,7 @@ def estimate(plan) -> tuple[int, dict[str, Any]]:
     worst, details = 0, {}
     for g in plan.groups:
         one = jax.tree.map(lambda x: jax.ShapeDtypeStruct(np.shape(x), traced_dtype(x)),
-                           g.point_configs[0])
+                           g.first_config)
         carry = _nbytes(jax.eval_shape(g.program.init,
                                        jax.ShapeDtypeStruct((2,), np.uint32), one))
         n = g.num_learners

@@ -120,6 +120,8 @@ def run_experiment(experiment: Experiment, *, sets: Mapping[str, Any] | None = N
         if experiment.make_program is not None else None
     if plan is not None and memory_check:
         check_memory(plan)
+    if plan is not None:
+        plan.validate()
     quiet = (auto_quiet() if quiet is None else quiet) or not primary
 
     folder = open_run_folder(out, experiment.name, resume=resume, overwrite=overwrite,

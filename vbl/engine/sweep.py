@@ -66,10 +66,11 @@ def learner_keys(base_seed: int, seeds: int) -> tuple[np.ndarray, np.ndarray]:
 class Group:
     """Points sharing static values: one program, one compilation.
 
-    ``point_configs`` holds one validated config per point; :attr:`configs` stacks their
-    traced leaves (``[points * seeds, ...]`` NumPy arrays), built on first use so that a
-    plan can be checked (memory) before anything large is allocated. ``point_ids`` indexes
-    :attr:`SweepPlan.points`.
+    :attr:`point_configs` holds one validated config per point and :attr:`configs` stacks
+    their traced leaves (``[points * seeds, ...]`` NumPy arrays); both are built on first
+    use, so that a plan can be checked (memory, from :attr:`first_config`) before a large
+    sweep is validated point by point or anything large is allocated. ``point_ids``
+    indexes ``points``, the plan's points.
     """
 
     index: int
@@ -77,9 +78,20 @@ class Group:
     point_ids: list[int]
     base_config: Any
     program: Program
-    point_configs: list[Any]
+    points: list[dict[str, Any]]
     step_offset: int
     seeds: int
+
+    @property
+    def first_config(self) -> Any:
+        """The validated config of the group's first point."""
+        if "point_configs" in self.__dict__:
+            return self.point_configs[0]
+        return apply_overrides(self.base_config, self.points[self.point_ids[0]])
+
+    @functools.cached_property
+    def point_configs(self) -> list[Any]:
+        return [apply_overrides(self.base_config, self.points[i]) for i in self.point_ids]
 
     @property
     def num_chunks(self) -> int:
@@ -124,6 +136,11 @@ class SweepPlan:
     def final_keys(self) -> np.ndarray:
         return self._keys[1]
 
+    def validate(self) -> None:
+        """Build (hence validate) every point's config; ParamError names the first bad one."""
+        for g in self.groups:
+            g.point_configs  # noqa: B018 - built and cached
+
 
 def check_counts(seeds: Any, base_seed: Any) -> None:
     """ParamError unless ``1 <= seeds <= MAX_SEED`` and ``0 <= base_seed <= MAX_SEED``."""
@@ -136,8 +153,9 @@ def check_counts(seeds: Any, base_seed: Any) -> None:
 
 def make_plan(experiment: Experiment, config: Any, sweep: Mapping[str, Sequence[Any]],
               seeds: int, base_seed: int = 0) -> SweepPlan:
-    """Validate every sweep value and point and build the groups (calls ``make_program``
-    per group). Per-learner arrays (keys, stacked configs) are built on first use."""
+    """Validate every sweep value and build the groups (calls ``make_program`` per group).
+    Each point's config (validated whole) and the per-learner arrays (keys, stacked
+    configs) are built on first use: :meth:`SweepPlan.validate` builds the configs."""
     check_counts(seeds, base_seed)
     sweep = {p: list(v) for p, v in sweep.items()}
     for path, values in sweep.items():
@@ -163,8 +181,7 @@ def make_plan(experiment: Experiment, config: Any, sweep: Mapping[str, Sequence[
     for gi, ids in enumerate(by_static.values()):
         static_values = {p: v for p, v in points[ids[0]].items() if p in statics}
         base = apply_overrides(config, static_values)
-        cfgs = [apply_overrides(config, points[i]) for i in ids]
         program = program_for(experiment, base)
-        groups.append(Group(gi, static_values, ids, base, program, cfgs, offset, seeds))
+        groups.append(Group(gi, static_values, ids, base, program, points, offset, seeds))
         offset += program.num_chunks
     return SweepPlan(config, sweep, points, seeds, base_seed, groups)
