@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import errno
+import logging
 import os
+import re
 import sys
 
 __all__ = ["one_line", "quiet_xla_log", "debug_requested", "drop_closed_loop_noise"]
@@ -29,13 +31,23 @@ def _first_line(text: str) -> str:
     return lines[0] if lines else ""
 
 
+def _disk_full(x: BaseException) -> str | None:
+    """The reason when ``x`` is a full disk, quota or file size limit (an OSError, or the
+    checkpoint library's error text with ``os_error_code=N``)."""
+    if isinstance(x, OSError) and x.errno in _DISK:
+        return x.strerror or os.strerror(x.errno)
+    m = re.search(r"os_error_code='?(\d+)", str(x))
+    if m and int(m.group(1)) in _DISK:
+        return os.strerror(int(m.group(1)))
+    return "No space left on device" if "No space left on device" in str(x) else None
+
+
 def one_line(e: BaseException) -> str:
     """A one-line description of an unexpected exception (what failed, and what to do)."""
     for x in _chain(e):
-        if (isinstance(x, OSError) and x.errno in _DISK) or "No space left on device" in str(x):
+        why = _disk_full(x)
+        if why is not None:
             where = f" {x.filename}" if getattr(x, "filename", None) else ""
-            why = (x.strerror if isinstance(x, OSError) and x.strerror else
-                   "No space left on device")
             return (f"cannot write{where}: {why}; free some space (or raise the file size "
                     f"limit), then continue the run with --resume")
     for x in _chain(e):
@@ -77,7 +89,10 @@ def _unraisable(u) -> None:
 
 
 def drop_closed_loop_noise() -> None:
-    """Drop the ``RuntimeError: Event loop is closed`` tracebacks that the checkpoint
-    library's reads print when one read fails and the others finish after it (a process
-    setting of the ``vbl`` command; other unraisable exceptions print as usual)."""
+    """Process settings of the ``vbl`` command that keep a failure to its one line: the
+    checkpoint library's log (absl, through ``logging``) shows critical messages only (its
+    errors reach the command as exceptions), and the ``RuntimeError: Event loop is
+    closed`` tracebacks its reads print when one read fails and others finish after it
+    are dropped (other unraisable exceptions print as usual)."""
+    logging.getLogger("absl").setLevel(logging.CRITICAL)
     sys.unraisablehook = _unraisable
