@@ -30,6 +30,20 @@ SIZE = np.array([0.4, 0.4, 0.3])
 TOL3 = np.r_[[512] * 4, [512] * 10, 512 * 480, [512] * 4, 512 * 480, [1] * 6] * 1e-4
 
 
+#: Below this visible area (px^2) a region is a sub-pixel sliver: float32 inputs (camera
+#: frame, projected corners) leave its centroid good to about a pixel, not 1e-4 of 512.
+SLIVER = 1.0
+
+
+def _tol(want):
+    """TOL3, with centroids of sub-pixel slivers (goal, other robot) compared to 1 px."""
+    tol = TOL3.copy()
+    for area, cols in ((14, [12, 13]), (19, [15, 16])):
+        if 0 < want[area] < SLIVER:
+            tol[cols] = 1.0
+    return tol
+
+
 def f32(x):
     return jnp.asarray(x, jnp.float32)
 
@@ -138,7 +152,7 @@ def test_edge_scenes_match_numpy_reference():
     got = np.asarray(sec3_batch(f32(poses), f32(balls), f32(others)))
     for name, g, pose, ball, other in zip(names, got, poses, balls, others, strict=True):
         want = section3_features_np(pose, ball, R, GOAL, other, SIZE, CAM)
-        assert np.all(np.abs(g - want) <= TOL3), (name, g, want)
+        assert np.all(np.abs(g - want) <= _tol(want)), (name, g, want)
     # the scenes are what their names say
     rows = dict(zip(names, got, strict=True))
     for name in ("robot partly behind the near plane",
@@ -180,4 +194,4 @@ def test_random_close_scenes_match_numpy_reference(seed):
     got = np.asarray(sec3_batch(f32(poses), f32(balls), f32(others)))
     for g, pose, ball, other in zip(got, poses, balls, others, strict=True):
         want = section3_features_np(pose, ball, R, GOAL, other, SIZE, CAM)
-        assert np.all(np.abs(g - want) <= TOL3), (pose, ball, other, g, want)
+        assert np.all(np.abs(g - want) <= _tol(want)), (pose, ball, other, g, want)
