@@ -135,7 +135,8 @@ EXPERIMENT = register(Experiment(
     default_config=ShootPassConfig(), make_program=make_shoot_pass_program,
     quick={**QUICK_PPO, "cva.collect_steps": 1000, "cva.cva.lag_max": 2},
     seeds=8, quick_seeds=2, paper_result=True, paper=PAPER, report=report_shoot_pass,
-    sweep={"env.task_pass": [False, True], "inputs.index": [0, 1, 2]}, cost=150.0))
+    sweep={"env.task_pass": [False, True], "inputs.index": [0, 1, 2]},
+    cost=300.0))  # s, cold --quick on 2 cores (compile-dominated; 1,389 s at load average 12)
 
 SHOOTING = register(Experiment(
     name="ppo_shooting",
@@ -143,7 +144,7 @@ SHOOTING = register(Experiment(
     default_config=ShootingConfig(), make_program=make_shooting_program,
     quick={**QUICK_PPO, "env.max_steps": 100},
     seeds=8, quick_seeds=2, paper_result=True, report=report_shooting,
-    sweep={"ppo.curriculum.enabled": [False, True]}, cost=100.0))
+    sweep={"ppo.curriculum.enabled": [False, True]}, cost=150.0))  # s, cold --quick (guess)
 
 if __name__ == "__main__":
     from vbl.engine import main_for
