@@ -499,13 +499,14 @@ class Section3Obs:
 
 @struct.dataclass
 class Region:
-    """Area (px^2), first moments (px^3) and bounding box (px) of regions, one per box."""
+    """Area (px^2) and first moments (px^3) of a region inside R boxes, and its bounding
+    box (px) inside box 0."""
 
     area: jnp.ndarray  # (R,)
     mu: jnp.ndarray    # (R,)
     mv: jnp.ndarray    # (R,)
-    lo: jnp.ndarray    # (R, 2) u_lo, v_lo
-    hi: jnp.ndarray    # (R, 2) u_hi, v_hi
+    lo: jnp.ndarray    # (2,) u_lo, v_lo in box 0 (lo > hi: empty)
+    hi: jnp.ndarray    # (2,) u_hi, v_hi in box 0
 
 
 def _boxes_and_origins(lo, hi, origin):
