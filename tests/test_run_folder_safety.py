@@ -222,13 +222,14 @@ def _race(ps: Procs, tmp: Path, env) -> dict:
         time.sleep(0.05)
     loser, winner = ("race_a", "race_b") if ps.done("race_a") else ("race_b", "race_a")
     metrics = tmp / "race" / "metrics.jsonl"
-    while (not metrics.exists() or metrics.stat().st_size == 0) and time.monotonic() < deadline:
+    while ((not metrics.exists() or metrics.stat().st_size == 0) and not ps.done(winner)
+           and time.monotonic() < deadline):
         time.sleep(0.05)
     ps.start("race_overwrite", [*LONG, "--out", str(tmp / "race"), "--overwrite"], env)
     out = ps.wait([loser, "race_overwrite"])
     out["race_winner_running"] = not ps.done(winner)
     ps.procs[winner].send_signal(signal.SIGKILL)
-    ps.wait([winner])
+    out["race_winner"] = ps.wait([winner])[winner]
     return out
 
 
@@ -292,7 +293,8 @@ _BEFORE: dict[str, dict[str, bytes]] = {}
 
 def test_two_resumes_at_once_one_refused_no_duplicate_rows(wave1):
     tmp, out, _ = wave1
-    assert out["race_winner_running"], "the running resume ended before the others"
+    assert out["race_winner_running"], ("the running resume ended before the others",
+                                        out.get("race_winner"))
     losers = [k for k in ("race_a", "race_b") if k in out]
     assert len(losers) == 1
     for k in (losers[0], "race_overwrite"):

@@ -308,10 +308,10 @@ def _quiet_process(argv: list[str]) -> None:
     before JAX loads, and no library noise after a failure unless debugging."""
     quiet_xla_env()
     if "--debug" not in argv:
-        from vbl.engine.errors import debug_requested, drop_closed_loop_noise
+        from vbl.engine.errors import debug_requested, quiet_library_noise
 
         if not debug_requested():
-            drop_closed_loop_noise()
+            quiet_library_noise()
 
 
 def console_main() -> int:

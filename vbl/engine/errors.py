@@ -8,7 +8,7 @@ import os
 import re
 import sys
 
-__all__ = ["one_line", "quiet_xla_log", "debug_requested", "drop_closed_loop_noise"]
+__all__ = ["one_line", "quiet_xla_log", "debug_requested", "quiet_library_noise"]
 
 _DISK = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
 
@@ -88,7 +88,7 @@ def _unraisable(u) -> None:
     sys.__unraisablehook__(u)
 
 
-def drop_closed_loop_noise() -> None:
+def quiet_library_noise() -> None:
     """Process settings of the ``vbl`` command that keep a failure to its one line: the
     checkpoint library's log (absl, through ``logging``) shows critical messages only (its
     errors reach the command as exceptions), and the ``RuntimeError: Event loop is
