@@ -51,7 +51,7 @@ def default_learner() -> CVAStateParams:
     return CVAStateParams(
         state="select", objects=("ball", "goal", "other"), n_used=4,
         n_used_objects=(8, 4, 4), keep_beyond_order=True, extra=(), collect_steps=3000,
-        cva=CVAParams(lag=0, lag_max=3, logdet_stop=-100.0),
+        cva=CVAParams(lag=0, lag_max=3, lag_rule="paper", logdet_stop=-100.0),
         quantizer=QuantizerParams(method="product_vq", group_codes=(64, 8, 8),
                                   kmeans_iters=20),
         runner=_runner(transition_steps=30000.0))

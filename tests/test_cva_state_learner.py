@@ -40,7 +40,7 @@ def params(state: str) -> CVAStateParams:
         num_envs=32, chunk_steps=200)
     bins = 12 if state == "cva" else 24
     return CVAStateParams(state=state, objects=("target",), n_used=2, collect_steps=800,
-                          cva=CVAParams(lag=0, lag_max=2, logdet_stop=-100.0),
+                          cva=CVAParams(lag=0, lag_max=2, lag_rule="paper", logdet_stop=-100.0),
                           quantizer=QuantizerParams(method="bins", bins=bins), runner=r)
 
 
@@ -206,7 +206,7 @@ def test_select_pads_each_object_block_for_a_per_object_quantiser():
     pq = QuantizerParams(method="product_vq", group_codes=(4, 2, 2))
     p = CVAStateParams(state="select", objects=("ball", "goal", "other"),
                        n_used_objects=(4, 2, 1), quantizer=pq,
-                       cva=CVAParams(lag=0, lag_max=2))
+                       cva=CVAParams(lag=0, lag_max=2, lag_rule="paper"))
     fenv = FilteredEnv(env, p, 2)
     assert fenv.block_dims() == (4, 11, 5) and state_dim(env, p) == 20
     rng = np.random.default_rng(0)

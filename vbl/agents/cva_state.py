@@ -125,7 +125,9 @@ class CVAStateParams:
     collect_steps: int = param(2000, doc="random-action steps collected per learner for the "
                                "identification and the quantiser fit", unit="step",
                                static=True, ge=10)
-    cva: CVAParams = section(CVAParams, doc="CVA identification (order by AIC, lag rule)")
+    cva: CVAParams = section(lambda: CVAParams(lag_rule="paper"), doc="CVA identification "
+                             "(order by AIC; with lag 0 the lag by the paper's log det rule, "
+                             "Section 3.1.2)")
     quantizer: QuantizerParams = section(QuantizerParams, doc="state vector -> Q-table index")
     runner: QRunnerParams = section(default_runner, doc="batched Q-learning runner "
                                     "(agent.num_states is overridden by the quantiser's size)")
@@ -143,6 +145,10 @@ class CVAStateParams:
                                  ">= 1")
         if self.cva.lag == 0 and self.cva.lag_max < 1:
             raise ParamError("cva.lag_max must be >= 1")
+        if self.cva.lag == 0 and self.cva.lag_rule != "paper":
+            raise ParamError(f"cva.lag_rule={self.cva.lag_rule!r}: the learner selects the "
+                             "lag by the paper's rule (cva.lag_rule='paper'), or give a "
+                             "fixed cva.lag >= 1")
         if self.state == "select" and self.quantizer.method == "bins":
             raise ParamError("state='select' zero-pads the shorter state vector; it needs "
                              "quantizer.method 'vq' or 'product_vq', got 'bins'")
