@@ -30,6 +30,14 @@ from vbl.spaces.cell_refine import (
     refined_policy_action,
 )
 
+
+@pytest.fixture(autouse=True, scope="module")
+def _x64():
+    """As the engine runs them: with 64-bit types on (vbl.engine.jax_setup)."""
+    with jax.enable_x64(True):
+        yield
+
+
 ENV = LineWorld()
 EP = ENV.default_params.replace(flip_below=0.5)
 LINE = CellMapParams(bins=(20,), seen_feature=(-1,), spacing="uniform", categorical_dims=0,

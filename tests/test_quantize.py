@@ -5,7 +5,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import vbl  # noqa: F401  (x64 on, as in every vbl program)
 from vbl.params import ParamError
 from vbl.spaces.quantize import (
     QuantizerParams,
@@ -16,6 +15,13 @@ from vbl.spaces.quantize import (
     num_states,
     quantize,
 )
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _x64():
+    """As the engine runs them: with 64-bit types on (vbl.engine.jax_setup)."""
+    with jax.enable_x64(True):
+        yield
 
 
 def numpy_lloyd(x, init, iters):
