@@ -88,7 +88,7 @@ def test_goal_mouth_without_walls_is_the_goal_width():
 # 2 chunks of 3 learner steps x 4 robots, the final evaluation on 3 x 4 fresh starts;
 # training and evaluation start at the same difficulty (the experiment's task difficulty,
 # LEM off), so their start distributions are the same
-TINY = {"agent.num_envs": 4, "agent.chunk_steps": 3, "train.num_chunks": 2,
+TINY = {"agent.num_envs": 4, "agent.chunk_steps": 3, "train.num_chunks": 2, "train.eval_every": 1,
         "train.eval_envs": 4, "train.eval_steps": 4, "train.final_eval_rounds": 1,
         "train.eval_curve": False, "env.max_steps": 20,
         "agent.lem.initial_difficulty": 1.0, "train.eval_difficulty": 1.0}
