@@ -26,12 +26,8 @@ from vbl.spaces.incremental import (
     temperature_at,
 )
 
-
-@pytest.fixture(autouse=True, scope="module")
-def _x64():
-    """The learner's statistics are float64 (the engine runs it with 64-bit types on)."""
-    with jax.enable_x64(True):
-        yield
+# as the engine runs them: with 64-bit types on (conftest.engine_precision)
+pytestmark = pytest.mark.usefixtures("engine_precision")
 
 
 ENV = TwoRegionWorld()

@@ -16,12 +16,8 @@ from vbl.spaces.quantize import (
     quantize,
 )
 
-
-@pytest.fixture(autouse=True, scope="module")
-def _x64():
-    """As the engine runs them: with 64-bit types on (vbl.engine.jax_setup)."""
-    with jax.enable_x64(True):
-        yield
+# as the engine runs them: with 64-bit types on (conftest.engine_precision)
+pytestmark = pytest.mark.usefixtures("engine_precision")
 
 
 def numpy_lloyd(x, init, iters):
