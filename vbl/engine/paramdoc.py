@@ -1,0 +1,76 @@
+"""Generated parameter tables in the Markdown docs.
+
+A doc marks a table it wants generated with a pair of comments::
+
+    <!-- params:EXPERIMENT PREFIX[,PREFIX...] -->
+    | parameter | default | ... |        (generated)
+    <!-- /params -->
+
+The table is ``vbl params EXPERIMENT`` (:func:`vbl.params.markdown_table` of the experiment's
+default config) restricted to the rows whose path equals a ``PREFIX`` or starts with
+``PREFIX.`` (``learner`` selects the whole ``learner`` section, ``task`` the one field).
+``tests/test_docs.py`` checks every region against :func:`render`;
+``python -m vbl.engine.paramdoc FILE.md ...`` rewrites the regions in place.
+"""
+
+from __future__ import annotations
+
+import re
+import sys
+from pathlib import Path
+
+__all__ = ["REGION", "table", "regions", "render", "main"]
+
+REGION = re.compile(
+    r"(?P<open><!-- params:(?P<exp>[\w-]+)(?: (?P<prefixes>[\w.,-]+))? -->\n)"
+    r"(?P<body>.*?)"
+    r"(?P<close><!-- /params -->)", re.S)
+
+
+def _selected(path: str, prefixes: list[str]) -> bool:
+    return not prefixes or any(path == p or path.startswith(p + ".") for p in prefixes)
+
+
+def table(experiment: str, prefixes: list[str] | tuple[str, ...] = ()) -> str:
+    """The rows of ``vbl params experiment`` whose path is under one of ``prefixes`` (all
+    rows when empty), with the table's header."""
+    from vbl.engine import get
+    from vbl.params import markdown_table
+
+    lines = markdown_table(get(experiment).default_config).splitlines()
+    head, rows = lines[:2], lines[2:]
+    keep = [r for r in rows if _selected(r.split("`")[1], list(prefixes))]
+    if not keep:
+        raise ValueError(f"no parameter of {experiment!r} is under {list(prefixes)}")
+    return "\n".join(head + keep)
+
+
+def regions(text: str) -> list[tuple[str, list[str], str]]:
+    """``(experiment, prefixes, body)`` of every generated region of ``text``."""
+    return [(m["exp"], [p for p in (m["prefixes"] or "").split(",") if p], m["body"])
+            for m in REGION.finditer(text)]
+
+
+def render(text: str) -> str:
+    """``text`` with every generated region's body replaced by the current table."""
+    def sub(m: re.Match) -> str:
+        prefixes = [p for p in (m["prefixes"] or "").split(",") if p]
+        return m["open"] + table(m["exp"], prefixes) + "\n" + m["close"]
+
+    return REGION.sub(sub, text)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Rewrite the generated regions of the given Markdown files; print the changed ones."""
+    for name in (sys.argv[1:] if argv is None else argv):
+        path = Path(name)
+        old = path.read_text()
+        new = render(old)
+        if new != old:
+            path.write_text(new)
+            print(f"updated {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
