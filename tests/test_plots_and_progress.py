@@ -52,3 +52,18 @@ def test_bar_width_when_the_terminal_reports_none(monkeypatch, columns, want):
     monkeypatch.setenv("LINES", "24")
     assert bar_width() == want
     assert os.environ["COLUMNS"] == columns
+
+
+def test_progress_shows_the_success_metric_by_its_name(capsys):
+    import numpy as np
+
+    from vbl.engine.progress import Progress
+
+    for metrics, shown in (({"eval_success": 0.5, "train_success": 0.25}, "eval_success=0.500"),
+                            ({"train_success": 0.75}, "train_success=0.750")):
+        p = Progress(1, desc="x")
+        p.update({"episodes": np.full(2, 5.0), **{k: np.full(2, v) for k, v in metrics.items()}},
+                 0.5)
+        p.close()
+        err = capsys.readouterr().err
+        assert shown in err and "episodes/s=20" in err

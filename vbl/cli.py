@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -62,8 +61,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     p = sub.add_parser("list", help="list registered experiments (* = paper result)")
     _add_debug(p, argparse.SUPPRESS)
-    p = sub.add_parser("run", help="run one experiment")
-    p.add_argument("experiment")
+    p = sub.add_parser("run", help="run one experiment (a name from `vbl list`, or the path "
+                       "of an experiment script)")
+    p.add_argument("experiment", help="experiment name, or path/to/script.py")
     _add_run_options(p)
     p = sub.add_parser("reproduce", help="run every paper experiment and write report.md")
     p.add_argument("--quick", action="store_true")
@@ -79,12 +79,15 @@ def build_parser() -> argparse.ArgumentParser:
                         "CPU core; 1 = one after the other in this process, with progress "
                         "bars)")
     _add_debug(p, argparse.SUPPRESS)
-    p = sub.add_parser("bench", help="run benchmarks/*.py")
-    p.add_argument("--quick", action="store_true")
+    p = sub.add_parser("bench", help="run the benchmarks (benchmarks/*.py of the source tree)")
+    p.add_argument("--quick", action="store_true", help="small sizes")
+    p.add_argument("--out", default=None, metavar="DIR",
+                   help="results folder (default ./vbl-bench; --out benchmarks/results "
+                        "updates the committed results)")
     p.add_argument("names", nargs="*", help="benchmark names (default: all)")
     _add_debug(p, argparse.SUPPRESS)
     p = sub.add_parser("params", help="the parameter table of an experiment (Markdown)")
-    p.add_argument("experiment")
+    p.add_argument("experiment", help="experiment name, or path/to/script.py")
     _add_debug(p, argparse.SUPPRESS)
     return parser
 
@@ -107,14 +110,20 @@ def _cmd_list() -> int:
     for path, err in import_errors().items():
         print(f"! {Path(path).stem:<{width}}  failed to import: {err}", file=sys.stderr)
     if not exps:
-        print("(no experiments found)")
+        from vbl.engine.registry import experiment_dirs
+
+        print(f"(no experiments found in {', '.join(map(str, experiment_dirs()))}; the built-in "
+              f"ones are in the source tree's experiments/: run vbl from the source tree or "
+              f"install it with pip install -e .; run a script of your own with vbl run "
+              f"path/to/script.py)")
     return 0
 
 
 def _run(experiment, args) -> int:
-    from vbl.engine.config import parse_assignment, parse_sweep
-    from vbl.engine.report import default_section
-    from vbl.engine.runner import run_experiment
+    from vbl.engine.config import EngineError, parse_assignment, parse_sweep
+    from vbl.engine.errors import one_line
+    from vbl.engine.report import headline_table, run_report
+    from vbl.engine.runner import describe_sweep, run_experiment
     from vbl.params import ParamError
 
     cfg = experiment.default_config
@@ -126,6 +135,11 @@ def _run(experiment, args) -> int:
             raise ParamError(f"--sweep {path} is given twice; give all its values in one "
                              f"--sweep {path}=V1,V2,...")
         sweep[path] = values
+    import jax
+
+    primary = jax.process_index() == 0
+    if primary:
+        print(describe_sweep(experiment, sets, sweep, args.seeds, args.quick)[2], flush=True)
     t0 = time.perf_counter()
     result = run_experiment(experiment, sets=sets, sweep=sweep, seeds=args.seeds,
                             base_seed=args.seed, out=args.out, resume=args.resume,
@@ -134,13 +148,24 @@ def _run(experiment, args) -> int:
                             checkpoint_every=args.checkpoint_every,
                             learner_batch=args.learner_batch,
                             memory_check=not args.no_memory_check)
-    import jax
-
-    if jax.process_index() == 0:
-        print(default_section(result).markdown)
+    if primary:
+        try:
+            _, report = run_report(experiment, result)
+        except Exception as e:  # noqa: BLE001 - the results are written; say so
+            raise EngineError(f"the run finished (results in {result.out_dir}) but its "
+                              f"report failed: {one_line(e)}") from e
+        print(headline_table(result, experiment))
         print(f"\n{experiment.name}: {time.perf_counter() - t0:.1f} s, results in "
-              f"{result.out_dir}")
+              f"{result.out_dir} (report: {report.name}, every metric: summary.json)")
     return 0
+
+
+def _experiment(name: str):
+    """A registered experiment by name, or the one a script file registers (a path)."""
+    from vbl.engine import get
+    from vbl.engine.registry import is_script_path, load_experiment_file
+
+    return load_experiment_file(name) if is_script_path(name) else get(name)
 
 
 def _init_distributed(args) -> None:
@@ -150,40 +175,25 @@ def _init_distributed(args) -> None:
 
 
 def _cmd_bench(args) -> int:
-    import vbl
+    from vbl.engine.bench import run_benchmarks
 
-    bench_dir = Path(vbl.__file__).resolve().parents[1] / "benchmarks"
-    scripts = sorted(p for p in bench_dir.glob("*.py") if not p.name.startswith("_"))
-    if args.names:
-        known = {p.stem: p for p in scripts}
-        bad = [n for n in args.names if n not in known]
-        if bad:
-            return _error(f"unknown benchmark(s) {bad}; valid: {sorted(known)}", 2)
-        scripts = [known[n] for n in args.names]
-    failed = []
-    for s in scripts:
-        print(f"== {s.stem}", flush=True)
-        cmd = [sys.executable, str(s)] + (["--quick"] if args.quick else [])
-        if subprocess.run(cmd, cwd=bench_dir.parent).returncode != 0:
-            failed.append(s.stem)
+    failed = run_benchmarks(args.names, args.out, args.quick)
     if failed:
         return _error(f"benchmark(s) failed: {failed}", 1)
     return 0
 
 
 def _dispatch(args) -> int:
-    from vbl.engine import get
-
     if args.command == "list":
         return _cmd_list()
     if args.command == "params":
         from vbl.params import markdown_table
 
-        print(markdown_table(get(args.experiment).default_config))
+        print(markdown_table(_experiment(args.experiment).default_config))
         return 0
     if args.command == "run":
         _init_distributed(args)
-        return _run(get(args.experiment), args)
+        return _run(_experiment(args.experiment), args)
     if args.command == "reproduce":
         from vbl.engine.report import paper_experiments, reproduce
 

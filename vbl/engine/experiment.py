@@ -35,9 +35,12 @@ class Program:
         learner (float fields as ``float32`` scalars, int fields as ``int32``, bools as
         ``bool``), static fields as plain Python values.
       step: ``(carry, config) -> (carry, metrics)``: run one chunk. ``metrics`` maps names to
-        float/int scalars or small fixed-shape arrays (per learner). Conventional names the
-        progress bar and plots understand: ``episodes`` (episodes finished in the chunk) and
-        ``success_rate`` (fraction in [0, 1] of those episodes that succeeded).
+        float/int scalars or small fixed-shape arrays (per learner). ``episodes`` (episodes
+        finished in the chunk) is the progress bar's episodes/s and the plots' x axis. Name
+        success rates by what they measure: ``train_success`` (training episodes, with
+        exploration), ``eval_success`` / ``greedy_success`` (an evaluation of the learned
+        policy); the progress bar shows the first of
+        :data:`vbl.engine.progress.SUCCESS_METRICS` present.
       num_chunks: number of ``step`` calls in one run (>= 1).
       final: optional ``(carry, config, key) -> metrics`` evaluated once after the last chunk
         (e.g. greedy evaluation on fresh starts); ``key`` is independent of the training keys.
@@ -146,6 +149,12 @@ class Experiment:
         ``vbl reproduce --jobs N`` (in registry order), so the later ones find the programs
         the first one compiled in the persistent compilation cache (e.g. Tables 1 and 3
         share the collection and CVA programs).
+      headline: metric names ``vbl run`` prints per sweep point after a run (mean and 95 %
+        interval; a ``final`` metric, else the last chunk's); default: the scalar ``final``
+        metrics, then the last chunk's, as many as fit 100 columns. Every metric stays in
+        ``summary.json``.
+      renamed_metrics: ``{old name: current name}`` of metrics the experiment renamed: rows
+        of run folders written under an old name are read under the current one.
     """
 
     name: str
@@ -162,6 +171,8 @@ class Experiment:
     sweep: Mapping[str, tuple[Any, ...] | list[Any]] = field(default_factory=dict)
     cost: float = 1.0
     group: str | None = None
+    headline: tuple[str, ...] = ()
+    renamed_metrics: Mapping[str, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         import re

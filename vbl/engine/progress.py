@@ -10,7 +10,11 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["auto_quiet", "Progress", "bar_width"]
+__all__ = ["auto_quiet", "Progress", "bar_width", "SUCCESS_METRICS"]
+
+SUCCESS_METRICS = ("eval_success", "greedy_success", "success_rate", "train_success")
+"""Per-chunk metrics the bar shows, the first one present, under its own name: the
+evaluation of the policy learned so far before training success (with exploration)."""
 
 DEFAULT_COLUMNS = 100  #: bar width when the terminal reports no usable width
 MIN_COLUMNS = 40  #: narrower reported widths are taken as unusable (e.g. 0 in some IDEs)
@@ -51,8 +55,9 @@ class Progress:
         post = {}
         if "episodes" in metrics and dt > 0:
             post["episodes/s"] = f"{float(np.sum(metrics['episodes'])) / dt:,.0f}"
-        if "success_rate" in metrics:
-            post["success"] = f"{float(np.mean(metrics['success_rate'])):.3f}"
+        shown = next((m for m in SUCCESS_METRICS if m in metrics), None)
+        if shown is not None:
+            post[shown] = f"{float(np.mean(metrics[shown])):.3f}"
         self._bar.set_postfix(post, refresh=False)
         self._bar.update(1)
 

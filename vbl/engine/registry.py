@@ -1,9 +1,11 @@
 """Experiment registry: scripts in ``experiments/*.py`` call :func:`register`; the CLI finds
 them with :func:`discover` (the ``experiments/`` folder next to the installed package, or the
-folders in ``$VBL_EXPERIMENTS_DIR``, separated by ``os.pathsep``)."""
+folders in ``$VBL_EXPERIMENTS_DIR``, separated by ``os.pathsep``), or loads one script
+given by its path with :func:`load_experiment_file` (``vbl run path/to/script.py``)."""
 
 from __future__ import annotations
 
+import hashlib
 import importlib.util
 import os
 import sys
@@ -15,7 +17,8 @@ from vbl.engine.config import EngineError
 from vbl.engine.experiment import Experiment
 
 __all__ = ["register", "get", "all_experiments", "discover", "experiment_dirs",
-           "import_errors", "load_script"]
+           "import_errors", "load_script", "load_experiment_file", "is_script_path",
+           "source_folder"]
 
 _REGISTRY: dict[str, Experiment] = {}
 _SOURCES: dict[str, str] = {}
@@ -39,14 +42,24 @@ def register(experiment: Experiment) -> Experiment:
     return experiment
 
 
+def source_folder(name: str) -> Path:
+    """``<source tree>/<name>`` beside the installed package (an editable install), else
+    ``./<name>`` when the package is installed elsewhere (``pip install .``) and the
+    current folder holds one (run from the source tree)."""
+    import vbl
+
+    beside = Path(vbl.__file__).resolve().parents[1] / name
+    here = Path.cwd() / name
+    return here if not beside.is_dir() and here.is_dir() else beside
+
+
 def experiment_dirs() -> list[Path]:
-    """Folders searched for experiment scripts."""
+    """Folders searched for experiment scripts: ``$VBL_EXPERIMENTS_DIR``, else the source
+    tree's ``experiments/`` (:func:`source_folder`)."""
     env = os.environ.get("VBL_EXPERIMENTS_DIR")
     if env:
         return [Path(p) for p in env.split(os.pathsep) if p]
-    import vbl
-
-    return [Path(vbl.__file__).resolve().parents[1] / "experiments"]
+    return [source_folder("experiments")]
 
 
 def discover() -> dict[str, Experiment]:
@@ -73,9 +86,20 @@ def discover() -> dict[str, Experiment]:
     return dict(_REGISTRY)
 
 
+def _module_name(path: Path) -> str:
+    """``vbl_experiments.<stem>`` for a script in an experiments folder (the name
+    :func:`discover` and sibling scripts share); a script elsewhere gets its path's hash too,
+    so a user's ``grid_shooting.py`` is never taken for the built-in one."""
+    if any(path.parent == d.resolve() for d in experiment_dirs()):
+        return f"vbl_experiments.{path.stem}"
+    digest = hashlib.sha256(str(path).encode()).hexdigest()[:10]
+    return f"vbl_experiments.{path.stem}_{digest}"
+
+
 def load_script(path: str | Path) -> ModuleType:
-    """Import the experiment script ``path`` once, as module ``vbl_experiments.<stem>`` (the
-    name :func:`discover` uses), and return it.
+    """Import the experiment script ``path`` once and return it: as module
+    ``vbl_experiments.<stem>`` when it lies in an experiments folder (the name
+    :func:`discover` uses), else under a name that also holds its path's hash.
 
     A script that builds on another's settings (Figures 5 and 9 on ``grid_shooting``, Table
     3 on Table 1) loads it with ``load_script(Path(__file__).with_name("x.py"))`` and so
@@ -83,7 +107,7 @@ def load_script(path: str | Path) -> ModuleType:
     re-raised and the half-imported module forgotten.
     """
     path = Path(path).resolve()
-    name = f"vbl_experiments.{path.stem}"
+    name = _module_name(path)
     if name not in sys.modules:
         spec = importlib.util.spec_from_file_location(name, path)
         module = importlib.util.module_from_spec(spec)
@@ -94,6 +118,36 @@ def load_script(path: str | Path) -> ModuleType:
             sys.modules.pop(name, None)
             raise
     return sys.modules[name]
+
+
+def is_script_path(text: str) -> bool:
+    """Whether ``vbl run TEXT`` names a script file rather than a registered experiment."""
+    return text.endswith(".py") or os.sep in text or (os.altsep or os.sep) in text
+
+
+def load_experiment_file(path: str | Path) -> Experiment:
+    """The one experiment the script ``path`` registers (``vbl run path/to/script.py``).
+
+    Only that file is imported (not the other scripts of its folder, nor the built-in
+    experiments). Raises EngineError when the file is missing, fails to import, or registers
+    no experiment or several.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise EngineError(f"no experiment script {str(path)!r} (vbl run takes an experiment "
+                          f"name from `vbl list` or the path of a .py file)")
+    real = os.path.realpath(p)
+    try:
+        load_script(p)
+    except Exception as e:
+        msg = "".join(traceback.format_exception_only(type(e), e)).strip().splitlines()[-1]
+        raise EngineError(f"{path} failed to import: {msg}") from e
+    names = [n for n, src in _SOURCES.items() if src == real]
+    if len(names) != 1:
+        what = "no experiment" if not names else f"{len(names)} experiments ({names})"
+        raise EngineError(f"{path} registers {what}; an experiment script calls "
+                          f"vbl.engine.register(Experiment(...)) once")
+    return _REGISTRY[names[0]]
 
 
 def import_errors() -> dict[str, str]:

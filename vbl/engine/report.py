@@ -1,4 +1,6 @@
-"""``vbl reproduce``: run every paper experiment and write one ``report.md``."""
+"""Reports: an experiment's ``report.md`` in its run folder (``vbl run`` and ``vbl
+reproduce``), the short table ``vbl run`` prints, and ``vbl reproduce``, which runs every
+paper experiment and writes one ``report.md`` for all of them."""
 
 from __future__ import annotations
 
@@ -13,7 +15,10 @@ from vbl.engine.experiment import Experiment, ReportSection, RunResult
 from vbl.engine.registry import all_experiments, discover, import_errors
 from vbl.engine.runfolder import record_files
 
-__all__ = ["default_section", "default_jobs", "reproduce", "paper_experiments"]
+__all__ = ["default_section", "default_jobs", "reproduce", "paper_experiments",
+           "run_report", "headline_table", "TABLE_COLUMNS"]
+
+TABLE_COLUMNS = 100  #: the width ``vbl run``'s terminal table keeps to
 
 
 def _fmt(st: dict[str, Any]) -> str:
@@ -45,6 +50,102 @@ def paper_experiments() -> dict[str, Experiment]:
     return {n: e for n, e in all_experiments().items() if e.paper_result}
 
 
+def _figure_path(f: str | Path, out_dir: Path) -> Path:
+    """A report's figure path, absolute. A relative path is taken from the working directory
+    when it exists there (experiments usually return run_dir / name with a relative
+    run_dir), else from the run folder."""
+    p = Path(f)
+    if not p.is_absolute() and not p.exists():
+        p = Path(out_dir) / p
+    return p.absolute()
+
+
+def run_report(exp: Experiment, result: RunResult) -> tuple[ReportSection, Path]:
+    """Build the experiment's report section (its ``report``, else :func:`default_section`)
+    and write it with its figures to ``<run folder>/report.md``. Figures the report writes
+    and ``report.md`` are recorded as the run's files (``--overwrite`` replaces them).
+    Returns ``(section with absolute figure paths, report.md)``."""
+    out_dir = Path(result.out_dir)
+    before = {p.name for p in out_dir.iterdir()}
+    try:
+        section = exp.report(result) if exp.report is not None else default_section(result)
+        figs = tuple(_figure_path(f, out_dir) for f in section.figures)
+        links = [f"![{f.stem}]({os.path.relpath(f, out_dir.absolute())})" for f in figs]
+        path = out_dir / "report.md"
+        path.write_text("\n".join([f"# {exp.name}", "", exp.description, "",
+                                    section.markdown, "", *(f + "\n" for f in links)]) + "\n")
+    finally:
+        record_files(out_dir, {p.name for p in out_dir.iterdir()} - before)
+    return ReportSection(section.markdown, figs), path
+
+
+def _cell(st: dict[str, Any]) -> str:
+    m, ci = st.get("mean"), st.get("ci95")
+    if not isinstance(m, int | float):
+        return str(m)
+    if not isinstance(ci, int | float) or ci != ci:
+        return f"{m:.3g}"
+    return f"{m:.3g} ± {ci:.2g}"
+
+
+def headline_table(result: RunResult, exp: Experiment | None = None,
+                   width: int = TABLE_COLUMNS) -> str:
+    """The short table ``vbl run`` prints: one row per sweep point, the experiment's
+    :attr:`~vbl.engine.Experiment.headline` metrics (mean ± 95 % interval over seeds; a
+    ``final`` metric, else the last chunk's), or by default the scalar ``final`` metrics then
+    the last chunk's, as many as fit ``width`` columns. The full table is in
+    ``summary.json``."""
+    points = result.summary.get("points", [])
+    if not points:
+        res = result.summary.get("result")
+        if res is None:
+            return ""
+        keys = list(res) if isinstance(res, dict) else []
+        text = "result keys: " + ", ".join(keys) if keys else "result: " + str(res)
+        return text if len(text) <= width else text[:width - 3] + "..."
+
+    def scalar(st):
+        return isinstance(st, dict) and isinstance(st.get("mean"), int | float)
+
+    def lookup(entry, name):
+        st = entry.get("final", {}).get(name)
+        return st if st is not None else entry.get("last_chunk", {}).get(name)
+
+    first = points[0]
+    if exp is not None and exp.headline:
+        names = [n for n in exp.headline if scalar(lookup(first, n))]
+    else:
+        names = [n for n, st in first.get("final", {}).items() if scalar(st)]
+        names += [n for n, st in first.get("last_chunk", {}).items()
+                  if scalar(st) and n not in names and n != "episodes"]
+    full = [", ".join(f"{k}={v}" for k, v in e["values"].items()) or "default config"
+            for e in points]
+    short = [", ".join(f"{k.rsplit('.', 1)[-1]}={v}" for k, v in e["values"].items())
+             or "default config" for e in points]
+    labels = full if max(map(len, full)) <= 40 else short
+    cols = [("point", labels)]
+    used = max(len("point"), *map(len, labels))
+    left = []
+    for n in names:
+        cells = [_cell(lookup(e, n) or {}) for e in points]
+        w = max(len(n), *map(len, cells))
+        if used + 3 + w > width:
+            left.append(n)
+            continue
+        cols.append((n, cells))
+        used += 3 + w
+    widths = [max(len(h), *map(len, c)) for h, c in cols]
+    fmt = lambda row: " | ".join(  # noqa: E731
+        x.ljust(w) for x, w in zip(row, widths, strict=True)).rstrip()
+    lines = [fmt([h for h, _ in cols]), "-+-".join("-" * w for w in widths)]
+    lines += [fmt([c[i] for _, c in cols]) for i in range(len(points))]
+    seeds = result.summary.get("seeds", result.seeds)
+    note = f"mean ± 95% interval over {seeds} seeds"
+    if left:
+        note += f"; {len(left)} more metric{'s' * (len(left) != 1)} in summary.json"
+    return "\n".join(lines + [note])
+
+
 def default_jobs(n_experiments: int) -> int:
     """Worker processes for ``vbl reproduce``: one per CPU core, at most one per experiment.
 
@@ -70,25 +171,14 @@ def _run_one(name: str, out: Path, quick: bool, quiet: bool | None, resume: bool
             exp = paper_experiments()[name]
         result = run_experiment(exp, out=out / name, quick=quick, quiet=quiet,
                                 resume=resume and (out / name).exists(), overwrite=overwrite)
-        before = {p.name for p in result.out_dir.iterdir()}
-        try:
-            section = exp.report(result) if exp.report is not None else default_section(result)
-        finally:  # figures the report wrote belong to the run folder (--overwrite)
-            record_files(result.out_dir, {p.name for p in result.out_dir.iterdir()} - before)
+        section, _ = run_report(exp, result)
         status = "ok"
     except Exception as e:  # noqa: BLE001 - report and continue with the others
         status = f"failed: {type(e).__name__}: {e}"
         section = ReportSection("**failed**\n\n```\n" + "".join(
             traceback.format_exception(type(e), e, e.__traceback__))[-3000:] + "```")
-    figs = []
-    for f in section.figures:
-        p = Path(f)
-        # A relative figure path is taken from the working directory when it exists there
-        # (experiments usually return run_dir / name with a relative run_dir), else from
-        # the run folder.
-        if not p.is_absolute() and not p.exists() and result is not None:
-            p = result.out_dir / p
-        figs.append(str(p.absolute()))
+    figs = [str(_figure_path(f, result.out_dir if result is not None else Path.cwd()))
+            for f in section.figures]
     return dict(status=status, markdown=section.markdown, figures=figs,
                 seconds=time.perf_counter() - t0)
 

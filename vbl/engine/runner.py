@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import math
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -39,7 +40,7 @@ from vbl.engine.sharding import batch_layout, learner_sharding, pad_index, put, 
 from vbl.engine.sweep import Group, SweepPlan, make_plan
 from vbl.params import ParamError
 
-__all__ = ["run_experiment", "resolve", "load_result"]
+__all__ = ["run_experiment", "resolve", "describe_sweep", "load_result"]
 
 DEFAULT_CHECKPOINT_EVERY = 10  # chunks between checkpoints (and one at the end of a group)
 DEFAULT_LEARNER_BATCH = 4096  # most learners in one compiled call
@@ -49,24 +50,50 @@ def resolve(experiment: Experiment, sets: Mapping[str, Any] | None = None,
             sweep: Mapping[str, Sequence[Any]] | None = None, seeds: int | None = None,
             base_seed: int = 0, quick: bool = False) -> tuple[Any, dict, int, dict]:
     """``(config, sweep, seeds, spec)``: defaults + quick overrides + ``sets``, validated;
-    ``spec`` is the JSON description whose fingerprint guards checkpoints."""
+    ``spec`` is the JSON description whose fingerprint guards checkpoints.
+
+    The sweep is the experiment's default sweep with ``sweep`` replacing the paths it names;
+    a path of the default sweep that ``sets`` fixes leaves the sweep (one value). A path
+    both in ``sets`` and in ``sweep`` is an error.
+    """
     config = experiment.default_config
     if quick:
         config = apply_overrides(config, experiment.quick)
     config = apply_overrides(config, sets or {})
-    full_sweep = {p: list(v) for p, v in experiment.sweep.items()}
-    full_sweep.update({p: list(v) for p, v in (sweep or {}).items()})
-    both = sorted(set(sets or {}) & set(full_sweep))
+    both = sorted(set(sets or {}) & set(sweep or {}))
     if both:
         p = both[0]
-        raise ParamError(f"{p} is both set and swept (sweep values {full_sweep[p]}); choose "
+        raise ParamError(f"{p} is both set and swept (sweep values {list(sweep[p])}); choose "
                          f"its values with --sweep {p}=V1,V2,... alone")
+    full_sweep = {p: list(v) for p, v in experiment.sweep.items() if p not in (sets or {})}
+    full_sweep.update({p: list(v) for p, v in (sweep or {}).items()})
     if seeds is None:
         seeds = experiment.quick_seeds if (quick and experiment.quick_seeds) else experiment.seeds
     spec = {"experiment": experiment.name, "config": config_to_dict(config),
             "sweep": full_sweep, "seeds": seeds, "base_seed": base_seed}
     spec["fingerprint"] = fingerprint(spec)
     return config, full_sweep, seeds, spec
+
+
+def describe_sweep(experiment: Experiment, sets: Mapping[str, Any] | None = None,
+                   sweep: Mapping[str, Sequence[Any]] | None = None, seeds: int | None = None,
+                   quick: bool = False) -> tuple[int, int, str]:
+    """``(points, seeds, text)``: what a run will sweep, said before it starts: every swept
+    path with its values and where they come from (``--sweep`` or the experiment's default
+    sweep, which ``--set PATH=V`` fixes), the number of points and seeds."""
+    _, full, seeds, _ = resolve(experiment, sets, sweep, seeds, 0, quick)
+    points = math.prod(len(v) for v in full.values()) if full else 1
+    head = (f"{experiment.name}: {points} sweep point{'s' * (points != 1)} x {seeds} "
+            f"seed{'s' * (seeds != 1)} = {points * seeds} learners")
+    lines = [head]
+    for path, values in full.items():
+        shown = ",".join(str(v) for v in values[:8]) + (",..." if len(values) > 8 else "")
+        where = "--sweep" if path in (sweep or {}) else "the experiment's default sweep"
+        lines.append(f"  {path} = {shown} ({where})")
+    if set(full) - set(sweep or {}):
+        lines.append("  (a default-swept PATH: --sweep PATH=... replaces its values, --set "
+                     "PATH=V fixes it)")
+    return points, seeds, "\n".join(lines)
 
 
 def _sync(name: str) -> None:
@@ -325,9 +352,12 @@ def load_result(run_dir: Path, experiment: Experiment, config: Any, plan: SweepP
     npts, chunks = len(plan.points), max(g.num_chunks for g in plan.groups)
     curves: dict[str, np.ndarray] = {}
     final: dict[str, np.ndarray] = {}
+    renamed = dict(experiment.renamed_metrics)
     for r in rows:
         p = r["point"]
         for k, st in r["metrics"].items():
+            if k in renamed and renamed[k] not in r["metrics"]:
+                k = renamed[k]  # a row written under the metric's old name
             v = np.asarray(st["per_seed"], dtype=np.float64)
             if r["chunk"] == "final":
                 final.setdefault(k, np.full((npts,) + v.shape, np.nan))[p] = v

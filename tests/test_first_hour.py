@@ -1,0 +1,282 @@
+"""A new user's first hour: the README's own-experiment script run as written, `vbl run
+path/to/script.py` importing nothing else, the report and a short table from `vbl run`,
+`--sweep` announcing the points it runs, and `vbl bench --out` leaving the committed
+results alone."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.engine_helpers import REPO
+
+TIMEOUT = 300  # s per subprocess (the test machine is shared)
+
+
+def _env(**extra: str) -> dict[str, str]:
+    env = dict(os.environ, CI="true", VBL_HOST_DEVICES="1")
+    for k in ("VBL_EXPERIMENTS_DIR", "XLA_FLAGS"):
+        env.pop(k, None)
+    env.update(extra)
+    return env
+
+
+def _vbl(args: list[str], cwd: Path, **extra: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "vbl.cli", *args], cwd=cwd, env=_env(**extra),
+                          capture_output=True, text=True, timeout=TIMEOUT)
+
+
+def readme_script() -> str:
+    """The Python block of the README's "Your own experiment" section, exactly."""
+    text = (REPO / "README.md").read_text()
+    m = re.search(r"^## Your own experiment\n(.*?)(?=^## )", text, re.S | re.M)
+    assert m, "README.md has no '## Your own experiment' section"
+    blocks = re.findall(r"^```python\n(.*?)^```", m.group(1), re.S | re.M)
+    assert len(blocks) == 1, "the section holds one python block"
+    return blocks[0]
+
+
+def test_readme_experiment_runs_from_a_temporary_folder(tmp_path):
+    script = readme_script()
+    assert 25 <= len(script.splitlines()) <= 60
+    (tmp_path / "two_arms.py").write_text(script)
+    # a helper beside it must not be imported by `vbl run two_arms.py`
+    (tmp_path / "helper.py").write_text("open('HELPER_RAN', 'w').close()\n")
+    r = _vbl(["run", "two_arms.py", "--out", "run"], tmp_path)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert not (tmp_path / "HELPER_RAN").exists()
+    assert "two_arms: 3 sweep points x 16 seeds = 48 learners" in r.stdout
+    assert "greedy_success" in r.stdout and "±" in r.stdout
+    assert max(len(line) for line in r.stdout.splitlines()) <= 100
+    run = tmp_path / "run"
+    summary = json.loads((run / "summary.json").read_text())
+    assert len(summary["points"]) == 3
+    report = (run / "report.md").read_text()
+    assert "greedy_success" in report and "![train_success](train_success.png)" in report
+    marker = json.loads((run / ".vbl-run").read_text())
+    assert "report.md" in marker["files"]
+
+
+EXPERIMENT_WITH_REPORT = '''
+from pathlib import Path
+import sys
+sys.path.insert(0, {repo!r})
+from experiments.toy_bandit import BanditConfig, make_program  # noqa: E402
+from vbl.engine import Experiment, ReportSection, register  # noqa: E402
+
+
+def report(res):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots()
+    ax.plot(res.final["greedy_is_best"].mean(axis=1))
+    path = Path(res.out_dir) / "own_figure.png"
+    fig.savefig(path)
+    return ReportSection("own report: " + str(len(res.points)) + " points", (path,))
+
+
+register(Experiment(name="with_report", description="toy with its own report",
+                    default_config=BanditConfig(), make_program=make_program, report=report,
+                    seeds=2, quick={{"train.num_chunks": 2}},
+                    headline=("greedy_is_best",)))
+'''
+
+
+def test_run_writes_the_experiments_report_and_a_short_table(tmp_path):
+    (tmp_path / "exp.py").write_text(EXPERIMENT_WITH_REPORT.format(repo=str(REPO)))
+    r = _vbl(["run", str(tmp_path / "exp.py"), "--quick", "--set", "env.num_arms=3",
+              "--sweep", "agent.epsilon=0.1,0.2", "--out", str(tmp_path / "run")], tmp_path)
+    assert r.returncode == 0, r.stderr[-3000:]
+    run = tmp_path / "run"
+    report = (run / "report.md").read_text()
+    assert "own report: 2 points" in report and "![own_figure](own_figure.png)" in report
+    assert "own_figure.png" in json.loads((run / ".vbl-run").read_text())["files"]
+    table = r.stdout.split("learners\n", 1)[1]
+    assert "greedy_is_best" in table and "regret" not in table  # the headline only
+
+
+@pytest.mark.parametrize("script, message", [
+    ("missing.py", "no experiment script"),
+    ("empty.py", "registers no experiment"),
+    ("broken.py", "failed to import: ZeroDivisionError"),
+])
+def test_run_script_errors_are_one_line(tmp_path, script, message):
+    (tmp_path / "empty.py").write_text("x = 1\n")
+    (tmp_path / "broken.py").write_text("1 / 0\n")
+    r = _vbl(["run", script], tmp_path)
+    assert r.returncode != 0
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("vbl: error:") and message in lines[0], \
+        r.stderr
+
+
+def test_headline_table_fits_100_columns():
+    from vbl.engine.experiment import RunResult
+    from vbl.engine.report import headline_table
+
+    st = {"mean": 0.123456, "std": 0.1, "ci95": 0.0456}
+    points = [{"values": {"agent.lem.initial_difficulty": v},
+               "final": {f"final_metric_{i}": st for i in range(6)},
+               "last_chunk": {f"chunk_metric_{i}": st for i in range(11)}} for v in (1.0, 0.0)]
+    res = RunResult("x", Path("."), None, {}, [{}, {}], 4, {}, {}, {"points": points,
+                                                                     "seeds": 4})
+    text = headline_table(res)
+    assert max(map(len, text.splitlines())) <= 100
+    assert "0.123 ± 0.046" in text and "more metrics in summary.json" in text
+    assert len(text.splitlines()) == 2 + 2 + 1
+
+
+@pytest.fixture(scope="module")
+def grid_shooting():
+    from vbl.engine.registry import load_script
+
+    return load_script(REPO / "experiments" / "grid_shooting.py").EXPERIMENT
+
+
+@pytest.mark.parametrize("sets, sweep, points", [
+    ({}, {"agent.agent.learning_rate": [0.1, 0.25, 0.5]}, 6),  # the default sweep stays
+    ({"agent.lem.initial_difficulty": 0.0}, {"agent.agent.learning_rate": [0.1, 0.25, 0.5]},
+     3),  # --set fixes the default sweep's path
+    ({}, {"agent.lem.initial_difficulty": [0.0, 0.5, 1.0]}, 3),  # --sweep replaces it
+    ({}, {}, 2),
+])
+def test_sweep_announces_the_points_it_runs(grid_shooting, sets, sweep, points):
+    from vbl.engine.runner import describe_sweep, resolve
+    from vbl.engine.sweep import make_plan
+
+    n, seeds, text = describe_sweep(grid_shooting, sets, sweep, 4, quick=True)
+    assert n == points and seeds == 4 and max(map(len, text.splitlines())) <= 100
+    assert text.startswith(f"grid_shooting: {points} sweep point{'s' * (points > 1)} x 4 seeds")
+    config, full, seeds, _ = resolve(grid_shooting, sets, sweep, 4, 0, quick=True)
+    plan = make_plan(grid_shooting, config, full, seeds)
+    assert len(plan.points) == points and plan.num_learners == points * 4
+    if "agent.lem.initial_difficulty" not in sweep and not sets:
+        assert "agent.lem.initial_difficulty = 1.0,0.0 (the experiment's default sweep" in text
+
+
+def test_set_and_sweep_of_one_path_is_an_error(grid_shooting):
+    from vbl.engine.runner import resolve
+    from vbl.params import ParamError
+
+    with pytest.raises(ParamError, match="both set and swept"):
+        resolve(grid_shooting, {"agent.agent.learning_rate": 0.1},
+                {"agent.agent.learning_rate": [0.1, 0.2]}, 2)
+
+
+def _tree_digest(d: Path) -> dict[str, str]:
+    return {str(p.relative_to(d)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(d.rglob("*")) if p.is_file()}
+
+
+def test_run_folders_with_old_metric_names_read_under_the_new_ones(tmp_path):
+    import dataclasses
+
+    from tests.engine_helpers import TINY_SETS
+    from vbl.engine.registry import load_script
+    from vbl.engine.runner import load_result, resolve, run_experiment
+    from vbl.engine.sweep import make_plan
+
+    toy = load_script(REPO / "experiments" / "toy_bandit.py").EXPERIMENT
+    sets = {**TINY_SETS, "train.num_chunks": 2}
+    res = run_experiment(toy, sets=sets, seeds=2, out=tmp_path / "run", quiet=True,
+                         plots=False)
+    log = tmp_path / "run" / "metrics.jsonl"
+    log.write_text(log.read_text().replace('"regret"', '"old_regret"'))
+    renamed = dataclasses.replace(toy, renamed_metrics={"old_regret": "regret"})
+    config, sweep, seeds, _ = resolve(renamed, sets, None, 2)
+    old = load_result(tmp_path / "run", renamed, config, make_plan(renamed, config, sweep, seeds),
+                      plots=False)
+    assert "old_regret" not in old.curves
+    assert (old.curves["regret"] == res.curves["regret"]).all()
+
+
+def test_q_program_names_its_success_curves_by_what_they_measure():
+    from vbl.agents.programs import RENAMED_METRICS, curve_metric
+
+    assert curve_metric({"eval_success": 1, "train_success": 0}) == "eval_success"
+    assert curve_metric({"train_success": 0}) == "train_success"
+    assert RENAMED_METRICS == {"success_rate": "eval_success",
+                               "train_success_rate": "train_success"}
+
+
+FAKE_BENCH = '''"""A benchmark written like the real ones: results under ROOT/benchmarks/results."""
+import json
+import pathlib
+import sys
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+from benchmarks.hardware import CPU  # noqa: E402  (a helper module beside it)
+
+if __name__ == "__main__":
+    res = ROOT / "benchmarks" / "results"
+    res.mkdir(exist_ok=True)
+    rows = [dict(config="default", datasets=1024, x_sippy_cpu=2.4 if "--quick" in sys.argv
+                 else 200.0)]
+    (res / "cva_throughput.json").write_text(json.dumps(dict(cpu=CPU, rows=rows)))
+'''
+
+
+def test_bench_out_leaves_the_source_results_alone(tmp_path):
+    """`vbl bench --quick --out DIR` on a benchmark folder laid out as the source tree's:
+    the results land in DIR, the folder's own results/ stay as they were, helper modules
+    are not run, and the headline figure is printed beside its target with a verdict."""
+    src = tmp_path / "tree"
+    (src / "benchmarks" / "results").mkdir(parents=True)
+    (src / "benchmarks" / "cva_throughput.py").write_text(FAKE_BENCH)
+    (src / "benchmarks" / "hardware.py").write_text("CPU = 'test cpu'\n")
+    committed = src / "benchmarks" / "results" / "cva_throughput.json"
+    committed.write_text('{"committed": true}')
+    before = _tree_digest(src / "benchmarks")
+    env = {"VBL_BENCH_DIR": str(src / "benchmarks")}
+    r = _vbl(["bench", "--quick", "--out", "out"], tmp_path, **env)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert _tree_digest(src / "benchmarks") == before
+    assert json.loads((tmp_path / "out" / "cva_throughput.json").read_text())["cpu"] == \
+        "test cpu"
+    assert not (tmp_path / "out" / ".scripts").exists()
+    assert "== hardware" not in r.stdout
+    assert ("cva_throughput: 2.4 x SIPPY CPU time, default identify, 1024 data sets; "
+            "target >= 100: not met") in r.stdout
+    # the committed results change only when asked: --out the folder's own results/
+    r = _vbl(["bench", "--out", str(src / "benchmarks" / "results"), "cva_throughput"],
+             tmp_path, **env)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert "target >= 100: met" in r.stdout and "committed" not in committed.read_text()
+    r = _vbl(["bench", "nope"], tmp_path, **env)
+    assert r.returncode == 2 and r.stderr.startswith("vbl: error: unknown benchmark(s) ['nope']")
+
+
+def test_the_source_trees_benchmarks_leave_out_helper_modules():
+    from vbl.engine.bench import TARGETS, benchmarks
+
+    found = benchmarks(REPO / "benchmarks")
+    assert "hardware" not in found and "numpy_env" not in found
+    assert set(found) == set(TARGETS)
+
+
+def test_a_non_editable_install_finds_the_source_trees_experiments(monkeypatch, tmp_path):
+    """Installed elsewhere (``pip install .``), the package has no experiments/ beside it;
+    run from the source tree, the built-in experiments and benchmarks are found there."""
+    import vbl
+    from vbl.engine.bench import bench_dir
+    from vbl.engine.registry import experiment_dirs
+
+    monkeypatch.delenv("VBL_EXPERIMENTS_DIR", raising=False)
+    monkeypatch.delenv("VBL_BENCH_DIR", raising=False)
+    site = tmp_path / "site-packages" / "vbl"
+    site.mkdir(parents=True)
+    monkeypatch.setattr(vbl, "__file__", str(site / "__init__.py"))
+    monkeypatch.chdir(REPO)
+    assert experiment_dirs() == [REPO / "experiments"]
+    assert bench_dir() == REPO / "benchmarks"
+    monkeypatch.chdir(tmp_path)
+    assert experiment_dirs() == [tmp_path / "site-packages" / "experiments"]
