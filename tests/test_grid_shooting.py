@@ -122,11 +122,11 @@ def test_program_runs_through_engine(chain_result):
              .splitlines()]
     assert sum(r["chunk"] != "final" for r in lines) == 4 * 2       # chunks x points
     assert sum(r["chunk"] == "final" for r in lines) == 2
-    for name in ("episodes", "successes", "success_rate", "train_success_rate", "difficulty",
+    for name in ("episodes", "successes", "eval_success", "train_success", "difficulty",
                  "epsilon", "td_abs", "lem_raises", "mean_primitives"):
         assert res.curves[name].shape == (2, 4, 2), name           # points, chunks, seeds
     assert np.all(res.curves["episodes"] > 0)
-    for name in ("success_rate", "train_success_rate"):
+    for name in ("eval_success", "train_success"):
         assert np.all((res.curves[name] >= 0) & (res.curves[name] <= 1))
     # epsilon: linear 1 -> 0.1 over 40 steps; the last step of chunk 0 acts at count 29
     np.testing.assert_allclose(res.curves["epsilon"][:, 0], 1 - 0.9 * 29 / 40, atol=1e-6)
@@ -295,7 +295,7 @@ def test_grid_shooting_tiny_run(tmp_path):
     discover()
     res = run_experiment(get("grid_shooting"), sets=TINY, seeds=2, out=tmp_path / "run",
                          quiet=True)
-    assert res.curves["success_rate"].shape == (2, 3, 2)
+    assert res.curves["eval_success"].shape == (2, 3, 2)
     assert np.all(res.curves["episodes"] > 0)
     assert np.all(res.final["num_states"] == 319)
     # without LEM every episode starts at the task difficulty (the curriculum's cap)

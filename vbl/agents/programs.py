@@ -17,13 +17,14 @@ learner's config, so its parameters are traced and sweepable.
 Per engine chunk (``train.eval_every`` training chunks; metrics per learner, scalars):
 
 * ``episodes``: training episodes (trials) finished in the engine chunk; ``successes``:
-  of those, how many scored; ``train_success_rate``: successes / episodes (0 when none finished),
-  under the start distribution in effect (with LEM: the curriculum's); per finished
-  episode, hence biased towards short (successful) episodes.
-* ``success_rate``: the greedy policy (no learning; a uniform action with probability
-  ``train.curve_epsilon``, default 0) after the engine chunk on ``train.eval_envs`` fresh
-  starts at ``train.eval_difficulty``: fraction whose first episode scores (with
-  ``train.eval_curve`` off: equal to ``train_success_rate``).
+  of those, how many scored; ``train_success``: successes / episodes (0 when none
+  finished) of the training episodes, i.e. with exploration and under the start
+  distribution in effect (with LEM: the curriculum's); per finished episode, hence biased
+  towards short (successful) episodes.
+* ``eval_success`` (only with ``train.eval_curve`` on): the greedy policy (no learning; a
+  uniform action with probability ``train.curve_epsilon``, default 0) after the engine
+  chunk on ``train.eval_envs`` fresh starts at ``train.eval_difficulty``: fraction whose
+  first episode scores.
 * ``mean_primitives``: mean primitives per finished training episode (0 when none).
 * ``difficulty``: start difficulty of the training episodes at the end of the chunk (LEM's;
   with LEM off the env's own ``start_difficulty``); ``lem_raises``: raises so
@@ -58,10 +59,21 @@ from vbl.agents.exploration import ScheduleParams, schedule_value
 from vbl.agents.qlearning import QRunnerState, make_qlearning_runner
 from vbl.params import ParamError, param, section, validate
 
-__all__ = ["QTrainParams", "make_q_program", "trials_to_level", "EVAL_STREAM"]
+__all__ = ["QTrainParams", "make_q_program", "trials_to_level", "curve_metric",
+           "RENAMED_METRICS", "EVAL_STREAM"]
 
 F32 = jnp.float32
 EVAL_STREAM = 0x5EED  #: fold_in tag of the evaluation keys (kept off the training stream)
+
+RENAMED_METRICS = {"success_rate": "eval_success", "train_success_rate": "train_success"}
+"""Earlier names of the per-chunk metrics (``Experiment.renamed_metrics``): run folders
+written under them are read under the current ones."""
+
+
+def curve_metric(curves: dict) -> str:
+    """The learning curve a run has: ``eval_success`` (``train.eval_curve`` on), else
+    ``train_success``."""
+    return "eval_success" if "eval_success" in curves else "train_success"
 
 
 @struct.dataclass
@@ -179,7 +191,7 @@ def make_q_program(env: Any, state_fn: Callable[[jax.Array, Any], jax.Array], cf
         n = jnp.maximum(t["episodes"], 1.0)
         train_rate = t["successes"] / n
         out = dict(episodes=t["episodes"], successes=t["successes"],
-                   train_success_rate=train_rate, mean_primitives=t["primitives"] / n,
+                   train_success=train_rate, mean_primitives=t["primitives"] / n,
                    difficulty=(carry.lem.difficulty if cfg.agent.lem.enabled else
                                jnp.asarray(c.env.start_difficulty)).astype(F32),
                    lem_raises=carry.lem.raises.astype(F32), epsilon=t["epsilon"],
@@ -188,9 +200,7 @@ def make_q_program(env: Any, state_fn: Callable[[jax.Array, Any], jax.Array], cf
             _, ev = runners(c)
             res = ev.evaluate(jax.random.fold_in(carry.key, EVAL_STREAM), carry.q,
                               c.agent, eval_env(c), train.eval_steps, c.train.curve_epsilon)
-            out["success_rate"] = res["success_rate"].astype(F32)
-        else:
-            out["success_rate"] = train_rate
+            out["eval_success"] = res["success_rate"].astype(F32)
         return carry, out
 
     def final(carry: QRunnerState, c, key):
@@ -223,7 +233,7 @@ def trials_to_level(success: Any, episodes: Any, level: float, window: int = 1) 
     """Per seed: cumulative training trials at the first chunk where the mean ``success`` of
     the last ``window`` chunks (that chunk included; fewer at the start) is >= ``level``
     (NaN if never). ``success``, ``episodes``: (chunks, seeds) host arrays (a run's
-    ``curves["success_rate"][point]`` and ``curves["episodes"][point]``) -> (seeds,) float.
+    ``curves["eval_success"][point]`` and ``curves["episodes"][point]``) -> (seeds,) float.
     ``window`` > 1 averages out the evaluation noise of one chunk (a few dozen starts)."""
     import numpy as np
 
