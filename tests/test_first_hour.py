@@ -62,6 +62,11 @@ def test_readme_experiment_runs_from_a_temporary_folder(tmp_path):
     assert "greedy_success" in report and "![train_success](train_success.png)" in report
     marker = json.loads((run / ".vbl-run").read_text())
     assert "report.md" in marker["files"]
+    r = _vbl(["params", "two_arms.py"], tmp_path)
+    assert r.returncode == 0 and "| `epsilon` |" in r.stdout, r.stderr[-3000:]
+    r = _vbl(["list"], tmp_path)  # the built-in experiments, not the folder's scripts
+    assert r.returncode == 0 and "grid_shooting" in r.stdout and "two_arms" not in r.stdout
+    assert not (tmp_path / "HELPER_RAN").exists()
 
 
 EXPERIMENT_WITH_REPORT = '''

@@ -27,9 +27,12 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
     from vbl.engine.runner import DEFAULT_CHECKPOINT_EVERY, DEFAULT_LEARNER_BATCH
 
     p.add_argument("--set", dest="sets", action="append", default=[], metavar="PATH=VALUE",
-                   help="override a parameter, e.g. --set agent.learning_rate=0.1")
+                   help="override a parameter, e.g. --set agent.learning_rate=0.1 (a path "
+                        "of the experiment's default sweep is then fixed)")
     p.add_argument("--sweep", action="append", default=[], metavar="PATH=V1,V2,...",
-                   help="sweep a parameter over values (repeat for a grid)")
+                   help="sweep a parameter over values (repeat for a grid; the experiment's "
+                        "default sweep stays for the paths not named; the run prints its "
+                        "points first)")
     p.add_argument("--seeds", type=int, default=None, help="seeds per sweep point")
     p.add_argument("--seed", type=int, default=0, help="base seed (default 0)")
     p.add_argument("--out", default=None, help="run folder (default runs/<name>-<time>)")
