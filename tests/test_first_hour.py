@@ -285,3 +285,15 @@ def test_a_non_editable_install_finds_the_source_trees_experiments(monkeypatch, 
     assert bench_dir() == REPO / "benchmarks"
     monkeypatch.chdir(tmp_path)
     assert experiment_dirs() == [tmp_path / "site-packages" / "experiments"]
+
+
+@pytest.mark.slow
+def test_real_bench_quick_out_leaves_the_committed_results_alone(tmp_path):
+    """The source tree's cheapest benchmark (about 2 min on 2 shared cores)."""
+    committed = REPO / "benchmarks" / "results"
+    before = _tree_digest(committed)
+    r = _vbl(["bench", "--quick", "--out", str(tmp_path / "out"), "sweep_scaling"], tmp_path)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert _tree_digest(committed) == before
+    assert (tmp_path / "out" / "sweep_scaling.json").exists()
+    assert "sweep_scaling: " in r.stdout and "target: none stated" in r.stdout
