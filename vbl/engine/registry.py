@@ -49,8 +49,13 @@ def source_folder(name: str) -> Path:
     import vbl
 
     beside = Path(vbl.__file__).resolve().parents[1] / name
-    here = Path.cwd() / name
-    return here if not beside.is_dir() and here.is_dir() else beside
+    if beside.is_dir():
+        return beside
+    try:
+        here = Path.cwd() / name
+    except OSError:  # the current folder was removed
+        return beside
+    return here if here.is_dir() else beside
 
 
 def experiment_dirs() -> list[Path]:
