@@ -124,3 +124,58 @@ def test_every_parameter_table_in_these_docs_is_generated():
 
         outside = REGION.sub("", text)
         assert header not in outside, f"{name}: a parameter table outside a params region"
+
+
+RUN_CMD = re.compile(r"vbl run ([\w./-]+)((?:\s+(?:--[\w-]+(?:[ =]\"?[^\s`\"]+\"?)?))*)")
+OPTION = re.compile(r"--(set|sweep)[ =]\"?([\w.]+)=")
+
+
+def _commands(text: str) -> list[tuple[str, list[str]]]:
+    """(experiment, [parameter paths of --set / --sweep]) of every `vbl run NAME ...` in
+    code (inline spans may wrap lines; fenced blocks)."""
+    code = [m.group(0) for m in FENCE.finditer(text)]
+    code += re.findall(r"`[^`]+`", FENCE.sub("", text))
+    out = []
+    for chunk in code:
+        chunk = re.sub(r"\s+", " ", chunk)
+        for m in RUN_CMD.finditer(chunk):
+            out.append((m.group(1), [p for _, p in OPTION.findall(m.group(2))]))
+    return out
+
+
+def test_commands_pattern():
+    text = "run `vbl run fig9_incremental --seeds 4 --set\nlearner.bins=8 --sweep a.b=1,2`"
+    assert _commands(text) == [("fig9_incremental", ["learner.bins", "a.b"])]
+
+
+@pytest.mark.parametrize("doc", DOCS, ids=_rel)
+def test_vbl_run_commands_name_real_experiments_and_parameters(doc: Path):
+    """A `vbl run NAME --set PATH=...` in the docs names a registered experiment and
+    parameters its config has (a renamed parameter makes a documented command stale)."""
+    from vbl.engine import get
+    from vbl.params import ParamError, get_path
+
+    bad = []
+    for name, paths in _commands(doc.read_text()):
+        if "_" not in name or name.endswith(".py") or "/" in name:
+            continue  # placeholders (NAME), prose ("vbl run first"), script paths
+        try:
+            cfg = get(name).default_config
+        except Exception as e:  # noqa: BLE001 - report every stale command at once
+            bad.append(f"{name}: {e}")
+            continue
+        for p in paths:
+            try:
+                get_path(cfg, p)
+            except ParamError:
+                bad.append(f"vbl run {name} ... {p}")
+    assert not bad, f"{_rel(doc)}: stale commands: {bad}"
+
+
+def test_probe_scripts_are_cited_and_exist():
+    probes = {p.name for p in (ROOT / "benchmarks" / "probes").glob("*.py")}
+    cited = set()
+    for doc in DOCS:
+        cited |= set(re.findall(r"benchmarks/probes/([a-z0-9_]+\.py)", doc.read_text()))
+    assert cited <= probes, f"docs cite missing probes: {sorted(cited - probes)}"
+    assert probes <= cited, f"probes no doc cites: {sorted(probes - cited)}"
