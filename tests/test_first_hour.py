@@ -297,3 +297,22 @@ def test_real_bench_quick_out_leaves_the_committed_results_alone(tmp_path):
     assert _tree_digest(committed) == before
     assert (tmp_path / "out" / "sweep_scaling.json").exists()
     assert "sweep_scaling: " in r.stdout and "target: none stated" in r.stdout
+
+
+def test_python_experiment_script_prints_no_xla_log_lines(tmp_path):
+    """`python experiments/x.py` (the same as `vbl run x`): XLA's warning and error lines of
+    programs loaded from the compilation cache stay hidden, though the script loads JAX
+    before `main_for` runs; VBL_XLA_LOGS=1 shows them."""
+    env = _env(VBL_JAX_CACHE=str(tmp_path / "cache"))
+    env.pop("TF_CPP_MIN_LOG_LEVEL", None)
+    cmd = [sys.executable, str(REPO / "experiments" / "toy_bandit.py"), "--quick", "--seeds",
+           "2", "--set", "env.num_arms=3", "--set", "train.pulls_per_chunk=5", "--overwrite",
+           "--out", str(tmp_path / "run")]
+    xla_line = re.compile(r"^[IWEF]\d{4} ", re.M)
+    outs = [subprocess.run(cmd, env=e, capture_output=True, text=True, timeout=TIMEOUT)
+            for e in (env, env, dict(env, VBL_XLA_LOGS="1"))]
+    for r in outs:
+        assert r.returncode == 0, r.stderr[-3000:]
+    assert "toy_bandit: 1 sweep point x 2 seeds" in outs[1].stdout
+    assert not xla_line.search(outs[1].stderr), outs[1].stderr[-3000:]  # cached programs
+    assert xla_line.search(outs[2].stderr)

@@ -334,12 +334,41 @@ def console_main() -> int:
     return _end(main(), sys.argv[1:])
 
 
+def _started_with(name: str) -> bool | None:
+    """Whether the process started with environment variable ``name`` (None: unknown)."""
+    try:
+        with open("/proc/self/environ", "rb") as f:
+            return any(x.startswith(name.encode() + b"=") for x in f.read().split(b"\0"))
+    except OSError:
+        return None
+
+
+def _rerun_with_quiet_xla() -> None:
+    """``python experiments/x.py``: the script loaded JAX (which sets XLA's log level to 1
+    when none is given) before :func:`main_for` could set the level, and XLA reads it when
+    it loads; so the script runs again, once, with the level of :func:`quiet_xla_env`.
+    Nothing happens when the process started with a level or with ``VBL_XLA_LOGS``, when
+    that is unknown, or when ``__main__`` is not a script file."""
+    main_file = getattr(sys.modules.get("__main__"), "__file__", None)
+    if (_started_with("TF_CPP_MIN_LOG_LEVEL") is not False or "jaxlib" not in sys.modules
+            or not main_file or not os.path.isfile(main_file)):
+        return
+    os.environ.pop("TF_CPP_MIN_LOG_LEVEL", None)
+    if not quiet_xla_env():
+        return
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os.execve(sys.executable, [sys.executable, *sys.orig_argv[1:]], dict(os.environ))
+
+
 def main_for(experiment, argv: list[str] | None = None) -> None:
     """``python experiments/x.py [run options]``: the same as ``vbl run x [run options]``."""
     parser = _Parser(prog=f"python {sys.argv[0]}",
                      description=f"{experiment.name}: {experiment.description}")
     _add_run_options(parser)
     args = parser.parse_args(argv)
+    if argv is None:
+        _rerun_with_quiet_xla()
     use_all_cores()
     _quiet_process(sys.argv[1:] if argv is None else argv)
     _quiet_xla()
