@@ -1,0 +1,90 @@
+"""Probe: one-step Q-learning started from a good hand-written table on the 319-state grid.
+
+``grid_shooting``'s task (fully random starts, 100 s, macro actions of at least 3
+primitives), its 64 robots per learner and the hand-written table of
+``grid_hand_table.py`` as the initial Q (1 at the rule's action, 0 elsewhere). Then
+``--chunks`` x 100 learner steps of Q-learning (learning rate 0.05, epsilon 0.1 constant,
+no curriculum: every episode at difficulty 1), with one-step targets (the paper's
+learner) or with the experiment's multi-step returns (Peng's Q(lambda), lambda 0.9,
+window 32 actions). After every chunk the greedy policy plays ``--starts`` fresh starts.
+Question: does one-step learning keep a policy that the grid can represent?
+
+Not an experiment (``vbl reproduce`` does not run it) and not a benchmark (``vbl bench``
+reads ``benchmarks/*.py`` only). Run from the repository root:
+
+    python benchmarks/probes/grid_onestep_unlearns.py [--chunks 4] [--starts 128] [--seed 0]
+
+Cost: about two minutes of CPU, mostly compilation. Cited by
+docs/findings/grid_shooting.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--chunks", type=int, default=4, help="chunks of 100 learner steps")
+    ap.add_argument("--starts", type=int, default=128, help="fresh starts (multiple of 64)")
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args(argv)
+
+    from vbl.agents.qlearning import make_qlearning_runner
+    from vbl.engine.jax_setup import engine_precision
+    from vbl.engine.registry import load_script
+    from vbl.spaces.grid import NUM_GRID_STATES, grid_state
+    from vbl.world.robots import TWO_MOTOR_LABELS
+
+    gs = load_script(ROOT / "experiments" / "grid_shooting.py")
+    hand = load_script(Path(__file__).with_name("grid_hand_table.py"))
+    cfg = gs.EXPERIMENT.default_config
+    d = float(gs.TASK_DIFFICULTY)
+    env_params = cfg.env.replace(start_difficulty=d)
+    q0 = jnp.asarray(hand.hand_table(TWO_MOTOR_LABELS))
+    a = cfg.agent
+    sched = a.agent.exploration.schedule.replace(kind="constant", init_value=0.1)
+    base = a.replace(
+        agent=a.agent.replace(num_states=NUM_GRID_STATES, learning_rate=0.05,
+                              exploration=a.agent.exploration.replace(schedule=sched)),
+        lem=a.lem.replace(initial_difficulty=d, max_difficulty=d))
+    variants = {"one-step Q-learning": base.agent.trace.replace(enabled=False),
+                "Peng's Q(lambda 0.9), 32 actions": base.agent.trace}
+    n_envs = base.num_envs
+    rounds = max(1, args.starts // n_envs)
+    print(f"grid_shooting task from the hand-written table: difficulty {d}, "
+          f"{int(env_params.max_steps)} primitives, lr 0.05, epsilon 0.1, {n_envs} robots; "
+          f"greedy success on {rounds * n_envs} fresh starts after each chunk of "
+          f"{base.chunk_steps} learner steps")
+    k_train, k_eval = jax.random.split(jax.random.PRNGKey(args.seed))
+    with engine_precision():
+        for name, trace in variants.items():
+            p = base.replace(agent=base.agent.replace(trace=trace))
+            runner = make_qlearning_runner(gs.ENV, lambda o: grid_state(o, cfg.grid), p)
+            ev = jax.jit(runner.evaluate, static_argnums=(4,))
+            run = jax.jit(runner.run_chunk)
+
+            def greedy(q, ev=ev, p=p):
+                return np.mean([float(ev(k, q, p, env_params, int(gs.EVAL_STEPS))[
+                    "success_rate"]) for k in jax.random.split(k_eval, rounds)])
+
+            carry = runner.init(k_train, p, env_params).replace(q=q0)
+            row = [greedy(carry.q)]
+            for _ in range(args.chunks):
+                carry, _ = run(carry, p, env_params)
+                row.append(greedy(carry.q))
+            changed = int(np.sum(np.argmax(np.asarray(carry.q), 1) != np.argmax(q0, 1)))
+            print(f"{name}: greedy success per chunk " + ", ".join(f"{v:.3f}" for v in row)
+                  + f"; greedy actions changed in {changed} of {NUM_GRID_STATES} states")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
