@@ -30,7 +30,9 @@ from flax import struct
 from vbl.agents.programs import QTrainParams
 from vbl.agents.qlearning import QRunnerParams
 from vbl.engine import Experiment, Program, ReportSection, register
+from vbl.engine.experiment import PaperRow
 from vbl.engine.registry import load_script
+from vbl.engine.report import seeds_cell
 from vbl.envs.shooting import ShootingEnv, ShootingParams
 from vbl.params import ParamError, param, section, validate
 from vbl.spaces.action_based import (
@@ -460,6 +462,22 @@ def report(res) -> ReportSection:
     return ReportSection(markdown="\n".join(md), figures=figs)
 
 
+def paper_rows(res) -> list[PaperRow]:
+    fin = {k: np.asarray(v)[0] for k, v in res.final.items()}
+    claim = "fewer states than the 319-state grid (no success rate)"
+    rows = [PaperRow("Figure 5, action-based map (the construction): success / states", claim,
+                     f"{seeds_cell(fin['map_success'], fmt='.3f')} / "
+                     f"{seeds_cell(fin['map_states'], fmt='.1f')}")]
+    if "refined_success" in fin:
+        rows.append(PaperRow("Figure 5, same map with vbl's closed-loop refinement: success / "
+                             "states", claim, f"{seeds_cell(fin['refined_success'], fmt='.3f')}"
+                             f" / {seeds_cell(fin['refined_states'], fmt='.1f')}"))
+    if "grid_success" in fin:
+        rows.append(PaperRow("Figure 5, grid baseline (319 states) on the same starts: success",
+                             "-", seeds_cell(fin["grid_success"], fmt=".3f")))
+    return rows
+
+
 EXPERIMENT = register(Experiment(
     name="fig5_action_based",
     description="Fig 5: off-line action-based state map vs the 319-state grid baseline",
@@ -478,6 +496,11 @@ EXPERIMENT = register(Experiment(
     paper={"figure": "5", "claim": "states differ from the programmer's grid; F/B labels"},
     report=report,
     renamed_metrics={"success_rate": "grid_eval_success"},
+    paper_rows=paper_rows,
+    # parameters added after run folders were written: the values of the code before them
+    # (no refinement, the grid's curve after every chunk)
+    legacy_values={"refine.iterations": 0, "grid.train.eval_every": 1,
+                   "grid.agent.agent.update": "q_learning", "grid.agent.agent.mc_log": 128},
 ))
 
 if __name__ == "__main__":

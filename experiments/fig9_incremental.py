@@ -22,7 +22,9 @@ import numpy as np
 from flax import struct
 
 from vbl.engine import Experiment, Program, ReportSection, register
+from vbl.engine.experiment import PaperRow
 from vbl.engine.registry import load_script
+from vbl.engine.report import seeds_cell
 from vbl.envs.shooting import ShootingEnv, ShootingParams
 from vbl.params import ParamError, param, section
 from vbl.spaces.action_based import FeatureParams, rollout_success, sec2_features
@@ -447,6 +449,30 @@ def report(res) -> ReportSection:
     return ReportSection(markdown="\n".join(md), figures=tuple(figs))
 
 
+def paper_rows(res) -> list[PaperRow]:
+    fin = {k: np.asarray(v)[0] for k, v in res.final.items()}
+    n = int(min(fin["trials_done"].min(), fin["trial_success"].shape[1]))
+    ch = res.config.change
+    w = max(1, min(50, min(ch.change_trial_1, ch.change_trial_2 - ch.change_trial_1,
+                           n - ch.change_trial_2) // 2))
+    rows = []
+    for i, cw in enumerate(change_windows(fin["trial_success"][:, :n], fin["trial_states"][:, :n],
+                                          (ch.change_trial_1, ch.change_trial_2), w)):
+        r = cw["rates"]
+        rows.append(PaperRow(f"Figure 9, ball-size change {i + 1} (trial {cw['change']}): "
+                             f"success in {w}-trial windows before / after / at the end of "
+                             "recovery", "drops, then recovers (no number)",
+                             " / ".join(seeds_cell(r[:, j], fmt=".3f") for j in range(3))))
+    rows.append(PaperRow("Figure 9, final greedy policy: success / states",
+                         "less learning time than the off-line method (no number)",
+                         f"{seeds_cell(fin['greedy_success'], fmt='.3f')} / "
+                         f"{seeds_cell(fin['states'], fmt='.1f')}"))
+    if "grid_success" in fin:
+        rows.append(PaperRow("Figure 9, grid baseline (319 states), same experience: success",
+                             "-", seeds_cell(fin["grid_success"], fmt=".3f")))
+    return rows
+
+
 EXPERIMENT = register(Experiment(
     name="fig9_incremental",
     description="Figs 8-9: on-line incremental state segmentation, ball size changed twice",
@@ -463,6 +489,8 @@ EXPERIMENT = register(Experiment(
     paper={"trials": 1110, "ball size change": "twice, around trial 500"},
     report=report,
     renamed_metrics={"success_rate": "train_success"},
+    paper_rows=paper_rows,
+    legacy_values={"grid.train.eval_every": 1},  # folders written before it existed
 ))
 
 if __name__ == "__main__":

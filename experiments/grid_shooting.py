@@ -38,6 +38,8 @@ from vbl.agents.programs import (
 )
 from vbl.agents.traces import TraceParams
 from vbl.engine import Experiment, ReportSection, RunResult, register
+from vbl.engine.experiment import PaperRow
+from vbl.engine.report import seeds_cell
 from vbl.envs.shooting import ShootingEnv, ShootingParams
 from vbl.params import ParamError, param, section
 from vbl.spaces.grid import NUM_GRID_STATES, GridParams, grid_state
@@ -320,6 +322,18 @@ def report(res: RunResult) -> ReportSection:
     return ReportSection("\n".join(md), (fig,))
 
 
+def paper_rows(res: RunResult) -> list[PaperRow]:
+    rows = [PaperRow(f"Grid baseline (319 states), {_label(pt, res.config)}: greedy / "
+                     "near-greedy success", "none given (the earlier work's learner)",
+                     f"{seeds_cell(res.final['greedy_success'][i], fmt='.3f')} / "
+                     f"{seeds_cell(res.final['near_greedy_success'][i], fmt='.3f')}")
+            for i, pt in enumerate(res.points)]
+    # the random policy sees the same starts at every point: average over points per seed
+    rnd = np.mean(np.asarray(res.final["random_success"], float), axis=0)
+    return rows + [PaperRow("Grid baseline, random policy: success", "-",
+                            seeds_cell(rnd, fmt=".3f"))]
+
+
 EXPERIMENT = register(Experiment(
     name="grid_shooting",
     description="grid-baseline Q-learning shooting (319 states), with and without LEM",
@@ -338,6 +352,10 @@ EXPERIMENT = register(Experiment(
     report=report,
     headline=("greedy_success", "near_greedy_success", "random_success"),
     renamed_metrics=RENAMED_METRICS,
+    paper_rows=paper_rows,
+    # parameters added after run folders were written: the values of the code before them
+    legacy_values={"train.eval_every": 1, "agent.agent.update": "q_learning",
+                   "agent.agent.mc_log": 128},
 ))
 
 if __name__ == "__main__":

@@ -20,6 +20,8 @@ import numpy as np
 from flax import struct
 
 from vbl.engine import Experiment, ReportSection, RunContext, RunResult, register
+from vbl.engine.experiment import PaperRow
+from vbl.engine.report import stat_cell
 from vbl.envs.collect import CollectParams, collect_many, id_outputs
 from vbl.params import param, section
 from vbl.sysid.lag import identify
@@ -161,6 +163,21 @@ def report(res: RunResult) -> ReportSection:
     return ReportSection(markdown=r.get("markdown", "(no result)"))
 
 
+def identification_cells(s: dict, n: int) -> str:
+    """``l / n / log det R / AIC`` of one row, each mean ± 95 % interval over ``n`` data
+    sets."""
+    return " / ".join(stat_cell(s[q], fmt=f, n=n) for q, f in (
+        ("l", ".2f"), ("n", ".2f"), ("logdet_R", ".2f"), ("aic", ".0f")))
+
+
+def paper_rows(res: RunResult) -> list[PaperRow]:
+    t = (res.extra or res.summary.get("result", {}))["tables"]
+    t = t.get("projected", next(iter(t.values())))
+    return [PaperRow(f"Table 1, {k}: l / n / log det R / AIC",
+                     " / ".join(str(x) for x in PAPER[k]), identification_cells(t[k], res.seeds))
+            for k in ROWS]
+
+
 EXPERIMENT = register(Experiment(
     name="table1_identification",
     description="Table 1: CVA/AIC/lag-rule identification of goal, ball, random walker, "
@@ -175,6 +192,7 @@ EXPERIMENT = register(Experiment(
     paper_result=True,
     paper={"table1": PAPER},
     report=report,
+    paper_rows=paper_rows,
 ))
 
 if __name__ == "__main__":

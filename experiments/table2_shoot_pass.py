@@ -29,7 +29,8 @@ from vbl.agents.cva_state import (
 )
 from vbl.agents.exploration import ScheduleParams, schedule_value
 from vbl.engine import Experiment, Program, register
-from vbl.engine.experiment import ReportSection
+from vbl.engine.experiment import PaperRow, ReportSection
+from vbl.engine.report import seeds_cell
 from vbl.envs.shoot_pass import ENV_TASKS, ShootPassEnv, ShootPassParams
 from vbl.params import ParamError, param, section
 from vbl.spaces.quantize import QuantizerParams
@@ -205,6 +206,23 @@ def report(res) -> ReportSection:
     return ReportSection(markdown=md, figures=tuple(res.figures))
 
 
+def paper_rows(res) -> list[PaperRow]:
+    update = res.config.learner.runner.agent.update
+    values = {"q_learning": "", "monte_carlo": ", Monte Carlo values"}.get(update,
+                                                                           f", {update}")
+    rows = []
+    for i, pt in enumerate(res.points):
+        task, state = _task_label(pt, res.config), _state_label(pt, res.config)
+        more = "".join(f", {k}={v}" for k, v in pt.items()
+                       if k not in ("task", "env.task_pass", "learner.use_cva", "learner.state"))
+        rows.append(PaperRow(
+            f"Table 2, {'passing' if task == 'pass' else 'shooting'}, "
+            f"{'CVA state' if state == 'cva' else 'current features'}{values}{more}: greedy "
+            "success %", str(PAPER[task][state]),
+            seeds_cell(res.final["greedy_success_rate"][i], 100.0, ".1f")))
+    return rows
+
+
 EXPERIMENT = register(Experiment(
     name="table2_shoot_pass",
     description="Table 2: shoot/pass success, current features vs CVA state vectors",
@@ -223,6 +241,12 @@ EXPERIMENT = register(Experiment(
     # the test suite shared the cores)
     paper=PAPER,
     report=report,
+    paper_rows=paper_rows,
+    # parameters added after run folders were written: the values of the code before them
+    legacy_values={"learner.keep_beyond_order": False, "learner.cancor_weight": False,
+                   "learner.cva.lag_rule": "paper", "learner.cva.collinear_tol": 1e-8,
+                   "learner.runner.agent.update": "q_learning",
+                   "learner.runner.agent.mc_log": 128},
     sweep={"env.task_pass": [False, True], "learner.use_cva": [False, True]},
 ))
 

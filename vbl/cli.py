@@ -1,4 +1,4 @@
-"""The ``vbl`` command: list, run, reproduce, bench, params (see docs/engine.md)."""
+"""The ``vbl`` command: list, run, reproduce, report, bench, params (see docs/engine.md)."""
 
 from __future__ import annotations
 
@@ -81,6 +81,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="experiments run in N worker processes at once (default: one per "
                         "CPU core; 1 = one after the other in this process, with progress "
                         "bars)")
+    _add_debug(p, argparse.SUPPRESS)
+    p = sub.add_parser("report", help="one Markdown table of the paper's numbers beside "
+                       "those of finished run folders, with the commands that regenerate them")
+    p.add_argument("folders", nargs="+", metavar="RUN_DIR", help="run folders (vbl run --out)")
+    p.add_argument("--out", default=None, metavar="FILE",
+                   help="write the table to FILE (links relative to its folder) instead of "
+                        "printing it")
     _add_debug(p, argparse.SUPPRESS)
     p = sub.add_parser("bench", help="run the benchmarks (benchmarks/*.py of the source tree)")
     p.add_argument("--quick", action="store_true", help="small sizes")
@@ -186,6 +193,27 @@ def _cmd_bench(args) -> int:
     return 0
 
 
+def _cmd_report(args) -> int:
+    import contextlib
+
+    from vbl.engine.config import EngineError
+    from vbl.engine.report import results_table
+
+    out = Path(args.out) if args.out is not None else None
+    base = out.absolute().parent if out is not None else None
+    with contextlib.redirect_stdout(sys.stderr):  # what imported scripts print stays apart
+        table = results_table(args.folders, link_base=base)
+    if out is None:
+        print(table, end="")
+        return 0
+    try:
+        out.write_text(table)
+    except OSError as e:
+        raise EngineError(f"cannot write {out}: {e.strerror or e}") from e
+    print(f"results table: {out}")
+    return 0
+
+
 def _dispatch(args) -> int:
     if args.command == "list":
         return _cmd_list()
@@ -212,6 +240,8 @@ def _dispatch(args) -> int:
         return 0 if ok else _error(f"some experiments failed; see {report}", 1)
     if args.command == "bench":
         return _cmd_bench(args)
+    if args.command == "report":
+        return _cmd_report(args)
     raise AssertionError(args.command)
 
 

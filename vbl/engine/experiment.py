@@ -18,7 +18,7 @@ from typing import Any
 
 import jax
 
-__all__ = ["Program", "Experiment", "RunResult", "ReportSection", "RunContext"]
+__all__ = ["Program", "Experiment", "RunResult", "ReportSection", "RunContext", "PaperRow"]
 
 Config = Any  # a flax.struct dataclass declared with vbl.params.param/section
 Carry = Any  # any pytree of arrays (one learner's state)
@@ -66,6 +66,20 @@ class ReportSection:
 
     markdown: str
     figures: tuple[str | Path, ...] = ()
+
+
+@dataclass(frozen=True)
+class PaperRow:
+    """One line of ``vbl report``'s results table: a paper number beside vbl's.
+
+    ``result``: what is compared (e.g. "Table 2, shooting, CVA state, %"); ``paper``: the
+    paper's number, or its claim when it gives none; ``ours``: vbl's number with its 95 %
+    interval over seeds (e.g. "16.8 ± 2.7"; see :func:`vbl.engine.report.stat_cell`).
+    """
+
+    result: str
+    paper: str
+    ours: str
 
 
 @dataclass
@@ -155,6 +169,12 @@ class Experiment:
         ``summary.json``.
       renamed_metrics: ``{old name: current name}`` of metrics the experiment renamed: rows
         of run folders written under an old name are read under the current one.
+      paper_rows: ``RunResult -> list[PaperRow]``: the paper's numbers beside the run's, for
+        ``vbl report``, which rebuilds the ``RunResult`` from a run folder's ``config.json``
+        and ``summary.json`` (``curves`` empty; ``final`` from the per-seed values).
+      legacy_values: ``{path: value}`` for parameters added after run folders were written:
+        the value that reproduces the code before the parameter existed. ``vbl report``
+        uses it to rebuild the command of a run folder that does not record the parameter.
     """
 
     name: str
@@ -173,6 +193,8 @@ class Experiment:
     group: str | None = None
     headline: tuple[str, ...] = ()
     renamed_metrics: Mapping[str, str] = field(default_factory=dict)
+    paper_rows: Callable[[RunResult], list[PaperRow]] | None = None
+    legacy_values: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         import re

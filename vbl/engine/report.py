@@ -1,10 +1,13 @@
 """Reports: an experiment's ``report.md`` in its run folder (``vbl run`` and ``vbl
-reproduce``), the short table ``vbl run`` prints, and ``vbl reproduce``, which runs every
-paper experiment and writes one ``report.md`` for all of them."""
+reproduce``), the short table ``vbl run`` prints, ``vbl reproduce``, which runs every
+paper experiment and writes one ``report.md`` for all of them, and ``vbl report``, which
+reads committed run folders into one table of the paper's numbers beside vbl's."""
 
 from __future__ import annotations
 
+import math
 import os
+import shlex
 import time
 import traceback
 from pathlib import Path
@@ -13,10 +16,12 @@ from typing import Any
 from vbl.engine.config import EngineError
 from vbl.engine.experiment import Experiment, ReportSection, RunResult
 from vbl.engine.registry import all_experiments, discover, import_errors
+from vbl.engine.results import t_quantile_975
 from vbl.engine.runfolder import record_files
 
 __all__ = ["default_section", "default_jobs", "reproduce", "paper_experiments",
-           "run_report", "headline_table", "TABLE_COLUMNS"]
+           "run_report", "headline_table", "TABLE_COLUMNS", "load_run", "run_command",
+           "stat_cell", "seeds_cell", "results_table"]
 
 TABLE_COLUMNS = 100  #: the width ``vbl run``'s terminal table keeps to
 
@@ -289,3 +294,197 @@ def reproduce(out: Path, *, quick: bool, quiet: bool | None, resume: bool = Fals
     report = out / "report.md"
     report.write_text("\n".join(parts) + "\n")
     return report, ok
+
+
+# ---------------------------------------------------------------- vbl report
+
+
+def stat_cell(st: dict[str, Any], scale: float = 1.0, fmt: str = ".3g",
+              n: int | None = None) -> str:
+    """``"mean ± half-width"`` of a summary statistic ``{"mean", "ci95"}`` (the 95 %
+    Student t interval over seeds), scaled by ``scale``. With ``n``, the interval is
+    computed from ``st["std"]``, a population std (ddof 0) over ``n`` values (the
+    identification tables store no interval)."""
+    m = st.get("mean")
+    if not isinstance(m, int | float):
+        return "-"
+    if n is not None:
+        sd = st.get("std")
+        ci = (t_quantile_975(n - 1) * sd / math.sqrt(n - 1)
+              if isinstance(sd, int | float) and n > 1 else None)
+    else:
+        ci = st.get("ci95")
+    if not isinstance(ci, int | float) or ci != ci:
+        return format(m * scale, fmt)
+    return f"{format(m * scale, fmt)} ± {format(ci * scale, fmt)}"
+
+
+def seeds_cell(values: Any, scale: float = 1.0, fmt: str = ".3g") -> str:
+    """``"mean ± half-width"`` of per-seed values (95 % Student t interval of the mean)."""
+    import numpy as np
+
+    v = np.asarray(values, np.float64).ravel() * scale
+    n = v.size
+    half = t_quantile_975(n - 1) * v.std(ddof=1) / math.sqrt(n) if n > 1 else float("nan")
+    if half != half:
+        return format(v.mean(), fmt)
+    return f"{format(v.mean(), fmt)} ± {format(half, fmt)}"
+
+
+def load_run(folder: str | Path) -> tuple[Experiment, RunResult, dict[str, Any]]:
+    """``(experiment, RunResult, config.json)`` of a finished run folder. The result is
+    rebuilt from ``config.json`` and ``summary.json``: ``final`` holds the per-seed values
+    (``[points, seeds]``), ``curves`` is empty, ``config`` is the experiment's default
+    config with the folder's recorded values."""
+    from vbl.engine.registry import get
+    from vbl.engine.results import read_json
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise EngineError(f"{folder} is not a run folder (no such folder)")
+    missing = [n for n in ("config.json", "summary.json") if not (folder / n).is_file()]
+    if missing:
+        raise EngineError(f"{folder} is not a finished run folder (no {' or '.join(missing)})")
+    try:
+        spec, summary = read_json(folder / "config.json"), read_json(folder / "summary.json")
+    except ValueError as e:
+        raise EngineError(f"{folder}: unreadable config.json or summary.json: {e}") from e
+    if not isinstance(spec, dict) or "experiment" not in spec or "config" not in spec:
+        raise EngineError(f"{folder}/config.json is not a vbl run's config")
+    exp = get(spec["experiment"])
+    config = _recorded_config(exp, spec, folder)
+    points = summary.get("points", [])
+    renamed = dict(exp.renamed_metrics)
+    final: dict[str, Any] = {}
+    for i, entry in enumerate(points):
+        for k, st in entry.get("final", {}).items():
+            if isinstance(st, dict) and "per_seed" in st:
+                final.setdefault(renamed.get(k, k), [None] * len(points))[i] = st["per_seed"]
+    final = {k: v for k, v in final.items() if all(x is not None for x in v)}
+    result = RunResult(exp.name, folder, config, dict(spec.get("sweep", {})),
+                       [e.get("values", {}) for e in points] or [{}],
+                       int(spec.get("seeds", 1)), {}, final, summary,
+                       sorted(folder.glob("*.png")), dict(summary.get("result") or {}))
+    return exp, result, spec
+
+
+def _recorded_config(exp: Experiment, spec: dict[str, Any], folder: Path) -> Any:
+    from vbl.engine.config import apply_overrides, config_to_dict
+    from vbl.params import ParamError
+
+    defaults = config_to_dict(exp.default_config)
+    sets = {k: tuple(v) if isinstance(v, list) else v
+            for k, v in _recorded_values(exp, spec).items() if defaults.get(k) != v}
+    try:
+        return apply_overrides(exp.default_config, sets)
+    except ParamError as e:
+        raise EngineError(f"{folder}: its config no longer validates: {e}") from e
+
+
+def _recorded_values(exp: Experiment, spec: dict[str, Any]) -> dict[str, Any]:
+    """The folder's parameter values that the experiment still has, with
+    :attr:`Experiment.legacy_values` for parameters it does not record."""
+    from vbl.engine.config import config_to_dict
+
+    current = config_to_dict(exp.default_config)
+    legacy = config_to_dict_values(exp.legacy_values)
+    rec = {k: v for k, v in spec["config"].items() if k in current}
+    return {**{k: v for k, v in legacy.items() if k not in spec["config"]}, **rec}
+
+
+def config_to_dict_values(values: Any) -> dict[str, Any]:
+    """``{path: value}`` with JSON values (tuples as lists), as ``config.json`` holds them."""
+    from vbl.engine.config import _jsonable
+
+    return {k: _jsonable(v) for k, v in dict(values).items()}
+
+
+def _cli_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, list | tuple):
+        items = [_cli_value(x) for x in v]
+        numeric = all(isinstance(x, int | float) and not isinstance(x, bool) for x in v)
+        return ",".join(items) if numeric and len(items) > 1 else "(" + ",".join(items) + ")"
+    return str(v)
+
+
+def run_command(exp: Experiment, spec: dict[str, Any]) -> tuple[str, list[str]]:
+    """The ``vbl run`` command that regenerates a run folder, rebuilt from its
+    ``config.json`` (``spec``): ``--quick`` when the quick overrides and seeds match,
+    ``--seeds``/``--seed`` when they differ from the experiment's, ``--sweep`` for a sweep
+    other than the default one, ``--set`` for every recorded value other than the default.
+    Returns ``(command, unrecorded)``: the parameters the folder does not record (and
+    :attr:`Experiment.legacy_values` does not give), for which the command takes today's
+    default. The command is checked: resolving it gives the folder's recorded values."""
+    from vbl.engine.config import config_to_dict, parse_assignment, parse_sweep
+    from vbl.engine.runner import resolve
+
+    rec = _recorded_values(exp, spec)
+    seeds, base_seed = int(spec.get("seeds", exp.seeds)), int(spec.get("base_seed", 0))
+    sweep = {k: list(v) for k, v in dict(spec.get("sweep", {})).items()}
+    quick_vals = config_to_dict_values(exp.quick)
+    quick_seeds = exp.quick_seeds or exp.seeds
+    quick = (bool(quick_vals) or quick_seeds != exp.seeds) and seeds == quick_seeds and all(
+        rec.get(k) == v for k, v in quick_vals.items())
+    base = config_to_dict(exp.default_config)
+    base.update(quick_vals if quick else {})
+    args = ["vbl", "run", exp.name] + (["--quick"] if quick else [])
+    if seeds != (quick_seeds if quick else exp.seeds):
+        args += ["--seeds", str(seeds)]
+    if base_seed:
+        args += ["--seed", str(base_seed)]
+    default_sweep = {k: config_to_dict_values({"v": list(v)})["v"] for k, v in exp.sweep.items()}
+    texts_sweep = [f"{k}={','.join(_cli_value(x) for x in v)}" for k, v in sweep.items()
+                   if default_sweep.get(k) != v]
+    texts_set = [f"{k}={_cli_value(rec[k])}" for k in default_sweep if k not in sweep]
+    texts_set += [f"{k}={_cli_value(v)}" for k, v in rec.items()
+                  if k not in sweep and k not in default_sweep and base.get(k) != v]
+    for t in texts_sweep:
+        args += ["--sweep", t]
+    for t in texts_set:
+        args += ["--set", t]
+    # check: the command resolves to the folder's recorded values
+    cfg = exp.default_config
+    sets = dict(parse_assignment(t, cfg) for t in texts_set)
+    sw = dict(parse_sweep(t, cfg) for t in texts_sweep)
+    _, full_sweep, got_seeds, got = resolve(exp, sets, sw, seeds if "--seeds" in args else None,
+                                            base_seed, quick)
+    bad = [k for k, v in rec.items() if got["config"].get(k) != v]
+    got_sweep = config_to_dict_values(full_sweep)
+    if bad or got_seeds != seeds or got_sweep != config_to_dict_values(sweep):
+        what = (f"{bad[0]} would be {got['config'].get(bad[0])!r}, not {rec[bad[0]]!r}"
+                if bad else "the sweep or seeds differ")
+        raise EngineError(f"cannot rebuild the command of a {exp.name} run: {what}")
+    unrecorded = sorted(k for k in base if k not in rec)
+    return " ".join(shlex.quote(a) for a in args), unrecorded
+
+
+def results_table(folders: list[str | Path], link_base: str | Path | None = None) -> str:
+    """``vbl report``: one Markdown table over run folders, a row per paper number (the
+    experiments' :attr:`~vbl.engine.Experiment.paper_rows`) with vbl's mean ± 95 %
+    interval, the seeds, a link to the run folder and the command that regenerates it
+    (shown on the first row of each run). Links are relative to ``link_base`` (default:
+    the current folder)."""
+    base = Path(link_base if link_base is not None else ".").absolute()
+    lines = ["| paper result | paper | vbl (mean ± 95 % CI) | seeds | run | command |",
+             "|---|---|---|---|---|---|"]
+    notes = []
+    for folder in folders:
+        exp, result, spec = load_run(folder)
+        if exp.paper_rows is None:
+            raise EngineError(f"experiment {exp.name} declares no paper rows "
+                              f"(Experiment.paper_rows); {folder} cannot be reported")
+        command, unrecorded = run_command(exp, spec)
+        rows = exp.paper_rows(result)
+        rel = Path(os.path.relpath(Path(folder).absolute(), base)).as_posix()
+        link = (f"[{Path(folder).name}]({rel}/report.md)" if (Path(folder) / "report.md")
+                .is_file() else f"[{Path(folder).name}]({rel}/)")
+        for i, r in enumerate(rows):
+            first = i == 0
+            lines.append(f"| {r.result} | {r.paper} | {r.ours} | {result.seeds if first else ''}"
+                         f" | {link if first else ''} | {f'`{command}`' if first else ''} |")
+        if unrecorded:
+            notes.append(f"{Path(folder).name} does not record {', '.join(unrecorded)}: its "
+                         f"command takes today's default for them.")
+    return "\n".join(lines + ([""] + notes if notes else [])) + "\n"
