@@ -1,32 +1,57 @@
 """CVA identification throughput: identify's defaults and a fixed lag vs SIPPY and NumPy.
 
 Data: random stable systems (orders 1-6), N = 500 samples, q = 4 outputs, m = 2 inputs.
-vbl, timed after a warm-up compile with ``block_until_ready`` (wall and process CPU time):
+vbl, timed after a warm-up compile with ``block_until_ready`` (wall and process CPU time,
+best of a few repeats; the orders are read back, so every output is consumed):
 
 * ``default``: ``identify(u, y)`` - lag selection included (l = 1..6, k = 2l, every lag in
-  one program, orders 1..24 swept);
-* ``fixed l=3``: ``identify(u, y, CVAParams(lag=3))`` (k = 6, orders 1..12).
+  one program, all identifiable orders swept);
+* ``fixed l=3``: ``identify(u, y, CVAParams(lag=3))`` (k = 6).
 
 Baselines in the same run, per identification: the float64 NumPy oracle
 (tests/reference/cva_np.py) looped over data sets - at l = 3 for the fixed lag, summed over
 l = 1..6 for the default - and SIPPY's CVA with AIC order selection (orders 1-10, f = 6) in a
-subprocess with one BLAS thread (OMP/OPENBLAS/MKL_NUM_THREADS=1 set before NumPy loads).
+subprocess.
 
-    python benchmarks/cva_throughput.py [--quick]
+BLAS threads: ``--blas-threads`` (default 1) sets OMP/OPENBLAS/MKL_NUM_THREADS before NumPy
+loads, for this process (vbl: jaxlib's CPU LAPACK kernels - Cholesky, triangular solves,
+eigh, SVD - call SciPy's OpenBLAS; the NumPy oracle) and for the SIPPY subprocess alike.
+With more threads, OpenBLAS's thread pool on these small matrices costs more CPU than it
+saves, and its timing swings several-fold when the machine is shared.
+
+    python benchmarks/cva_throughput.py [--quick] [--blas-threads N]
 """
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
-import subprocess
 import sys
-import time
-from pathlib import Path
 
-import jax
-import numpy as np
+
+def _blas_threads(argv: list[str]) -> str:
+    """Value of ``--blas-threads`` (read before NumPy loads; argparse checks it again)."""
+    for i, a in enumerate(argv):
+        if a.startswith("--blas-threads="):
+            return a.split("=", 1)[1]
+        if a == "--blas-threads" and i + 1 < len(argv):
+            return argv[i + 1]
+    return str(BLAS_THREADS)
+
+
+#: Default BLAS threads for every timed computation (see the module docstring).
+BLAS_THREADS = 1
+BLAS_ENV = {k: _blas_threads(sys.argv[1:]) for k in
+            ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+os.environ.update(BLAS_ENV)
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import subprocess  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import jax  # noqa: E402
+import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
@@ -37,6 +62,8 @@ from reference.sysid_systems import simulate_batch  # noqa: E402
 
 from benchmarks.hardware import cpu_model  # noqa: E402
 from vbl.sysid import CVAParams, identify  # noqa: E402
+from vbl.sysid.lag import n_cap_for  # noqa: E402
+from vbl.sysid.sweep import CHUNK  # noqa: E402
 
 N, Q, M, LAG, LAG_MAX, SIPPY_F = 500, 4, 2, 3, 6, 6
 CONFIGS = {"default": None, "fixed l=3": CVAParams(lag=LAG)}
@@ -58,6 +85,8 @@ print((time.perf_counter() - t0) / len(u), (time.process_time() - c0) / len(u))
 def _run(u, y, params):
     res = identify(u, y) if params is None else identify(u, y, params)
     jax.block_until_ready(res.model.U)
+    if not (np.asarray(res.n) >= 1).all():           # consume the result
+        raise RuntimeError("identification returned an order below 1")
     return res
 
 
@@ -83,10 +112,9 @@ def time_numpy(u, y, count: int, lags) -> float:
 
 
 def time_sippy(u, y, count: int, tmp: Path) -> tuple[float, float]:
-    """SIPPY wall and CPU seconds per identification, one BLAS thread, in a subprocess."""
+    """SIPPY wall and CPU seconds per identification in a subprocess (``BLAS_ENV``)."""
     np.savez(tmp, u=u[:count], y=y[:count])
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
-           "MKL_NUM_THREADS": "1"}
+    env = {**os.environ, **BLAS_ENV}
     out = subprocess.run([sys.executable, "-c", SIPPY_SCRIPT, str(tmp)], capture_output=True,
                          text=True, env=env, check=True)
     wall, cpu = map(float, out.stdout.split()[-2:])
@@ -96,6 +124,8 @@ def time_sippy(u, y, count: int, tmp: Path) -> tuple[float, float]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer sizes, about a minute")
+    ap.add_argument("--blas-threads", type=int, default=BLAS_THREADS,
+                    help="BLAS threads for vbl's LAPACK calls, the NumPy oracle and SIPPY")
     args = ap.parse_args()
     sizes = [1, 64, 1024] if args.quick else [1, 4, 16, 64, 256, 1024, 4096]
     n_base = 4 if args.quick else 16
@@ -126,9 +156,13 @@ def main() -> None:
         hardware=dict(cpu=cpu_model(), cores=os.cpu_count(), jax=jax.__version__,
                       backend=jax.default_backend(), load_avg_start=load0,
                       load_avg_end=os.getloadavg()),
-        setting=dict(N=N, q=Q, m=M, default="lag_rule=predictor, l=1..6, k=2l, orders 1..24",
-                     fixed=f"l={LAG}, k={2 * LAG}, orders 1..12", dtype="float64",
-                     sippy_f=SIPPY_F, sippy_orders="1..10", sippy_blas_threads=1),
+        setting=dict(N=N, q=Q, m=M,
+                     default=f"lag_rule=predictor, l=1..{LAG_MAX}, k=2l, orders "
+                             f"1..{n_cap_for(CVAParams(), M, Q)}, chunks of {CHUNK}",
+                     fixed=f"l={LAG}, k={2 * LAG}, orders "
+                           f"1..{n_cap_for(CVAParams(lag=LAG), M, Q)}",
+                     dtype="float64", sippy_f=SIPPY_F, sippy_orders="1..10",
+                     blas_threads=args.blas_threads, blas_env=BLAS_ENV),
         baseline_cpu_seconds_per_identification=dict(
             numpy_oracle_all_lags=base["default"], numpy_oracle_l3=base["fixed l=3"],
             sippy=sippy_cpu),
@@ -137,9 +171,10 @@ def main() -> None:
     md = [f"CVA throughput (N={N}, q={Q}, m={M}, float64) on {out['hardware']['cpu']} "
           f"({os.cpu_count()} cores shared with other jobs: load average {load0[0]:.1f} at the "
           f"start, {out['hardware']['load_avg_end'][0]:.1f} at the end), jax {jax.__version__}. "
+          f"BLAS threads {args.blas_threads} for vbl, the NumPy oracle and SIPPY. "
           "Ratios use process CPU time of the same run. Baselines, CPU per identification: "
           f"NumPy oracle {base['fixed l=3'] * 1e3:.1f} ms at l=3, "
-          f"{base['default'] * 1e3:.1f} ms for l=1..6; SIPPY CVA (one BLAS thread) "
+          f"{base['default'] * 1e3:.1f} ms for l=1..6; SIPPY CVA "
           f"{sippy_cpu * 1e3:.1f} ms ({sippy_wall * 1e3:.1f} ms wall).", "",
           "| config | data sets | wall (s) | CPU (s) | CPU ms / ident | x NumPy (CPU) | "
           "x SIPPY (CPU) | x SIPPY (wall) |", "|---|---|---|---|---|---|---|---|"]

@@ -86,3 +86,20 @@ def test_svd_thin_batched_equals_numpy():
     np.testing.assert_allclose(np.asarray(s), s_np, rtol=1e-10)
     rebuilt = np.einsum("abik,abk,abkj->abij", np.asarray(u), np.asarray(s), np.asarray(vh))
     np.testing.assert_allclose(rebuilt, x, atol=1e-10)
+
+
+def test_eigh_desc_batched_equals_numpy():
+    import jax
+    import numpy as np
+
+    from vbl.sysid.linalg import eigh_desc
+
+    a = np.random.default_rng(2).standard_normal((2, 5, 6, 6))
+    s = a @ np.swapaxes(a, -1, -2)
+    with jax.enable_x64(True):
+        w, v = jax.vmap(jax.vmap(eigh_desc))(s)
+    w_np = np.linalg.eigvalsh(s)[..., ::-1]
+    np.testing.assert_allclose(np.asarray(w), w_np, rtol=1e-10)
+    assert (np.diff(np.asarray(w), axis=-1) <= 0).all()          # descending
+    rebuilt = np.einsum("abik,abk,abjk->abij", np.asarray(v), np.asarray(w), np.asarray(v))
+    np.testing.assert_allclose(rebuilt, s, atol=1e-10)

@@ -57,6 +57,37 @@ def test_predictor_rule_matches_oracle_on_common_window(data):
         assert int(res.n_samples[i]) == u.shape[1] - big_k - LAG_MAX + 1
 
 
+def test_hankel_gram_equals_window_product():
+    """The Toeplitz-plus-edges Gram matrix equals Z^T Z of the explicit window matrix."""
+    import jax
+
+    from vbl.sysid.sweep import hankel_gram
+
+    x = np.random.default_rng(3).standard_normal((40, 3))
+    w = 6
+    z = np.stack([x[t:t + w].reshape(-1) for t in range(len(x) - w + 1)])
+    with jax.enable_x64(True):
+        g = np.asarray(hankel_gram(jax.numpy.asarray(x), w))
+    np.testing.assert_allclose(g, z.T @ z, atol=1e-12)
+
+
+def test_chunked_sweep_equals_one_batch(data):
+    """Chunks (the last one padded) give the data sets' results of one unchunked batch."""
+    from vbl.sysid.lag import n_cap_for
+    from vbl.sysid.sweep import chunk_sizes, fit_select_batch
+
+    assert chunk_sizes(11, 4) == [(4, 4), (4, 4), (3, 4)]
+    assert chunk_sizes(5, 8) == [(5, 8)] and chunk_sizes(1, 8) == [(1, 1)]
+    u, y = (np.concatenate([a, a[:1]]) for a in data)               # 5 data sets
+    p = CVAParams(lag_max=LAG_MAX)
+    c = n_cap_for(p, 2, 2)
+    one = fit_select_batch(u, y, p, n_cap=c, chunk=8)
+    parts = fit_select_batch(u, y, p, n_cap=c, chunk=2)
+    np.testing.assert_array_equal(np.asarray(one[1]), np.asarray(parts[1]))
+    np.testing.assert_array_equal(np.asarray(one[0].n), np.asarray(parts[0].n))
+    np.testing.assert_allclose(np.asarray(one[2][3]), np.asarray(parts[2][3]), rtol=1e-9)
+
+
 def test_predictor_rule_same_in_any_units(data):
     """A change of y's unit shifts log det R by the same constant at every lag: the lag and
     order stay, also without standardisation (where the paper rule's log det R < 0 stop

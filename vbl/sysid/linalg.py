@@ -15,7 +15,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-__all__ = ["svd_thin", "x64_scope"]
+__all__ = ["svd_thin", "eigh_desc", "x64_scope"]
 
 
 def x64_scope():
@@ -43,3 +43,20 @@ def _svd_thin_vmap(axis_size, in_batched, x):
     if not batched:
         return tuple(svd_thin(x)), (False, False, False)
     return tuple(jax.lax.map(svd_thin, x)), (True, True, True)
+
+
+@jax.custom_batching.custom_vmap
+def eigh_desc(s: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Eigenvalues (descending) and eigenvectors (columns) of one symmetric matrix; ``vmap``
+    runs it matrix by matrix, as :func:`svd_thin` (the same kernel-pool hazard applies to
+    any batched LAPACK call that splits its batch over the pool)."""
+    w, v = jnp.linalg.eigh(s)
+    return w[::-1], v[:, ::-1]
+
+
+@eigh_desc.def_vmap
+def _eigh_desc_vmap(axis_size, in_batched, s):
+    (batched,) = in_batched
+    if not batched:
+        return tuple(eigh_desc(s)), (False, False)
+    return tuple(jax.lax.map(eigh_desc, s)), (True, True)

@@ -2,10 +2,10 @@
 
 All lags ``l = 1 .. L`` (``L = lag_max``) are identified in one program on one common sample
 window ``t = L .. N-K`` (``K`` = the largest horizon, ``N_e = N-K-L+1`` samples), so every lag
-is scored on the same residuals. The covariances of lag ``l`` are blocks of the one Gram
-matrix of the window ``z(t) = [u(t-L..t+K-1); y(t-L..t+K-1)]`` with the stack entries beyond
-``l`` (past) or ``k`` (future) masked: a masked entry gets unit variance and no covariance,
-so it adds only zero canonical correlations and the CVA of lag ``l`` is exact. Then
+is scored on the same residuals. The covariances of every lag are blocks of the one Gram
+matrix ``G`` of the window ``z(t) = [x(t-L); ...; x(t+K-1)]``, ``x = [u; y]``; lag ``l`` takes
+the rows and columns of its own stacks (delays 1..l in the past, 0..k-1 in the future), so its
+CVA is exactly the CVA of lag ``l`` on that window. Then
 
 * ``n*(l)`` = argmin of Eq. (6) at lag ``l`` (as for a fixed lag);
 * ``l*`` = argmin over l of ``PE(l) = AIC(n*(l)) + 2 n*(l) l (m+q)``: Eq. (6) counts
@@ -14,7 +14,19 @@ so it adds only zero canonical correlations and the CVA of lag ``l`` is exact. T
   the same constant ``N_e`` x 2 sum(log scale) to every lag, so the choice means the same in
   any units (unlike the paper's ``log det R < 0`` stop).
 
-The lags are a ``vmap`` axis (no Python loop); :func:`fit_select_batch` vmaps data sets.
+Cost (the kernel is the whole of ``identify``'s time at large batches):
+
+* ``G`` is a block-Toeplitz matrix up to edge terms: block ``(b+s, b)`` is
+  ``sum_{r=b}^{b+N_e-1} x(r+s) x(r)^T`` = the first block column's block ``s`` plus the
+  ``b`` outer products entering at the end minus the ``b`` leaving at the start
+  (:func:`hankel_gram`), about ``2(L+K)`` times fewer operations than ``Z^T Z``.
+* Each lag runs at its own sizes (a loop over lags unrolled in the one program), not padded
+  to the largest lag; the order sweep's covariances come from the ``(l+1)(m+q)`` rows of
+  ``G`` that ``[mu(t); mu(t+1); u(t); y(t)]`` depend on, with all orders from one Cholesky
+  factor (nested regressions).
+* :func:`fit_select_batch` runs chunks of ``CHUNK`` data sets (one compiled ``vmap`` per
+  chunk), so a chunk's intermediate arrays stay in the cache at any batch size and one
+  compiled program serves every batch size.
 """
 
 from __future__ import annotations
@@ -24,28 +36,19 @@ import functools
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.scipy.linalg import solve_triangular
+from jax.scipy.linalg import cho_solve, solve_triangular
 
-from vbl.sysid.cva import (
-    CVAFit,
-    _normalise,
-    _order_sweep,
-    _ridge,
-    first_argmin,
-    stack_indices,
-)
-from vbl.sysid.linalg import svd_thin, x64_scope
+from vbl.sysid.aic import aic as aic_fn
+from vbl.sysid.cva import CVAFit, _normalise, _ridge, first_argmin, stack_indices
+from vbl.sysid.linalg import eigh_desc, svd_thin, x64_scope
 from vbl.sysid.params import CVAParams
 
-__all__ = ["fit_select_one", "fit_select_batch", "predictor_criterion", "delays"]
+__all__ = ["fit_select_one", "fit_select_batch", "predictor_criterion", "hankel_gram",
+           "chunk_sizes", "CHUNK"]
 
-
-def delays(lag_max: int, horizon_max: int, m: int, q: int) -> dict[str, np.ndarray]:
-    """Delay of every entry of p (j of u(t-j), y(t-j)) and of f, u_f (j of y(t+j), u(t+j))."""
-    return dict(p=np.r_[np.repeat(np.arange(1, lag_max + 1), m),
-                        np.repeat(np.arange(1, lag_max + 1), q)],
-                f=np.repeat(np.arange(horizon_max), q),
-                uf=np.repeat(np.arange(horizon_max), m))
+#: Data sets per chunk of :func:`fit_select_batch` (a ``vmap`` inside a chunk, chunks in
+#: sequence). Measured with ``benchmarks/cva_throughput.py`` (docs/sysid.md, Throughput).
+CHUNK = 64
 
 
 def predictor_criterion(aic_at_n, n, lag, m: int, q: int):
@@ -54,40 +57,130 @@ def predictor_criterion(aic_at_n, n, lag, m: int, q: int):
         return aic_at_n + 2.0 * n * lag * (m + q)
 
 
-def _mcov(g, ia, ib, wa, wb, same: bool):
-    """Masked covariance block: masked entries uncorrelated (unit variance on the diagonal)."""
-    s = g[ia][:, ib] * jnp.outer(wa, wb)
-    return s + jnp.diag(1.0 - wa) if same else s
+def _cumsum0(a: jnp.ndarray) -> jnp.ndarray:
+    """Cumulative sum over axis 0 as one product with a lower-triangular matrix of ones
+    (XLA's CPU cumsum is a reduce-window, much slower for these short axes)."""
+    k = a.shape[0]
+    tri = jnp.asarray(np.tril(np.ones((k, k))), a.dtype)
+    return (tri @ a.reshape(k, -1)).reshape(a.shape)
 
 
-def _fit_lag(g, ix, dl, params, floor, lag, horizon, *, m, q, ne, n_cap, means) -> CVAFit:
-    """CVA + order sweep of one (traced) lag and horizon from the common Gram matrix."""
+def hankel_gram(x: jnp.ndarray, w: int) -> jnp.ndarray:
+    """Gram matrix ``Z^T Z`` (not divided by the count) of the window
+    ``Z[t] = [x(t); x(t+1); ...; x(t+w-1)]``, ``t = 0 .. N-w``, of ``x (N, d)``; time-major
+    layout (row ``a d + i`` is channel i at offset a).
+
+    Block ``(b+s, b) = sum_{r=b}^{b+ne-1} x(r+s) x(r)^T`` (``ne = N-w+1``) is block
+    ``(s, 0)`` plus ``sum_{j<b} [x(ne+j+s) x(ne+j)^T - x(j+s) x(j)^T]``.
+    """
+    n_samp, d = x.shape
+    ne = n_samp - w + 1
+    first = jnp.stack([x[s:s + ne].T @ x[:ne] for s in range(w)])         # (w, d, d) F[s]
+    j = np.arange(w - 1)[:, None]
+    s = np.arange(w)[None, :]
+    xp = jnp.concatenate([x, jnp.zeros((w, d), x.dtype)])                 # unused tail: 0
+    head = xp[:2 * w]
+    tail = xp[ne:ne + 2 * w]
+    diff = (tail[j + s][..., :, None] * tail[j[:, 0]][:, None, None, :]
+            - head[j + s][..., :, None] * head[j[:, 0]][:, None, None, :])  # (w-1, w, d, d)
+    cum = jnp.concatenate([jnp.zeros((1, w, d, d), x.dtype), _cumsum0(diff)])
+    a, b = np.meshgrid(np.arange(w), np.arange(w), indexing="ij")
+    lo, sep = np.minimum(a, b), np.abs(a - b)
+    blk = first[sep] + cum[lo, sep]                                        # (w, w, d, d)
+    blk = jnp.where((a < b)[:, :, None, None], jnp.swapaxes(blk, -1, -2), blk)
+    return blk.transpose(0, 2, 1, 3).reshape(w * d, w * d)
+
+
+def _lag_indices(big_l: int, big_k: int, lag: int, horizon: int, m: int, q: int):
+    """Rows of the time-major Gram matrix of window length L+K for lag ``lag``'s stacks."""
+    d = m + q
+    full = stack_indices(big_l, big_k, m, q)
+    w = big_l + big_k
+    # stack_indices' layout is [u(0..w-1); y(0..w-1)]: map to time-major rows.
+    to_time = np.r_[np.arange(w * m) // m * d + np.arange(w * m) % m,
+                    np.arange(w * q) // q * d + m + np.arange(w * q) % q]
+
+    def past(ix):
+        return np.r_[ix[:lag * m], ix[big_l * m:big_l * m + lag * q]]
+
+    ix = dict(p=past(full["p"]), p1=past(full["p1"]), f=full["f"][:horizon * q],
+              uf=full["uf"][:horizon * m], u0=full["u0"], y0=full["y0"])
+    return {k: to_time[v] for k, v in ix.items()}
+
+
+def _fit_lag(g, params, floor, *, big_l, big_k, lag, horizon, m, q, ne, n_cap, means
+             ) -> CVAFit:
+    """CVA + order sweep of lag ``lag`` at its own sizes; fields padded to ``n_cap`` orders
+    and the state map to the layout of lag ``big_l`` (entries beyond ``lag`` zero)."""
     dt = g.dtype
+    ix = _lag_indices(big_l, big_k, lag, horizon, m, q)
     p, f = ix["p"], ix["f"]
-    wp = (dl["p"] <= lag).astype(dt)
-    wf = (dl["f"] < horizon).astype(dt)
-    spp = _mcov(g, p, p, wp, wp, True)
-    sff = _mcov(g, f, f, wf, wf, True)
-    spf = _mcov(g, p, f, wp, wf, False)
+    spp, sff, spf = g[np.ix_(p, p)], g[np.ix_(f, f)], g[np.ix_(p, f)]
     if params.method == "projected":
         uf = ix["uf"]
-        wu = (dl["uf"] < horizon).astype(dt)
-        lu = jnp.linalg.cholesky(_ridge(_mcov(g, uf, uf, wu, wu, True), floor))
-        ap = solve_triangular(lu, _mcov(g, uf, p, wu, wp, False), lower=True)
-        af = solve_triangular(lu, _mcov(g, uf, f, wu, wf, False), lower=True)
+        lu = jnp.linalg.cholesky(_ridge(g[np.ix_(uf, uf)], floor))
+        ap = solve_triangular(lu, g[np.ix_(uf, p)], lower=True)
+        af = solve_triangular(lu, g[np.ix_(uf, f)], lower=True)
         spp = spp - ap.T @ ap
         sff = sff - af.T @ af
         spf = spf - ap.T @ af
     lp = jnp.linalg.cholesky(_ridge(spp, floor))
     lf = jnp.linalg.cholesky(_ridge(sff, floor))
-    x = solve_triangular(lp, spf, lower=True)
-    mw = solve_triangular(lf, x.T, lower=True).T
-    ua, s, _ = svd_thin(mw)
-    umat = solve_triangular(lp, ua, lower=True, trans="T").T
-    umat = umat * wp[None, :]          # exact zeros on masked past entries
-    n_ident = jnp.minimum(lag * (m + q), horizon * q)
-    return _order_sweep(g, ix, umat, s, params, floor, m=m, q=q, ne=ne, n_cap=n_cap,
-                        n_ident=n_ident, means=means, nested=True)
+    mw = solve_triangular(lf, solve_triangular(lp, spf, lower=True).T, lower=True).T
+    r = min(mw.shape)                            # canonical correlations
+    c = min(n_cap, r)                            # orders this lag can give (<= n_cap)
+    if mw.shape[0] <= mw.shape[1]:               # U_aux, S_aux^2 from M M^T (see module doc)
+        s2, ua = eigh_desc(mw @ mw.T)
+        s = jnp.sqrt(jnp.maximum(s2, 0.0))
+    else:
+        ua, s, _ = svd_thin(mw)
+    umat = solve_triangular(lp, ua[:, :c], lower=True, trans="T").T       # (c, dp)
+    n_ident = min(lag * (m + q), horizon * q)
+
+    # Covariances of mu(t) = U p(t), mu(t+1) = U p1(t), u(t), y(t): blocks of G times U.
+    dp, p1, x0 = len(p), ix["p1"], np.r_[ix["u0"], ix["y0"]]
+    ug = umat @ g[np.ix_(p, np.r_[p, p1, x0])]                          # (c, 2dp+m+q)
+    s_mm, s_mm1, s_mx = ug[:, :dp] @ umat.T, ug[:, dp:2 * dp] @ umat.T, ug[:, 2 * dp:]
+    s_xm1 = g[np.ix_(x0, p1)] @ umat.T                                   # (m+q, c)
+    s_x0 = g[np.ix_(x0, x0)]
+    # regressors [u(t); mu(t)], output y(t), targets [mu(t+1); y(t)]
+    sxx = jnp.block([[s_x0[:m, :m], s_mx[:, :m].T], [s_mx[:, :m], s_mm]])
+    sxy = jnp.concatenate([s_x0[:m, m:], s_mx[:, m:]])
+    sxt = jnp.block([[s_xm1[:m], s_x0[:m, m:]], [s_mm1, s_mx[:, m:]]])
+    syy = s_x0[m:, m:]
+    lx = jnp.linalg.cholesky(_ridge(sxx, floor))
+    wy = solve_triangular(lx, sxy, lower=True)                           # (m+c, q)
+    red = _cumsum0(wy[:, :, None] * wy[:, None, :])[m - 1:]    # n = 0..c
+    rs = jax.vmap(lambda r: _ridge(syy - r, floor))(red)
+    logdet = 2.0 * jnp.sum(jnp.log(jnp.diagonal(jnp.linalg.cholesky(rs), axis1=-2,
+                                                axis2=-1)), axis=-1)
+    # orders beyond c add zero states: the residual stays that of order c
+    logdet = jnp.concatenate([logdet, jnp.broadcast_to(logdet[-1], (n_cap - c,))])
+    rs = jnp.concatenate([rs, jnp.broadcast_to(rs[-1], (n_cap - c, q, q))])
+    ns = jnp.arange(n_cap + 1)
+    a = aic_fn(logdet, ns, ne, m, q, params.param_count)
+    valid = (ns >= params.n_min) & (ns <= n_ident) & jnp.isfinite(logdet)
+    a = jnp.where(valid, a, jnp.inf)
+    n_star = first_argmin(a)
+
+    # Theta of Eq. (2) at n*: [mu(t+1); y(t)] = Theta [mu(t); u(t)], states beyond n* masked.
+    wmask = jnp.concatenate([jnp.ones(m, dt), (jnp.arange(c) < n_star).astype(dt)])
+    sm = sxx * jnp.outer(wmask, wmask) + jnp.diag(1.0 - wmask)
+    theta = cho_solve((jnp.linalg.cholesky(_ridge(sm, floor)), True),
+                      sxt * wmask[:, None]).T               # (c+q, m+c)
+    keep = jnp.concatenate([(jnp.arange(c) < n_star).astype(dt), jnp.ones(q, dt)])
+    theta = theta * keep[:, None]
+    pad = n_cap - c
+    big_a = jnp.pad(theta[:c, m:], ((0, pad), (0, pad)))
+    big_b = jnp.pad(theta[:c, :m], ((0, pad), (0, 0)))
+    big_c = jnp.pad(theta[c:, m:], ((0, 0), (0, pad)))
+    u_big = jnp.zeros((n_cap, big_l * (m + q)), dt)
+    u_big = u_big.at[:c, :lag * m].set(umat[:, :lag * m])
+    u_big = u_big.at[:c, big_l * m:big_l * m + lag * q].set(umat[:, lag * m:])
+    return CVAFit(cancor=jnp.pad(jnp.clip(s[:c], 0.0, 1.0), (0, pad)), logdet=logdet, aic=a,
+                  n=n_star, U=u_big, A=big_a, B=big_b, C=big_c, D=theta[c:, :m],
+                  R=rs[n_star], u_mean=means[0], u_scale=means[1], y_mean=means[2],
+                  y_scale=means[3])
 
 
 def fit_select_one(u, y, params: CVAParams, *, n_cap: int):
@@ -113,15 +206,12 @@ def _fit_select_one(u, y, params, *, n_cap):
     ne = n_samp - big_l - big_k + 1
     un, u_mean, u_scale = _normalise(u, params.demean, params.standardize)
     yn, y_mean, y_scale = _normalise(y, params.demean, params.standardize)
-    w = big_l + big_k
-    t = jnp.arange(ne)[:, None] + jnp.arange(w)[None, :]
-    z = jnp.concatenate([un[t].reshape(ne, w * m), yn[t].reshape(ne, w * q)], axis=1)
-    g = z.T @ z / ne
-    ix = stack_indices(big_l, big_k, m, q)
-    dl = delays(big_l, big_k, m, q)
-    fit_l = functools.partial(_fit_lag, g, ix, dl, params, floor, m=m, q=q, ne=ne,
-                              n_cap=n_cap, means=(u_mean, u_scale, y_mean, y_scale))
-    fits = jax.vmap(fit_l)(jnp.asarray(lags), jnp.asarray(hors))
+    g = hankel_gram(jnp.concatenate([un, yn], axis=1), big_l + big_k) / ne
+    fits = [_fit_lag(g, params, floor, big_l=big_l, big_k=big_k, lag=int(lg),
+                     horizon=int(k), m=m, q=q, ne=ne, n_cap=n_cap,
+                     means=(u_mean, u_scale, y_mean, y_scale))
+            for lg, k in zip(lags, hors, strict=True)]
+    fits = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *fits)
     rows = jnp.arange(len(lags))
     aic_n = fits.aic[rows, fits.n]
     ld_n = fits.logdet[rows, fits.n]
@@ -136,9 +226,35 @@ def _fit_select_batch(u, y, params, *, n_cap):
     return jax.vmap(functools.partial(_fit_select_one, params=params, n_cap=n_cap))(u, y)
 
 
-def fit_select_batch(u, y, params: CVAParams, *, n_cap: int):
-    """:func:`fit_select_one` vmapped over data sets ``u (B, N, m)``, ``y (B, N, q)``
-    (jitted, no input checks; use :func:`vbl.sysid.identify`)."""
-    with x64_scope():
-        return _fit_select_batch(u, y, params, n_cap=n_cap)
+def chunk_sizes(b: int, chunk: int) -> list[tuple[int, int]]:
+    """``(data sets, compiled batch)`` per call: full chunks of ``chunk``, then the rest
+    padded to the next power of two (so at most ``log2(chunk) + 1`` batch shapes compile)."""
+    out = [(chunk, chunk)] * (b // chunk)
+    rest = b % chunk
+    if rest:
+        out.append((rest, min(chunk, 1 << (rest - 1).bit_length())))
+    return out
 
+
+def fit_select_batch(u, y, params: CVAParams, *, n_cap: int, chunk: int = CHUNK):
+    """:func:`fit_select_one` over data sets ``u (B, N, m)``, ``y (B, N, q)``: one jitted
+    ``vmap`` per chunk of ``chunk`` data sets (the last chunk padded with copies of its first
+    data set, padding dropped), chunks dispatched in sequence (no input checks; use
+    :func:`vbl.sysid.identify`)."""
+    with x64_scope():
+        u, y = jnp.asarray(u), jnp.asarray(y)
+        parts, start = [], 0
+        for count, size in chunk_sizes(u.shape[0], chunk):
+            sl = slice(start, start + count)
+            uc, yc = u[sl], y[sl]
+            if size > count:
+                reps = np.r_[np.arange(count), np.zeros(size - count, int)]
+                uc, yc = uc[reps], yc[reps]
+            out = _fit_select_batch(uc, yc, params, n_cap=n_cap)
+            if size > count:
+                out = jax.tree_util.tree_map(lambda a, c=count: a[:c], out)
+            parts.append(out)
+            start += count
+        if len(parts) == 1:
+            return parts[0]
+        return jax.tree_util.tree_map(lambda *a: jnp.concatenate(a), *parts)
