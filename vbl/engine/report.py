@@ -411,7 +411,8 @@ def _cli_value(v: Any) -> str:
 
 def run_command(exp: Experiment, spec: dict[str, Any]) -> tuple[str, list[str]]:
     """The ``vbl run`` command that regenerates a run folder, rebuilt from its
-    ``config.json`` (``spec``): ``--quick`` when the quick overrides and seeds match,
+    ``config.json`` (``spec``): ``--quick`` when the folder holds every quick override
+    (for an experiment without any: its quick number of seeds),
     ``--seeds``/``--seed`` when they differ from the experiment's, ``--sweep`` for a sweep
     other than the default one, ``--set`` for every recorded value other than the default.
     Returns ``(command, unrecorded)``: the parameters the folder does not record (and
@@ -425,8 +426,9 @@ def run_command(exp: Experiment, spec: dict[str, Any]) -> tuple[str, list[str]]:
     sweep = {k: list(v) for k, v in dict(spec.get("sweep", {})).items()}
     quick_vals = config_to_dict_values(exp.quick)
     quick_seeds = exp.quick_seeds or exp.seeds
-    quick = (bool(quick_vals) or quick_seeds != exp.seeds) and seeds == quick_seeds and all(
-        rec.get(k) == v for k, v in quick_vals.items())
+    # --quick: every quick override recorded (without any, the quick number of seeds)
+    quick = (all(rec.get(k) == v for k, v in quick_vals.items()) if quick_vals
+             else quick_seeds != exp.seeds and seeds == quick_seeds)
     base = config_to_dict(exp.default_config)
     base.update(quick_vals if quick else {})
     args = ["vbl", "run", exp.name] + (["--quick"] if quick else [])
