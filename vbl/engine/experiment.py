@@ -209,6 +209,13 @@ class Experiment:
                 self.default_config, type):
             raise ValueError(f"experiment {self.name!r}: default_config must be a flax.struct "
                              f"dataclass instance, got {type(self.default_config).__name__}")
+        from vbl.params import ParamError, get_path
+
+        for path in self.legacy_values:
+            try:
+                get_path(self.default_config, path)
+            except ParamError as e:
+                raise ValueError(f"experiment {self.name!r}: legacy_values: {e}") from None
         for n, v in (("seeds", self.seeds), ("quick_seeds", self.quick_seeds)):
             if v is not None and (not isinstance(v, int) or v < 1):
                 raise ValueError(f"experiment {self.name!r}: {n} must be an int >= 1, got {v!r}")
