@@ -68,12 +68,15 @@ def test_observer_action_keeps_view():
     p = CollectParams(focus="goal", keep_bearing_deg=20.0)
     # goal far on the left (bearing ~ +60 deg): only FL (2) or BR (6) turn towards it
     w = make_state([[4.11 - 1.0, -np.sqrt(3.0), 0.0], [0.0, 0.0, 0.0]], [0.0, 1.0])
-    acts = {int(observer_action(jax.random.PRNGKey(i), w, p)) for i in range(40)}
-    assert acts <= {2, 6} and len(acts) == 2
+    u = np.arange(1000) / 1000  # uniform draws on a grid of [0, 1)
+    acts = np.asarray(jax.vmap(lambda x: observer_action(x, w, p))(jnp.asarray(u, jnp.float32)))
+    assert set(acts.tolist()) == {2, 6}
+    assert np.mean(acts == 2) == pytest.approx(0.5, abs=0.01)  # uniform among the allowed
     # goal ahead and too close: no forward action
     w = make_state([[3.5, 0.0, 0.0], [0.0, 0.0, 0.0]], [0.0, 1.0])
-    acts = {int(observer_action(jax.random.PRNGKey(i), w, p)) for i in range(60)}
-    assert acts and all(FOUR_WHEEL_U[a][0] <= 0 for a in acts)
+    acts = np.asarray(jax.vmap(lambda x: observer_action(x, w, p))(jnp.asarray(u, jnp.float32)))
+    assert all(FOUR_WHEEL_U[a][0] <= 0 for a in set(acts.tolist()))
+    assert len(set(acts.tolist())) == sum(FOUR_WHEEL_U[a][0] <= 0 for a in range(7))
 
 
 def test_id_outputs():

@@ -65,7 +65,7 @@ def test_goal_mouth_without_walls_is_the_goal_width():
 
     def rollout(state):
         def body(st, _):
-            st, ev = world_step(jax.random.PRNGKey(0), st, jnp.array([STOP], jnp.int32), p)
+            st, ev = world_step(st, jnp.array([STOP], jnp.int32), p)
             return st, (ev.goal, ev.ball_out)
 
         return jax.lax.scan(body, state, None, length=8)

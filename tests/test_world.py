@@ -43,7 +43,8 @@ def rollout(params, state, actions, key):
 
     def body(s, xs):
         k, a = xs
-        s, ev = world_step(k, s, a, params)
+        eps = jax.random.normal(k, (len(params.robot_kinds), 2), jnp.float32)
+        s, ev = world_step(s, a, params, slip_eps=eps)
         return s, (s, ev)
 
     keys = jax.random.split(key, actions.shape[0])
@@ -247,7 +248,7 @@ def test_tire_slip_noise():
     st = make_state([[0.0, 0.0, 0.0]], [-3.0, 1.0])
     a, _ = _rollout(P, st, acts, jax.random.key(1))
     b, _ = _rollout(P, st, acts, jax.random.key(2))
-    np.testing.assert_array_equal(a.robots, b.robots)  # slip off: key is irrelevant
+    np.testing.assert_array_equal(a.robots, b.robots)  # slip off: draws are irrelevant
     p = _with(P, robot__slip_std=0.2)
     a, _ = _rollout(p, st, acts, jax.random.key(1))
     b, _ = _rollout(p, st, acts, jax.random.key(2))

@@ -33,11 +33,20 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from vbl.draws import Words, normal, uniform01
 from vbl.envs.noise import NoiseParams, advance_phase, noisy_world, perturb_ball_velocity
-from vbl.envs.other_agents import BEHAVIOURS, OtherAgentParams, act_by_id, init_memory
+from vbl.envs.other_agents import (
+    ACT_DRAWS,
+    BEHAVIOURS,
+    MEMORY_DRAWS,
+    OtherAgentParams,
+    act_by_id,
+    init_memory,
+)
 from vbl.envs.shoot_pass import OBS_SLICES, default_world, observe
 from vbl.params import ParamError, param, section, validate
 from vbl.vision.camera import CameraParams
+from vbl.vision.features import SEC3_NOISE_DIM
 from vbl.world.params import WorldParams
 from vbl.world.physics import WorldState, world_step, wrap_angle
 from vbl.world.robots import FOUR_WHEEL_U
@@ -50,6 +59,13 @@ I32 = jnp.int32
 
 FOCUS = ("goal", "ball", "other")
 OTHER_BEHAVIOURS = ("stationary", "random_walk", "move_to_ball")
+
+#: Random draws of one data set: the start (6 uniforms and the other robot's memory), then
+#: per step (one row of random words per step, :class:`vbl.draws.Words`): pixel noise,
+#: the observer's action, the other robot's action, tire slip (2 robots x 2), the kick
+#: (4 uniforms), eccentric rolling.
+START_DRAWS = 6 + MEMORY_DRAWS
+STEP_WORDS = SEC3_NOISE_DIM + 1 + ACT_DRAWS + 4 + 4 + 1
 
 
 @struct.dataclass
@@ -137,9 +153,10 @@ def _ids(params: CollectParams) -> tuple[jax.Array, jax.Array]:
             jnp.asarray(FOCUS.index(params.focus), I32))
 
 
-def observer_action(key: jax.Array, world: WorldState, params: CollectParams,
+def observer_action(u: jax.Array, world: WorldState, params: CollectParams,
                     focus_id: jax.Array | None = None) -> jax.Array:
-    """The observer's random view-keeping action () int32 (see the module docstring);
+    """The observer's random view-keeping action () int32 (see the module docstring), drawn
+    uniformly among the allowed actions with ``u``, a () uniform draw in [0, 1);
     ``focus_id`` (traced index into :data:`FOCUS`) overrides ``params.focus``."""
     if focus_id is None:
         focus_id = _ids(params)[1]
@@ -154,11 +171,13 @@ def observer_action(key: jax.Array, world: WorldState, params: CollectParams,
     ok = ok & jnp.where(dist > jnp.asarray(params.max_dist, F32), v >= 0, True)
     ok = ok & jnp.where(dist < jnp.asarray(params.min_dist, F32), v <= 0, True)
     ok = jnp.where(jnp.any(ok), ok, True)
-    return jax.random.categorical(key, jnp.where(ok, 0.0, -jnp.inf)).astype(I32)
+    n_ok = jnp.sum(ok.astype(I32))
+    k = jnp.minimum(jnp.floor(jnp.asarray(u, F32) * n_ok.astype(F32)).astype(I32), n_ok - 1)
+    return jnp.argmax(ok & (jnp.cumsum(ok.astype(I32)) == k + 1)).astype(I32)
 
 
-def _start(key: jax.Array, params: CollectParams) -> WorldState:
-    u = jax.random.uniform(key, (6,), F32)
+def _start(u: jax.Array, params: CollectParams) -> WorldState:
+    """Start world from (6,) uniform draws in [0, 1)."""
     half = jnp.stack([jnp.asarray(params.world.field.length, F32),
                       jnp.asarray(params.world.field.width, F32)]) / 2
     lim = half - jnp.asarray(params.world.robot.radius, F32) - 0.05
@@ -179,21 +198,21 @@ def _start(key: jax.Array, params: CollectParams) -> WorldState:
                       scored=jnp.zeros((), bool), ball_out=jnp.zeros((), bool))
 
 
-def _kick(key: jax.Array, world: WorldState, params: CollectParams) -> WorldState:
-    k_p, k_s, k_r, k_a = jax.random.split(key, 4)
+def _kick(u: jax.Array, world: WorldState, params: CollectParams) -> WorldState:
+    """A random kick from (4,) uniform draws in [0, 1): [kick or not, speed, aim radius,
+    aim angle]."""
     speed = jnp.sqrt(jnp.sum(world.ball_vel ** 2))
     go = (speed < jnp.asarray(params.kick_below_speed, F32)) & (
-        jax.random.uniform(k_p, (), F32) < jnp.asarray(params.kick_prob, F32))
+        u[0] < jnp.asarray(params.kick_prob, F32))
     pose = world.robots[0]
     head = jnp.stack([jnp.cos(pose[2]), jnp.sin(pose[2])])
-    r = jnp.asarray(params.aim_radius, F32) * jnp.sqrt(jax.random.uniform(k_r, (), F32))
-    a = 2 * jnp.pi * jax.random.uniform(k_a, (), F32)
+    r = jnp.asarray(params.aim_radius, F32) * jnp.sqrt(u[2])
+    a = 2 * jnp.pi * u[3]
     target = pose[:2] + jnp.asarray(params.aim_ahead, F32) * head + r * jnp.stack(
         [jnp.cos(a), jnp.sin(a)])
     d = target - world.ball
     n = d / jnp.maximum(jnp.sqrt(jnp.sum(d * d)), 1e-6)
-    s = params.kick_speed_min + (params.kick_speed_max - params.kick_speed_min) * \
-        jax.random.uniform(k_s, (), F32)
+    s = params.kick_speed_min + (params.kick_speed_max - params.kick_speed_min) * u[1]
     vel = jnp.where(go, s * n, world.ball_vel).astype(F32)
     return world.replace(ball_vel=vel)
 
@@ -220,31 +239,36 @@ def collect_one(key: jax.Array, params: CollectParams, behaviour_id: jax.Array |
     b_id, f_id = _ids(params)
     behaviour_id = b_id if behaviour_id is None else behaviour_id
     focus_id = f_id if focus_id is None else focus_id
-    k_start, k_mem, k_run = jax.random.split(key, 3)
-    world0 = _start(k_start, params)
-    mem0 = init_memory(k_mem, params.other)
+    k_start, k_run = jax.random.split(key)
+    u0 = jax.random.uniform(k_start, (START_DRAWS,), F32)
+    world0 = _start(u0[:6], params)
+    mem0 = init_memory(u0[6:], params.other)
     wp = noisy_world(params.world, params.noise)
     rb = jnp.asarray(params.world.ball.radius, F32)
 
-    def body(carry, k):
+    def body(carry, words):
         world, mem, phase = carry
-        k_obs, k_me, k_other, k_world, k_kick, k_ecc = jax.random.split(k, 6)
+        w = Words(words)
         y = observe(world, 0, params.camera, params.world, params.noise,
-                    params.robot_height, phase, k_obs)
-        a_me = observer_action(k_me, world, params, focus_id)
-        a_other, mem = act_by_id(behaviour_id, k_other, world, mem, 1, params.other)
-        new, _ = world_step(k_world, world, jnp.stack([a_me, a_other]), wp)
+                    params.robot_height, phase, normal(w.take(SEC3_NOISE_DIM)))
+        a_me = observer_action(uniform01(w.take(1))[0], world, params, focus_id)
+        a_other, mem = act_by_id(behaviour_id, uniform01(w.take(ACT_DRAWS)), world, mem, 1,
+                                 params.other)
+        new, _ = world_step(world, jnp.stack([a_me, a_other]), wp,
+                            slip_eps=normal(w.take(4)).reshape(2, 2))
         new = _net(new, params)
         rolled = jnp.sqrt(jnp.sum((new.ball - world.ball) ** 2))
-        new = new.replace(ball_vel=perturb_ball_velocity(k_ecc, new.ball_vel, rolled, rb,
-                                                         params.noise))
+        u_kick = uniform01(w.take(4))
+        new = new.replace(ball_vel=perturb_ball_velocity(normal(w.take(1))[0], new.ball_vel,
+                                                         rolled, rb, params.noise))
+        w.done()
         phase = advance_phase(phase, world.ball, new.ball, rb)
-        new = _kick(k_kick, new, params)
+        new = _kick(u_kick, new, params)
         u = jnp.asarray(FOUR_WHEEL_U, F32)[a_me]
         return (new, mem, phase), (u, y)
 
     _, (u, y) = jax.lax.scan(body, (world0, mem0, jnp.zeros((), F32)),
-                             jax.random.split(k_run, params.num_steps))
+                             jax.random.bits(k_run, (params.num_steps, STEP_WORDS), jnp.uint32))
     return CollectData(u=u, ball=y[:, OBS_SLICES["ball"]], goal=y[:, OBS_SLICES["goal"]],
                        other=y[:, OBS_SLICES["other"]], visible=y[:, OBS_SLICES["visible"]])
 

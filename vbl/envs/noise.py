@@ -103,13 +103,13 @@ def eccentric_centroid(ball_obs: jax.Array, visible: jax.Array, phase: jax.Array
     return ball_obs.at[:2].add(shift.astype(F32))
 
 
-def perturb_ball_velocity(key: jax.Array, ball_vel: jax.Array, dist: jax.Array,
+def perturb_ball_velocity(eps: jax.Array, ball_vel: jax.Array, dist: jax.Array,
                           radius: jax.Array, noise: NoiseParams) -> jax.Array:
     """Rotate a rolling ball's velocity (2,) m/s by ``N(0, ecc_turn_std^2 d / (2 pi r))`` for
-    ``d`` m rolled this step (``radius`` r in m). Returns (2,) float32; speed unchanged."""
+    ``d`` m rolled this step (``radius`` r in m); ``eps``: () float32 standard normal, the
+    turn in units of its std. Returns (2,) float32; speed unchanged."""
     revs = jnp.asarray(dist, F32) / (2 * np.pi * jnp.asarray(radius, F32))
-    ang = jnp.asarray(noise.ecc_turn_std, F32) * jnp.sqrt(revs) * jax.random.normal(key, (),
-                                                                                    F32)
+    ang = jnp.asarray(noise.ecc_turn_std, F32) * jnp.sqrt(revs) * jnp.asarray(eps, F32)
     c, s = jnp.cos(ang), jnp.sin(ang)
     vx, vy = ball_vel[0], ball_vel[1]
     return jnp.stack([c * vx - s * vy, s * vx + c * vy]).astype(F32)

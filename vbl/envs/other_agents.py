@@ -2,9 +2,10 @@
 
 Every behaviour is a pure function
 
-    act(key, world, memory, me, params) -> (action () int32, memory)
+    act(u, world, memory, me, params) -> (action () int32, memory)
 
-of a PRNG key, the :class:`vbl.world.WorldState`, the agent's small
+of ``u``, (ACT_DRAWS,) float32 uniform draws in [0, 1) (see :mod:`vbl.draws`), the
+:class:`vbl.world.WorldState`, the agent's small
 :class:`AgentMemory` (the previous action, its step counter, whether it has kicked),
 the agent's robot index ``me`` (a static Python int) and :class:`OtherAgentParams`.
 Actions index :data:`vbl.world.FOUR_WHEEL_U` (0 stop, 1 F, 2 FL, 3 FR, 4 B, 5 BL, 6 BR).
@@ -32,7 +33,8 @@ from flax import struct
 from vbl.params import param
 from vbl.world.physics import WorldState, wrap_angle
 
-__all__ = ["BEHAVIOURS", "OtherAgentParams", "AgentMemory", "init_memory", "act", "act_by_id",
+__all__ = ["BEHAVIOURS", "ACT_DRAWS", "MEMORY_DRAWS", "OtherAgentParams", "AgentMemory",
+           "init_memory", "act", "act_by_id",
            "ball_bearing", "STOP", "FORWARD", "FORWARD_LEFT", "FORWARD_RIGHT"]
 
 F32 = jnp.float32
@@ -43,6 +45,17 @@ BEHAVIOURS = ("stationary", "random_walk", "move_to_ball", "passer", "waiter")
 #: Indices into FOUR_WHEEL_U used by the controllers.
 STOP, FORWARD, FORWARD_LEFT, FORWARD_RIGHT = 0, 1, 2, 3
 NUM_ACTIONS = 7
+#: Uniform draws one :func:`act` call takes (random walk: switch or not, the new action).
+ACT_DRAWS = 2
+#: Uniform draws :func:`init_memory` takes (the passer's delay, the first action).
+MEMORY_DRAWS = 2
+
+
+def _uniform_int(u: jax.Array, n) -> jax.Array:
+    """() int32 uniform in [0, n) from a uniform draw ``u`` in [0, 1) (``n`` >= 1, may be
+    traced)."""
+    n = jnp.asarray(n, I32)
+    return jnp.minimum(jnp.floor(u * n.astype(F32)).astype(I32), n - 1)
 
 
 @struct.dataclass
@@ -77,11 +90,12 @@ class AgentMemory:
     kicked: jax.Array
 
 
-def init_memory(key: jax.Array, params: OtherAgentParams) -> AgentMemory:
-    """Fresh memory; draws the passer delay uniformly in [0, max_delay] and a first action."""
-    k_d, k_a = jax.random.split(key)
-    delay = jax.random.randint(k_d, (), 0, jnp.asarray(params.max_delay, I32) + 1, I32)
-    action = jax.random.randint(k_a, (), 0, NUM_ACTIONS, I32)
+def init_memory(u: jax.Array, params: OtherAgentParams) -> AgentMemory:
+    """Fresh memory: the passer delay uniformly in [0, max_delay] and a uniformly random
+    first action from ``u``, (MEMORY_DRAWS,) float32 uniform draws in [0, 1)."""
+    u = jnp.asarray(u, F32)
+    delay = _uniform_int(u[0], jnp.asarray(params.max_delay, I32) + 1)
+    action = _uniform_int(u[1], NUM_ACTIONS)
     return AgentMemory(action=action, t=jnp.zeros((), I32), delay=delay,
                        kicked=jnp.zeros((), bool))
 
@@ -107,15 +121,16 @@ def _to_ball(world: WorldState, me: int, params: OtherAgentParams,
     return jnp.where(dist < stop, STOP, a).astype(I32)
 
 
-def act(behaviour: str, key: jax.Array, world: WorldState, memory: AgentMemory, me: int,
+def act(behaviour: str, u: jax.Array, world: WorldState, memory: AgentMemory, me: int,
         params: OtherAgentParams) -> tuple[jax.Array, AgentMemory]:
-    """Action () int32 of robot ``me`` under ``behaviour`` and the updated memory."""
+    """Action () int32 of robot ``me`` under ``behaviour`` and the updated memory
+    (``u``: (ACT_DRAWS,) float32 uniform draws in [0, 1), used by the random walk)."""
     if behaviour in ("stationary", "waiter"):
         a = jnp.asarray(STOP, I32)
     elif behaviour == "random_walk":
-        k_s, k_a = jax.random.split(key)
-        switch = jax.random.uniform(k_s, (), F32) < jnp.asarray(params.walk_switch_prob, F32)
-        new = jax.random.randint(k_a, (), 0, NUM_ACTIONS, I32)
+        u = jnp.asarray(u, F32)
+        switch = u[0] < jnp.asarray(params.walk_switch_prob, F32)
+        new = _uniform_int(u[1], NUM_ACTIONS)
         a = jnp.where(switch, new, memory.action)
     elif behaviour == "move_to_ball":
         a = _to_ball(world, me, params)
@@ -128,10 +143,10 @@ def act(behaviour: str, key: jax.Array, world: WorldState, memory: AgentMemory, 
     return a, memory.replace(action=a, t=memory.t + 1)
 
 
-def act_by_id(behaviour_id: jax.Array, key: jax.Array, world: WorldState, memory: AgentMemory,
+def act_by_id(behaviour_id: jax.Array, u: jax.Array, world: WorldState, memory: AgentMemory,
               me: int, params: OtherAgentParams) -> tuple[jax.Array, AgentMemory]:
     """:func:`act` with a *traced* behaviour index into :data:`BEHAVIOURS` (() int32), so
     several behaviours run in one compiled computation (all are evaluated, one is kept)."""
-    outs = [act(b, key, world, memory, me, params)[0] for b in BEHAVIOURS]
+    outs = [act(b, u, world, memory, me, params)[0] for b in BEHAVIOURS]
     a = jnp.stack(outs)[jnp.asarray(behaviour_id, I32)]
     return a, memory.replace(action=a, t=memory.t + 1)

@@ -36,6 +36,10 @@ API::
     obs, state = env.reset(key, params)
     obs, state, reward, terminated, truncated, info = env.step(key, state, action, params)
 
+Random numbers: each call of ``reset``, ``step_env`` or ``step`` hashes its key once
+(:class:`vbl.draws.Words`) and slices every draw it needs from those bits: tire slip,
+kick aim, rolling eccentricity, the start draw after an episode ends and the pixel noise.
+
 ``step`` auto-resets; ``info``: ``success``, ``episode_done``, ``episode_length``,
 ``u`` (2,) float32 of the learner's action, ``touched`` (learner touched the ball this
 episode), ``kicked`` (the ball was kicked this episode), ``goal``.
@@ -51,6 +55,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from vbl.draws import Words, normal, uniform01
 from vbl.envs.checks import check_action_index
 from vbl.envs.noise import (
     NoiseParams,
@@ -60,9 +65,17 @@ from vbl.envs.noise import (
     noisy_world,
     perturb_ball_velocity,
 )
-from vbl.envs.other_agents import AgentMemory, OtherAgentParams, act, init_memory
+from vbl.envs.other_agents import (
+    ACT_DRAWS,
+    MEMORY_DRAWS,
+    AgentMemory,
+    OtherAgentParams,
+    act,
+    init_memory,
+)
 from vbl.params import ParamError, param, section, validate
 from vbl.vision.camera import CameraParams
+from vbl.vision.features import SEC3_NOISE_DIM
 from vbl.world.params import FourWheelParams, WorldParams
 from vbl.world.physics import WorldState, goal_corners, world_step, wrap_angle
 from vbl.world.robots import FOUR_WHEEL_LABELS, FOUR_WHEEL_U
@@ -78,6 +91,13 @@ TASKS = ("shoot", "pass")
 #: Env constructor choices: a fixed task, or "select": the traced ``params.task_pass`` picks
 #: the task per env, so one compiled program serves both (e.g. both columns of Table 2).
 ENV_TASKS = (*TASKS, "select")
+
+#: Random draws of this env (slices of one hash per call, :class:`vbl.draws.Words`).
+START_DRAWS = 12  #: uniforms of a start draw (:meth:`ShootPassEnv.start_from_uniform`)
+FRESH_DRAWS = START_DRAWS + MEMORY_DRAWS  #: uniforms of a fresh episode (start + memory)
+#: standard normals of one transition: tire slip (2 robots x 2), kick aim (2), eccentric
+#: rolling (1)
+TRANSITION_NORMALS = 4 + 2 + 1
 SHOOTER, PASSER = 0, 1
 OBS_DIM = 26
 OBS_SLICES = dict(ball=slice(0, 4), goal=slice(4, 15), other=slice(15, 20),
@@ -228,7 +248,7 @@ def _is_traced(tree: Any) -> bool:
     return any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(tree))
 
 
-def apply_kicks(key: jax.Array, world: WorldState, touch: jax.Array, actions: jax.Array,
+def apply_kicks(eps: jax.Array, world: WorldState, touch: jax.Array, actions: jax.Array,
                 speeds: jax.Array, aim_at: jax.Array, aim_noise: jax.Array,
                 cone_deg: jax.Array) -> tuple[WorldState, jax.Array]:
     """Kicks after a world step.
@@ -236,14 +256,15 @@ def apply_kicks(key: jax.Array, world: WorldState, touch: jax.Array, actions: ja
     touch: (R,) bool (robot touched the ball this step); actions: (R,) int32;
     speeds: (R,) float32 kick speeds (m/s; 0 = this robot never kicks);
     aim_at: (R,) int32, -1 = kick along the own heading, j >= 0 = towards robot j's centre;
-    aim_noise: (R,) float32 std of the kick direction, rad; cone_deg: () half-angle, deg.
+    aim_noise: (R,) float32 std of the kick direction, rad; eps: (R,) float32 standard
+    normals (the aim error in units of ``aim_noise``); cone_deg: () half-angle, deg.
     A robot kicks when it touched the ball, drives forward (v > 0) and the ball is within
     the cone around its heading. When several kick, the last robot index wins.
     Returns (world with the new ball velocity, kicked (R,) bool).
     """
     n = world.robots.shape[0]
     v_sign = jnp.asarray(FOUR_WHEEL_U, I32)[actions, 0]
-    noise = jax.random.normal(key, (n,), F32) * aim_noise
+    noise = jnp.asarray(eps, F32).reshape(n) * aim_noise
     cone = jnp.deg2rad(jnp.asarray(cone_deg, F32))
     vel = world.ball_vel
     kicked = []
@@ -262,12 +283,13 @@ def apply_kicks(key: jax.Array, world: WorldState, touch: jax.Array, actions: ja
 
 def observe(world: WorldState, me: int, cam: CameraParams, world_params: WorldParams,
             noise: NoiseParams, robot_height: jax.Array, phase: jax.Array,
-            key: jax.Array) -> jax.Array:
+            eps: jax.Array) -> jax.Array:
     """Section 3 features (26,) float32 of robot ``me`` (static int) seeing the ball, the
     goal and the other robot ``1 - me`` (seen as a box of length and width = the robot's
     diameter and height ``robot_height``),
     with image noise and ball centroid eccentricity from ``noise``.
-    ``cam``: that robot's camera (before noise); ``phase``: the ball's rolling phase, rad."""
+    ``cam``: that robot's camera (before noise); ``phase``: the ball's rolling phase, rad;
+    ``eps``: (SEC3_NOISE_DIM,) float32 standard normals of the pixel noise."""
     from vbl.vision.features import flatten_section3, section3_features
 
     other = 1 - me
@@ -277,7 +299,7 @@ def observe(world: WorldState, me: int, cam: CameraParams, world_params: WorldPa
     obs = section3_features(world.robots[me], world.ball,
                             jnp.asarray(world_params.ball.radius, F32),
                             goal_corners(world_params), world.robots[other], other_size,
-                            cam, key=key)
+                            cam, eps=eps)
     flat = flatten_section3(obs).astype(F32)
     ball = eccentric_centroid(flat[OBS_SLICES["ball"]], flat[OBS_SLICES["visible"]][0], phase,
                               noise)
@@ -352,13 +374,17 @@ class ShootPassEnv:
     # ------------------------------------------------------------------ start
     def sample_start(self, key: jax.Array, params: ShootPassParams) -> WorldState:
         """Draw the start world state of this task (see :class:`StartParams`)."""
+        return self.start_from_uniform(jax.random.uniform(key, (START_DRAWS,), F32), params)
+
+    def start_from_uniform(self, u: jax.Array, params: ShootPassParams) -> WorldState:
+        """The start world state for ``u``, (START_DRAWS,) float32 uniform draws in [0, 1)."""
         sp, wp = params.start, params.world
         half = jnp.stack([jnp.asarray(wp.field.length, F32),
                           jnp.asarray(wp.field.width, F32)]) / 2
         rr = jnp.asarray(wp.robot.radius, F32)
         rb = jnp.asarray(wp.ball.radius, F32)
         mg = jnp.asarray(sp.margin, F32)
-        u = jax.random.uniform(key, (12,), F32)
+        u = jnp.asarray(u, F32)
 
         def lerp(lo, hi, x):
             return jnp.asarray(lo, F32) + (jnp.asarray(hi, F32) - jnp.asarray(lo, F32)) * x
@@ -406,10 +432,11 @@ class ShootPassEnv:
         return WorldState(robots=robots, ball=ball.astype(F32), ball_vel=vel.astype(F32),
                           scored=jnp.zeros((), bool), ball_out=jnp.zeros((), bool))
 
-    def _fresh(self, key: jax.Array, params: ShootPassParams) -> ShootPassState:
-        k_s, k_m = jax.random.split(key)
-        return ShootPassState(world=self.sample_start(k_s, params), step=jnp.zeros((), I32),
-                              memory=init_memory(k_m, params.other),
+    def _fresh(self, u: jax.Array, params: ShootPassParams) -> ShootPassState:
+        """A fresh episode's state from ``u``, (FRESH_DRAWS,) uniform draws in [0, 1)."""
+        return ShootPassState(world=self.start_from_uniform(u[:START_DRAWS], params),
+                              step=jnp.zeros((), I32),
+                              memory=init_memory(u[START_DRAWS:], params.other),
                               touched=jnp.zeros((), bool), kicked=jnp.zeros((), bool),
                               phase=jnp.zeros((), F32))
 
@@ -423,12 +450,13 @@ class ShootPassEnv:
                             params.shooter_camera)
 
     def get_obs(self, state: ShootPassState, params: ShootPassParams,
-                key: jax.Array) -> jax.Array:
-        """The learner's Section 3 features (26,) float32."""
+                eps: jax.Array) -> jax.Array:
+        """The learner's Section 3 features (26,) float32; ``eps``: (SEC3_NOISE_DIM,)
+        float32 standard normals of the pixel noise."""
         me = self.roles(params)[0] if self.task == "select" else (
             PASSER if self.task == "pass" else SHOOTER)
         return observe(state.world, me, self.learner_camera(params), params.world,
-                       params.noise, params.robot_height, state.phase, key)
+                       params.noise, params.robot_height, state.phase, eps)
 
     def reset(self, key: jax.Array, params: ShootPassParams | None = None
               ) -> tuple[jax.Array, ShootPassState]:
@@ -436,25 +464,29 @@ class ShootPassEnv:
         params = self._default_params if params is None else params
         if not _is_traced(params):
             self.validate(params)
-        k_start, k_obs = jax.random.split(key)
-        state = self._fresh(k_start, params)
-        return self.get_obs(state, params, k_obs), state
+        w = Words.draw(key, FRESH_DRAWS + SEC3_NOISE_DIM)
+        state = self._fresh(uniform01(w.take(FRESH_DRAWS)), params)
+        return self.get_obs(state, params, normal(w.take(SEC3_NOISE_DIM))), state
 
     # ------------------------------------------------------------------ dynamics
-    def _transition(self, key, state: ShootPassState, action, params: ShootPassParams):
-        k_other, k_world, k_kick, k_ecc = jax.random.split(key, 4)
+    def _transition(self, eps, state: ShootPassState, action, params: ShootPassParams):
+        """One primitive; ``eps``: (TRANSITION_NORMALS,) float32 standard normals [tire slip
+        (2, 2) | kick aim (2,) | eccentric rolling]."""
+        eps = jnp.asarray(eps, F32)
+        # the passer and the waiter draw nothing (no random walk): zero uniforms
+        no_draws = jnp.zeros((ACT_DRAWS,), F32)
         is_pass = self.is_pass(params)
         me, other = self.roles(params)
         # the scripted robot: the passer (shoot task; robot 1) or a waiting shooter (pass)
-        a_passer, memory = act("passer", k_other, state.world, state.memory, PASSER,
+        a_passer, memory = act("passer", no_draws, state.world, state.memory, PASSER,
                                params.other)
-        a_other = jnp.where(is_pass, act("waiter", k_other, state.world, state.memory, SHOOTER,
+        a_other = jnp.where(is_pass, act("waiter", no_draws, state.world, state.memory, SHOOTER,
                                          params.other)[0], a_passer).astype(I32)
         memory = memory.replace(action=a_other)
         a_me = jnp.asarray(action, I32).reshape(())
         actions = (jnp.zeros(2, I32).at[me].set(a_me).at[other].set(a_other))
         wp = noisy_world(params.world, params.noise)
-        world, events = world_step(k_world, state.world, actions, wp)
+        world, events = world_step(state.world, actions, wp, slip_eps=eps[:4].reshape(2, 2))
         # kicks
         # shoot: learning shooter kicks along its heading, scripted passer aims at the
         # shooter; pass: the waiting shooter never kicks, learning passer along its heading
@@ -466,12 +498,12 @@ class ShootPassEnv:
         aim_at = jnp.where(is_pass, jnp.array([-1, -1], I32), jnp.array([-1, SHOOTER], I32))
         aim_noise = jnp.where(is_pass, jnp.zeros(2, F32), jnp.stack([
             jnp.zeros((), F32), jnp.deg2rad(jnp.asarray(params.other.aim_noise_deg, F32))]))
-        world, kicks = apply_kicks(k_kick, world, events.touch, actions, speeds, aim_at,
+        world, kicks = apply_kicks(eps[4:6], world, events.touch, actions, speeds, aim_at,
                                    aim_noise, params.kick_cone_deg)
         # eccentric rolling (noise model)
         rolled = jnp.sqrt(jnp.sum((world.ball - state.world.ball) ** 2))
         rb = jnp.asarray(params.world.ball.radius, F32)
-        world = world.replace(ball_vel=perturb_ball_velocity(k_ecc, world.ball_vel, rolled, rb,
+        world = world.replace(ball_vel=perturb_ball_velocity(eps[6], world.ball_vel, rolled, rb,
                                                              params.noise))
         phase = advance_phase(state.phase, state.world.ball, world.ball, rb)
         memory = memory.replace(kicked=memory.kicked | kicks[other])
@@ -504,10 +536,11 @@ class ShootPassEnv:
         """One primitive without auto-reset: (obs, state, reward, terminated, truncated, info)."""
         params = self._default_params if params is None else params
         self._check_inputs(state, action, params)
-        k_tr, k_obs = jax.random.split(key)
-        state, reward, terminated, truncated, info = self._transition(k_tr, state, action,
-                                                                      params)
-        return self.get_obs(state, params, k_obs), state, reward, terminated, truncated, info
+        w = Words.draw(key, TRANSITION_NORMALS + SEC3_NOISE_DIM)
+        state, reward, terminated, truncated, info = self._transition(
+            normal(w.take(TRANSITION_NORMALS)), state, action, params)
+        obs = self.get_obs(state, params, normal(w.take(SEC3_NOISE_DIM)))
+        return obs, state, reward, terminated, truncated, info
 
     def step(self, key: jax.Array, state: ShootPassState, action: jax.Array,
              params: ShootPassParams | None = None):
@@ -519,14 +552,14 @@ class ShootPassEnv:
         """
         params = self._default_params if params is None else params
         self._check_inputs(state, action, params)
-        k_tr, k_reset, k_obs = jax.random.split(key, 3)
-        nstate, reward, terminated, truncated, info = self._transition(k_tr, state, action,
-                                                                       params)
+        w = Words.draw(key, TRANSITION_NORMALS + FRESH_DRAWS + SEC3_NOISE_DIM)
+        nstate, reward, terminated, truncated, info = self._transition(
+            normal(w.take(TRANSITION_NORMALS)), state, action, params)
         done = info["episode_done"]
-        fresh = self._fresh(k_reset, params)
+        fresh = self._fresh(uniform01(w.take(FRESH_DRAWS)), params)
         nstate = jax.tree_util.tree_map(lambda a, b: jnp.where(done, a, b), fresh, nstate)
-        return (self.get_obs(nstate, params, k_obs), nstate, reward, terminated, truncated,
-                info)
+        obs = self.get_obs(nstate, params, normal(w.take(SEC3_NOISE_DIM)))
+        return obs, nstate, reward, terminated, truncated, info
 
     def __repr__(self) -> str:
         fields = [f.name for f in dataclasses.fields(ShootPassParams)]

@@ -44,10 +44,11 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from vbl.draws import Words, normal
 from vbl.envs.checks import check_action_index
 from vbl.params import ParamError, param, section, validate
 from vbl.vision.camera import CameraParams
-from vbl.vision.features import SEC2_DIM, _section2
+from vbl.vision.features import SEC2_DIM, SEC2_NOISE_DIM, section2_features
 from vbl.world.params import ROBOT_KINDS, WorldParams
 from vbl.world.physics import WorldState, goal_corners, world_step, wrap_angle
 from vbl.world.robots import action_labels, num_actions
@@ -55,8 +56,9 @@ from vbl.world.robots import action_labels, num_actions
 __all__ = ["StartParams", "ShootingParams", "ShootingState", "ShootingEnv"]
 
 F32 = jnp.float32
-SLIP_STREAM = 1  #: tire slip of a step uses ``fold_in(step key, SLIP_STREAM)``
-OBS_STREAM = 2  #: pixel noise of an observation uses ``fold_in(key, OBS_STREAM)``
+#: Random draws of this env (slices of one hash per call, :class:`vbl.draws.Words`).
+START_WORDS = 5  #: random words of a start draw (10 uniforms of 16 bits)
+SLIP_NORMALS = 2  #: standard normals of one transition's tire slip (one robot)
 
 
 @struct.dataclass
@@ -101,14 +103,12 @@ class ShootingState:
     step: jax.Array
 
 
-def _uniform16(key: jax.Array, n: int) -> jax.Array:
-    """(n,) float32 uniform in [-1, 1) with 16-bit resolution, two per 32-bit random word.
-
-    Half the hashing of ``jax.random.uniform`` (hashing dominates a start draw on CPU);
-    a resolution of 2**-15 of the field half-length is 0.1 mm, far below any start scale.
-    """
-    words = jax.random.bits(key, ((n + 1) // 2,), jnp.uint32)
-    halves = jnp.concatenate([words >> 16, words & 0xFFFF])[:n]
+def _uniform16(words: jax.Array) -> jax.Array:
+    """(2 n,) float32 uniform in [-1, 1) with 16-bit resolution from (n,) uint32 words, two
+    per word (half the random words of full resolution; a resolution of 2**-15 of the field
+    half-length is 0.1 mm, far below any start scale)."""
+    words = jnp.asarray(words, jnp.uint32)
+    halves = jnp.concatenate([words >> 16, words & 0xFFFF])
     return halves.astype(F32) * np.float32(2.0 / 65536) - 1.0
 
 
@@ -182,12 +182,16 @@ class ShootingEnv:
     # ------------------------------------------------------------------ core
     def sample_start(self, key: jax.Array, params: ShootingParams) -> WorldState:
         """Draw a start world state (see the module docstring)."""
+        return self.start_from_words(jax.random.bits(key, (START_WORDS,), jnp.uint32), params)
+
+    def start_from_words(self, words: jax.Array, params: ShootingParams) -> WorldState:
+        """The start world state for (START_WORDS,) uint32 random words."""
         wp, sp = params.world, params.start
         half = jnp.stack([jnp.asarray(wp.field.length, F32), jnp.asarray(wp.field.width, F32)]) / 2
         rr = jnp.asarray(wp.robot.radius, F32)
         rb = jnp.asarray(wp.ball.radius, F32)
         d = jnp.asarray(params.start_difficulty, F32)
-        u = _uniform16(key, 10)
+        u = _uniform16(words)
         # easy draw
         jit_xy = jnp.asarray(sp.easy_jitter_xy, F32)
         th_e = jnp.deg2rad(jnp.asarray(sp.easy_jitter_deg, F32)) * u[0]
@@ -219,16 +223,12 @@ class ShootingEnv:
                           scored=jnp.zeros((), bool), ball_out=jnp.zeros((), bool))
 
     def get_obs(self, world: WorldState, params: ShootingParams,
-                key: jax.Array | None = None) -> jax.Array:
-        """Section 2 features (9,) float32 of the robot's camera.
-
-        Pixel noise (``camera.pixel_noise_std > 0``) is drawn from ``fold_in(key,
-        OBS_STREAM)``; with the noise off no random numbers are drawn (a ``lax.cond`` around
-        the draw only, so the feature geometry is traced once).
-        """
-        return _section2(world.robots[0], world.ball, jnp.asarray(params.world.ball.radius, F32),
-                         goal_corners(params.world), params.camera, key,
-                         fold_in=None if key is None else OBS_STREAM)
+                eps: jax.Array | None = None) -> jax.Array:
+        """Section 2 features (9,) float32 of the robot's camera; ``eps``: optional
+        (SEC2_NOISE_DIM,) float32 standard normals of the pixel noise (None = exact)."""
+        return section2_features(world.robots[0], world.ball,
+                                 jnp.asarray(params.world.ball.radius, F32),
+                                 goal_corners(params.world), params.camera, eps)
 
     def reset(self, key: jax.Array, params: ShootingParams | None = None
               ) -> tuple[jax.Array, ShootingState]:
@@ -236,14 +236,14 @@ class ShootingEnv:
         params = self._default_params if params is None else params
         if not _is_traced(params):
             self.validate(params)
-        k_start, k_obs = jax.random.split(key)
-        world = self.sample_start(k_start, params)
+        w = Words.draw(key, START_WORDS + SEC2_NOISE_DIM)
+        world = self.start_from_words(w.take(START_WORDS), params)
         state = ShootingState(world=world, step=jnp.zeros((), jnp.int32))
-        return self.get_obs(world, params, k_obs), state
+        return self.get_obs(world, params, normal(w.take(SEC2_NOISE_DIM))), state
 
-    def _transition(self, key, state: ShootingState, action, params: ShootingParams):
-        world, events = world_step(key, state.world, jnp.reshape(action, (1,)).astype(jnp.int32),
-                                   params.world, fold_in=SLIP_STREAM)
+    def _transition(self, slip_eps, state: ShootingState, action, params: ShootingParams):
+        world, events = world_step(state.world, jnp.reshape(action, (1,)).astype(jnp.int32),
+                                   params.world, slip_eps=jnp.reshape(slip_eps, (1, 2)))
         step = state.step + 1
         terminated = events.goal | events.ball_out
         truncated = (step >= params.max_steps) & ~terminated
@@ -264,8 +264,11 @@ class ShootingEnv:
         """One primitive without auto-reset: (obs, state, reward, terminated, truncated, info)."""
         params = self._default_params if params is None else params
         self._check_inputs(state, action, params)
-        state, reward, terminated, truncated, info = self._transition(key, state, action, params)
-        return self.get_obs(state.world, params, key), state, reward, terminated, truncated, info
+        w = Words.draw(key, SLIP_NORMALS + SEC2_NOISE_DIM)
+        state, reward, terminated, truncated, info = self._transition(
+            normal(w.take(SLIP_NORMALS)), state, action, params)
+        obs = self.get_obs(state.world, params, normal(w.take(SEC2_NOISE_DIM)))
+        return obs, state, reward, terminated, truncated, info
 
     def step(self, key: jax.Array, state: ShootingState, action: jax.Array,
              params: ShootingParams | None = None):
@@ -274,21 +277,20 @@ class ShootingEnv:
         Returns (obs (9,) float32, state, reward () float32, terminated () bool,
         truncated () bool, info dict); obs is the first observation of the new episode
         when it reset, while reward/terminated/truncated/info describe the finished step.
+        The key is hashed once; tire slip, the start draw and the pixel noise are slices of
+        those bits (:class:`vbl.draws.Words`).
         """
         params = self._default_params if params is None else params
         self._check_inputs(state, action, params)
-        # random streams of one step key: the start draw uses ``key`` itself; tire slip
-        # fold_in(key, SLIP_STREAM) and pixel noise fold_in(key, OBS_STREAM), derived only
-        # when switched on (no split: hashing per env and step is the costliest part of a
-        # step on CPU, see benchmarks/env_throughput.py)
-        nstate, reward, terminated, truncated, info = self._transition(key, state, action,
-                                                                       params)
+        w = Words.draw(key, SLIP_NORMALS + START_WORDS + SEC2_NOISE_DIM)
+        nstate, reward, terminated, truncated, info = self._transition(
+            normal(w.take(SLIP_NORMALS)), state, action, params)
         done = info["episode_done"]
-        fresh = ShootingState(world=self.sample_start(key, params),
+        fresh = ShootingState(world=self.start_from_words(w.take(START_WORDS), params),
                               step=jnp.zeros((), jnp.int32))
         nstate = jax.tree_util.tree_map(lambda a, b: jnp.where(done, a, b), fresh, nstate)
-        return (self.get_obs(nstate.world, params, key), nstate, reward, terminated,
-                truncated, info)
+        obs = self.get_obs(nstate.world, params, normal(w.take(SEC2_NOISE_DIM)))
+        return obs, nstate, reward, terminated, truncated, info
 
     def __repr__(self) -> str:
         fields = [f.name for f in dataclasses.fields(ShootingParams)]

@@ -32,7 +32,8 @@ from vbl.vision.noise import add_pixel_noise
 __all__ = [
     "SEC2_DIM", "SEC2_BALL_SIZE", "SEC2_BALL_POS", "SEC2_GOAL_SIZE", "SEC2_GOAL_POS",
     "SEC2_GOAL_ORIENT", "SEC2_BALL_VISIBLE", "SEC2_GOAL_VISIBLE", "SEC2_BALL_LOST_SIDE",
-    "SEC2_GOAL_LOST_SIDE", "SEC3_BALL_DIM", "SEC3_GOAL_DIM", "SEC3_OTHER_DIM", "SEC3_DIM",
+    "SEC2_GOAL_LOST_SIDE", "SEC2_NOISE_DIM", "SEC3_NOISE_DIM", "SEC3_BALL_DIM",
+    "SEC3_GOAL_DIM", "SEC3_OTHER_DIM", "SEC3_DIM",
     "Section3Obs", "section2_features", "section3_features", "flatten_section3",
     "ball_image", "check_inputs",
 ]
@@ -48,10 +49,17 @@ SEC2_GOAL_VISIBLE = 6
 SEC2_BALL_LOST_SIDE = 7
 SEC2_GOAL_LOST_SIDE = 8
 
+#: Standard normals one Section 2 observation's pixel noise takes: ball width, u; goal
+#: h_left, h_right, u_left, u_right.
+SEC2_NOISE_DIM = 6
+
 SEC3_BALL_DIM = 4
 SEC3_GOAL_DIM = 11
 SEC3_OTHER_DIM = 5
 SEC3_DIM = SEC3_BALL_DIM + SEC3_GOAL_DIM + SEC3_OTHER_DIM + 3 + 3
+#: Standard normals one Section 3 observation's pixel noise takes: the ball's 4 features,
+#: the goal's 4 end points (8) and area centroid (2), the other robot's centroid and extent.
+SEC3_NOISE_DIM = 4 + 10 + 4
 
 #: Smallest |denominator| of a division; smaller ones are replaced by +-_TINY (no NaN).
 _TINY = 1e-12
@@ -357,7 +365,7 @@ def _plane_side(corners, p):
 # ----------------------------------------------------------------------------- section 2
 
 def section2_features(robot_pose, ball_xy, ball_radius, goal_corners, cam: CameraParams,
-                      key=None) -> jnp.ndarray:
+                      eps=None) -> jnp.ndarray:
     """Section 2 observation (9,) float32 of one robot's camera (layout ``SEC2_*``).
 
     Args:
@@ -367,9 +375,8 @@ def section2_features(robot_pose, ball_xy, ball_radius, goal_corners, cam: Camer
       goal_corners: (4, 3) world m, order left-bottom, left-top, right-top, right-bottom
         ("left" = +y post).
       cam: camera parameters.
-      key: optional PRNG key for pixel noise of std ``cam.pixel_noise_std``; None = exact.
-        The normals are drawn only when the std is > 0 (``lax.cond``), so a key with the
-        noise off costs nothing and gives the exact features.
+      eps: optional (SEC2_NOISE_DIM,) float32 standard normals, the pixel noise in units
+        of ``cam.pixel_noise_std`` (see :mod:`vbl.draws`); None = exact features.
 
     Features (px unless stated; 0 when the object is lost):
       x1 ball diameter = horizontal extent of the visible part of the ball's image (for a
@@ -378,30 +385,6 @@ def section2_features(robot_pose, ball_xy, ball_radius, goal_corners, cam: Camer
       of the goal's left and right ends, x4 = mean of their u positions, x5 = (h_left -
       h_right) / x3 clipped to [-1, 1]. Flags and lost sides as in ``docs/vision.md``.
     """
-    return _section2(robot_pose, ball_xy, ball_radius, goal_corners, cam, key)
-
-
-def _sec2_noise(key, cam: CameraParams, fold_in=None):
-    """(6,) float32 pixel-noise normals of Section 2 [ball w, u | goal h_l, h_r, u_l, u_r].
-
-    Drawn (from ``split(key)``, after ``fold_in(key, fold_in)`` when given) only when
-    ``cam.pixel_noise_std > 0``; zeros otherwise. One graph of the features serves both
-    cases (the cond is around the draw only, not around the feature geometry).
-    """
-    def draw(k):
-        if fold_in is not None:
-            k = jax.random.fold_in(k, fold_in)
-        kb, kg = jax.random.split(k)
-        return jnp.concatenate([jax.random.normal(kb, (2,), F32),
-                                jax.random.normal(kg, (4,), F32)])
-
-    std = jnp.asarray(cam.pixel_noise_std, F32)
-    return jax.lax.cond(std > 0, draw, lambda k: jnp.zeros((6,), F32), key)
-
-
-def _section2(robot_pose, ball_xy, ball_radius, goal_corners, cam: CameraParams, key,
-              fold_in=None) -> jnp.ndarray:
-    """:func:`section2_features`; ``fold_in`` (int or None) derives the noise key lazily."""
     fu, fv = focal_lengths(cam)
     frame = camera_frame(robot_pose, cam)
     r = jnp.asarray(ball_radius, F32)
@@ -420,8 +403,8 @@ def _section2(robot_pose, ball_xy, ball_radius, goal_corners, cam: CameraParams,
     h = vhi - vlo
     bu = 0.5 * (bi.u_lo + bi.u_hi)
     bw = bi.u_hi - bi.u_lo
-    if key is not None:
-        eps = _sec2_noise(key, cam, fold_in)
+    if eps is not None:
+        eps = jnp.asarray(eps, F32)
         std = jnp.asarray(cam.pixel_noise_std, F32)
         zero = jnp.zeros((), F32)
         bw = bw + jnp.where(bi.visible, std * eps[0], zero)
@@ -737,7 +720,7 @@ def _sign(x):
 
 
 def section3_features(robot_pose, ball_xy, ball_radius, goal_corners, other_pose, other_size,
-                      cam: CameraParams, key=None) -> Section3Obs:
+                      cam: CameraParams, eps=None) -> Section3Obs:
     """Section 3 observation of one robot's camera (see ``docs/vision.md``).
 
     Args:
@@ -746,7 +729,9 @@ def section3_features(robot_pose, ball_xy, ball_radius, goal_corners, other_pose
       goal_corners: (4, 3) m, order left-bottom, left-top, right-top, right-bottom.
       other_pose: (3,) the other robot's ``(x, y, theta)``.
       other_size: (3,) the other robot as a box ``[length, width, height]`` m.
-      cam: camera parameters; key: optional PRNG key for pixel noise.
+      cam: camera parameters.
+      eps: optional (SEC3_NOISE_DIM,) float32 standard normals, the pixel noise in units of
+        ``cam.pixel_noise_std`` (see :mod:`vbl.draws`); None = exact features.
 
     Returns:
       :class:`Section3Obs` with ``ball`` = (centroid u, v, bounding width, height) of the
@@ -851,11 +836,11 @@ def section3_features(robot_pose, ball_xy, ball_radius, goal_corners, other_pose
                         uhi[0] - ulo[0], uhi[1] - ulo[1]])
     goal_f = jnp.concatenate([gpts, jnp.stack([g_cu, g_cv, g_area])])
     other_f = jnp.stack([o_cu, o_cv, ohi[0] - olo[0], ohi[1] - olo[1], o_area])
-    if key is not None:
-        kb, kg, ko = jax.random.split(key, 3)
-        ball_f = add_pixel_noise(kb, ball_f, cam, ball_vis)
-        goal_f = goal_f.at[:10].set(add_pixel_noise(kg, goal_f[:10], cam, goal_vis))
-        other_f = other_f.at[:4].set(add_pixel_noise(ko, other_f[:4], cam, other_vis))
+    if eps is not None:
+        eps = jnp.asarray(eps, F32)
+        ball_f = add_pixel_noise(eps[:4], ball_f, cam, ball_vis)
+        goal_f = goal_f.at[:10].set(add_pixel_noise(eps[4:14], goal_f[:10], cam, goal_vis))
+        other_f = other_f.at[:4].set(add_pixel_noise(eps[14:18], other_f[:4], cam, other_vis))
         ball_f = ball_f.at[2:].set(jnp.maximum(ball_f[2:], 0.0))
         other_f = other_f.at[2:4].set(jnp.maximum(other_f[2:4], 0.0))
     vis = jnp.stack([ball_vis, goal_vis, other_vis])

@@ -138,15 +138,13 @@ def _reflect(p, v, lo, hi, e):
     return jnp.clip(p, lo, hi), v
 
 
-def world_step(key: jax.Array, state: WorldState, actions: jax.Array,
-               params: WorldParams, fold_in: int | None = None
-               ) -> tuple[WorldState, WorldEvents]:
+def world_step(state: WorldState, actions: jax.Array, params: WorldParams,
+               slip_eps: jax.Array | None = None) -> tuple[WorldState, WorldEvents]:
     """Advance one action primitive.
 
-    key: PRNG key (used only for tire slip when ``robot.slip_std > 0``; with ``fold_in``
-    given the slip normals come from ``fold_in(key, fold_in)``, derived inside the slip
-    branch so that nothing is hashed while slip is off);
     actions: (R,) int32 action indices, robot i interpreted by ``params.robot_kinds[i]``.
+    slip_eps: optional (R, 2) float32 standard normals, the tire slip of this primitive in
+    units of ``robot.slip_std`` (see :mod:`vbl.draws`); None = no slip.
     Returns the new state and the :class:`WorldEvents` of this primitive.
     """
     kinds = params.robot_kinds
@@ -164,16 +162,10 @@ def world_step(key: jax.Array, state: WorldState, actions: jax.Array,
     drag = jnp.asarray(bp.drag, F32)
     vmax = jnp.asarray(bp.max_speed, F32)
 
-    slip = jnp.asarray(params.robot.slip_std, F32)
-
-    def draw_slip(k):
-        k = k if fold_in is None else jax.random.fold_in(k, fold_in)
-        return jax.random.normal(k, (n_robots, 2), F32)
-
-    noise = jax.lax.cond(slip > 0, draw_slip, lambda k: jnp.zeros((n_robots, 2), F32), key)
+    noise = None if slip_eps is None else jnp.asarray(slip_eps, F32).reshape(n_robots, 2)
     vs, ws = [], []
     for i, kind in enumerate(kinds):
-        v, w = robot_commands(kind, actions[i], params, noise[i])
+        v, w = robot_commands(kind, actions[i], params, None if noise is None else noise[i])
         vs.append(v)
         ws.append(w)
     v_cmd = jnp.stack(vs)
