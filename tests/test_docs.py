@@ -11,10 +11,6 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = sorted([ROOT / "README.md", *(ROOT / "docs").rglob("*.md")])
 
-# Run files whose hand-written headings still name a work period (owned by their runs;
-# listed here so the rest of the check stays strict).
-KNOWN_CHRONOLOGY = {"docs/results/table2_full/report.md", "docs/results/grid_shooting/report.md"}
-
 LINK = re.compile(r"(?<!!)\[[^\]]*\]\(([^)\s]+)(?:\s+\"[^\"]*\")?\)|!\[[^\]]*\]\(([^)\s]+)\)")
 FENCE = re.compile(r"^(```|~~~).*?^\1", re.S | re.M)
 CODE = re.compile(r"`[^`\n]*`")
@@ -72,18 +68,10 @@ def test_relative_links_resolve(doc: Path):
 
 @pytest.mark.parametrize("doc", DOCS, ids=_rel)
 def test_no_chronology_or_machine_paths(doc: Path):
-    if _rel(doc) in KNOWN_CHRONOLOGY:
-        pytest.xfail("run file heading names a work period (owned by the run's author)")
     text = doc.read_text()
     found = [m.group(0) for m in CHRONOLOGY.finditer(text)]
     found += [m.group(0) for m in MACHINE_PATH.finditer(text)]
     assert not found, f"{_rel(doc)}: work-period chronology or machine paths: {found[:10]}"
-
-
-def test_known_chronology_files_exist():
-    """The exceptions above name real files (drop an entry once its file is fixed)."""
-    for name in KNOWN_CHRONOLOGY:
-        assert (ROOT / name).exists(), name
 
 
 def test_link_checker_catches_a_broken_link(tmp_path: Path):
