@@ -6,8 +6,9 @@ categorical policy of :mod:`vbl.agents.ppo`:
 
 * ``ppo_comparator``: the two-robot task of Table 2 (shooter and passer) with three inputs,
   current features, the last 3 frames, and the CVA state vector of the tabular learner
-  (its own identification per seed), at Table 2's experience (2.56 M primitives); beside
-  the tabular results of Table 2 (current defaults, 16 seeds) and the paper.
+  (its own identification per seed), with and without the curriculum (on
+  ``env.start_difficulty``), at Table 2's experience (2.56 M primitives); beside the
+  tabular results of Table 2 (current defaults, 16 seeds) and the paper.
 * ``ppo_shooting``: the shooting task of Section 2 (100 s limit, fully random starts), with
   and without the curriculum (LEM for PPO), at the grid baseline's experience (~3 M
   primitives); beside the grid baseline (``grid_shooting``, 8 seeds).
@@ -84,26 +85,33 @@ def report_shoot_pass(res) -> ReportSection:
     for i, pt in enumerate(res.points):
         task = "pass" if pt.get("env.task_pass", res.config.env.task_pass) else "shoot"
         inp = input_label(pt.get("inputs.index", res.config.inputs.index))
-        by[task, inp] = sr[i]
-        labels.append(f"{task} / {inp}")
+        cur = bool(pt.get("ppo.curriculum.enabled", res.config.ppo.curriculum.enabled))
+        by[task, inp, cur] = sr[i]
+        labels.append(f"{task} / {inp}{' / curriculum' if cur else ''}")
     steps = int(np.asarray(res.curves["env_steps"])[0, -1, 0])
-    rows = ["| task | input | PPO greedy % | tabular Q %, Table 2 defaults, 16 seeds | paper % |",
-            "|---|---|---|---|---|"]
-    for (task, inp), x in by.items():
+    rows = ["| task | input | curriculum | PPO greedy % | tabular Q %, Table 2 defaults, "
+            "16 seeds | paper % |", "|---|---|---|---|---|---|"]
+    for (task, inp, cur), x in by.items():
         m, h = ci95(x)
         tab = TABULAR[task].get(inp)
-        rows.append(f"| {task} | {inp} | {m:.1f} ± {h:.1f} | "
+        rows.append(f"| {task} | {inp} | {'on' if cur else 'off'} | {m:.1f} ± {h:.1f} | "
                     f"{f'{tab[0]} ± {tab[1]}' if tab else '-'} | {PAPER[task].get(inp, '-')} |")
-    adv = [f"* {task}: PPO CVA − current {_diff(by[task, 'cva'], by[task, 'current'])}; "
-           f"stack − current {_diff(by[task, 'stack'], by[task, 'current'])} points "
-           f"(paper: CVA − current {PAPER[task]['cva'] - PAPER[task]['current']:+.1f})"
-           for task in ("shoot", "pass") if (task, "cva") in by and (task, "current") in by
-           and (task, "stack") in by]
+    adv = []
+    for cur in (False, True):
+        for task in ("shoot", "pass"):
+            if not all((task, k, cur) in by for k in ("current", "stack", "cva")):
+                continue
+            adv.append(f"* {task}, curriculum {'on' if cur else 'off'}: PPO CVA − current "
+                       f"{_diff(by[task, 'cva', cur], by[task, 'current', cur])}; stack − "
+                       f"current {_diff(by[task, 'stack', cur], by[task, 'current', cur])} "
+                       f"points (paper: CVA − current "
+                       f"{PAPER[task]['cva'] - PAPER[task]['current']:+.1f})")
     fig = plot_success_vs_steps(res.curves, labels, res.out_dir / "ppo_success_vs_steps.png",
                                 "PPO, two-robot task")
     md = (f"brax PPO (categorical policy) on Table 2's task, {res.seeds} seeds, {steps:,} "
-          "training primitives per learner; greedy = deterministic policy, first episode "
-          "from each of the final evaluation's fresh starts (mean ± 95 % CI).\n\n"
+          "training primitives per learner; greedy = deterministic policy at the full start "
+          "distribution (start difficulty 1), first episode from each of the final "
+          "evaluation's fresh starts (mean ± 95 % CI).\n\n"
           + "\n".join(rows) + "\n\nDoes PPO show the CVA advantage (difference of means, "
           "Welch 95 % CI; shown = interval above 0, reversed = below 0)?\n\n" + "\n".join(adv))
     return ReportSection(markdown=md, figures=(fig, *res.figures))
@@ -135,7 +143,8 @@ EXPERIMENT = register(Experiment(
     default_config=ShootPassConfig(), make_program=make_shoot_pass_program,
     quick={**QUICK_PPO, "cva.collect_steps": 1000, "cva.cva.lag_max": 2},
     seeds=8, quick_seeds=2, paper_result=True, paper=PAPER, report=report_shoot_pass,
-    sweep={"env.task_pass": [False, True], "inputs.index": [0, 1, 2]},
+    sweep={"env.task_pass": [False, True], "inputs.index": [0, 1, 2],
+           "ppo.curriculum.enabled": [False, True]},
     cost=300.0))  # s, cold --quick on 2 cores (compile-dominated; 1,389 s at load average 12)
 
 SHOOTING = register(Experiment(

@@ -6,7 +6,8 @@
 * :func:`make_shoot_pass_program`: the two-robot task (``ShootPassEnv("select")``: the
   traced ``env.task_pass`` picks shooter or passer) through
   :class:`vbl.agents.ppo_inputs.InputEnv` (kind "select": the traced ``inputs.index`` picks
-  current features, a frame stack or the CVA state; one compilation for all six rows).
+  current features, a frame stack or the CVA state; one compilation for all six rows),
+  with or without the curriculum on ``ShootPassParams.start_difficulty``.
 
 Per chunk (per learner): ``env_steps`` (training env steps at the end of the chunk),
 ``success_rate`` (deterministic policy, ``ppo.eval_envs`` fresh starts at the task's start
@@ -26,10 +27,10 @@ from flax import struct
 
 from vbl.agents.ppo_inputs import INPUTS, InputEnv, InputParams, prepare_models
 from vbl.agents.ppo_train import make_ppo_learner
-from vbl.envs.brax_adapter import BraxAdapter
+from vbl.envs.brax_adapter import BraxAdapter, with_difficulty
 from vbl.envs.shoot_pass import ShootPassEnv
 from vbl.envs.shooting import ShootingEnv
-from vbl.params import ParamError, param
+from vbl.params import param
 
 __all__ = ["PPORunParams", "InputChoice", "make_shooting_program", "make_shoot_pass_program",
            "ci95", "welch_ci", "plot_success_vs_steps", "input_label"]
@@ -87,14 +88,11 @@ def make_shooting_program(cfg: Any):
 def make_shoot_pass_program(cfg: Any):
     """Program for a config with sections ``env`` (ShootPassParams), ``inputs``
     (InputChoice), ``cva`` (CVAStateParams of the tabular learner), ``ppo``, ``run``."""
-    if bool(np.any(cfg.ppo.curriculum.enabled)):
-        raise ParamError("ppo.curriculum.enabled: the two-robot task has no start difficulty "
-                         "(the curriculum drives ShootingEnv's start_difficulty); set it False")
     base = ShootPassEnv("select")
     ienv = InputEnv(base, "select", cfg.inputs.frames, cfg.cva, m=2)
 
-    def make_env(env_params, difficulty):  # no start difficulty: `difficulty` unused
-        return BraxAdapter(ienv, env_params)
+    def make_env(env_params, difficulty):
+        return BraxAdapter(ienv, with_difficulty(env_params, difficulty))
 
     def init_env(key, c):
         models = prepare_models(base, key, c.cva, c.env)

@@ -16,7 +16,9 @@ Conventions (those of brax's training wrappers, ``brax.envs.wrappers.training.wr
   itself restores the start drawn at ``reset``). Costs one start draw and one observation
   per step.
 * Start difficulty: tasks whose params have ``start_difficulty``
-  (:class:`vbl.envs.shooting.ShootingEnv`) keep it in ``state.info["difficulty"]`` ()
+  (:class:`vbl.envs.shooting.ShootingEnv`, :class:`vbl.envs.shoot_pass.ShootPassEnv`,
+  also through a wrapper whose params keep the task's in ``inner``, e.g.
+  :class:`vbl.agents.ppo_inputs.InputParams`) keep it in ``state.info["difficulty"]`` ()
   float32; fresh starts are drawn at that value, so a curriculum sets it with
   :func:`set_difficulty`. ``adapter.has_difficulty`` says whether the task has one.
 * Randomness: brax's ``step`` takes no key; the adapter keeps one in ``info["rng"]``.
@@ -33,7 +35,7 @@ import jax
 import jax.numpy as jnp
 from brax.envs.base import Env, State
 
-__all__ = ["BraxAdapter", "set_difficulty"]
+__all__ = ["BraxAdapter", "set_difficulty", "get_difficulty", "with_difficulty"]
 
 F32 = jnp.float32
 DIFFICULTY_FIELD = "start_difficulty"  #: env params field a curriculum drives
@@ -43,12 +45,31 @@ def _is_traced(tree: Any) -> bool:
     return any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(tree))
 
 
+def get_difficulty(params: Any) -> Any:
+    """The ``start_difficulty`` of ``params`` or of its ``inner`` params (recursively);
+    None when there is none."""
+    while params is not None:
+        if hasattr(params, DIFFICULTY_FIELD):
+            return getattr(params, DIFFICULTY_FIELD)
+        params = getattr(params, "inner", None)
+    return None
+
+
+def with_difficulty(params: Any, difficulty: Any) -> Any:
+    """``params`` with its (or its ``inner`` params') ``start_difficulty`` replaced."""
+    if hasattr(params, DIFFICULTY_FIELD):
+        return params.replace(**{DIFFICULTY_FIELD: difficulty})
+    if getattr(params, "inner", None) is not None:
+        return params.replace(inner=with_difficulty(params.inner, difficulty))
+    raise ValueError(f"{type(params).__name__} has no {DIFFICULTY_FIELD!r}")
+
+
 def set_difficulty(state: State, difficulty: Any) -> State:
     """``state`` with ``info["difficulty"]`` set to ``difficulty`` (scalar or batch-shaped,
     in [0, 1]) for the starts drawn from now on."""
     if "difficulty" not in state.info:
         raise ValueError("this state has no info['difficulty']: the adapted task has no "
-                         f"{DIFFICULTY_FIELD!r} parameter (only ShootingEnv has one)")
+                         f"{DIFFICULTY_FIELD!r} parameter (ShootingEnv and ShootPassEnv have one)")
     old = state.info["difficulty"]
     info = dict(state.info)
     info["difficulty"] = jnp.broadcast_to(jnp.asarray(difficulty, F32), old.shape)
@@ -81,7 +102,7 @@ class BraxAdapter(Env):
     @property
     def has_difficulty(self) -> bool:
         """True when the task's params have a start difficulty a curriculum can drive."""
-        return hasattr(self.params, DIFFICULTY_FIELD)
+        return get_difficulty(self.params) is not None
 
     @property
     def episode_length(self) -> int:
@@ -105,7 +126,7 @@ class BraxAdapter(Env):
     def _params_at(self, difficulty: jax.Array | None) -> Any:
         if difficulty is None:
             return self.params
-        return self.params.replace(**{DIFFICULTY_FIELD: difficulty})
+        return with_difficulty(self.params, difficulty)
 
     def _draw(self, key: jax.Array, difficulty: jax.Array | None):
         obs, st = self.vbl_env.reset(key, self._params_at(difficulty))
@@ -118,7 +139,7 @@ class BraxAdapter(Env):
         info = {"rng": k_next, "success": jnp.zeros((), F32), "truncation": jnp.zeros((), F32)}
         difficulty = None
         if self.has_difficulty:
-            difficulty = jnp.asarray(getattr(self.params, DIFFICULTY_FIELD), F32)
+            difficulty = jnp.asarray(get_difficulty(self.params), F32)
             info["difficulty"] = difficulty
         obs, st = self._draw(k_reset, difficulty)
         zero = jnp.zeros((), F32)
