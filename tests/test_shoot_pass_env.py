@@ -10,8 +10,12 @@ import vbl  # noqa: F401  (x64 on)
 from vbl.envs.noise import NoiseParams, eccentric_centroid, noisy_camera, perturb_ball_velocity
 from vbl.envs.other_agents import OtherAgentParams, act, init_memory
 from vbl.envs.shoot_pass import (
+    EASY_PASS,
+    EASY_SHOOT,
     OBS_SLICES,
+    START_DRAWS,
     ShootPassEnv,
+    ShootPassParams,
     ShootPassState,
     apply_kicks,
 )
@@ -19,6 +23,7 @@ from vbl.params import ParamError
 from vbl.vision.camera import CameraParams
 from vbl.vision.features import flatten_section3, section3_features
 from vbl.world.physics import goal_corners, make_state
+from vbl.world.robots import FOUR_WHEEL_LABELS
 
 B = 24
 T = 40
@@ -274,3 +279,93 @@ def test_select_task_matches_fixed_tasks():
         for a, b in zip(ref[1:], got[1:], strict=True):  # reward, ends, success, u: exact
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
         np.testing.assert_allclose(np.asarray(ref[0]), np.asarray(got[0]), rtol=1e-4, atol=0.05)
+
+
+# Starts of jax.vmap(env.reset)(split(PRNGKey(7), 3)) at the default params, recorded from
+# the code before start_difficulty existed: the default (1.0) must reproduce them exactly.
+GOLDEN_ROBOTS = {
+    "shoot": [[[1.6275815963745117, 0.06757724285125732, -0.2607390880584717],
+               [3.7319188117980957, -0.5576218962669373, 2.8283445835113525]],
+              [[1.377673625946045, 0.3914117217063904, -0.27698230743408203],
+               [2.9478139877319336, -0.32470792531967163, 2.818192720413208]],
+              [[0.7677973508834839, -0.28987041115760803, -0.13135719299316406],
+               [2.3773584365844727, -0.8671877384185791, 2.7143216133117676]]],
+    "pass": [[[1.6275815963745117, 0.06757724285125732, -0.2607390880584717],
+              [3.7319188117980957, -0.5576218962669373, 2.706075429916382]],
+             [[1.377673625946045, 0.3914117217063904, -0.27698230743408203],
+              [2.9478139877319336, -0.32470792531967163, -2.9424736499786377]],
+             [[0.7677973508834839, -0.28987041115760803, -0.13135719299316406],
+              [2.3773584365844727, -0.8671877384185791, 2.2998993396759033]]]}
+GOLDEN_BALL = {
+    "shoot": [[3.257368564605713, -0.4166329503059387], [2.3594512939453125, -0.05636373162269592],
+              [1.748168706893921, -0.641510009765625]],
+    "pass": [[2.989389419555664, -0.409157931804657], [2.0561165809631348, -0.02419654279947281],
+             [1.4997674226760864, -0.46417486667633057]]}
+GOLDEN_VEL_PASS = [[0.3449153006076813, -0.28453195095062256],
+                   [0.29525256156921387, -0.29437196254730225],
+                   [0.4056597650051117, -0.07632317394018173]]
+
+
+@pytest.mark.parametrize("task", ["shoot", "pass"])
+def test_default_start_difficulty_is_the_full_draw_bit_for_bit(task):
+    e = ShootPassEnv(task)
+    p = e.default_params
+    assert p.start_difficulty == 1.0
+    _, st = jax.vmap(e.reset, (0, None))(jax.random.split(jax.random.PRNGKey(7), 3), p)
+    np.testing.assert_array_equal(st.world.robots, np.float32(GOLDEN_ROBOTS[task]))
+    np.testing.assert_array_equal(st.world.ball, np.float32(GOLDEN_BALL[task]))
+    vel = GOLDEN_VEL_PASS if task == "pass" else np.zeros((3, 2))
+    np.testing.assert_array_equal(st.world.ball_vel, np.float32(vel))
+    # the start uniforms pass unchanged at difficulty 1, also traced
+    u = jax.random.uniform(jax.random.PRNGKey(3), (64, START_DRAWS), jnp.float32)
+    u = u.at[0].set(0.0).at[1].set(np.nextafter(np.float32(1), np.float32(0)))
+    eased = jax.jit(jax.vmap(e.eased_uniform, (0, None)))(u, p)
+    np.testing.assert_array_equal(eased, u)
+
+
+def test_start_difficulty_interpolates_the_uniforms():
+    """Draws with an easy value move to it at difficulty 0, halfway at 0.5; the others
+    (nan in EASY_*) keep their draw."""
+    u = jax.random.uniform(jax.random.PRNGKey(4), (START_DRAWS,), jnp.float32)
+    for task, easy in (("shoot", EASY_SHOOT), ("pass", EASY_PASS)):
+        e = ShootPassEnv(task)
+        easy = np.asarray(easy, np.float32)
+        keep = np.isnan(easy)
+        for d in (0.0, 0.5):
+            got = np.asarray(e.eased_uniform(u, e.default_params.replace(start_difficulty=d)))
+            want = np.where(keep, u, easy + d * (np.asarray(u) - easy))
+            np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-7)
+    with pytest.raises(ParamError, match="start_difficulty"):
+        ShootPassEnv("shoot").validate(ShootPassParams(start_difficulty=1.5))
+
+
+def test_easy_starts_are_easier():
+    """A learner that only drives forward (action F) from 512 starts per cell, one compiled
+    program for both tasks and difficulties ("select" env, traced task and difficulty): it
+    scores (shoot) or passes far more often at difficulty 0 than from the full draw."""
+    e = ShootPassEnv("select")
+    n, steps = 512, 100
+    fwd = FOUR_WHEEL_LABELS.index("F")
+
+    def rate(task_pass, d, key):
+        p = e.default_params.replace(task_pass=task_pass, start_difficulty=d)
+        k0, k1 = jax.random.split(key)
+        _, st = jax.vmap(e.reset, (0, None))(jax.random.split(k0, n), p)
+
+        def body(c, k):
+            st, done, succ = c
+            _, st, _, term, trunc, info = jax.vmap(e.step_env, (0, 0, None, None))(
+                jax.random.split(k, n), st, jnp.int32(fwd), p)
+            return (st, done | term | trunc, succ | (~done & info["success"])), None
+
+        z = jnp.zeros(n, bool)
+        (_, _, succ), _ = jax.lax.scan(body, (st, z, z), jax.random.split(k1, steps))
+        return jnp.mean(succ)
+
+    tp = jnp.array([False, False, True, True])
+    d = jnp.array([0.0, 1.0, 0.0, 1.0], jnp.float32)
+    r = np.asarray(jax.jit(jax.vmap(rate, (0, 0, None)))(tp, d, jax.random.PRNGKey(0)))
+    shoot_easy, shoot_full, pass_easy, pass_full = r
+    se = np.sqrt(0.25 * 2 / n)  # largest binomial standard error of a difference
+    assert shoot_easy - shoot_full > 4 * se, r
+    assert pass_easy - pass_full > 4 * se, r
