@@ -246,7 +246,7 @@ EXPERIMENT = register(Experiment(
     legacy_values={"learner.keep_beyond_order": False, "learner.cancor_weight": False,
                    "learner.cva.lag_rule": "paper", "learner.cva.collinear_tol": 1e-8,
                    "learner.runner.agent.update": "q_learning",
-                   "learner.runner.agent.mc_log": 128},
+                   "learner.runner.agent.mc_log": 128, "env.start_difficulty": 1.0},
     sweep={"env.task_pass": [False, True], "learner.use_cva": [False, True]},
 ))
 

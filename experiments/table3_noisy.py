@@ -231,6 +231,8 @@ EXPERIMENT = register(Experiment(
     paper={"table3": PAPER},
     report=T1.report,
     paper_rows=paper_rows,
+    # parameters added after run folders were written: the values of the code before them
+    legacy_values={"bodies.start_difficulty": 1.0},
 ))
 
 if __name__ == "__main__":

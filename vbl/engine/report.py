@@ -488,5 +488,5 @@ def results_table(folders: list[str | Path], link_base: str | Path | None = None
                          f" | {link if first else ''} | {f'`{command}`' if first else ''} |")
         if unrecorded:
             notes.append(f"{Path(folder).name} does not record {', '.join(unrecorded)}: its "
-                         f"command takes today's default for them.")
+                         f"command takes today's default for these.")
     return "\n".join(lines + ([""] + notes if notes else [])) + "\n"
