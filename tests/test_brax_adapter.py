@@ -12,7 +12,8 @@ from brax.training import acting
 from brax.training.agents.ppo.losses import compute_gae
 
 import vbl  # noqa: F401
-from vbl.envs.brax_adapter import BraxAdapter, set_difficulty
+from vbl.agents.ppo_inputs import InputEnv, InputParams
+from vbl.envs.brax_adapter import BraxAdapter, get_difficulty, set_difficulty
 from vbl.envs.shoot_pass import ShootPassEnv
 from vbl.envs.shooting import ShootingEnv
 
@@ -121,9 +122,35 @@ def test_difficulty_in_state_drives_fresh_starts():
     x = np.asarray(st.pipeline_state.world.robots[:, 0, 0])
     goal_x = p.world.field.length / 2 - p.start.easy_goal_dist
     assert np.all(np.abs(x - goal_x) <= p.start.easy_jitter_xy + 1e-5)
-    assert not BraxAdapter(ShootPassEnv("shoot")).has_difficulty
+    st0 = a.reset(jax.random.PRNGKey(0))
+    no_d = st0.replace(info={k: v for k, v in st0.info.items() if k != "difficulty"})
     with pytest.raises(ValueError, match="no info\\['difficulty'\\]"):
-        set_difficulty(BraxAdapter(ShootPassEnv("pass")).reset(jax.random.PRNGKey(0)), 0.5)
+        set_difficulty(no_d, 0.5)
+
+
+def test_shoot_pass_difficulty_through_input_wrapper():
+    """The two-robot task's start difficulty, read through InputEnv's params (``inner``):
+    at difficulty 0 a pass start rolls the ball at the slowest speed straight at the
+    passer; at the default (1) the starts are the env's own draws."""
+    env = ShootPassEnv("pass")
+    ienv = InputEnv(env, "stack", frames=2)
+    a = BraxAdapter(ienv, InputParams(env.default_params.replace(max_steps=1)))
+    assert a.has_difficulty and BraxAdapter(env).has_difficulty
+    assert get_difficulty(a.params) == 1.0
+    w = training.wrap(a, episode_length=1)
+    st = w.reset(jax.random.split(jax.random.PRNGKey(5), 32))
+    np.testing.assert_array_equal(st.info["difficulty"], 1.0)
+    speed = np.linalg.norm(np.asarray(st.pipeline_state.inner.world.ball_vel), axis=-1)
+    assert speed.std() > 0.05  # full draw: speeds spread over [0.4, 0.8]
+    st = w.step(set_difficulty(st, 0.0), jnp.zeros((32,), jnp.int32))  # all end: fresh starts
+    world = st.pipeline_state.inner.world
+    vel = np.asarray(world.ball_vel)
+    np.testing.assert_allclose(np.linalg.norm(vel, axis=-1),
+                               env.default_params.start.pass_ball_speed_min, rtol=1e-5)
+    to_passer = np.asarray(world.robots[:, 1, :2] - world.ball)
+    cos = np.sum(vel * to_passer, -1) / np.linalg.norm(vel, axis=-1) / np.linalg.norm(
+        to_passer, axis=-1)
+    np.testing.assert_allclose(cos, 1.0, atol=1e-5)
 
 
 @pytest.mark.parametrize("x64", [False, True])
