@@ -254,24 +254,27 @@ def _assemble(out: dict, shift, params, b, m, q, batched, model_dtype) -> Identi
     _check_model_range(out, shift, md)
 
     def cast(a):
-        return jnp.asarray(a, md)
+        return np.asarray(a, md)
 
+    # NumPy leaves, sliced for unbatched input, then one device_put of the whole result
+    # (one transfer call instead of one per field: most of a small batch's time otherwise)
     model = CVAModel(U=cast(umat), A=cast(out["A"]), B=cast(out["B"]), C=cast(out["C"]),
-                     D=cast(out["D"]), R=cast(out["R"]), n=jnp.asarray(n),
-                     lag=jnp.asarray(out["lag"]),
+                     D=cast(out["D"]), R=cast(out["R"]), n=np.asarray(n),
+                     lag=np.asarray(out["lag"]),
                      u_mean=cast(u_off + u_mul * np.asarray(out["u_mean"], np.float64)),
                      u_scale=cast(u_mul * np.asarray(out["u_scale"], np.float64)),
                      y_mean=cast(y_off + y_mul * np.asarray(out["y_mean"], np.float64)),
                      y_scale=cast(y_mul * np.asarray(out["y_scale"], np.float64)))
     res = Identification(
-        lag=jnp.asarray(out["lag"]), n=jnp.asarray(n),
-        logdet_R=jnp.asarray(out["logdet_R"]), aic=jnp.asarray(out["aic"]),
-        n_samples=jnp.asarray(out["n_samples"]),
-        aic_curve=jnp.asarray(out["aic_curve"]), logdet_curve=jnp.asarray(out["logdet_curve"]),
-        cancor=jnp.asarray(out["cancor"]), lag_aic=jnp.asarray(out["lag_aic"]),
-        lag_logdet=jnp.asarray(out["lag_logdet"]), lag_n=jnp.asarray(out["lag_n"]),
-        lag_criterion=jnp.asarray(out["lag_criterion"]), n_ident=jnp.asarray(n_id),
-        n_at_cap=jnp.asarray(at_cap), model=model)
+        lag=np.asarray(out["lag"]), n=np.asarray(n),
+        logdet_R=np.asarray(out["logdet_R"]), aic=np.asarray(out["aic"]),
+        n_samples=np.asarray(out["n_samples"]),
+        aic_curve=np.asarray(out["aic_curve"]), logdet_curve=np.asarray(out["logdet_curve"]),
+        cancor=np.asarray(out["cancor"]), lag_aic=np.asarray(out["lag_aic"]),
+        lag_logdet=np.asarray(out["lag_logdet"]), lag_n=np.asarray(out["lag_n"]),
+        lag_criterion=np.asarray(out["lag_criterion"]), n_ident=np.asarray(n_id),
+        n_at_cap=np.asarray(at_cap), model=model)
     if not batched:
         res = jax.tree_util.tree_map(lambda a: a[0], res)
-    return res
+    return jax.device_put(res)
+
