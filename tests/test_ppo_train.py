@@ -6,7 +6,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from vbl.agents.ppo_train import CurriculumParams, PPOParams, curriculum_update
+from vbl.agents.ppo import PPONetParams
+from vbl.agents.ppo_train import CurriculumParams, PPOParams, curriculum_update, make_ppo_learner
 from vbl.params import ParamError, validate
 
 
@@ -37,3 +38,46 @@ def test_batch_must_hold_whole_trajectories():
         validate(PPOParams(num_envs=64, batch_size=16, num_minibatches=2))
     p = PPOParams()
     assert p.env_steps_per_training_step == p.batch_size * p.num_minibatches * p.unroll_length
+
+
+def _two_robot_learner(p):
+    from vbl.agents.ppo_inputs import InputEnv, InputParams
+    from vbl.envs.brax_adapter import BraxAdapter, with_difficulty
+    from vbl.envs.shoot_pass import ShootPassEnv
+
+    ienv = InputEnv(ShootPassEnv("select"), "current")
+    lrn = make_ppo_learner(lambda ep, d: BraxAdapter(ienv, with_difficulty(ep, d)),
+                           ienv.observation_shape[0], ienv.num_actions, p)
+    base = ienv.env.default_params.replace(max_steps=30)
+    params = jax.vmap(lambda tp: InputParams(base.replace(task_pass=tp)))(
+        jnp.array([False, True]))  # learner 0 shoots, learner 1 passes
+    return lrn, params
+
+
+def test_vbl_ppo_on_shoot_and_pass_with_curriculum_drives_the_env():
+    """vbl's PPO (brax's parts) for a few thousand steps on the shoot and the pass task (one
+    vmapped program, after ``import vbl``): it finishes, and the curriculum's difficulty is
+    the one the envs draw their next starts at."""
+    import vbl  # noqa: F401
+
+    p = PPOParams(net=PPONetParams(policy_hidden=(16,), value_hidden=(16,)), num_envs=8,
+                  unroll_length=10, batch_size=8, num_minibatches=2, num_updates_per_batch=1,
+                  steps_per_chunk=2, eval_envs=8,
+                  curriculum=CurriculumParams(enabled=True, step=0.5, success_level=0.01))
+    lrn, params = _two_robot_learner(p)
+    carry = jax.jit(jax.vmap(lambda k, ep: lrn.init(k, ep, p)))(
+        jax.random.split(jax.random.PRNGKey(0), 2), params)
+    np.testing.assert_array_equal(carry.difficulty, 0.0)
+    chunk = jax.jit(jax.vmap(lambda c: lrn.train_chunk(c, p)))
+    for i in range(2):
+        before = np.asarray(carry.difficulty)
+        carry, m = chunk(carry)
+        np.testing.assert_array_equal(m["env_steps"], (i + 1) * p.env_steps_per_chunk)
+        want = np.where(np.asarray(m["level_success_rate"]) >= 0.01,
+                        np.minimum(before + 0.5, 1.0), before)
+        np.testing.assert_allclose(carry.difficulty, want, rtol=1e-6)
+        np.testing.assert_array_equal(carry.env_state.info["difficulty"],
+                                      np.broadcast_to(np.asarray(carry.difficulty)[:, None],
+                                                      (2, p.num_envs)))
+        for k in ("success_rate", "level_success_rate", "loss", "entropy"):
+            assert np.all(np.isfinite(m[k])), k
