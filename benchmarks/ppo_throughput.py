@@ -34,7 +34,7 @@ from benchmarks.hardware import hardware_info  # noqa: E402
 from vbl.agents.ppo import PPONetParams, network_size  # noqa: E402
 from vbl.agents.ppo_inputs import InputEnv, InputParams  # noqa: E402
 from vbl.agents.ppo_train import PPOParams, make_ppo_learner  # noqa: E402
-from vbl.envs.brax_adapter import BraxAdapter  # noqa: E402
+from vbl.envs.brax_adapter import BraxAdapter, with_difficulty  # noqa: E402
 from vbl.envs.shoot_pass import ShootPassEnv  # noqa: E402
 from vbl.envs.shooting import ShootingEnv  # noqa: E402
 
@@ -49,8 +49,8 @@ def make_task(name: str):
         return (lambda ep, d: BraxAdapter(env, ep.replace(start_difficulty=d)),
                 env.default_params, 9, env.num_actions)
     ienv = InputEnv(ShootPassEnv("select"), "current")
-    return (lambda ep, d: BraxAdapter(ienv, ep), InputParams(ienv.env.default_params),
-            ienv.observation_shape[0], ienv.num_actions)
+    return (lambda ep, d: BraxAdapter(ienv, with_difficulty(ep, d)),
+            InputParams(ienv.env.default_params), ienv.observation_shape[0], ienv.num_actions)
 
 
 def time_train(task: str, net: str, learners: int, p: PPOParams, reps: int) -> dict:

@@ -24,6 +24,13 @@ Observation: the learner's Section 3 features (26,) float32 of its own camera
 (``flatten_section3`` of ``section3_features``), with the Section 3.4.2 noise model
 (:mod:`vbl.envs.noise`) when switched on. Slices: :data:`OBS_SLICES`.
 
+Start difficulty (``params.start_difficulty`` d in [0, 1], traced so a curriculum can move
+it): each start uniform with an easy value e (:data:`EASY_SHOOT`, :data:`EASY_PASS`) is
+replaced by ``e + d * (u - e)`` before the start geometry is built, so d = 0 gives the
+task's easy start (shoot: the shooter nearest the goal, the passer clear of the shot, no
+heading jitter; pass: the ball rolling slowly, straight at a passer that faces the nearest
+shooter) and d = 1 (default) the full start draw, bit for bit. No extra random draws.
+
 An episode ends (terminated) on success, on a goal without success, when the ball
 comes to rest after it was kicked (``shoot``; ``pass``: whenever it comes to rest) if
 ``end_on_rest``, or when the ball leaves the field; it is truncated after ``max_steps``.
