@@ -115,8 +115,9 @@ def main(argv=None):
                            env_steps_per_training_step=p.env_steps_per_training_step))
     for task, net, k in grid:
         row = time_train(task, net, k, p, args.reps)
-        print(f"{task:10s} {net:6s} learners={k}: {row['steps_per_s']:,.0f} env steps/s, "
-              f"compile {row['compile_s']:.1f} s", flush=True)
+        print(f"{task:10s} {net:6s} (policy / value {row['policy_params']:,} / "
+              f"{row['value_params']:,} params) learners={k}: {row['steps_per_s']:,.0f} env "
+              f"steps/s, compile {row['compile_s']:.1f} s", flush=True)
         result["rows"].append(row)
     out = pathlib.Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
