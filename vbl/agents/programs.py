@@ -83,9 +83,10 @@ class QTrainParams:
 
     num_chunks: int = param(40, doc="training chunks per run (a curve point and metrics "
                             "line every eval_every of them)", static=True, ge=1)
-    eval_curve: bool = param(True, doc="evaluate the greedy policy for the success_rate "
-                             "curve (every eval_every chunks); off: success_rate = training "
-                             "success", static=True)
+    eval_curve: bool = param(True, doc="evaluate the policy on fresh starts for the "
+                             "eval_success curve (every eval_every chunks); off: no "
+                             "eval_success curve (train_success is always recorded)",
+                             static=True)
     eval_every: int = param(1, doc="training chunks per curve point: one engine chunk (a "
                             "metrics line, the checkpoint unit) trains this many chunks, then "
                             "evaluates once; num_chunks must be a multiple of it",
@@ -100,7 +101,7 @@ class QTrainParams:
     eval_epsilon: float = param(0.05, doc="final evaluation: epsilon of the near-greedy "
                                 "policy (greedy, but a uniform action with this probability: "
                                 "breaks cycles between aliased states)", ge=0.0, le=1.0)
-    curve_epsilon: float = param(0.0, doc="epsilon of the policy the success_rate curve "
+    curve_epsilon: float = param(0.0, doc="epsilon of the policy the eval_success curve "
                                  "evaluates (0: greedy; e.g. eval_epsilon: near-greedy)",
                                  ge=0.0, le=1.0)
     final_eval_rounds: int = param(4, doc="final evaluation: rounds of eval_envs fresh starts "
