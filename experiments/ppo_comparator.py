@@ -32,6 +32,7 @@ from vbl.agents.ppo_programs import (
     make_shoot_pass_program,
     make_shooting_program,
     plot_success_vs_steps,
+    plot_two_robot_curves,
     welch_ci,
 )
 from vbl.agents.ppo_train import PPOParams
@@ -81,13 +82,13 @@ def _diff(a, b) -> str:
 
 def report_shoot_pass(res) -> ReportSection:
     sr = 100 * np.asarray(res.final["greedy_success_rate"])
-    by, labels = {}, []
+    by, keys = {}, []
     for i, pt in enumerate(res.points):
         task = "pass" if pt.get("env.task_pass", res.config.env.task_pass) else "shoot"
         inp = input_label(pt.get("inputs.index", res.config.inputs.index))
         cur = bool(pt.get("ppo.curriculum.enabled", res.config.ppo.curriculum.enabled))
         by[task, inp, cur] = sr[i]
-        labels.append(f"{task} / {inp}{' / curriculum' if cur else ''}")
+        keys.append((task, inp, cur))
     steps = int(np.asarray(res.curves["env_steps"])[0, -1, 0])
     rows = ["| task | input | curriculum | PPO greedy % | tabular Q %, Table 2 defaults, "
             "16 seeds | paper % |", "|---|---|---|---|---|---|"]
@@ -106,7 +107,7 @@ def report_shoot_pass(res) -> ReportSection:
                        f"current {_diff(by[task, 'stack', cur], by[task, 'current', cur])} "
                        f"points (paper: CVA − current "
                        f"{PAPER[task]['cva'] - PAPER[task]['current']:+.1f})")
-    fig = plot_success_vs_steps(res.curves, labels, res.out_dir / "ppo_success_vs_steps.png",
+    fig = plot_two_robot_curves(res.curves, keys, res.out_dir / "ppo_success_vs_steps.png",
                                 "PPO, two-robot task")
     md = (f"brax PPO (categorical policy) on Table 2's task, {res.seeds} seeds, {steps:,} "
           "training primitives per learner; greedy = deterministic policy at the full start "
@@ -155,7 +156,36 @@ SHOOTING = register(Experiment(
     seeds=8, quick_seeds=2, paper_result=True, report=report_shooting,
     sweep={"ppo.curriculum.enabled": [False, True]}, cost=150.0))  # s, cold --quick (guess)
 
-if __name__ == "__main__":
-    from vbl.engine import main_for
+def rerender(folder: str) -> Path:
+    """Write ``report.md`` of a finished ``ppo_comparator`` run folder again with this
+    module's report (curves rebuilt from its ``metrics.jsonl``): ``python
+    experiments/ppo_comparator.py --rerender RUN_DIR``."""
+    import dataclasses
+    import json
 
-    main_for(EXPERIMENT)
+    from vbl.engine.report import load_run, run_report
+
+    exp, res, _ = load_run(folder)
+    rows = [json.loads(line) for line in (Path(folder) / "metrics.jsonl").read_text()
+            .splitlines() if line.strip()]
+    rows = [r for r in rows if isinstance(r.get("chunk"), int)]
+    chunks = 1 + max(r["chunk"] for r in rows)
+    curves: dict = {}
+    for r in rows:
+        for k, st in r["metrics"].items():
+            v = np.asarray(st["per_seed"], float)
+            curves.setdefault(k, np.full((len(res.points), chunks, v.size), np.nan))[
+                r["point"], r["chunk"]] = v
+    res = dataclasses.replace(res, curves=curves, figures=())
+    return run_report(exp, res)[1]
+
+
+if __name__ == "__main__":
+    import sys
+
+    if len(sys.argv) == 3 and sys.argv[1] == "--rerender":
+        print(rerender(sys.argv[2]))
+    else:
+        from vbl.engine import main_for
+
+        main_for(EXPERIMENT)

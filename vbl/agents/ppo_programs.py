@@ -33,7 +33,7 @@ from vbl.envs.shooting import ShootingEnv
 from vbl.params import param
 
 __all__ = ["PPORunParams", "InputChoice", "make_shooting_program", "make_shoot_pass_program",
-           "ci95", "welch_ci", "plot_success_vs_steps", "input_label"]
+           "ci95", "welch_ci", "plot_success_vs_steps", "plot_two_robot_curves", "input_label"]
 
 
 @struct.dataclass
@@ -148,6 +148,44 @@ def plot_success_vs_steps(curves: dict, labels: list[str], path: Path, title: st
            ylim=(0, 1), title=f"{title} ({sr.shape[2]} seeds, 95% band)")
     ax.legend(fontsize="small")
     ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def plot_two_robot_curves(curves: dict, rows: list[tuple[str, str, bool]], path: Path,
+                          title: str) -> Path:
+    """The two-robot comparison's ``success_rate`` against training env steps: one panel per
+    task, a colour per input, dashed with the curriculum; mean over seeds with its 95 %
+    band. ``rows[i]`` = (task, input, curriculum) of sweep point i; ``curves[metric]`` is
+    (points, chunks, seeds)."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    steps, sr = np.asarray(curves["env_steps"]), np.asarray(curves["success_rate"])
+    tasks = [t for t in ("shoot", "pass") if any(r[0] == t for r in rows)]
+    colours = {"current": "C0", "stack": "C1", "cva": "C2"}
+    fig, axes = plt.subplots(1, len(tasks), figsize=(5.2 * len(tasks), 4.0), squeeze=False)
+    for ax, task in zip(axes[0], tasks, strict=True):
+        for i, (t, inp, cur) in enumerate(rows):
+            if t != task:
+                continue
+            x, m = steps[i].mean(axis=1), sr[i].mean(axis=1)
+            ax.plot(x, m, color=colours.get(inp, "C3"), ls="--" if cur else "-",
+                    label=f"{inp}{', curriculum' if cur else ''}")
+            if sr.shape[2] > 1:
+                h = np.array([ci95(r)[1] for r in sr[i]])
+                ax.fill_between(x, m - h, m + h, color=colours.get(inp, "C3"), alpha=0.12,
+                                lw=0)
+        ax.set(xlabel="training env steps (primitives) per learner", ylabel="success rate",
+               ylim=(0, 1), title=f"{task}")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize="small")
+    fig.suptitle(f"{title} ({sr.shape[2]} seeds, mean and 95% band; evaluation at start "
+                 "difficulty 1)", fontsize="medium")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
