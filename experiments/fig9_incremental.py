@@ -111,12 +111,13 @@ grid.agent.num_envs=64 --set grid.train.num_chunks=100``."""
 
 def _grid_default():
     """grid_shooting's settings by reference, except the evaluation's start difficulty,
-    pinned to :data:`EVAL_DIFFICULTY` (grid_shooting's own may change, e.g. to 1.0), and the
-    budget (:data:`GRID_ENVS`, :data:`GRID_CHUNKS`: equal experience)."""
+    pinned to :data:`EVAL_DIFFICULTY` (grid_shooting's own may change, e.g. to 1.0), the
+    budget (:data:`GRID_ENVS`, :data:`GRID_CHUNKS`: equal experience) and a curve point
+    every chunk (eval_every 1: any chunk count is valid)."""
     g = fig5().GridBaseline()
     return g.replace(agent=g.agent.replace(num_envs=GRID_ENVS),
                      train=g.train.replace(eval_difficulty=EVAL_DIFFICULTY,
-                                           num_chunks=GRID_CHUNKS))
+                                           num_chunks=GRID_CHUNKS, eval_every=1))
 
 
 def _learner_default() -> IncrementalParams:
