@@ -144,7 +144,7 @@ def make_program(cfg: Table2Config) -> Program:
         eps = jnp.sum(m["episodes"]).astype(jnp.float32)
         sr = jnp.sum(m["successes"]).astype(jnp.float32) / jnp.maximum(eps, 1.0)
         return Carry(rs, carry.fparams, carry.chunk + 1, carry.eval_key), {
-            "episodes": eps, "success_rate": sr, "epsilon": m["rate"][-1]}
+            "episodes": eps, "chunk_success": sr, "epsilon": m["rate"][-1]}
 
     def final(carry, c, key):
         ev = first_episode_stats(carry.runner.env_state)
@@ -190,7 +190,7 @@ def report(res) -> ReportSection:
         task = _task_label(pt, res.config)
         state = _state_label(pt, res.config)
         g, gh = _ci(100 * np.asarray(res.final["greedy_success_rate"][i]))
-        t, th = _ci(100 * np.asarray(res.curves["success_rate"][i][-1 - n_ev]))
+        t, th = _ci(100 * np.asarray(res.curves["chunk_success"][i][-1 - n_ev]))
         ident = " / ".join(
             f"{np.median(res.final[f'lag_{o}'][i]):.0f}, {np.median(res.final[f'n_{o}'][i]):.0f}"
             for o in res.config.learner.objects if f"lag_{o}" in res.final)
@@ -242,6 +242,9 @@ EXPERIMENT = register(Experiment(
     paper=PAPER,
     report=report,
     paper_rows=paper_rows,
+    # chunk_success: the episodes that finished in a chunk (training chunks: with exploration;
+    # the last train.eval_chunks: greedy, no learning); folders written before read through this
+    renamed_metrics={"success_rate": "chunk_success"},
     # parameters added after run folders were written: the values of the code before them
     legacy_values={"learner.keep_beyond_order": False, "learner.cancor_weight": False,
                    "learner.cva.lag_rule": "paper", "learner.cva.collinear_tol": 1e-8,

@@ -12,7 +12,8 @@ import numpy as np
 
 __all__ = ["auto_quiet", "Progress", "bar_width", "SUCCESS_METRICS"]
 
-SUCCESS_METRICS = ("eval_success", "greedy_success", "success_rate", "train_success")
+SUCCESS_METRICS = ("eval_success", "greedy_success", "success_rate", "train_success",
+                   "chunk_success")
 """Per-chunk metrics the bar shows, the first one present, under its own name: the
 evaluation of the policy learned so far before training success (with exploration)."""
 
