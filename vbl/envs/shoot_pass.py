@@ -114,7 +114,8 @@ _ = float("nan")
 #: shoot: the shooter nearest the goal and centred, facing the goal/passer bisector; the
 #: passer at the largest angle and distance (clear of the shot, the pass comes from in front
 #: of the shooter), facing it; the ball nearest the passer. (A shooter that only drives
-#: forward scores 58 % of these starts, 16 % of the full draws: tests/test_shoot_pass_env.py.)
+#: forward scores far more often from these starts than from the full draws:
+#: tests/test_shoot_pass_env.py::test_easy_starts_are_easier.)
 EASY_SHOOT = (1.0, 0.5, _, 1.0, 1.0, 0.5, 0.5, 0.0, _, _, _, _)
 #: pass: the shooter nearest, the passer facing it, the ball rolling straight at the
 #: passer, nearest and slowest.
