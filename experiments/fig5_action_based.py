@@ -135,11 +135,11 @@ def _build_default() -> ActionBasedParams:
     """The library's thresholds, with the two lost-side features (``features.lost_sides``)
     categorical: clusters and ellipsoids never mix "ball seen", "ball lost left" and "ball
     lost right" (nor the goal's three), which the Gaussian ellipsoids of mixed clusters did
-    (half-widths ~1 along the lost-side axes, measured); 4 clusters per primitive,
-    iteration and pattern (36 ellipsoids per primitive and iteration). With these the
-    reliability is the chance of scoring through the chain (threshold 0.4) and a point
-    goes to the containing ellipsoid of fewest expected primitives to the goal (4 seeds:
-    0.18 -> 0.26, every seed up; docs/state_spaces.md, "Figure 5")."""
+    (spanning the lost-side axes); 4 clusters per primitive, iteration and pattern (36
+    ellipsoids per primitive and iteration). With these the reliability is the chance of
+    scoring through the chain (threshold 0.4) and a point goes to the containing ellipsoid
+    of fewest expected primitives to the goal (4 seeds: 0.18 -> 0.26, every seed up;
+    docs/findings/fig5_action_based.md, "Tried, did not help")."""
     return ActionBasedParams(categorical_dims=2, clusters_per_action=4,
                              chain_reliability=True, rank="time", min_reliability=0.4)
 
@@ -147,9 +147,10 @@ def _build_default() -> ActionBasedParams:
 def _collect_default() -> CollectParams:
     """Start difficulty U[0, 0.3] (0 = ball in front near the goal): the data lie where the
     map is evaluated (0.1) and F reaches the goal from far more of them than from fully
-    random starts (cells, 2 seeds: 0.64 / 0.55 at 0.3 against 0.46 / 0.49 at 1.0;
-    docs/state_spaces.md, "Figure 5"). The ellipsoid construction's numbers in
-    the docs were measured with ``collect.difficulty_hi=1.0``."""
+    random starts (chosen on single-seed prototypes, not re-measured through the engine:
+    docs/findings/fig5_action_based.md, "Deviations and the evidence for them"). The
+    ellipsoid construction's numbers in that note were measured with
+    ``collect.difficulty_hi=1.0``."""
     return CollectParams(difficulty_hi=0.3)
 
 

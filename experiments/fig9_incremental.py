@@ -126,7 +126,7 @@ def _learner_default() -> IncrementalParams:
     boxes; learning rate 0.02, Boltzmann temperature 0.01. 4 seeds: greedy 0.63 against 0.12
     with one-step Q-learning (``--set learner.value_update=q_learning --set
     learner.alpha=0.25 --set learner.temperature=0.02``: the library defaults);
-    docs/state_spaces.md, "Figure 9"."""
+    docs/findings/fig9_incremental.md, "Deviations and the evidence for them"."""
     return IncrementalParams(value_update="monte_carlo", alpha=0.02, temperature=0.01)
 
 

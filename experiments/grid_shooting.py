@@ -66,25 +66,24 @@ class ReportParams:
 
 TASK_DIFFICULTY = 1.0
 """Start difficulty of the reported task (evaluation, and the cap of the curriculum): fully
-random starts, as the issue asks. The ball is in view at only ~20 % of them and the goal at
-~24 %; a hand-written table on the 319 grid states scores 0.70 there within 100 s (random
-0.004). One-step Q-learning did not learn it (0.00-0.05); with multi-step returns
-(``TRACE``) and the success-gated curriculum it does (numbers in docs/agents.md)."""
+random starts. A hand-written table on the 319 grid states scores 0.707 there within 100 s
+(random 0.000 on the same starts). One-step Q-learning did not learn it (0.00-0.05); with
+multi-step returns (``TRACE``) and the success-gated curriculum it does (numbers in
+docs/findings/grid_shooting.md)."""
 
 
 MIN_REPEATS = 3  #: primitives per macro action at least (0.3 s)
 
 MAX_STEPS = 1000
 """Time limit of this experiment's episodes, primitives (100 s; the env's default is 30 s).
-From fully random starts 30 s is too short even for scripted policies (0.07-0.23: a
-successful scripted episode takes ~220 primitives); with 100 s they score 0.70 (a
-hand-written table on the 319 grid states) to 0.91, and the random policy 0.004
-(docs/agents.md, "Fully random starts")."""
+From fully random starts 30 s is too short even for a hand-written table on the 319 grid
+states (0.102); with 100 s it scores 0.707, and the random policy 0.000 on the same starts
+(docs/findings/grid_shooting.md, "Deviations and why")."""
 
 TRACE = TraceParams(enabled=True, kind="peng", lam=0.9, length=32)
 """Multi-step returns (Peng's Q(lambda), lambda 0.9 per action, window 32 actions): the
 remedy for the grid's state aliasing, under which one-step Q-learning unlearned even a
-good hand-written table (docs/agents.md)."""
+good hand-written table (docs/findings/grid_shooting.md, "Deviations and why")."""
 
 EVAL_STEPS = 400
 """Cap on (macro) actions per evaluation episode: above ``MAX_STEPS / MIN_REPEATS`` (100), so
@@ -94,7 +93,7 @@ the env's time limit, not the cap, ends an unfinished evaluation episode."""
 EVAL_EPSILON = 0.1
 """Epsilon of the near-greedy policy (the final epsilon of training): on an aliased state
 space the best memoryless policy can be stochastic, and the deterministic greedy one cycles
-between look-alike states (docs/agents.md)."""
+between look-alike states (docs/findings/grid_shooting.md, "Deviations and why")."""
 
 
 EXPLORATION_STEPS = 500.0
@@ -102,19 +101,20 @@ EXPLORATION_STEPS = 500.0
 the easy episodes are short, so a slow decay spent ~1,300 trials at difficulty 0-0.1 while
 exploration kept the training success under the curriculum's 90 % gate; with 500 the
 curriculum median reached 30 % near-greedy success in 2,190 trials instead of ~3,700
-(4 seeds, docs/agents.md)."""
+(4 seeds; docs/findings/grid_shooting.md, "Tried, did not help")."""
 
 
 def _agent() -> QRunnerParams:
-    """Defaults of this experiment (the library's otherwise):
+    """Defaults of this experiment (the library's otherwise; the measurements are in
+    docs/findings/grid_shooting.md):
 
     * epsilon from 1 to 0.1 over ``EXPLORATION_STEPS`` learner steps;
     * discount 0.98 per primitive (0.8 would make a goal more than ~3 s away worth
-      < 0.8**30 = 1e-3); learning rate 0.1 (0.25 with traces: the curriculum stalled and the
-      learned policy collapsed at difficulty 0.3, measured); multi-step returns ``TRACE``;
+      < 0.8**30 = 1e-3); learning rate 0.1 (0.25 with traces: the training success
+      collapsed once the curriculum raised the difficulty); multi-step returns ``TRACE``;
     * macro actions run at least ``MIN_REPEATS`` primitives: with one, a turn in place
       flipped the goal's orientation category every primitive and the greedy policy cycled
-      between two look-alike states until the time limit (measured);
+      between two look-alike states until the time limit;
     * LEM: the curriculum runs from difficulty 0 to the task's ``TASK_DIFFICULTY`` (LEM off =
       ``initial_difficulty = max_difficulty``: every episode at the task difficulty); it
       raises the difficulty by 0.1 after every window of 100 learner steps whose training
@@ -123,7 +123,7 @@ def _agent() -> QRunnerParams:
       criterion: with "mean |dQ| per window below 0.02-0.1" the curriculum stayed at
       0-0.3 in 4,000 learner steps); and
       lowers it by 0.1 after a window below 50 % (``lem.backoff_level``: without it the
-      training success collapsed once the difficulty reached 0.8-0.9, measured).
+      near-greedy success fell once the difficulty reached 0.8-0.9).
     """
     a = QRunnerParams()
     sched = a.agent.exploration.schedule.replace(transition_steps=EXPLORATION_STEPS)
@@ -150,9 +150,10 @@ def _env() -> ShootingParams:
 NUM_CHUNKS = 100
 """Training chunks (x 100 learner steps x 64 robots): without LEM the episodes at the task
 difficulty mostly run to the time limit, so it finishes ~2x fewer trials per chunk than
-with LEM (100 chunks: ~3,300 vs ~6,700). That covers LEM's crossings of 20 % and 30 %
-(~1,600 and ~1,900 trials); to compare at 50 % (LEM ~3,800) run the no-LEM arm longer
-(``--sweep agent.lem.initial_difficulty=1.0 --set train.num_chunks=132``; docs/agents.md)."""
+with LEM (100 chunks: ~3,300 vs ~6,700; docs/results/grid_shooting/report.md). That covers
+LEM's crossings of 20 % and 30 % (~1,600 and ~1,900 trials); to compare at 50 % (LEM
+~3,800) run the no-LEM arm longer (``--sweep agent.lem.initial_difficulty=1.0 --set
+train.num_chunks=132``; docs/findings/grid_shooting.md, "What vbl measures")."""
 
 EVAL_EVERY = 4
 """Training chunks per point of the learning curve: the greedy evaluation of 32 fresh starts

@@ -40,15 +40,17 @@ PAPER = {"shoot": {"current": 10.2, "cva": 78.5}, "pass": {"current": 9.8, "cva"
 
 
 def default_learner() -> CVAStateParams:
-    """Pipeline defaults for the two-robot task (choices, see docs/cva_learning.md)."""
+    """Pipeline defaults for the two-robot task (docs/cva_learning.md, "Choices and why")."""
     # The ball's 8 leading canonical components (keep_beyond_order: its AIC order is 4,
-    # and components 5-8 carry its approach velocity, R^2 0.44 against 0.08 with 4), the
-    # goal's and the other robot's 4 (with 2 their horizontal image position is lost,
-    # R^2 0.01-0.3 against 0.96). No unfiltered lost-side flags. One k-means codebook per
-    # object (product VQ): ball 64 x goal 8 x other robot 8 = 4,096 states for both state
-    # vectors. 16 seeds: pass CVA 59.5 % vs current 22.4 %, shoot 16.8 vs 16.5 % (the
-    # earlier allocation, 4 ball components on 16 codes, 1,024 states: pass 42.7 vs
-    # 40.9 %, shoot 25.8 vs 40.9 %; docs/cva_learning.md).
+    # and components 5-8 carry its approach velocity, R^2 0.45 against 0.08 with 4;
+    # docs/findings/table2_shoot_pass.md, "What the CVA state carries (probe)"), the
+    # goal's and the other robot's 4 (with 2 their horizontal image position is poorly
+    # represented). No unfiltered lost-side flags. One k-means codebook per object
+    # (product VQ): ball 64 x goal 8 x other robot 8 = 4,096 states for both state
+    # vectors. 16 seeds: pass CVA 59.5 % vs current 22.4 %, shoot 16.8 vs 16.5 % (with
+    # 4 ball components on codes 16 x 8 x 8, 1,024 states: pass 42.7 vs 40.9 %, shoot
+    # 25.8 vs 40.9 %;
+    # docs/findings/table2_shoot_pass.md, "How the passing result came about").
     return CVAStateParams(
         state="select", objects=("ball", "goal", "other"), n_used=4,
         n_used_objects=(8, 4, 4), keep_beyond_order=True, extra=(), collect_steps=3000,
@@ -62,14 +64,15 @@ def _runner(transition_steps: float):
     """Runner defaults with discount 0.95 and epsilon 1.0 -> 0.05 over ``transition_steps``
     learner steps (primitives, about 75 % of a run: num_chunks x chunk_steps)."""
     r = default_runner()
-    # macro actions: repeat a primitive until the quantised state changes (state-action
-    # deviation; docs/cva_learning.md)
+    # macro actions: repeat a primitive until the quantised state changes (a deviation:
+    # docs/findings/table2_shoot_pass.md, "Deviations")
     # (async: every runner step is one primitive of every env; an env decides when its
-    # action ends; ~1.4 primitives per action here, so sync mode wasted ~90 % of the work)
+    # action ends; an action lasts a few primitives on average against a cap of 20, and a
+    # synchronous loop runs as long as the longest action of the batch)
     r = r.replace(macro=r.macro.replace(enabled=True, mode="async"))
     sch = r.agent.exploration.schedule.replace(transition_steps=transition_steps)
     # discount 0.95 per 0.1 s primitive: a goal 3-4 s after the start is still worth ~0.17
-    # (0.8 gave ~4e-4); measured: CVA pass 9.0 % (0.95) vs 6.2 % (0.8), docs/cva_learning.md
+    # (0.8: ~4e-4); docs/cva_learning.md, "Choices and why"
     return r.replace(agent=r.agent.replace(discount=0.95, exploration=r.agent.exploration.replace(
         schedule=sch)))
 
@@ -77,8 +80,7 @@ def _runner(transition_steps: float):
 def default_lr_schedule() -> ScheduleParams:
     """Learning rate per training chunk: 0.5 for the first 70 % of the default 400 chunks,
     then linearly down to 0.05 over the next 10 % (a decreasing step size lets the tabular
-    Q estimates settle; on the oracle-state probe of docs/cva_learning.md greedy success
-    went from 0.29 to 0.52)."""
+    Q estimates settle; docs/cva_learning.md, "Choices and why")."""
     return ScheduleParams(kind="linear", init_value=0.5, end_value=0.05,
                           transition_begin=280.0, transition_steps=40.0)
 

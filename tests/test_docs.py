@@ -167,3 +167,37 @@ def test_probe_scripts_are_cited_and_exist():
         cited |= set(re.findall(r"benchmarks/probes/([a-z0-9_]+\.py)", doc.read_text()))
     assert cited <= probes, f"docs cite missing probes: {sorted(cited - probes)}"
     assert probes <= cited, f"probes no doc cites: {sorted(probes - cited)}"
+
+
+CITATION = re.compile(r"(?<![\w/])docs/([\w./-]+\.md)`{0,2}"
+                      r"(?:(?:,\s*|\s+\()(?:#\s*)?\"([^\"]+)\")?")
+
+
+def _headings(path: Path) -> list[str]:
+    return [re.sub(r"\s+", " ", m.group(1)).strip() for m in
+            re.finditer(r"^#{1,6}\s+(.*)$", FENCE.sub("", path.read_text()), re.M)]
+
+
+def test_docs_cited_in_code_exist_with_the_cited_section():
+    """Every ``docs/X.md`` a comment or docstring under vbl/, experiments/, benchmarks/ cites
+    exists, and a section named in quotes right after it (``docs/X.md, "Heading"`` or
+    ``docs/X.md ("Heading")``, possibly wrapped onto a ``#`` comment line) is part of a
+    heading of X.md."""
+    sample = 'a (docs/a_1/b.md, "Why\n    # it holds") and ``docs/c.md`` ("Numbers"), docs/d.md.'
+    assert [(m.group(1), m.group(2)) for m in CITATION.finditer(sample)] == [
+        ("a_1/b.md", "Why\n    # it holds"), ("c.md", "Numbers"), ("d.md", None)]
+    bad = []
+    for top in ("vbl", "experiments", "benchmarks"):
+        for py in sorted((ROOT / top).rglob("*.py")):
+            text = py.read_text()
+            for m in CITATION.finditer(text):
+                line = text.count("\n", 0, m.start()) + 1
+                doc = ROOT / "docs" / m.group(1)
+                where = f"{_rel(py)}:{line}: docs/{m.group(1)}"
+                if not doc.is_file():
+                    bad.append(f"{where} (no such file)")
+                elif m.group(2):
+                    section = re.sub(r"\s*\n\s*#?\s*", " ", m.group(2)).strip()
+                    if not any(section in h for h in _headings(doc)):
+                        bad.append(f'{where} (no heading containing "{section}")')
+    assert not bad, "stale doc citations in code:\n" + "\n".join(bad)

@@ -7,8 +7,10 @@ primitive (0: the decision's own primitive scored), else 0; the Q entry of a (st
 action) with c such decisions in this batch moves towards their mean return by
 ``1 - (1 - lr)**c`` (c updates towards the same mean), and the log empties. No
 bootstrapping: a state that aliases situations needing different actions does not
-spread a wrong value to its predecessors (docs/state_spaces.md, "Figure 5",
-where Monte Carlo control on fixed cells beat one-step Q-learning by far).
+spread a wrong value to its predecessors. On the on-line learner's boxes Monte Carlo
+values beat one-step Q-learning by far (docs/findings/fig9_incremental.md,
+"Deviations and the evidence for them"); on Table 2's task too
+(docs/findings/table2_shoot_pass.md, "Why shooting is not reproduced").
 """
 
 from __future__ import annotations

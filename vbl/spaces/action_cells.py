@@ -10,7 +10,7 @@ seen / lost left / lost right") is its own set of cells, and a state is the unio
 cells labelled with the same primitive at the same iteration (the paper's "a hyper-
 ellipsoid, or a union of them", with axis-aligned boxes). Cells cannot spill across a
 boundary the way a Gaussian ellipsoid fitted to a mixed cluster does
-(docs/state_spaces.md, "Figure 5").
+(docs/findings/fig5_action_based.md, "Deviations and the evidence for them").
 
 Iteration ``i = 0, 1, ...`` (all fixed-shape, jit- and vmap-able):
 
@@ -64,7 +64,7 @@ round trip through ``summary.json``)."""
 @struct.dataclass
 class CellMapParams:
     """Cells and thresholds of the cell construction (defaults: Figure 5's, measured in
-    docs/state_spaces.md)."""
+    docs/findings/fig5_action_based.md)."""
 
     bins: tuple[int, ...] = param((4, 5, 3, 3, 1), doc="quantile bins per continuous feature "
                                   "(Section 2: x1 ball size, x2 ball position, x3 goal size, x4 "

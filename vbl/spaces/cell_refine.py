@@ -62,7 +62,7 @@ UNITS = ("labelled", "cells")
 @struct.dataclass
 class RefineParams:
     """Closed-loop refinement of a cell map (module docstring; defaults: Figure 5's,
-    measured in docs/state_spaces.md)."""
+    measured in docs/findings/fig5_action_based.md)."""
 
     iterations: int = param(50, doc="policy-improvement iterations (0: no refinement)",
                             static=True, ge=0)

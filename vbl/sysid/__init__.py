@@ -9,7 +9,8 @@ Quick use::
     identify(u, y, CVAParams(lag_rule="paper"))           # the lag rule of Sec. 3.1.2
 
 Every public function computes in float64 (unless its params ask for float32) whether or not
-``jax_enable_x64`` is on globally. See ``docs/sysid.md``.
+``jax_enable_x64`` is on globally: ``import vbl`` sets no global JAX option, and each call
+scopes float64 itself. See ``docs/sysid.md``, "Numerics: float64 and float32".
 """
 
 from vbl.sysid.aic import aic, param_count
