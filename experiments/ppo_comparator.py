@@ -107,6 +107,13 @@ def report_shoot_pass(res) -> ReportSection:
                        f"current {_diff(by[task, 'stack', cur], by[task, 'current', cur])} "
                        f"points (paper: CVA − current "
                        f"{PAPER[task]['cva'] - PAPER[task]['current']:+.1f})")
+    for task in ("shoot", "pass"):
+        pairs = [(inp, _diff(by[task, inp, True], by[task, inp, False]))
+                 for inp in ("current", "stack", "cva")
+                 if (task, inp, True) in by and (task, inp, False) in by]
+        if pairs:
+            adv.append(f"* {task}, curriculum on − off: "
+                       + "; ".join(f"{inp} {d}" for inp, d in pairs) + " points")
     fig = plot_two_robot_curves(res.curves, keys, res.out_dir / "ppo_success_vs_steps.png",
                                 "PPO, two-robot task")
     md = (f"brax PPO (categorical policy) on Table 2's task, {res.seeds} seeds, {steps:,} "
@@ -114,7 +121,8 @@ def report_shoot_pass(res) -> ReportSection:
           "distribution (start difficulty 1), first episode from each of the final "
           "evaluation's fresh starts (mean ± 95 % CI).\n\n"
           + "\n".join(rows) + "\n\nDoes PPO show the CVA advantage (difference of means, "
-          "Welch 95 % CI; shown = interval above 0, reversed = below 0)?\n\n" + "\n".join(adv))
+          "Welch 95 % CI; shown = interval above 0, reversed = below 0)? And what does the "
+          "curriculum change?\n\n" + "\n".join(adv))
     return ReportSection(markdown=md, figures=(fig, *res.figures))
 
 
