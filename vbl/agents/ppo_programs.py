@@ -123,6 +123,8 @@ def welch_ci(a: Any, b: Any) -> tuple[float, float]:
 
     a, b = np.asarray(a, float), np.asarray(b, float)
     va, vb = a.var(ddof=1) / a.size, b.var(ddof=1) / b.size
+    if va + vb == 0:  # both samples constant: the difference is exact
+        return float(a.mean() - b.mean()), 0.0
     dof = (va + vb) ** 2 / (va ** 2 / (a.size - 1) + vb ** 2 / (b.size - 1) + 1e-30)
     return float(a.mean() - b.mean()), float(stats.t.ppf(0.975, dof) * np.sqrt(va + vb))
 
