@@ -125,8 +125,8 @@ def test_bad_thresholds_raise_clear_errors(flipped):
 def test_fig5_and_fig9_compare_with_grid_shootings_own_config():
     """The grid baseline of Figures 5 and 9 is grid_shooting's default config by reference,
     except the evaluation's start difficulty, pinned to 0.1 (grid_shooting's own task is
-    fully random starts), and, for Figure 9, the budget (one robot, equal experience);
-    Figure 9 evaluates at its training episodes' difficulty."""
+    fully random starts), and, for Figure 9, the budget (one robot, equal experience) and a
+    curve point every chunk; Figure 9 evaluates at its training episodes' difficulty."""
     import sys
 
     from vbl.engine.registry import get
@@ -138,6 +138,8 @@ def test_fig5_and_fig9_compare_with_grid_shootings_own_config():
         g = get(name).default_config.grid
         budget = dict(num_envs=gs.agent.num_envs), dict(num_chunks=gs.train.num_chunks)
         if name == "fig9_incremental":
+            assert g.train.eval_every == 1
+            budget[1]["eval_every"] = gs.train.eval_every
             assert (g.agent.num_envs, g.train.num_chunks) == (f9m.GRID_ENVS, f9m.GRID_CHUNKS)
         assert g.agent.replace(**budget[0]) == gs.agent and g.grid == gs.grid, name
         assert g.train.replace(eval_difficulty=gs.train.eval_difficulty, **budget[1]) == \
