@@ -54,6 +54,7 @@ def _two_robot_learner(p):
     return lrn, params
 
 
+@pytest.mark.slow  # compile-bound: 3-8 min on 2 cores
 def test_vbl_ppo_on_shoot_and_pass_with_curriculum_drives_the_env():
     """vbl's PPO (brax's parts) for a few thousand steps on the shoot and the pass task (one
     vmapped program, after ``import vbl``): it finishes, and the curriculum's difficulty is
