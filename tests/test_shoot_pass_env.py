@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import vbl  # noqa: F401  (x64 on)
+import vbl  # noqa: F401
 from vbl.envs.noise import NoiseParams, eccentric_centroid, noisy_camera, perturb_ball_velocity
 from vbl.envs.other_agents import OtherAgentParams, act, init_memory
 from vbl.envs.shoot_pass import (
