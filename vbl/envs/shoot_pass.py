@@ -152,12 +152,11 @@ class StartParams:
     pass_dist_max: float = param(2.2, doc="shooter-passer centre distance, upper end",
                                  unit="m", gt=0.0)
     pass_angle_min_deg: float = param(10.0, doc="passer direction off the shooter-goal "
-                                      "direction, lower end (was 20: the shot must turn the "
-                                      "passed ball by about this angle, see "
-                                      "docs/two_robot_task.md)", unit="deg", ge=0.0, le=90.0)
+                                      "direction, lower end (the shot must turn the passed "
+                                      "ball by about this angle, see docs/two_robot_task.md)",
+                                      unit="deg", ge=0.0, le=90.0)
     pass_angle_max_deg: float = param(25.0, doc="passer direction off the shooter-goal "
-                                      "direction, upper end (was 40)", unit="deg", ge=0.0,
-                                      le=90.0)
+                                      "direction, upper end", unit="deg", ge=0.0, le=90.0)
     passer_jitter_deg: float = param(10.0, doc="uniform +- jitter of the passer heading "
                                      "around the direction to the shooter", unit="deg",
                                      ge=0.0, le=180.0)
@@ -208,8 +207,7 @@ class ShootPassParams:
     passer_kick_speed: float = param(1.6, doc="ball speed of a learning passer's kick (along "
                                      "its heading)", unit="m/s", ge=0.0)
     kick_cone_deg: float = param(45.0, doc="a touch kicks only when the ball is within +- "
-                                 "this of the robot heading (was 30: a hand-written policy on "
-                                 "the true state then shot only 45 %, docs/two_robot_task.md)",
+                                 "this of the robot heading (docs/two_robot_task.md)",
                                  unit="deg", ge=0.0, le=180.0)
     receive_distance: float = param(0.45, doc="pass: success when the ball centre comes "
                                     "this close to the shooter centre", unit="m", gt=0.0)
