@@ -96,7 +96,12 @@ def _camera(r: dict) -> tuple[float, str]:
 
 def _ppo(r: dict) -> tuple[float, str]:
     best = max(r["rows"], key=lambda x: x["steps_per_s"])
-    return best["steps_per_s"], f"PPO env steps/s ({best['task']}, {best['net']})"
+    size = ""
+    if "policy_params" in best:
+        size = f", {best['policy_params']:,} + {best['value_params']:,} parameters"
+    compiled = f", compile {best['compile_s']:.0f} s" if "compile_s" in best else ""
+    return best["steps_per_s"], (f"PPO env steps/s ({best['task']}, {best['net']} networks"
+                                 f"{size}{compiled})")
 
 
 def _state_map(r: dict) -> tuple[float, str]:
