@@ -7,7 +7,9 @@ A doc marks a table it wants generated with a pair of comments::
     <!-- /params -->
 
 The table is ``vbl params EXPERIMENT`` (:func:`vbl.params.markdown_table` of the experiment's
-default config) restricted to the rows whose path equals a ``PREFIX`` or starts with
+default config), or, for ``EXPERIMENT`` written ``module:Class`` (e.g.
+``vbl.vision.camera:CameraParams``), the table of that parameter class's defaults,
+restricted to the rows whose path equals a ``PREFIX`` or starts with
 ``PREFIX.`` (``learner`` selects the whole ``learner`` section, ``task`` the one field).
 ``tests/test_docs.py`` checks every region against :func:`render`;
 ``python -m vbl.engine.paramdoc FILE.md ...`` rewrites the regions in place.
@@ -22,7 +24,7 @@ from pathlib import Path
 __all__ = ["REGION", "table", "regions", "render", "main"]
 
 REGION = re.compile(
-    r"(?P<open><!-- params:(?P<exp>[\w-]+)(?: (?P<prefixes>[\w.,-]+))? -->\n)"
+    r"(?P<open><!-- params:(?P<exp>[\w.:-]+)(?: (?P<prefixes>[\w.,-]+))? -->\n)"
     r"(?P<body>.*?)"
     r"(?P<close><!-- /params -->)", re.S)
 
@@ -34,10 +36,17 @@ def _selected(path: str, prefixes: list[str]) -> bool:
 def table(experiment: str, prefixes: list[str] | tuple[str, ...] = ()) -> str:
     """The rows of ``vbl params experiment`` whose path is under one of ``prefixes`` (all
     rows when empty), with the table's header."""
+    import importlib
+
     from vbl.engine import get
     from vbl.params import markdown_table
 
-    lines = markdown_table(get(experiment).default_config).splitlines()
+    if ":" in experiment:  # a parameter class: module:Class
+        module, name = experiment.split(":")
+        source = getattr(importlib.import_module(module), name)
+    else:
+        source = get(experiment).default_config
+    lines = markdown_table(source).splitlines()
     head, rows = lines[:2], lines[2:]
     keep = [r for r in rows if _selected(r.split("`")[1], list(prefixes))]
     if not keep:
