@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["Words", "uniform01", "uniform_pm1", "normal", "randint"]
+__all__ = ["Words", "uniform01", "uniform_pm1", "normal", "uniform_index", "randint"]
 
 F32 = jnp.float32
 _SQRT2 = np.float32(np.sqrt(2.0))
@@ -41,13 +41,19 @@ def normal(words: jax.Array) -> jax.Array:
     return _SQRT2 * jax.lax.erf_inv(uniform_pm1(words))
 
 
+def uniform_index(u: jax.Array, n) -> jax.Array:
+    """float32 uniform draws ``u`` (...) in [0, 1) -> int32 uniform in [0, n) (``n`` >= 1, may
+    be traced; floor of ``u n``: bias below 2**-23 relative for the small ranges used here)."""
+    n = jnp.asarray(n, jnp.int32)
+    k = jnp.floor(jnp.asarray(u, F32) * n.astype(F32)).astype(jnp.int32)
+    return jnp.minimum(k, jnp.maximum(n - 1, 0))
+
+
 def randint(words: jax.Array, low, high) -> jax.Array:
     """uint32 words (...) -> int32 uniform in [low, high) (``high - low`` >= 1, may be traced;
-    floor of a uniform float: bias below 2**-23 relative for the small ranges used here)."""
+    :func:`uniform_index` of :func:`uniform01`)."""
     low = jnp.asarray(low, jnp.int32)
-    span = (jnp.asarray(high, jnp.int32) - low).astype(F32)
-    k = jnp.floor(uniform01(words) * span).astype(jnp.int32)
-    return low + jnp.minimum(k, jnp.maximum(span.astype(jnp.int32) - 1, 0))
+    return low + uniform_index(uniform01(words), jnp.asarray(high, jnp.int32) - low)
 
 
 class Words:

@@ -33,7 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from vbl.draws import Words, normal, uniform01
+from vbl.draws import Words, normal, uniform01, uniform_index
 from vbl.envs.noise import NoiseParams, advance_phase, noisy_world, perturb_ball_velocity
 from vbl.envs.other_agents import (
     ACT_DRAWS,
@@ -172,7 +172,7 @@ def observer_action(u: jax.Array, world: WorldState, params: CollectParams,
     ok = ok & jnp.where(dist < jnp.asarray(params.min_dist, F32), v <= 0, True)
     ok = jnp.where(jnp.any(ok), ok, True)
     n_ok = jnp.sum(ok.astype(I32))
-    k = jnp.minimum(jnp.floor(jnp.asarray(u, F32) * n_ok.astype(F32)).astype(I32), n_ok - 1)
+    k = uniform_index(u, n_ok)
     return jnp.argmax(ok & (jnp.cumsum(ok.astype(I32)) == k + 1)).astype(I32)
 
 

@@ -30,6 +30,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from vbl.draws import uniform_index
 from vbl.params import param
 from vbl.world.physics import WorldState, wrap_angle
 
@@ -49,13 +50,6 @@ NUM_ACTIONS = 7
 ACT_DRAWS = 2
 #: Uniform draws :func:`init_memory` takes (the passer's delay, the first action).
 MEMORY_DRAWS = 2
-
-
-def _uniform_int(u: jax.Array, n) -> jax.Array:
-    """() int32 uniform in [0, n) from a uniform draw ``u`` in [0, 1) (``n`` >= 1, may be
-    traced)."""
-    n = jnp.asarray(n, I32)
-    return jnp.minimum(jnp.floor(u * n.astype(F32)).astype(I32), n - 1)
 
 
 @struct.dataclass
@@ -94,8 +88,8 @@ def init_memory(u: jax.Array, params: OtherAgentParams) -> AgentMemory:
     """Fresh memory: the passer delay uniformly in [0, max_delay] and a uniformly random
     first action from ``u``, (MEMORY_DRAWS,) float32 uniform draws in [0, 1)."""
     u = jnp.asarray(u, F32)
-    delay = _uniform_int(u[0], jnp.asarray(params.max_delay, I32) + 1)
-    action = _uniform_int(u[1], NUM_ACTIONS)
+    delay = uniform_index(u[0], jnp.asarray(params.max_delay, I32) + 1)
+    action = uniform_index(u[1], NUM_ACTIONS)
     return AgentMemory(action=action, t=jnp.zeros((), I32), delay=delay,
                        kicked=jnp.zeros((), bool))
 
@@ -130,7 +124,7 @@ def act(behaviour: str, u: jax.Array, world: WorldState, memory: AgentMemory, me
     elif behaviour == "random_walk":
         u = jnp.asarray(u, F32)
         switch = u[0] < jnp.asarray(params.walk_switch_prob, F32)
-        new = _uniform_int(u[1], NUM_ACTIONS)
+        new = uniform_index(u[1], NUM_ACTIONS)
         a = jnp.where(switch, new, memory.action)
     elif behaviour == "move_to_ball":
         a = _to_ball(world, me, params)
