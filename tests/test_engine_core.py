@@ -14,7 +14,6 @@ from tests.engine_helpers import TINY_SETS, experiments_dir
 from vbl.engine import Experiment, get
 from vbl.engine.checkpoint import CheckpointError, Checkpoints
 from vbl.engine.config import parse_sweep, parse_value, split_values, stack_traced
-from vbl.engine.results import t_quantile_975
 from vbl.engine.runner import run_experiment
 from vbl.engine.sharding import batch_layout
 from vbl.params import ParamError
@@ -68,13 +67,6 @@ def test_stacked_config_dtypes(toy):
     st = stack_traced([toy.default_config, toy.default_config], repeats=3)
     assert st.agent.learning_rate.shape == (6,) and st.agent.learning_rate.dtype == np.float32
     assert st.env.num_arms == 10  # static fields stay Python values
-
-
-def test_t_quantile_matches_scipy():
-    from scipy.stats import t
-
-    for df in (1, 2, 5, 29, 30, 31, 100, 5000):
-        assert t_quantile_975(df) == pytest.approx(t.ppf(0.975, df), abs=2e-5)
 
 
 @pytest.mark.parametrize("n,d,b", [(1, 1, 4096), (5, 4, 4096), (5000, 4, 4096), (12, 2, 5),

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from vbl.engine.results import t_quantile_975
+from vbl.stats import mean_ci95
 
 __all__ = ["point_label", "plot_curves", "plot_names", "is_rate", "band"]
 
@@ -23,10 +23,8 @@ def is_rate(metric: str) -> bool:
 def band(metric: str, values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(mean, lower, upper) over seeds of ``values`` (chunks, seeds): the Student t 95 %
     interval of the mean, clipped to [0, 1] for a rate (:func:`is_rate`)."""
-    m = values.mean(axis=1)
-    seeds = values.shape[1]
-    h = (t_quantile_975(seeds - 1) * values.std(axis=1, ddof=1) / np.sqrt(seeds)
-         if seeds > 1 else np.zeros_like(m))
+    m, h = mean_ci95(values, axis=1)
+    h = np.nan_to_num(h)  # one seed: no band
     lo, hi = m - h, m + h
     if is_rate(metric):
         lo, hi = np.clip(lo, 0.0, 1.0), np.clip(hi, 0.0, 1.0)

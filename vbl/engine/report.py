@@ -16,8 +16,8 @@ from typing import Any
 from vbl.engine.config import EngineError
 from vbl.engine.experiment import Experiment, ReportSection, RunResult
 from vbl.engine.registry import all_experiments, discover, import_errors
-from vbl.engine.results import t_quantile_975
 from vbl.engine.runfolder import record_files
+from vbl.stats import mean_ci95, t_quantile_975
 
 __all__ = ["default_section", "default_jobs", "reproduce", "paper_experiments",
            "run_report", "headline_table", "TABLE_COLUMNS", "load_run", "run_command",
@@ -323,12 +323,10 @@ def seeds_cell(values: Any, scale: float = 1.0, fmt: str = ".3g") -> str:
     """``"mean ± half-width"`` of per-seed values (95 % Student t interval of the mean)."""
     import numpy as np
 
-    v = np.asarray(values, np.float64).ravel() * scale
-    n = v.size
-    half = t_quantile_975(n - 1) * v.std(ddof=1) / math.sqrt(n) if n > 1 else float("nan")
+    m, half = mean_ci95(np.asarray(values, np.float64).ravel() * scale)
     if half != half:
-        return format(v.mean(), fmt)
-    return f"{format(v.mean(), fmt)} ± {format(half, fmt)}"
+        return format(m, fmt)
+    return f"{format(m, fmt)} ± {format(half, fmt)}"
 
 
 def load_run(folder: str | Path) -> tuple[Experiment, RunResult, dict[str, Any]]:

@@ -12,32 +12,10 @@ from typing import Any
 import numpy as np
 
 from vbl.engine.config import EngineError
+from vbl.stats import mean_ci95, t_quantile_975  # noqa: F401  (experiments being moved to vbl.stats)
 
-__all__ = ["MetricsLog", "seed_stats", "t_quantile_975", "read_metrics",
+__all__ = ["MetricsLog", "seed_stats", "read_metrics",
            "write_json", "read_json"]
-
-
-# 0.975 quantiles of Student's t for 1..30 degrees of freedom (standard tables).
-_T975 = (12.706205, 4.302653, 3.182446, 2.776445, 2.570582, 2.446912, 2.364624, 2.306004,
-         2.262157, 2.228139, 2.200985, 2.178813, 2.160369, 2.144787, 2.131450, 2.119905,
-         2.109816, 2.100922, 2.093024, 2.085963, 2.079614, 2.073873, 2.068658, 2.063899,
-         2.059539, 2.055529, 2.051831, 2.048407, 2.045230, 2.042272)
-
-
-def t_quantile_975(df: int) -> float:
-    """0.975 quantile of Student's t with ``df`` degrees of freedom (95% two-sided interval).
-
-    A table for ``df <= 30``, the Cornish-Fisher expansion beyond (error < 1e-5).
-    """
-    if df < 1:
-        return float("nan")
-    if df <= len(_T975):
-        return _T975[df - 1]
-    z = 1.959963984540054
-    g1 = (z**3 + z) / 4
-    g2 = (5 * z**5 + 16 * z**3 + 3 * z) / 96
-    g3 = (3 * z**7 + 19 * z**5 + 17 * z**3 - 15 * z) / 384
-    return z + g1 / df + g2 / df**2 + g3 / df**3
 
 
 def _clean(x: Any) -> Any:
@@ -53,12 +31,11 @@ def _clean(x: Any) -> Any:
 
 
 def seed_stats(values: np.ndarray) -> dict[str, Any]:
-    """``values[seeds, ...]`` -> mean, std (ddof 1), ci95 half-width, per_seed."""
+    """``values[seeds, ...]`` -> mean, std (ddof 1; 0 for one seed), ci95 half-width
+    (:func:`vbl.stats.mean_ci95`; None for one seed), per_seed."""
     v = np.asarray(values, dtype=np.float64)
-    s = v.shape[0]
-    mean = v.mean(axis=0)
-    std = v.std(axis=0, ddof=1) if s > 1 else np.zeros_like(mean)
-    ci = t_quantile_975(s - 1) * std / math.sqrt(s) if s > 1 else np.zeros_like(mean)
+    mean, ci = mean_ci95(v)
+    std = v.std(axis=0, ddof=1) if v.shape[0] > 1 else np.zeros_like(mean)
     return {"mean": _clean(mean), "std": _clean(std), "ci95": _clean(ci),
             "per_seed": _clean(v)}
 
