@@ -360,6 +360,6 @@ EXPERIMENT = register(Experiment(
 ))
 
 if __name__ == "__main__":
-    from vbl.engine import main_for
+    from vbl.cli import main_for
 
     main_for(EXPERIMENT)

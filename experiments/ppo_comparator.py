@@ -194,6 +194,6 @@ if __name__ == "__main__":
     if len(sys.argv) == 3 and sys.argv[1] == "--rerender":
         print(rerender(sys.argv[2]))
     else:
-        from vbl.engine import main_for
+        from vbl.cli import main_for
 
         main_for(EXPERIMENT)

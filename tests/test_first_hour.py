@@ -268,23 +268,19 @@ def test_the_source_trees_benchmarks_leave_out_helper_modules():
     assert set(found) == set(TARGETS)
 
 
-def test_a_non_editable_install_finds_the_source_trees_experiments(monkeypatch, tmp_path):
-    """Installed elsewhere (``pip install .``), the package has no experiments/ beside it;
-    run from the source tree, the built-in experiments and benchmarks are found there."""
+def test_a_non_editable_install_finds_the_source_trees_benchmarks(monkeypatch, tmp_path):
+    """Installed elsewhere (``pip install .``), the package has no benchmarks/ beside it;
+    run from the source tree, the benchmarks are found there (the experiments ship inside
+    the package: tests/test_packaging.py)."""
     import vbl
     from vbl.engine.bench import bench_dir
-    from vbl.engine.registry import experiment_dirs
 
-    monkeypatch.delenv("VBL_EXPERIMENTS_DIR", raising=False)
     monkeypatch.delenv("VBL_BENCH_DIR", raising=False)
     site = tmp_path / "site-packages" / "vbl"
     site.mkdir(parents=True)
     monkeypatch.setattr(vbl, "__file__", str(site / "__init__.py"))
     monkeypatch.chdir(REPO)
-    assert experiment_dirs() == [REPO / "experiments"]
     assert bench_dir() == REPO / "benchmarks"
-    monkeypatch.chdir(tmp_path)
-    assert experiment_dirs() == [tmp_path / "site-packages" / "experiments"]
 
 
 @pytest.mark.slow
@@ -323,7 +319,7 @@ def test_python_experiment_script_prints_no_xla_log_lines(tmp_path):
     ({"TF_CPP_MIN_LOG_LEVEL": "0"}, "0"), ({"TF_CPP_MIN_LOG_LEVEL": "2"}, "3")])
 def test_xla_log_level_follows_the_users_request(monkeypatch, env, level):
     """XLA's C++ log is quiet (level 3) unless VBL_XLA_LOGS or a verbose level asks for it."""
-    from vbl.cli import quiet_xla_env
+    from vbl.engine.errors import quiet_xla_env
 
     for name in ("VBL_XLA_LOGS", "TF_CPP_MIN_LOG_LEVEL"):
         monkeypatch.delenv(name, raising=False)

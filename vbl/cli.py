@@ -320,18 +320,6 @@ def _quiet_xla() -> None:
     use_compilation_cache()
 
 
-def quiet_xla_env() -> bool:
-    """Set ``TF_CPP_MIN_LOG_LEVEL=3`` (XLA's C++ log: fatal errors only) unless
-    ``VBL_XLA_LOGS`` asks for the log or ``TF_CPP_MIN_LOG_LEVEL`` is 0 or 1. XLA reads the
-    variable when JAX loads, so the command calls this first. Returns whether it is set."""
-    if os.environ.get("VBL_XLA_LOGS", "").strip().lower() not in ("", "0", "false", "no"):
-        return False
-    if os.environ.get("TF_CPP_MIN_LOG_LEVEL", "").strip() in ("0", "1"):
-        return False
-    os.environ["TF_CPP_MIN_LOG_LEVEL"] = "3"
-    return True
-
-
 def _end(code: int, argv: list[str]) -> int:
     """After a failure's ``vbl: error:`` line, nothing more reaches stderr (background
     threads of the checkpoint library can print at interpreter exit); ``--debug`` /
@@ -349,6 +337,8 @@ def _end(code: int, argv: list[str]) -> int:
 def _quiet_process(argv: list[str]) -> None:
     """Settings of a ``vbl`` process (not of ``main`` called in-process): XLA's log level
     before JAX loads, and no library noise after a failure unless debugging."""
+    from vbl.engine.errors import quiet_xla_env
+
     quiet_xla_env()
     if "--debug" not in argv:
         from vbl.engine.errors import debug_requested, quiet_library_noise
@@ -383,6 +373,8 @@ def _rerun_with_quiet_xla() -> None:
     if (_started_with("TF_CPP_MIN_LOG_LEVEL") is not False or "jaxlib" not in sys.modules
             or not main_file or not os.path.isfile(main_file)):
         return
+    from vbl.engine.errors import quiet_xla_env
+
     os.environ.pop("TF_CPP_MIN_LOG_LEVEL", None)
     if not quiet_xla_env():
         return

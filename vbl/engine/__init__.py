@@ -1,27 +1,21 @@
-"""vbl.engine: experiments as vmapped, sharded, checkpointed programs (see docs/engine.md)."""
+"""vbl.engine: experiments as vmapped, sharded, checkpointed programs (see docs/engine.md).
 
-from vbl.engine.config import EngineError
-from vbl.engine.experiment import Experiment, Program, ReportSection, RunContext, RunResult
-from vbl.engine.registry import all_experiments, discover, get, register
+The names below load on first use, so ``import vbl.engine.errors`` (used before JAX
+loads) stays free of JAX."""
 
-__all__ = [
-    "Experiment", "Program", "ReportSection", "RunContext", "RunResult", "EngineError",
-    "register", "get", "discover", "all_experiments", "run_experiment", "main_for",
-    "CheckpointError",
-]
+import importlib
+
+_EXPORTS = {
+    "Experiment": "experiment", "Program": "experiment", "ReportSection": "experiment",
+    "RunContext": "experiment", "RunResult": "experiment", "EngineError": "config",
+    "register": "registry", "get": "registry", "discover": "registry",
+    "all_experiments": "registry", "run_experiment": "runner",
+    "CheckpointError": "checkpoint",
+}
+__all__ = list(_EXPORTS)
 
 
-def __getattr__(name):  # lazy: keep `import vbl.engine` light for experiment scripts
-    if name == "run_experiment":
-        from vbl.engine.runner import run_experiment
-
-        return run_experiment
-    if name == "main_for":
-        from vbl.cli import main_for
-
-        return main_for
-    if name == "CheckpointError":
-        from vbl.engine.checkpoint import CheckpointError
-
-        return CheckpointError
+def __getattr__(name):
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(f"vbl.engine.{_EXPORTS[name]}"), name)
     raise AttributeError(f"module 'vbl.engine' has no attribute {name!r}")

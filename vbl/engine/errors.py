@@ -8,7 +8,7 @@ import os
 import re
 import sys
 
-__all__ = ["one_line", "quiet_xla_log", "debug_requested", "quiet_library_noise"]
+__all__ = ["one_line", "quiet_xla_env", "quiet_xla_log", "debug_requested", "quiet_library_noise"]
 
 _DISK = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
 
@@ -61,6 +61,18 @@ def one_line(e: BaseException) -> str:
             f"traceback)")
 
 
+def quiet_xla_env() -> bool:
+    """Set ``TF_CPP_MIN_LOG_LEVEL=3`` (XLA's C++ log: fatal errors only) unless
+    ``VBL_XLA_LOGS`` asks for the log or ``TF_CPP_MIN_LOG_LEVEL`` is 0 or 1. XLA reads the
+    variable when JAX loads, so the command calls this first. Returns whether it is set."""
+    if os.environ.get("VBL_XLA_LOGS", "").strip().lower() not in ("", "0", "false", "no"):
+        return False
+    if os.environ.get("TF_CPP_MIN_LOG_LEVEL", "").strip() in ("0", "1"):
+        return False
+    os.environ["TF_CPP_MIN_LOG_LEVEL"] = "3"
+    return True
+
+
 def quiet_xla_log() -> None:
     """Keep XLA's C++ log to fatal errors unless asked for.
 
@@ -70,8 +82,6 @@ def quiet_xla_log() -> None:
     keeps XLA's own level (``TF_CPP_MIN_LOG_LEVEL``); so does a ``TF_CPP_MIN_LOG_LEVEL``
     of 0 or 1 (a request for more).
     """
-    from vbl.cli import quiet_xla_env
-
     if not quiet_xla_env():
         return
     try:

@@ -1,6 +1,7 @@
 """Experiment registry: scripts in ``experiments/*.py`` call :func:`register`; the CLI finds
-them with :func:`discover` (the ``experiments/`` folder next to the installed package, or the
-folders in ``$VBL_EXPERIMENTS_DIR``, separated by ``os.pathsep``), or loads one script
+them with :func:`discover` (the package ``vbl.experiments``, which is the source tree's
+``experiments/`` folder in an editable install and a copy of it in ``pip install .``; or
+the folders in ``$VBL_EXPERIMENTS_DIR``, separated by ``os.pathsep``), or loads one script
 given by its path with :func:`load_experiment_file` (``vbl run path/to/script.py``)."""
 
 from __future__ import annotations
@@ -43,7 +44,8 @@ def register(experiment: Experiment) -> Experiment:
 
 
 def source_folder(name: str) -> Path:
-    """``<source tree>/<name>`` beside the installed package (an editable install), else
+    """``<source tree>/<name>`` (e.g. ``benchmarks``) beside the installed package (an
+    editable install), else
     ``./<name>`` when the package is installed elsewhere (``pip install .``) and the
     current folder holds one (run from the source tree)."""
     import vbl
@@ -59,12 +61,13 @@ def source_folder(name: str) -> Path:
 
 
 def experiment_dirs() -> list[Path]:
-    """Folders searched for experiment scripts: ``$VBL_EXPERIMENTS_DIR``, else the source
-    tree's ``experiments/`` (:func:`source_folder`)."""
+    """Folders searched for experiment scripts: ``$VBL_EXPERIMENTS_DIR``, else the folder
+    of the installed package ``vbl.experiments``."""
     env = os.environ.get("VBL_EXPERIMENTS_DIR")
     if env:
         return [Path(p) for p in env.split(os.pathsep) if p]
-    return [source_folder("experiments")]
+    spec = importlib.util.find_spec("vbl.experiments")
+    return [Path(p) for p in spec.submodule_search_locations]
 
 
 def discover() -> dict[str, Experiment]:
