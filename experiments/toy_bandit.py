@@ -90,6 +90,7 @@ EXPERIMENT = register(Experiment(
     quick={"train.num_chunks": 5},
     seeds=16,
     quick_seeds=4,
+    presets={"greedy": {"agent.epsilon": 0.0}},
 ))
 
 if __name__ == "__main__":

@@ -29,6 +29,9 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--set", dest="sets", action="append", default=[], metavar="PATH=VALUE",
                    help="override a parameter, e.g. --set agent.learning_rate=0.1 (a path "
                         "of the experiment's default sweep is then fixed)")
+    p.add_argument("--preset", default=None, metavar="NAME",
+                   help="a named variant of the experiment (its values; --set and --sweep "
+                        "still override them); `vbl params EXPERIMENT` lists the presets")
     p.add_argument("--sweep", action="append", default=[], metavar="PATH=V1,V2,...",
                    help="sweep a parameter over values (repeat for a grid; the experiment's "
                         "default sweep stays for the paths not named; the run prints its "
@@ -145,6 +148,8 @@ def _run(experiment, args) -> int:
             raise ParamError(f"--sweep {path} is given twice; give all its values in one "
                              f"--sweep {path}=V1,V2,...")
         sweep[path] = values
+    preset = {k: v for k, v in experiment.preset(args.preset).items() if k not in sweep}
+    sets = {**preset, **sets}
     import jax
 
     primary = jax.process_index() == 0
@@ -220,7 +225,12 @@ def _dispatch(args) -> int:
     if args.command == "params":
         from vbl.params import markdown_table
 
-        print(markdown_table(_experiment(args.experiment).default_config))
+        exp = _experiment(args.experiment)
+        print(markdown_table(exp.default_config))
+        for name, values in sorted(exp.presets.items()):
+            sets = " ".join(f"--set {k}={v}" for k, v in values.items())
+            print(f"\npreset `{name}`: {sets}", end="")
+        print("\n" if exp.presets else "", end="")
         return 0
     if args.command == "run":
         _init_distributed(args)

@@ -175,6 +175,11 @@ class Experiment:
       legacy_values: ``{path: value}`` for parameters added after run folders were written:
         the value that reproduces the code before the parameter existed. ``vbl report``
         uses it to rebuild the command of a run folder that does not record the parameter.
+      presets: ``{name: {path: value}}``: named variants (``vbl run NAME --preset P``), e.g.
+        every variant the README reports; ``--set`` overrides a preset's values and
+        ``--sweep`` of one of its paths replaces it.
+      renamed_params: ``{old path: current path}`` of parameters the experiment moved: run
+        folders that recorded the old path are read under the current one.
     """
 
     name: str
@@ -195,6 +200,20 @@ class Experiment:
     renamed_metrics: Mapping[str, str] = field(default_factory=dict)
     paper_rows: Callable[[RunResult], list[PaperRow]] | None = None
     legacy_values: Mapping[str, Any] = field(default_factory=dict)
+    presets: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    renamed_params: Mapping[str, str] = field(default_factory=dict)
+
+    def preset(self, name: str | None) -> dict[str, Any]:
+        """The ``{path: value}`` overrides of preset ``name`` ({} for None); an unknown name
+        is a ParamError that lists the valid ones."""
+        from vbl.params import ParamError
+
+        if name is None:
+            return {}
+        if name not in self.presets:
+            valid = ", ".join(sorted(self.presets)) or "(none)"
+            raise ParamError(f"unknown preset {name!r} for {self.name}; valid: {valid}")
+        return dict(self.presets[name])
 
     def __post_init__(self) -> None:
         import re
@@ -211,11 +230,14 @@ class Experiment:
                              f"dataclass instance, got {type(self.default_config).__name__}")
         from vbl.params import ParamError, get_path
 
-        for path in self.legacy_values:
+        checked = [("legacy_values", p) for p in self.legacy_values]
+        checked += [("renamed_params", p) for p in self.renamed_params.values()]
+        checked += [(f"presets[{n!r}]", p) for n, v in self.presets.items() for p in v]
+        for what, path in checked:
             try:
                 get_path(self.default_config, path)
             except ParamError as e:
-                raise ValueError(f"experiment {self.name!r}: legacy_values: {e}") from None
+                raise ValueError(f"experiment {self.name!r}: {what}: {e}") from None
         for n, v in (("seeds", self.seeds), ("quick_seeds", self.quick_seeds)):
             if v is not None and (not isinstance(v, int) or v < 1):
                 raise ValueError(f"experiment {self.name!r}: {n} must be an int >= 1, got {v!r}")

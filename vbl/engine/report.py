@@ -386,8 +386,12 @@ def _recorded_values(exp: Experiment, spec: dict[str, Any]) -> dict[str, Any]:
 
     current = config_to_dict(exp.default_config)
     legacy = config_to_dict_values(exp.legacy_values)
-    rec = {k: v for k, v in spec["config"].items() if k in current}
-    return {**{k: v for k, v in legacy.items() if k not in spec["config"]}, **rec}
+    recorded = dict(spec["config"])
+    for old, new in exp.renamed_params.items():
+        if old in recorded and new not in recorded:
+            recorded[new] = recorded.pop(old)
+    rec = {k: v for k, v in recorded.items() if k in current}
+    return {**{k: v for k, v in legacy.items() if k not in recorded}, **rec}
 
 
 def config_to_dict_values(values: Any) -> dict[str, Any]:
@@ -407,12 +411,26 @@ def _cli_value(v: Any) -> str:
     return str(v)
 
 
+def _matching_preset(exp: Experiment, rec: dict[str, Any], base: dict[str, Any],
+                     sweep: dict[str, Any]) -> str | None:
+    """The preset with the most values that the folder records, all of them (paths it
+    sweeps aside), one of them not the default; None if there is none."""
+    best, size = None, 0
+    for name, values in exp.presets.items():
+        vals = {k: v for k, v in config_to_dict_values(values).items() if k not in sweep}
+        if (vals and all(rec.get(k) == v for k, v in vals.items())
+                and any(base.get(k) != v for k, v in vals.items()) and len(vals) > size):
+            best, size = name, len(vals)
+    return best
+
+
 def run_command(exp: Experiment, spec: dict[str, Any]) -> tuple[str, list[str]]:
     """The ``vbl run`` command that regenerates a run folder, rebuilt from its
     ``config.json`` (``spec``): ``--quick`` when the folder holds every quick override
     (for an experiment without any: its quick number of seeds),
-    ``--seeds``/``--seed`` when they differ from the experiment's, ``--sweep`` for a sweep
-    other than the default one, ``--set`` for every recorded value other than the default.
+    ``--seeds``/``--seed`` when they differ from the experiment's, ``--preset`` for the
+    largest preset whose values the folder holds, ``--sweep`` for a sweep other than the
+    default one, ``--set`` for every other recorded value that differs from the default.
     Returns ``(command, unrecorded)``: the parameters the folder does not record (and
     :attr:`Experiment.legacy_values` does not give), for which the command takes today's
     default. The command is checked: resolving it gives the folder's recorded values."""
@@ -440,13 +458,18 @@ def run_command(exp: Experiment, spec: dict[str, Any]) -> tuple[str, list[str]]:
     texts_set = [f"{k}={_cli_value(rec[k])}" for k in default_sweep if k not in sweep]
     texts_set += [f"{k}={_cli_value(v)}" for k, v in rec.items()
                   if k not in sweep and k not in default_sweep and base.get(k) != v]
+    preset = _matching_preset(exp, rec, base, sweep)
+    if preset:
+        args += ["--preset", preset]
+        texts_set = [t for t in texts_set if t.split("=", 1)[0] not in exp.presets[preset]]
     for t in texts_sweep:
         args += ["--sweep", t]
     for t in texts_set:
         args += ["--set", t]
     # check: the command resolves to the folder's recorded values
     cfg = exp.default_config
-    sets = dict(parse_assignment(t, cfg) for t in texts_set)
+    sets = {k: v for k, v in exp.preset(preset).items() if k not in sweep}
+    sets.update(parse_assignment(t, cfg) for t in texts_set)
     sw = dict(parse_sweep(t, cfg) for t in texts_sweep)
     _, full_sweep, got_seeds, got = resolve(exp, sets, sw, seeds if "--seeds" in args else None,
                                             base_seed, quick)

@@ -1,0 +1,59 @@
+"""Named presets (`vbl run NAME --preset P`) and renamed parameters of older run folders."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+
+from tests.engine_helpers import TINY, TINY_SETS, env_for, experiments_dir, run_vbl
+
+
+def test_unknown_preset_lists_the_valid_ones(tmp_path):
+    r = run_vbl(["run", "toy_bandit", "--preset", "nope", "--out", str(tmp_path / "r")],
+                env_for(experiments_dir(tmp_path)))
+    assert r.returncode == 2
+    assert r.stderr.strip() == ("vbl: error: unknown preset 'nope' for toy_bandit; valid: "
+                                "greedy")
+    assert not (tmp_path / "r").exists()
+
+
+def test_presets_are_checked_against_the_config():
+    from vbl.engine import get
+
+    exp = dataclasses.replace(get("toy_bandit"), presets={
+        "p": {"agent.epsilon": 0.0, "agent.learning_rate": 0.5}})
+    assert exp.preset("p") == {"agent.epsilon": 0.0, "agent.learning_rate": 0.5}
+    assert exp.preset(None) == {}
+    with pytest.raises(ValueError, match=r"presets\['bad'\]"):
+        dataclasses.replace(exp, presets={"bad": {"agent.nope": 1}})
+
+
+def test_a_preset_run_is_recorded_and_rebuilt_with_the_preset(tmp_path):
+    from vbl.engine.report import load_run, run_command
+
+    env = env_for(experiments_dir(tmp_path))
+    r = run_vbl(["run", "toy_bandit", "--quick", "--preset", "greedy", *TINY, "--seeds", "2",
+                 "--set", "agent.learning_rate=0.3", "--out", str(tmp_path / "run")], env)
+    assert r.returncode == 0, r.stderr[-3000:]
+    exp, _, spec = load_run(tmp_path / "run")
+    assert spec["config"]["agent.epsilon"] == 0.0
+    assert spec["config"]["agent.learning_rate"] == pytest.approx(0.3)
+    command, _ = run_command(exp, spec)
+    assert command.startswith("vbl run toy_bandit --quick --seeds 2 --preset greedy --set ")
+    assert "agent.epsilon" not in command and "agent.learning_rate=0.3" in command
+    assert all(f"{k}={v}" in command for k, v in TINY_SETS.items())
+
+
+def test_renamed_parameters_of_older_folders_read_under_the_current_path():
+    from vbl.engine import get
+    from vbl.engine.config import config_to_dict
+    from vbl.engine.report import run_command
+
+    exp = dataclasses.replace(get("toy_bandit"), renamed_params={"agent.eps": "agent.epsilon"})
+    cfg = config_to_dict(exp.default_config)
+    cfg.pop("agent.epsilon")
+    cfg["agent.eps"] = 0.25
+    spec = {"experiment": "toy_bandit", "config": cfg, "sweep": {}, "seeds": exp.seeds}
+    command, unrecorded = run_command(exp, spec)
+    assert command == "vbl run toy_bandit --set agent.epsilon=0.25" and unrecorded == []
