@@ -248,7 +248,7 @@ EXPERIMENT = register(Experiment(
     # the last train.eval_chunks: greedy, no learning); folders written before read through this
     renamed_metrics={"success_rate": "chunk_success"},
     # parameters added after run folders were written: the values of the code before them
-    legacy_values={"learner.keep_beyond_order": False, "learner.cancor_weight": False,
+    legacy_values={"learner.keep_beyond_order": False,
                    "learner.cva.lag_rule": "paper", "learner.cva.collinear_tol": 1e-8,
                    "learner.runner.agent.update": "q_learning",
                    "learner.runner.agent.mc_log": 128, "env.start_difficulty": 1.0},

@@ -231,13 +231,5 @@ def test_select_pads_each_object_block_for_a_per_object_quantiser():
     np.testing.assert_allclose(x_cva[15:16], mus[2], rtol=1e-6)
     np.testing.assert_array_equal(x_cva[16:20], 0.0)
     np.testing.assert_array_equal(x_cur, np.asarray(obs[:20]))
-    # quantiser weights: each object's canonical correlations, 1 on padding; all 1 when off
-    w_on = np.asarray(fenv.component_weights(tuple(models), True))
-    np.testing.assert_allclose(w_on[0:4], np.linspace(0.9, 0.5, 4), rtol=1e-6)
-    np.testing.assert_allclose(w_on[4:6], [0.9, 0.5], rtol=1e-6)
-    np.testing.assert_array_equal(w_on[6:15], 1.0)
-    np.testing.assert_allclose(w_on[15:16], [0.9], rtol=1e-6)
-    np.testing.assert_array_equal(w_on[16:20], 1.0)
-    np.testing.assert_array_equal(np.asarray(fenv.component_weights(tuple(models), False)), 1.0)
     with pytest.raises(ParamError, match="group_codes"):
         make_cva_learner(env, p.replace(quantizer=pq.replace(group_codes=(4, 2))))

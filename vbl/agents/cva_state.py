@@ -115,11 +115,6 @@ class CVAStateParams:
                                     "AIC order n* among the n_used (False: they are 0, the "
                                     "paper's state); e.g. the ball's image velocity, which "
                                     "its AIC order 4 drops (docs/cva_learning.md)")
-    cancor_weight: bool = param(False, doc="weight each canonical component by its canonical "
-                                "correlation in the quantiser's distance (k-means then "
-                                "measures differences of the predicted future, so weakly "
-                                "predictive components count little); current features and "
-                                "extra slices keep weight 1")
     extra: tuple = param((), doc="extra obs_slices appended unfiltered to the state vector "
                          "(e.g. 'lost_side')", static=True)
     collect_steps: int = param(2000, doc="random-action steps collected per learner for the "
@@ -341,18 +336,6 @@ class FilteredEnv:
         cur = jnp.concatenate([pad(v, k) for v, k in zip(cur, dims, strict=False)] + extra)
         return jnp.where(jnp.asarray(use_cva, bool), cva, cur)
 
-    def component_weights(self, models, on) -> jax.Array:
-        """(d,) float32 quantiser weights: where ``on`` (traced bool), each object's
-        canonical components weigh their canonical correlation (components set to 0 weigh
-        0, i.e. the floor of :func:`fit_quantizer`); everything else (current features,
-        zero padding, extra slices) weighs 1."""
-        blocks = []
-        for mod, k in zip(models, self.block_dims(), strict=False):
-            w = jnp.pad(mod.cancor, (0, k - mod.cancor.shape[0]), constant_values=1.0)
-            blocks.append(jnp.where(jnp.asarray(on, bool), w, 1.0))
-        blocks += [jnp.ones((s.stop - s.start,), jnp.float32) for s in self.extra]
-        return jnp.concatenate(blocks).astype(jnp.float32)
-
     def _fresh_hist(self, obs):
         hu = tuple(jnp.zeros((self.lag_max, self.m), jnp.float32) for _ in self.slices)
         hy = tuple(jnp.broadcast_to(obs[s], (self.lag_max, s.stop - s.start)).astype(
@@ -470,11 +453,7 @@ def make_cva_learner(env: Any, p: CVAStateParams, m: int | None = None) -> CVALe
                            for sl, k in zip(fenv.slices, p.n_used_per_object(), strict=True))
         use_cva = jnp.asarray(pp.use_cva, bool)
         xs = _history_states(fenv, data, models, use_cva)
-        weights = None
-        if p.state != "current":
-            weights = fenv.component_weights(models, use_cva & jnp.asarray(pp.cancor_weight,
-                                                                              bool))
-        qz = fit_quantizer(k_q, xs, pp.quantizer, groups=groups, weights=weights)
+        qz = fit_quantizer(k_q, xs, pp.quantizer, groups=groups)
         return FilteredParams(inner=env_params, models=models, quantizer=qz, use_cva=use_cva)
 
     return CVALearner(prepare=prepare, runner=runner, env=fenv, num_states=s,
