@@ -35,7 +35,6 @@ from vbl.spaces.incremental import (
     init_run,
     policy_success,
     run_updates,
-    temperature_at,
 )
 from vbl.vision.features import SEC2_BALL_LOST_SIDE, SEC2_BALL_POS, SEC2_BALL_VISIBLE
 
@@ -229,7 +228,7 @@ def make_program(cfg: Fig9Config) -> Program:
             k_eval, jnp.arange(3 if cfg.train.steer_reference else 2))
         # the learner's own (Boltzmann) behaviour, frozen: the same starts
         ok_b = policy_success(k_eval, lr, ENV, ep, c.learner, feat, cfg.train.eval_episodes,
-                              cfg.env.max_steps, temperature_at(c.learner, carry.run.trials))
+                              cfg.env.max_steps, c.learner.temperature)
         out = {"greedy_success": jnp.mean(ok[0].astype(F32)),
                "boltzmann_success": jnp.mean(ok_b.astype(F32)),
                "random_success": jnp.mean(ok[1].astype(F32)),

@@ -23,7 +23,6 @@ from vbl.spaces.incremental import (
     num_states,
     run_updates,
     structure_update,
-    temperature_at,
 )
 
 # as the engine runs them: with 64-bit types on (conftest.engine_precision)
@@ -34,7 +33,7 @@ ENV = TwoRegionWorld()
 M = 1024
 # the model-error criterion alone (value-driven splits off; they are tested below)
 P = IncrementalParams(max_states=8, buffer_size=M, split_error=1e-5, split_gain=5e-6,
-                      merge_tol=1e-6, outcome_weight=0.0, return_weight=0.0, update_every=25,
+                      merge_tol=1e-6, outcome_weight=0.0, update_every=25,
                       value_split_gain=0.0)
 
 
@@ -45,10 +44,10 @@ def fill(lr, key, params, noise=0.0):
     a = jax.random.randint(ka, (M,), 0, 4).astype(jnp.int32)
     dx = jax.vmap(lambda x, a: ENV.delta(x, a, params))(x, a)
     dx = dx + noise * jax.random.normal(kn, dx.shape, jnp.float32)
-    y = jnp.concatenate([dx, jnp.zeros((M, lr.buf.y.shape[1] - 2), jnp.float32)], 1)
+    y = jnp.concatenate([dx, jnp.zeros((M, 1), jnp.float32)], 1)
     return lr.replace(buf=Buffer(x=x, a=a, y=y, valid=jnp.ones(M, bool),
                                  ptr=jnp.zeros((), jnp.int32), clock=jnp.zeros(M, jnp.int32),
-                                 closed=jnp.ones(M, bool), term=jnp.zeros(M, bool)))
+                                 term=jnp.zeros(M, bool)))
 
 
 @pytest.fixture(scope="module")
@@ -176,18 +175,8 @@ def test_bad_thresholds_raise_clear_errors():
         validate(IncrementalParams(split_error=-1.0))
     with pytest.raises(ParamError, match="split_gain"):
         validate(IncrementalParams(split_gain=1e-3, split_error=1e-4, merge_tol=0.0))
-    with pytest.raises(ParamError, match="return_output"):
-        validate(IncrementalParams(return_weight=0.1))
     with pytest.raises(ParamError, match="temperature"):
         validate(IncrementalParams(temperature=0.0))
-
-
-def test_temperature_schedule_is_geometric_and_constant_without_annealing():
-    p = IncrementalParams(temperature=0.1, temperature_final=0.001, anneal_trials=100)
-    got = [float(temperature_at(p, jnp.int32(t))) for t in (0, 50, 100, 500)]
-    np.testing.assert_allclose(got, [0.1, 0.01, 0.001, 0.001], rtol=1e-5)
-    const = IncrementalParams(temperature=0.2, temperature_final=0.001, anneal_trials=0)
-    assert float(temperature_at(const, jnp.int32(1000))) == pytest.approx(0.2)
 
 
 def test_fig9_change_windows_by_hand():
@@ -210,13 +199,13 @@ def test_fig9_change_windows_by_hand():
     np.testing.assert_allclose(w[1]["states"], [[19.0, 24.0, 39.0]] * 2)
 
 
-def _held_option_update(per_primitive, held, x_before, gamma=0.9, alpha=0.5):
+def _held_option_update(held, x_before, gamma=0.9, alpha=0.5):
     """One learner_step of TwoRegionWorld (gain +1 everywhere, step 0.02, action +x0) that
     ends an action held ``held`` primitives; boxes [0, 0.5) and [0.5, 1] along x0."""
     from vbl.spaces.incremental import Option, learner_step
 
     ep = ENV.default_params.replace(gain_right=1.0)
-    p = P.replace(gamma=gamma, alpha=alpha, discount_per_primitive=per_primitive)
+    p = P.replace(gamma=gamma, alpha=alpha)
     lr = init_learner(p, 2, 4)
     seg = lr.seg
     lr = lr.replace(seg=seg.replace(hi=seg.hi.at[0, 0].set(0.5).at[1].set(1.0),
@@ -239,19 +228,17 @@ def ToyStateLike(x):
 
 
 @pytest.mark.parametrize("held", [1, 5])
-def test_discount_per_action_or_per_primitive_by_hand(held):
+def test_discount_once_per_action_by_hand(held):
     """The action (+x0 from 0.49 into the right box, whose best Q is 0.8) ends after
-    ``held`` primitives. Per action: Q += alpha (gamma * 0.8 - Q); semi-Markov: gamma^held."""
+    ``held`` primitives: Q += alpha (gamma * 0.8 - Q), whatever ``held``."""
     g, a = 0.9, 0.5
-    q_act, still = _held_option_update(False, held, [0.49, 0.3], g, a)
-    q_smdp, _ = _held_option_update(True, held, [0.49, 0.3], g, a)
+    q_act, still = _held_option_update(held, [0.49, 0.3], g, a)
     assert not still                                   # the box changed: the action ended
     assert q_act == pytest.approx(0.2 + a * (g * 0.8 - 0.2), rel=1e-6)
-    assert q_smdp == pytest.approx(0.2 + a * (g ** held * 0.8 - 0.2), rel=1e-6)
 
 
-def test_semi_markov_terminal_reward_discounted_by_primitives_before_it():
-    """Goal on the 4th primitive of an action: target gamma^3 * 1 (per action: 1)."""
+def test_terminal_reward_of_a_held_action_is_not_discounted():
+    """Goal on the 4th primitive of an action: target 1 (the discount is per action)."""
     g, a = 0.9, 0.5
     # gain +1, from x = (0.89, 0.95): +x0 reaches x0 >= 0.9 = goal (x1 already >= 0.9),
     # starting in box 1 ([0.5, 1]); reuse the helper's boxes with s0 = 1 via a direct call
@@ -259,20 +246,16 @@ def test_semi_markov_terminal_reward_discounted_by_primitives_before_it():
 
     from vbl.spaces.incremental import Option, learner_step
     ep = ENV.default_params.replace(gain_right=1.0)
-    got = []
-    for per in (False, True):
-        p = P.replace(gamma=g, alpha=a, discount_per_primitive=per)
-        lr = init_learner(p, 2, 4)
-        lr = lr.replace(q=lr.q.at[0, 0].set(0.2))
-        x = jnp.array([0.89, 0.95], jnp.float32)
-        opt = Option(s0=jnp.int32(0), a=jnp.int32(0), n=jnp.int32(3), active=jnp.asarray(True))
-        out, _, _, _, info = learner_step(jax.random.PRNGKey(0), lr, opt, ENV,
-                                          ToyState(x, jnp.zeros((), jnp.int32)), x, ep, p,
-                                          lambda o: o)
-        assert bool(info["terminated"])
-        got.append(float(out.q[0, 0]))
-    assert got[0] == pytest.approx(0.2 + a * (1.0 - 0.2), rel=1e-6)
-    assert got[1] == pytest.approx(0.2 + a * (g ** 3 - 0.2), rel=1e-6)
+    p = P.replace(gamma=g, alpha=a)
+    lr = init_learner(p, 2, 4)
+    lr = lr.replace(q=lr.q.at[0, 0].set(0.2))
+    x = jnp.array([0.89, 0.95], jnp.float32)
+    opt = Option(s0=jnp.int32(0), a=jnp.int32(0), n=jnp.int32(3), active=jnp.asarray(True))
+    out, _, _, _, info = learner_step(jax.random.PRNGKey(0), lr, opt, ENV,
+                                      ToyState(x, jnp.zeros((), jnp.int32)), x, ep, p,
+                                      lambda o: o)
+    assert bool(info["terminated"])
+    assert float(out.q[0, 0]) == pytest.approx(0.2 + a * (1.0 - 0.2), rel=1e-6)
 
 
 def test_greedy_action_breaks_ties_at_random_only_with_a_key():
@@ -285,43 +268,6 @@ def test_greedy_action_breaks_ties_at_random_only_with_a_key():
     got = np.asarray(jax.vmap(lambda k: greedy_action(lr, x, k))(keys))
     assert set(got.tolist()) == {0, 1, 3}                 # only the tied best, each drawn
     assert min(np.bincount(got, minlength=4)[[0, 1, 3]]) > 60
-
-
-def test_close_trial_fills_returns_of_the_ended_trial_only():
-    from vbl.spaces.incremental import close_trial, record
-    buf = init_learner(P.replace(return_output=True), 2, 4).buf
-    x = jnp.zeros(2, jnp.float32)
-    y = jnp.zeros(3, jnp.float32)
-    buf = record(buf, x, jnp.int32(0), y, jnp.asarray(True), 3)           # an earlier trial
-    buf = close_trial(buf, jnp.asarray(True), jnp.asarray(False), jnp.int32(3), 0.5)
-    for c in (10, 11, 12):                                                   # this trial
-        buf = record(buf, x, jnp.int32(1), y, jnp.asarray(True), c)
-        buf = close_trial(buf, jnp.asarray(c == 12), jnp.asarray(True), jnp.int32(c), 0.5)
-    np.testing.assert_allclose(np.asarray(buf.y[:4, -1]), [0.0, 0.25, 0.5, 1.0])
-    assert np.asarray(buf.closed[:4]).all() and not np.asarray(buf.closed[4:]).any()
-
-
-def test_return_output_splits_where_returns_differ_and_dynamics_do_not():
-    """Same dynamics everywhere (gain +1); trials from x0 < 0.5 scored (return 1), from the
-    right not (0). Without the return output nothing splits; with it, exactly at x0 = 0.5."""
-    ep = ENV.default_params.replace(gain_right=1.0)
-    pr = P.replace(return_output=True)
-    lr = fill(init_learner(pr, 2, 4), jax.random.PRNGKey(2), ep, noise=1e-4)
-    ret = (lr.buf.x[:, 0] < 0.5).astype(jnp.float32)
-    lr = lr.replace(buf=lr.buf.replace(y=lr.buf.y.at[:, -1].set(ret)))
-    upd = jax.jit(structure_update)
-    out, split, _ = upd(lr, pr)
-    assert not bool(split)
-    p = pr.replace(return_weight=1.0)
-    for _ in range(3):
-        lr, _, _ = upd(lr, p)
-    assert_cut_at_half(lr)
-    assert int(lr.splits) == 1
-    # open transitions (trial not ended: return unknown) do not count with the return on
-    lr0 = fill(init_learner(pr, 2, 4), jax.random.PRNGKey(2), ep, noise=1e-4)
-    lr0 = lr0.replace(buf=lr0.buf.replace(y=lr0.buf.y.at[:, -1].set(ret),
-                                          closed=jnp.zeros(M, bool)))
-    assert not bool(upd(lr0, p)[1])
 
 
 # --- value-driven splits ---------------------------------------------------------------
@@ -398,10 +344,6 @@ def test_td_targets_follow_the_held_primitive_to_the_box_exit_by_hand():
     got = np.asarray(td_targets(seg, buf, q, g))[:7]
     want = [g * 0.8] * 4 + [1.0, 0.0, g * 0.0]
     np.testing.assert_allclose(got, want, rtol=1e-6)
-    # semi-Markov: gamma per primitive, the chain of k primitives before the exit adds g^k
-    got = np.asarray(td_targets(seg, buf, q, g, True))[:4]
-    np.testing.assert_allclose(got, [g ** 4 * 0.8, g ** 3 * 0.8, g ** 2 * 0.8, g * 0.8],
-                               rtol=1e-5)
 
 
 def test_value_criterion_off_leaves_the_old_updates_unchanged(update):
@@ -444,147 +386,6 @@ def test_cross_fitted_greedy_value_by_hand():
     few = tcnt.at[0, 1, 0].set(4.0)                                       # 4 < 10 / 2
     assert float(_greedy_value(tsum2, few, 10.0, True)[0]) == pytest.approx(0.25)
     assert float(_greedy_value(tsum2, tcnt, 30.0, True)[0]) == -np.inf
-
-
-def test_value_gain_per_buffer_weighs_by_the_boxes_share_by_hand():
-    """Boxes x1 < 0.5 (bottom) and x1 >= 0.5 (top); the scoring pattern of the toy world
-    above holds in the bottom box only (nothing scores on top). The bottom box's cut at
-    x0 = 0.5 gains 1/2 per transition of the box and, with half of the buffer in it,
-    1/2 * 1/2 = 1/4 per transition of the buffer."""
-    upd = jax.jit(structure_update)
-    lr = scoring_buffer(jax.random.PRNGKey(4), PV)
-    bottom = lr.buf.x[:, 1] < 0.5
-    sc = lr.buf.term & bottom
-    lr = lr.replace(buf=lr.buf.replace(y=lr.buf.y.at[:, 2].set(sc.astype(jnp.float32)),
-                                       term=sc))
-    seg = lr.seg
-    lr = lr.replace(seg=seg.replace(hi=seg.hi.at[0, 1].set(0.5).at[1].set(1.0),
-                                    lo=seg.lo.at[1, 1].set(0.5),
-                                    active=seg.active.at[1].set(True)))
-    for per_buffer, gain, want in ((False, 0.3, True), (True, 0.3, False), (True, 0.2, True)):
-        out, split, _ = upd(lr, PV.replace(value_split_gain=gain, value_per_buffer=per_buffer))
-        assert bool(split) == want, (per_buffer, gain)
-        if want:
-            lo, hi = boxes(out)
-            assert any(np.allclose(lo_, [0.5, 0.0]) and np.allclose(hi_, [1.0, 0.5])
-                       for lo_, hi_ in zip(lo, hi, strict=True))
-
-
-def test_fringe_targets_end_chains_at_bin_edges_by_hand():
-    """One box, Q = 0, 4 bins. Primitive 0 held at x0 = 0.43, 0.45, 0.47, 0.49 (clocks
-    5-8; the 4th step crosses the bin edge 0.5, bin 1 -> 2), then primitive 2 scores. Per axis:
-    along x0 the chain ends at the crossing, bootstrapped from v_bin_next[., 0]; along x1
-    (no crossing) it ends where the primitive changes (clock 9), from v_bin_next[., 1]."""
-    from vbl.spaces.incremental import record, td_targets
-    g = 0.9
-    lr = init_learner(P, 2, 4)
-    buf = lr.buf
-    d = jnp.array([0.02, 0.0, 0.0], jnp.float32)
-    xs = [0.43, 0.45, 0.47, 0.49]
-    for i, x0 in enumerate(xs):
-        buf = record(buf, jnp.array([x0, 0.3], jnp.float32), jnp.int32(0), d, jnp.asarray(True),
-                     5 + i, False)
-    buf = record(buf, jnp.array([0.51, 0.3], jnp.float32), jnp.int32(2),
-                 jnp.array([0.0, 0.0, 1.0]), jnp.asarray(True), 9, True)        # scores
-    bins = 4
-    x = np.asarray(buf.x)
-    xn = np.clip(x + np.asarray(buf.y)[:, :2], 0, 1)
-    same = np.floor(bins * x) == np.floor(bins * xn)
-    assert same[:4, 0].tolist() == [True, True, True, False] and same[:4, 1].all()
-    vb = np.zeros((M, 2), np.float32)
-    vb[3] = [0.7, 0.2]                        # values of the bins the 4th step lands in
-    got = np.asarray(td_targets(lr.seg, buf, lr.q, g, False, jnp.asarray(same),
-                                jnp.asarray(vb)))[:5]
-    np.testing.assert_allclose(got[:4, 0], [g * 0.7] * 4, rtol=1e-6)
-    np.testing.assert_allclose(got[:4, 1], [g * 0.2] * 4, rtol=1e-6)
-    np.testing.assert_allclose(got[4], [1.0, 1.0])
-
-
-def test_fringe_value_split_on_the_toy_by_hand():
-    """The scoring toy with fringe targets (gamma 0.95): along x0 every bin has a primitive
-    that scores (bin value 1), so a transition that does not score gets 0.95. Each half's
-    greedy value is 1; the whole box's is 1/2 * 1 + 1/2 * 0.95 = 0.975 (primitive 0 or 1),
-    so the cut at x0 = 0.5 gains 0.025 (at 0.25: 1/4 + 3/4 * 0.9833 - 0.975 = 0.0125;
-    along x1 nothing). A threshold of 0.02 cuts at x0 = 0.5, 0.03 does not cut."""
-    lr0 = scoring_buffer(jax.random.PRNGKey(4), PV)
-    upd = jax.jit(structure_update)
-    pf = PV.replace(value_fringe=True, gamma=0.95, value_merge_tol=0.001)
-    lr, split, _ = upd(lr0, pf.replace(value_split_gain=0.02))
-    assert bool(split) and int(lr.value_splits) == 1
-    assert_cut_at_half(lr)
-    assert not bool(upd(lr0, pf.replace(value_split_gain=0.03))[1])
-
-
-# --- exit outputs (where the held primitive leaves the box) ------------------------------
-
-
-def test_exit_changes_follow_the_held_primitive_to_the_box_exit_by_hand():
-    """The buffer of the TD-target test: the chain of primitive 0 (clocks 5-8) leaves the
-    left box at x0 = 0.51, so its exits are 0.51 - x0; the scoring and the failing step end
-    their own chains (their x' = x: the change of x is 0 on a terminal step); the newest
-    transition's exit is its own change."""
-    from vbl.spaces.incremental import exit_changes, record
-    lr = init_learner(P, 2, 4)
-    seg = lr.seg
-    seg = seg.replace(hi=seg.hi.at[0, 0].set(0.5).at[1].set(1.0),
-                      lo=seg.lo.at[1, 0].set(0.5), active=seg.active.at[1].set(True))
-    buf = lr.buf
-    d = jnp.array([0.02, 0.0, 0.0], jnp.float32)
-    steps = [([0.43, 0.3], 0, d, 5, False), ([0.45, 0.3], 0, d, 6, False),
-             ([0.47, 0.3], 0, d, 7, False), ([0.49, 0.3], 0, d, 8, False),
-             ([0.52, 0.3], 2, jnp.array([0.0, 0.0, 1.0]), 9, True),
-             ([0.10, 0.1], 1, jnp.zeros(3), 10, True),
-             ([0.20, 0.2], 3, jnp.array([0.0, -0.02, 0.0]), 11, False)]
-    for x, a, y, c, t in steps:
-        buf = record(buf, jnp.array(x, jnp.float32), jnp.int32(a), y, jnp.asarray(True), c, t)
-    got = np.asarray(exit_changes(seg, buf))
-    want = [[0.08, 0], [0.06, 0], [0.04, 0], [0.02, 0], [0, 0], [0, 0], [0, -0.02]]
-    np.testing.assert_allclose(got[:7], want, atol=1e-6)
-    np.testing.assert_array_equal(got[7:], 0.0)                  # empty slots
-
-
-def drifting_chains(p, step=0.001, length=16):
-    """M transitions in chains of ``length`` steps of one primitive each (consecutive
-    clocks, then a gap): x0 drifts by ``step`` per step away from x0 = 0.5, so one step
-    hardly differs between the sides but where a chain ends differs by 2 x length x step."""
-    lr = init_learner(p, 2, 4)
-    n = M // length
-    k0, k1, ka = jax.random.split(jax.random.PRNGKey(7), 3)
-    start = jax.random.uniform(k0, (n,), jnp.float32, 0.1, 0.9)
-    x1 = jax.random.uniform(k1, (n,), jnp.float32, 0.1, 0.9)
-    sign = jnp.where(start < 0.5, -1.0, 1.0)
-    t = jnp.arange(length, dtype=jnp.float32)
-    x0 = (start[:, None] + sign[:, None] * step * t[None]).reshape(-1)
-    x = jnp.stack([x0, jnp.repeat(x1, length)], 1)
-    dx = jnp.stack([jnp.repeat(sign * step, length), jnp.zeros(M, jnp.float32)], 1)
-    a = jnp.repeat(jax.random.randint(ka, (n,), 0, 4), length).astype(jnp.int32)
-    clock = (jnp.arange(n)[:, None] * (length + 10) + jnp.arange(length)[None]).reshape(-1)
-    y = jnp.concatenate([dx, jnp.zeros((M, lr.buf.y.shape[1] - 2), jnp.float32)], 1)
-    return lr.replace(buf=Buffer(x=x, a=a, y=y, valid=jnp.ones(M, bool),
-                                 ptr=jnp.zeros((), jnp.int32), clock=clock.astype(jnp.int32),
-                                 closed=jnp.ones(M, bool), term=jnp.zeros(M, bool)))
-
-
-def test_exit_output_splits_where_exits_differ_and_one_step_changes_barely_do():
-    """One-step changes of +-0.001 (a residual reduction of ~1e-6 per transition, below
-    split_gain 5e-6): no split from the one-step models, with or without the exit outputs
-    at weight 0. With the exit outputs at weight 1 the chain exits (up to +-0.016) differ by
-    side: exactly one split, at x0 = 0.5."""
-    upd = jax.jit(structure_update)
-    pe = P.replace(exit_output=True)
-    for p in (P, pe):
-        assert not bool(upd(drifting_chains(p), p)[1])
-    lr = drifting_chains(pe)
-    p1 = pe.replace(exit_weight=1.0)
-    for _ in range(3):
-        lr, _, _ = upd(lr, p1)
-    assert_cut_at_half(lr)
-    assert int(lr.splits) == 1
-
-
-def test_exit_weight_without_exit_output_is_a_clear_error():
-    with pytest.raises(ParamError, match="exit_weight.*exit_output"):
-        validate(P.replace(exit_weight=0.5))
 
 
 def _mc_learner():
@@ -639,11 +440,12 @@ def test_monte_carlo_learner_step_learns_at_the_trial_end():
 
     from vbl.spaces.incremental import init_option, learner_step
     p, lr = _mc_learner()
+    p = p.replace(temperature=1e-3)
     ep = ENV.default_params.replace(gain_right=1.0)
     x = jnp.array([0.6, 0.2], jnp.float32)                  # far from the goal: no score
     lr2, opt, _, _, info = learner_step(jax.random.PRNGKey(1), lr, init_option(), ENV,
                                         ToyState(x, jnp.zeros((), jnp.int32)), x, ep, p,
-                                        lambda o: o, temperature=1e-3)
+                                        lambda o: o)
     assert not bool(info["terminated"])
     np.testing.assert_array_equal(np.asarray(lr2.q), np.asarray(lr.q))   # no update yet
     assert int(lr2.log.n) == 1
@@ -651,7 +453,7 @@ def test_monte_carlo_learner_step_learns_at_the_trial_end():
     q = lr.q.at[1, 0].set(0.4)                      # +x0 is the greedy primitive in box 1
     out, _, _, _, info = learner_step(jax.random.PRNGKey(0), lr.replace(q=q), init_option(),
                                       ENV, ToyState(x, jnp.zeros((), jnp.int32)), x, ep, p,
-                                      lambda o: o, temperature=1e-3)
+                                      lambda o: o)
     assert bool(info["terminated"]) and bool(info["success"])
     assert float(out.q[1, 0]) == pytest.approx(0.4 + p.alpha * (1.0 - 0.4))
     assert int(out.log.n) == 0

@@ -10,13 +10,9 @@ Learning (one robot, one environment; :func:`make_learner` vmaps over seeds):
 
 1. Start with one box (the paper's two states: "goal" and "other").
 2. Every step, the transition ``(x, a, y)`` goes into a ring buffer of the last
-   ``buffer_size`` transitions, with ``y = (x' - x, scored, return)`` (``x' - x`` is taken
-   as 0 on a terminal step; truncated steps are not stored; ``return`` only with the
-   static switch ``return_output``). ``return`` is set when the
-   trial ends (:func:`close_trial`): ``return_gamma^k`` (k primitives to the goal) if it
-   scored, else 0 - the reinforcement signal in the segmentation. The residual weighs
-   the outputs 1, ``outcome_weight``, ``return_weight``; with ``return_weight > 0`` only
-   transitions of ended trials enter the fits.
+   ``buffer_size`` transitions, with ``y = (x' - x, scored)`` (``x' - x`` is taken as 0
+   on a terminal step; truncated steps are not stored). The residual weighs the outputs
+   1 and ``outcome_weight``.
 3. Every ``update_every`` steps the local models are refitted from the buffer:
    per box and primitive an affine least-squares model ``y ~ W^T [x, 1]`` (ridge
    ``ridge``) from sufficient statistics (sums of ``z z^T``, ``z y^T``, ``|y|^2``,
@@ -38,19 +34,13 @@ Learning (one robot, one environment; :func:`make_learner` vmaps over seeds):
    axis, bin); a cut's gain is the greedy value per transition of its two sides minus
    that of the whole box (greedy value = max over primitives with ``value_min_count``
    transitions of the mean target, cross-fitted over two halves of the buffer with
-   ``value_crossfit``; per transition of the buffer with ``value_per_buffer``); the best
-   cut with gain >= ``value_split_gain`` is made (``value_fringe``: per axis, chains also
-   end at that axis's bin edges and bootstrap from the bins' greedy values). Merges whose
-   pair gains more than ``value_merge_tol`` by staying apart are vetoed.
-   With ``exit_output`` the local models also predict the *exit* of the held primitive
-   (:func:`exit_changes`: x where a chain of that primitive leaves the box, minus x),
-   weighted ``exit_weight``: a box splits where the same action leads to different places
-   even when one step hardly differs (a ball drifting out of the image left or right).
+   ``value_crossfit``); the best cut with gain >= ``value_split_gain`` is made. Merges
+   whose pair gains more than ``value_merge_tol`` by staying apart are vetoed.
 4. Q-learning on boxes with Boltzmann action selection; an *action* holds its
    primitive until the box changes, the episode ends or ``max_repeat`` steps pass,
    then ``Q(s, a) += alpha (r + gamma max Q(s') - Q(s, a))`` (target ``r`` when the
-   episode terminated; no update on truncation); with ``discount_per_primitive`` the
-   discount is ``gamma^n`` for an action held n primitives (semi-Markov).
+   episode terminated; no update on truncation); with ``value_update = "monte_carlo"``
+   every decision of a trial moves towards the trial's discounted outcome instead.
 """
 
 from __future__ import annotations
@@ -65,7 +55,7 @@ from flax import struct
 
 from vbl.agents.exploration import boltzmann_action
 from vbl.agents.monte_carlo import MCLog, log_append, mc_update
-from vbl.params import ParamError, param, validate
+from vbl.params import ParamError, param
 
 __all__ = [
     "IncrementalParams",
@@ -80,12 +70,9 @@ __all__ = [
     "record",
     "structure_update",
     "td_targets",
-    "exit_changes",
     "num_states",
     "greedy_action",
     "learner_step",
-    "close_trial",
-    "temperature_at",
 ]
 
 F32 = jnp.float32
@@ -130,38 +117,19 @@ class IncrementalParams:
                              unit="norm. units", gt=0.0, lt=0.5)
     outcome_weight: float = param(0.1, doc="weight of the 'scored' output in the residual "
                                   "(outcome disagreement)", ge=0.0)
-    return_output: bool = param(False, doc="keep the 'return' output (filled in when a trial "
-                                "ends; costs a pass over the buffer per primitive)",
-                                static=True)
-    return_weight: float = param(0.0, doc="weight of the 'return' output in the residual: "
-                                 "return_gamma^(primitives to the goal) if the trial scored, "
-                                 "else 0, known when the trial ends (0: dynamics and 'scored' "
-                                 "only)", ge=0.0)
-    return_gamma: float = param(0.98, doc="discount per primitive of the 'return' output (1: "
-                                "'this trial scored')", gt=0.0, le=1.0)
     ridge: float = param(1e-4, doc="ridge of the least-squares fits", gt=0.0)
     inherit_q: bool = param(True, doc="a new box starts from its parent's Q-values (else "
                             "q_init)")
     q_init: float = param(0.0, doc="initial Q-value of new boxes (inherit_q off, and at "
                           "start)")
     alpha: float = param(0.25, doc="Q-learning rate", gt=0.0, le=1.0)
-    gamma: float = param(0.95, doc="discount per action (state change), or per primitive "
-                         "with discount_per_primitive", ge=0.0, lt=1.0)
-    discount_per_primitive: bool = param(False, doc="discount an action by gamma^n, n = the "
-                                         "primitives it held (semi-Markov), instead of gamma "
-                                         "once per action")
+    gamma: float = param(0.95, doc="discount per action (state change)", ge=0.0, lt=1.0)
     temperature: float = param(0.02, doc="Boltzmann temperature (at the start of the "
                                "schedule)", unit="Q units", gt=0.0)
     split_candidates: int = param(8, doc="boxes (largest residual per transition) whose cuts "
                                   "are evaluated at each update", static=True, ge=1)
     max_repeat: int = param(50, doc="most primitives one action holds in an unchanged box",
                             unit="steps", ge=1)
-    temperature_final: float = param(0.01, doc="Boltzmann temperature reached after "
-                                     "anneal_trials trials (geometric schedule)",
-                                     unit="Q units", gt=0.0)
-    anneal_trials: int = param(0, doc="trials over which the temperature goes from "
-                               "temperature to temperature_final (0: constant temperature)",
-                               ge=0)
     value_split_gain: float = param(0.06, doc="value-driven splits: least gain per transition "
                                     "of a cut in the value of acting greedily on each side "
                                     "separately over acting greedily in the whole box, from "
@@ -174,23 +142,6 @@ class IncrementalParams:
                                  "is chosen on one half of the buffer and valued on the other "
                                  "(cross-fitting: no gain from noise alone in expectation); "
                                  "else max of the means (biased upwards on small sides)")
-    value_per_buffer: bool = param(False, doc="value-driven splits: gains (and value_split_gain, "
-                                   "value_merge_tol) per transition of the whole buffer, i.e. "
-                                   "weighted by the box's share of the experience (else per "
-                                   "transition of the box)")
-    value_fringe: bool = param(False, doc="value-driven splits: per axis, chains of a held "
-                               "primitive also end at that axis's bin edges and bootstrap from "
-                               "the bins' greedy values (one round of fringe value iteration: "
-                               "a cut's value no longer has to exist before the cut)",
-                               static=True)
-    exit_output: bool = param(False, doc="add the *exit* of the held primitive to the local "
-                              "models' outputs: where a chain of the same primitive leaves "
-                              "the box (x at the chain end - x), so a box splits where the "
-                              "same action leads to different places (e.g. a ball that "
-                              "leaves the image left or right); costs a second set of "
-                              "outputs in the statistics", static=True)
-    exit_weight: float = param(0.0, doc="weight of the exit outputs in the model residual "
-                               "(with exit_output)", ge=0.0)
     value_merge_tol: float = param(0.005, doc="with value-driven splits on, two boxes merge only "
                                    "if acting greedily in each separately beats acting greedily "
                                    "in their union by at most this per transition "
@@ -211,12 +162,6 @@ class IncrementalParams:
         if np.any(np.asarray(self.merge_tol) >= np.asarray(self.split_gain)):
             raise ParamError(f"merge_tol={self.merge_tol} must be < split_gain="
                              f"{self.split_gain} (else a split is undone at once)")
-        if not self.exit_output and np.any(np.asarray(self.exit_weight) > 0):
-            raise ParamError(f"exit_weight={self.exit_weight} needs exit_output=True (the "
-                             "exit outputs are only computed then)")
-        if not self.return_output and np.any(np.asarray(self.return_weight) > 0):
-            raise ParamError(f"return_weight={self.return_weight} needs return_output=True "
-                             "(the return output is not kept without it)")
         if np.any(np.asarray(self.split_gain) > np.asarray(self.split_error)):
             raise ParamError(f"split_gain={self.split_gain} must be <= split_error="
                              f"{self.split_error}")
@@ -239,10 +184,9 @@ class Segmentation:
 @struct.dataclass
 class Buffer:
     """Ring buffer: x (M, D) float32, a (M,) int32, y (M, D+1) float32 (change of x,
-    scored; (M, D+2) with the return output: change of x, scored, return), valid (M,)
-    bool, ptr () int32 next slot, clock (M,) int32 the learner's primitive count at the
-    write, closed (M,) bool the trial has ended (the return is known), term (M,) bool the
-    transition ended its episode (goal or failure; not a time-limit truncation)."""
+    scored), valid (M,) bool, ptr () int32 next slot, clock (M,) int32 the learner's
+    primitive count at the write, term (M,) bool the transition ended its episode (goal or
+    failure; not a time-limit truncation)."""
 
     x: jax.Array
     a: jax.Array
@@ -250,7 +194,6 @@ class Buffer:
     valid: jax.Array
     ptr: jax.Array
     clock: jax.Array
-    closed: jax.Array
     term: jax.Array
 
 
@@ -290,10 +233,10 @@ def init_learner(p: IncrementalParams, dim: int, num_actions: int) -> Learner:
                        hi=jnp.zeros((cap, dim), F32).at[0].set(1.0),
                        active=jnp.zeros((cap,), bool).at[0].set(True))
     buf = Buffer(x=jnp.zeros((m, dim), F32), a=jnp.zeros((m,), I32),
-                 y=jnp.zeros((m, dim + (2 if p.return_output else 1)), F32),
+                 y=jnp.zeros((m, dim + 1), F32),
                  valid=jnp.zeros((m,), bool),
                  ptr=jnp.zeros((), I32), clock=jnp.zeros((m,), I32),
-                 closed=jnp.zeros((m,), bool), term=jnp.zeros((m,), bool))
+                 term=jnp.zeros((m,), bool))
     q = jnp.full((cap, num_actions), p.q_init, F32)
     n_log = p.mc_log if p.value_update == "monte_carlo" else 1
     log = TrialLog(x=jnp.zeros((n_log, dim), F32), a=jnp.zeros((n_log,), I32),
@@ -317,32 +260,15 @@ def num_states(seg: Segmentation) -> jax.Array:
 
 def record(buf: Buffer, x: jax.Array, a: jax.Array, y: jax.Array, valid: jax.Array,
            clock: jax.Array | int = 0, term: jax.Array | bool = False) -> Buffer:
-    """Write one transition (y: change of x, scored; the return is filled in by
-    :func:`close_trial`; ``term``: it ended its episode) at ``ptr`` when ``valid`` (the
-    pointer advances only then)."""
+    """Write one transition (y: change of x, scored; ``term``: it ended its episode) at
+    ``ptr`` when ``valid`` (the pointer advances only then)."""
     i = buf.ptr
     w = lambda arr, v: arr.at[i].set(jnp.where(valid, v, arr[i]))  # noqa: E731
-    y = y.astype(F32)
-    if buf.y.shape[1] == x.shape[-1] + 2:                 # return output kept: 0 until closed
-        y = jnp.concatenate([y, jnp.zeros((1,), F32)])
     return Buffer(x=w(buf.x, x.astype(F32)), a=w(buf.a, a.astype(I32)),
-                  y=w(buf.y, y), valid=w(buf.valid, valid),
+                  y=w(buf.y, y.astype(F32)), valid=w(buf.valid, valid),
                   ptr=jnp.where(valid, (i + 1) % buf.x.shape[0], i).astype(I32),
                   clock=w(buf.clock, jnp.asarray(clock, I32)),
-                  closed=w(buf.closed, jnp.zeros((), bool)),
                   term=w(buf.term, jnp.asarray(term, bool)))
-
-
-def close_trial(buf: Buffer, ended: jax.Array, scored: jax.Array, clock: jax.Array,
-                gamma: Any) -> Buffer:
-    """When ``ended``: the transitions of the trial that just ended (valid, not yet closed)
-    get their return ``gamma^(clock - their clock)`` if it ``scored`` (``clock`` = the
-    scoring primitive's), else 0, and become closed."""
-    open_ = buf.valid & ~buf.closed & ended
-    k = (jnp.asarray(clock, I32) - buf.clock).astype(F32)
-    ret = jnp.where(scored, jnp.asarray(gamma, F32) ** k, 0.0)
-    return buf.replace(y=buf.y.at[:, -1].set(jnp.where(open_, ret, buf.y[:, -1])),
-                       closed=buf.closed | open_)
 
 
 def log_decision(log: TrialLog, decide: jax.Array, x: jax.Array, a: jax.Array,
@@ -419,22 +345,12 @@ def _bin_in_box(seg: Segmentation, leaf: jax.Array, x: jax.Array, bins: int) -> 
     return jnp.clip(jnp.floor(bins * (x - lo) / width), 0, bins - 1).astype(I32)
 
 
-def _stats(seg: Segmentation, buf: Buffer, num_actions: int, bins: int, weight_out,
-           weight_ret=0.0, extra_y: jax.Array | None = None):
-    """Bin statistics (L, A, D, B, ...) of the buffer under the current boxes (float64).
-
-    With ``weight_ret`` > 0 only closed transitions (trial ended, return known) count.
-    ``extra_y`` (M, E): more (already weighted) outputs appended to the buffer's."""
+def _stats(seg: Segmentation, buf: Buffer, num_actions: int, bins: int, weight_out):
+    """Bin statistics (L, A, D, B, ...) of the buffer under the current boxes (float64)."""
     cap, dim = seg.lo.shape
     x = buf.x.astype(F64)
     y = buf.y.astype(F64).at[:, dim].multiply(jnp.sqrt(jnp.asarray(weight_out, F64)))
     valid = buf.valid
-    if y.shape[1] == dim + 2:                              # the return output is kept
-        wr = jnp.asarray(weight_ret, F64)
-        y = y.at[:, dim + 1].multiply(jnp.sqrt(wr))
-        valid = valid & (buf.closed | (wr <= 0))
-    if extra_y is not None:
-        y = jnp.concatenate([y, extra_y.astype(F64)], axis=1)
     zz = jnp.concatenate([x, jnp.ones((x.shape[0], 1), F64)], axis=1)
     leaf = leaf_of(seg, buf.x)
     b = _bin_in_box(seg, leaf, buf.x, bins)
@@ -455,8 +371,7 @@ def _stats(seg: Segmentation, buf: Buffer, num_actions: int, bins: int, weight_o
 def _continues(seg: Segmentation, buf: Buffer):
     """Per buffered transition: does its successor in the buffer continue the same action
     (next clock, same primitive, not terminal, ``x' = x + dx`` still in the same box)?
-    Returns (cont (M,) bool, scored (M,) bool, xn (M, D) the next features, s, sn (M,)
-    their boxes)."""
+    Returns (cont (M,) bool, scored (M,) bool, sn (M,) int32 the box of x')."""
     m, dim = buf.x.shape
     scored = buf.y[:, dim] > 0.5
     xn = jnp.clip(buf.x + buf.y[:, :dim], 0.0, 1.0)
@@ -466,35 +381,21 @@ def _continues(seg: Segmentation, buf: Buffer):
     newest = (buf.ptr - 1) % m
     cont = (buf.valid & buf.valid[succ] & (idx != newest) & (buf.clock[succ] == buf.clock + 1)
             & ~buf.term & ~scored & (buf.a[succ] == buf.a) & (sn == s))
-    return cont, scored, xn, s, sn
+    return cont, scored, sn
 
 
-def _chain_end(cont: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """Last transition (int32 (M, ...)) of each transition's chain and the chain steps
-    after it (float32 (M, ...)), by pointer doubling (log2(M) gathers along axis 0) over
-    ``cont`` (M, ...) bool (trailing axes: independent chain rules, e.g. one per axis)."""
+def _chain_end(cont: jax.Array) -> jax.Array:
+    """Last transition (int32 (M,)) of each transition's chain, by pointer doubling
+    (log2(M) gathers) over ``cont`` (M,) bool (the successor continues the chain)."""
     m = cont.shape[0]
-    idx = jnp.arange(m, dtype=I32).reshape((m,) + (1,) * (cont.ndim - 1))
+    idx = jnp.arange(m, dtype=I32)
     nxt = jnp.where(cont, (idx + 1) % m, idx)
-    dist = cont.astype(F32)
     for _ in range(max(1, int(np.ceil(np.log2(m))))):
-        dist = dist + jnp.take_along_axis(dist, nxt, axis=0)
-        nxt = jnp.take_along_axis(nxt, nxt, axis=0)
-    return nxt, dist
+        nxt = nxt[nxt]
+    return nxt
 
 
-def exit_changes(seg: Segmentation, buf: Buffer) -> jax.Array:
-    """Where the held primitive leaves the box: ``x'`` of the last transition of each
-    transition's chain (same primitive, same box, consecutive; see :func:`td_targets`)
-    minus its own ``x``; float32 (M, D), 0 for invalid slots."""
-    cont, _, xn, _, _ = _continues(seg, buf)
-    nxt, _ = _chain_end(cont)
-    return jnp.where(buf.valid[:, None], xn[nxt] - buf.x, 0.0).astype(F32)
-
-
-def td_targets(seg: Segmentation, buf: Buffer, q: jax.Array, gamma: Any,
-               per_primitive: Any = False, same_bin: jax.Array | None = None,
-               v_bin_next: jax.Array | None = None) -> jax.Array:
+def td_targets(seg: Segmentation, buf: Buffer, q: jax.Array, gamma: Any) -> jax.Array:
     """TD target (float32 (M,)) of every buffered transition under the current boxes and Q.
 
     An *action* of the learner holds its primitive while the box does not change, so a
@@ -502,29 +403,13 @@ def td_targets(seg: Segmentation, buf: Buffer, q: jax.Array, gamma: Any,
     terminal, and ``x' = x + dx`` still in the same box) takes the target of its successor;
     the last transition of such a chain gets ``1`` if it scored, ``0`` if it ended the
     episode without scoring, else ``gamma * max_a Q(box(x'), a)`` - the learner's own
-    Q-learning target per action (``per_primitive``: discounted by ``gamma^k`` more for a
-    chain of k primitives before it, as the semi-Markov learner). Chains are followed by
-    pointer doubling (log2(M) gathers). The newest transition ends its chain (its successor
-    is unknown yet); invalid slots give 0 (they are never counted).
-
-    Fringe targets (``same_bin`` (M, D) bool: ``x'`` is in the same bin of its box as ``x``
-    along axis d; ``v_bin_next`` (M, D): the greedy value of the bin ``x'`` lands in along
-    axis d): per axis d, a chain also ends where it crosses a bin edge of axis d, and a
-    chain end inside the box takes ``gamma * v_bin_next`` (when finite) instead of
-    ``gamma * max Q(box)``. Returns (M, D) targets then, one set per axis."""
+    Q-learning target per action. Chains are followed by pointer doubling (log2(M)
+    gathers). The newest transition ends its chain (its successor is unknown yet); invalid
+    slots give 0 (they are never counted)."""
     g = jnp.asarray(gamma, F32)
-    cont, scored, _, s, sn = _continues(seg, buf)
+    cont, scored, sn = _continues(seg, buf)
     base = jnp.where(scored, 1.0, jnp.where(buf.term, 0.0, g * jnp.max(q[sn], axis=-1)))
-    if same_bin is None:
-        nxt, dist = _chain_end(cont)
-        disc = jnp.where(jnp.asarray(per_primitive, bool), g ** dist, 1.0)
-        return jnp.where(buf.valid, disc * base[nxt], 0.0).astype(F32)
-    inside = ((sn == s) & ~scored & ~buf.term)[:, None]
-    base_d = jnp.where(inside & jnp.isfinite(v_bin_next), g * v_bin_next, base[:, None])
-    nxt, dist = _chain_end(cont[:, None] & same_bin)                                # (M, D)
-    disc = jnp.where(jnp.asarray(per_primitive, bool), g ** dist, 1.0)
-    out = disc * jnp.take_along_axis(base_d, nxt, axis=0)
-    return jnp.where(buf.valid[:, None], out, 0.0).astype(F32)
+    return jnp.where(buf.valid, base[_chain_end(cont)], 0.0).astype(F32)
 
 
 def _value_stats(seg: Segmentation, buf: Buffer, target: jax.Array, num_actions: int,
@@ -541,7 +426,7 @@ def _value_stats(seg: Segmentation, buf: Buffer, target: jax.Array, num_actions:
     nseg = cap * num_actions * dim * bins * 2
     idx = jnp.where(buf.valid[:, None], idx, nseg).reshape(-1)
     t = target.astype(F64)
-    vals = jnp.stack([jnp.broadcast_to(t if t.ndim == 2 else t[:, None], b.shape),
+    vals = jnp.stack([jnp.broadcast_to(t[:, None], b.shape),
                       jnp.ones(b.shape, F64)], axis=-1).reshape(-1, 2)
     s = jax.ops.segment_sum(vals, idx, nseg + 1)[:-1]
     s = s.reshape((cap, num_actions, dim, bins, 2, 2))
@@ -581,11 +466,7 @@ def structure_update(lr: Learner, p: IncrementalParams) -> tuple[Learner, jax.Ar
     nb = p.bins
     k_c = min(p.split_candidates, cap)
     ridge = jnp.asarray(p.ridge, F64)
-    extra = None
-    if p.exit_output:
-        extra = jnp.sqrt(jnp.asarray(p.exit_weight, F32)) * exit_changes(seg, lr.buf)
-    szz, szy, syy, cnt = _stats(seg, lr.buf, n_act, nb, p.outcome_weight,
-                                p.return_weight if p.return_output else 0.0, extra)
+    szz, szy, syy, cnt = _stats(seg, lr.buf, n_act, nb, p.outcome_weight)
     # whole boxes: sum the bins of axis 0
     tots = [a[:, :, 0].sum(axis=2) for a in (szz, szy, syy, cnt)]                # (L, A, ...)
     t_n = tots[3]
@@ -640,40 +521,20 @@ def structure_update(lr: Learner, p: IncrementalParams) -> tuple[Learner, jax.Ar
     # summed per (box, primitive, axis, bin); a cut's gain is the greedy value per
     # transition of its two sides acted on separately minus that of the whole box
     v_on = jnp.asarray(p.value_split_gain) > 0
-    tgt = td_targets(seg, lr.buf, lr.q, p.gamma, p.discount_per_primitive)
+    tgt = td_targets(seg, lr.buf, lr.q, p.gamma)
     tsum, tcnt = _value_stats(seg, lr.buf, tgt, n_act, nb)                       # (L, A, D, B)
     b_sum, b_cnt = tsum[:, :, 0].sum(axis=2), tcnt[:, :, 0].sum(axis=2)           # (L, A, 2)
     mc, xf = p.value_min_count, p.value_crossfit
     v_box = _greedy_value(b_sum, b_cnt, mc, xf)                                   # (L,)
-    if p.value_fringe:
-        # per axis: chains end at the bin edges of that axis, bootstrapped from the bins'
-        # greedy values of the targets above (one round of fringe value iteration)
-        buf = lr.buf
-        leaf_x = leaf_of(seg, buf.x)
-        xn = jnp.clip(buf.x + buf.y[:, :dim], 0.0, 1.0)
-        b_x = _bin_in_box(seg, leaf_x, buf.x, nb)
-        b_n = _bin_in_box(seg, leaf_x, xn, nb)
-        v_bin = _greedy_value(tsum, tcnt, mc, xf)                                 # (L, D, B)
-        vb = v_bin[leaf_x[:, None], jnp.arange(dim)[None], b_n].astype(F32)       # (M, D)
-        tgt_d = td_targets(seg, buf, lr.q, p.gamma, p.discount_per_primitive, b_x == b_n, vb)
-        tsum, tcnt = _value_stats(seg, buf, tgt_d, n_act, nb)
-        ax_sum, ax_cnt = tsum.sum(axis=3), tcnt.sum(axis=3)                       # (L, A, D, 2)
-        v_box_cut = _greedy_value(ax_sum, ax_cnt, mc, xf)[:, :, None]             # (L, D, 1)
-    else:
-        ax_sum, ax_cnt = b_sum[:, :, None], b_cnt[:, :, None]
-        v_box_cut = v_box[:, None, None]
     l_sum, l_cnt = (jnp.cumsum(a, axis=3)[:, :, :, :-1] for a in (tsum, tcnt))    # (L,A,D,B-1,2)
-    r_sum, r_cnt = ax_sum[:, :, :, None] - l_sum, ax_cnt[:, :, :, None] - l_cnt
+    r_sum = b_sum[:, :, None, None] - l_sum
+    r_cnt = b_cnt[:, :, None, None] - l_cnt
     v_l = _greedy_value(l_sum, l_cnt, mc, xf)                                     # (L, D, B-1)
     v_r = _greedy_value(r_sum, r_cnt, mc, xf)
     vn_l, vn_r = l_cnt.sum(axis=(1, -1)), r_cnt.sum(axis=(1, -1))
     vn_box = b_cnt.sum(axis=(1, -1))
-    # per transition of the box, or (value_per_buffer) of the whole buffer: weighted by
-    # the box's share of the experience, i.e. the gain in the visited states' mean value
-    share = jnp.where(jnp.asarray(p.value_per_buffer, bool),
-                      vn_box / jnp.maximum(jnp.sum(lr.buf.valid), 1).astype(F64), 1.0)
     v_gain = ((vn_l * v_l + vn_r * v_r) / jnp.maximum(vn_box, 1.0)[:, None, None]
-              - v_box_cut) * share[:, None, None]
+              - v_box[:, None, None])
     v_width = (seg.hi - seg.lo)[:, :, None]
     v_ok = (v_on & seg.active[:, None, None] & jnp.isfinite(v_gain)
             & (v_gain >= p.value_split_gain)
@@ -704,8 +565,7 @@ def structure_update(lr: Learner, p: IncrementalParams) -> tuple[Learner, jax.Ar
     u_sum, u_cnt = b_sum + b_sum[partner], b_cnt + b_cnt[partner]
     vn_u = vn_box + vn_box[partner]
     apart = ((vn_box * v_box + vn_box[partner] * v_box[partner]) / jnp.maximum(vn_u, 1.0)
-             - _greedy_value(u_sum, u_cnt, mc, xf)) * jnp.where(
-                 jnp.asarray(p.value_per_buffer, bool), share + share[partner], 1.0)
+             - _greedy_value(u_sum, u_cnt, mc, xf))
     veto = v_on & jnp.isfinite(apart) & (apart > p.value_merge_tol)
     m_ok = has_partner & (rise <= p.merge_tol) & ~veto
     m_score = jnp.where(m_ok, -rise, -jnp.inf)
@@ -751,31 +611,18 @@ def init_option() -> Option:
                   jnp.zeros((), bool))
 
 
-def temperature_at(p: IncrementalParams, trials: jax.Array) -> jax.Array:
-    """Boltzmann temperature after ``trials`` finished trials (float32 ()): geometric from
-    ``temperature`` to ``temperature_final`` over ``anneal_trials`` (constant if 0)."""
-    n = jnp.asarray(p.anneal_trials, F32)
-    frac = jnp.where(n > 0, jnp.minimum(jnp.asarray(trials, F32) / jnp.maximum(n, 1.0), 1.0),
-                     0.0)
-    t0 = jnp.asarray(p.temperature, F32)
-    return t0 * (jnp.asarray(p.temperature_final, F32) / t0) ** frac
-
-
 def learner_step(key: jax.Array, lr: Learner, opt: Option, env: Any, env_state: Any,
                  obs: jax.Array, env_params: Any, p: IncrementalParams,
-                 feature_fn: Callable[[jax.Array], jax.Array],
-                 temperature: jax.Array | None = None):
+                 feature_fn: Callable[[jax.Array], jax.Array]):
     """One primitive of the on-line learner (Q-learning + buffer; no structure change).
 
-    ``temperature`` (Q units) defaults to ``p.temperature``. Returns (learner, option,
-    env_state, obs, info) with info from the env plus ``reward``, ``terminated``,
-    ``truncated``.
+    Returns (learner, option, env_state, obs, info) with info from the env plus
+    ``reward``, ``terminated``, ``truncated``.
     """
     k_act, k_env = jax.random.split(key)
     x = feature_fn(obs)
     s = leaf_of(lr.seg, x)
-    temp = p.temperature if temperature is None else temperature
-    a_new = boltzmann_action(k_act, lr.q[s], temp)
+    a_new = boltzmann_action(k_act, lr.q[s], p.temperature)
     a = jnp.where(opt.active, opt.a, a_new)
     s0 = jnp.where(opt.active, opt.s0, s)
     n = jnp.where(opt.active, opt.n, 0) + 1
@@ -786,15 +633,8 @@ def learner_step(key: jax.Array, lr: Learner, opt: Option, env: Any, env_state: 
     dx = jnp.where(term, 0.0, x2 - x)
     y = jnp.concatenate([dx, info["success"].astype(F32)[None]])
     buf = record(lr.buf, x, a, y, ~(trunc & ~term), lr.clock, term)
-    if p.return_output:
-        buf = close_trial(buf, done, info["success"], lr.clock, p.return_gamma)
     end = done | (s2 != s0) | (n >= p.max_repeat)
-    # semi-Markov: the reward of the n-th primitive is discounted by gamma^(n-1), the value
-    # after it by gamma^n; per action: r + gamma max Q(s')
-    g = jnp.asarray(p.gamma, F32)
-    steps = jnp.where(p.discount_per_primitive, n.astype(F32), 1.0)
-    r_disc = jnp.where(p.discount_per_primitive, g ** (steps - 1.0), 1.0) * r
-    target = jnp.where(term, r_disc, r_disc + g ** steps * jnp.max(lr.q[s2]))
+    target = jnp.where(term, r, r + jnp.asarray(p.gamma, F32) * jnp.max(lr.q[s2]))
     upd = end & ~(trunc & ~term)
     if p.value_update == "monte_carlo":
         log = log_decision(lr.log, ~opt.active, x, a, lr.clock)
@@ -840,11 +680,6 @@ def policy_success(key: jax.Array, lr: Learner, env: Any, env_params: Any,
     return jax.vmap(one)(jax.random.split(key, num_episodes))
 
 
-def check_params(p: IncrementalParams) -> IncrementalParams:
-    """Validate (ParamError naming the field); returns p."""
-    return validate(p)
-
-
 @struct.dataclass
 class RunCarry:
     """Everything one on-line learner carries between chunks."""
@@ -880,7 +715,7 @@ def run_updates(carry: RunCarry, env: Any, params_fn: Callable[[jax.Array], Any]
         key, k = jax.random.split(c.key)
         ep = params_fn(c.trials)
         lr, opt, st, obs, info = learner_step(k, c.lr, c.opt, env, c.env_state, c.obs, ep, p,
-                                              feature_fn, temperature_at(p, c.trials))
+                                              feature_fn)
         done = info["terminated"] | info["truncated"]
         out = dict(success=info["success"] & done, done=done, trial=c.trials,
                    states=num_states(lr.seg))
