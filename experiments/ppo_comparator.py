@@ -37,13 +37,13 @@ from vbl.agents.ppo_programs import (
 )
 from vbl.agents.ppo_train import PPOParams
 from vbl.engine import Experiment, ReportSection, register
-from vbl.engine.registry import load_script
+from vbl.engine.cva_program import default_learner
+from vbl.engine.paper import TABLE2
 from vbl.envs.shoot_pass import ShootPassParams
 from vbl.envs.shooting import ShootingParams
 from vbl.params import section
 
-TABLE2 = load_script(Path(__file__).with_name("table2_shoot_pass.py"))
-PAPER = TABLE2.PAPER
+PAPER = TABLE2
 # Tabular greedy success %, mean +- 95 % CI over 16 seeds (docs/results/table2_q6488)
 TABULAR = {"shoot": {"current": (16.5, 2.3), "cva": (16.8, 2.7)},
            "pass": {"current": (22.4, 6.7), "cva": (59.5, 4.3)}}
@@ -58,7 +58,7 @@ QUICK_PPO = {"ppo.num_envs": 16, "ppo.batch_size": 16, "ppo.num_minibatches": 2,
 class ShootPassConfig:
     env: ShootPassParams = section(ShootPassParams, doc="the two-robot task (Table 2's)")
     inputs: InputChoice = section(InputChoice, doc="what PPO sees")
-    cva: CVAStateParams = section(TABLE2.default_learner, doc="the tabular learner's CVA "
+    cva: CVAStateParams = section(default_learner, doc="the tabular learner's CVA "
                                   "pipeline (collection, identification; its quantiser and "
                                   "runner are unused)")
     ppo: PPOParams = section(PPOParams, doc="brax PPO")

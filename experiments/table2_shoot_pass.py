@@ -1,101 +1,34 @@
 """Table 2: shooting and passing success with current features vs CVA state vectors.
 
-Each learner (one seed) runs the Figure 11 pipeline of :mod:`vbl.agents.cva_state` in the
-two-robot env (:class:`vbl.envs.shoot_pass.ShootPassEnv`): random-action data collection,
-one CVA model per observed object (ball, goal, other robot), filtering inside the env loop,
-vector quantisation of the state vector, tabular Q-learning; then ``train.eval_chunks``
-greedy chunks from fresh starts through the same compiled step (each env's first episode
-counts). The baseline (``learner.use_cva=False``) quantises the current features of the same
-objects instead; with ``learner.state="select"`` both state vectors share one compilation
-per task, and the env's ``task="select"`` lets the traced ``env.task_pass`` pick the role,
-so the default sweep task x state vector (4 rows of the table) is one compilation.
+Each learner (one seed) runs the Figure 11 pipeline in the two-robot env, then greedy
+evaluation chunks from fresh starts: :mod:`vbl.engine.cva_program` (its defaults are
+measured choices: docs/cva_learning.md, "Choices and why"). The default sweep, task x state
+vector (4 rows of the table), is one compilation. Presets give the variants the README
+reports (``--preset monte_carlo``: Monte Carlo values, the best published shooting result).
 
 Run: ``vbl run table2_shoot_pass --quick`` or ``python experiments/table2_shoot_pass.py``.
 """
 
 from __future__ import annotations
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from vbl.agents.cva_state import (
-    CVAStateParams,
-    default_runner,
-    first_episode_stats,
-    greedy_params,
-    make_cva_learner,
+from vbl.agents.cva_state import CVAStateParams
+from vbl.engine import Experiment, register
+from vbl.engine.cva_program import (
+    POINT_KEYS,
+    CVATrainParams,
+    default_learner,
+    make_cva_program,
+    state_label,
+    task_label,
 )
-from vbl.agents.exploration import ScheduleParams, schedule_value
-from vbl.engine import Experiment, Program, register
 from vbl.engine.experiment import PaperRow, ReportSection
+from vbl.engine.paper import TABLE2
 from vbl.engine.report import seeds_cell
-from vbl.envs.shoot_pass import ENV_TASKS, ShootPassEnv, ShootPassParams
-from vbl.params import ParamError, param, section
-from vbl.spaces.quantize import QuantizerParams
-from vbl.sysid.params import CVAParams
-
-PAPER = {"shoot": {"current": 10.2, "cva": 78.5}, "pass": {"current": 9.8, "cva": 53.2}}
-
-
-def default_learner() -> CVAStateParams:
-    """Pipeline defaults for the two-robot task (docs/cva_learning.md, "Choices and why")."""
-    # The ball's 8 leading canonical components (keep_beyond_order: its AIC order is 4,
-    # and components 5-8 carry its approach velocity, R^2 0.45 against 0.08 with 4;
-    # docs/findings/table2_shoot_pass.md, "What the CVA state carries (probe)"), the
-    # goal's and the other robot's 4 (with 2 their horizontal image position is poorly
-    # represented). No unfiltered lost-side flags. One k-means codebook per object
-    # (product VQ): ball 64 x goal 8 x other robot 8 = 4,096 states for both state
-    # vectors. 16 seeds: pass CVA 59.5 % vs current 22.4 %, shoot 16.8 vs 16.5 % (with
-    # 4 ball components on codes 16 x 8 x 8, 1,024 states: pass 42.7 vs 40.9 %, shoot
-    # 25.8 vs 40.9 %;
-    # docs/findings/table2_shoot_pass.md, "How the passing result came about").
-    return CVAStateParams(
-        state="select", objects=("ball", "goal", "other"), n_used=4,
-        n_used_objects=(8, 4, 4), keep_beyond_order=True, extra=(), collect_steps=3000,
-        cva=CVAParams(lag=0, lag_max=3, lag_rule="paper", logdet_stop=-100.0),
-        quantizer=QuantizerParams(method="product_vq", group_codes=(64, 8, 8),
-                                  kmeans_iters=20),
-        runner=_runner(transition_steps=30000.0))
-
-
-def _runner(transition_steps: float):
-    """Runner defaults with discount 0.95 and epsilon 1.0 -> 0.05 over ``transition_steps``
-    learner steps (primitives, about 75 % of a run: num_chunks x chunk_steps)."""
-    r = default_runner()
-    # macro actions: repeat a primitive until the quantised state changes (a deviation:
-    # docs/findings/table2_shoot_pass.md, "Deviations")
-    # (async: every runner step is one primitive of every env; an env decides when its
-    # action ends; an action lasts a few primitives on average against a cap of 20, and a
-    # synchronous loop runs as long as the longest action of the batch)
-    r = r.replace(macro=r.macro.replace(enabled=True, mode="async"))
-    sch = r.agent.exploration.schedule.replace(transition_steps=transition_steps)
-    # discount 0.95 per 0.1 s primitive: a goal 3-4 s after the start is still worth ~0.17
-    # (0.8: ~4e-4); docs/cva_learning.md, "Choices and why"
-    return r.replace(agent=r.agent.replace(discount=0.95, exploration=r.agent.exploration.replace(
-        schedule=sch)))
-
-
-def default_lr_schedule() -> ScheduleParams:
-    """Learning rate per training chunk: 0.5 for the first 70 % of the default 400 chunks,
-    then linearly down to 0.05 over the next 10 % (a decreasing step size lets the tabular
-    Q estimates settle; docs/cva_learning.md, "Choices and why")."""
-    return ScheduleParams(kind="linear", init_value=0.5, end_value=0.05,
-                          transition_begin=280.0, transition_steps=40.0)
-
-
-@struct.dataclass
-class Table2Train:
-    num_chunks: int = param(400, doc="training chunks per run (each learner.runner.chunk_steps "
-                            "learner steps)", static=True, ge=1)
-    eval_chunks: int = param(1, doc="greedy evaluation chunks after training: all envs restart "
-                             "fresh, no learning, no exploration; each env's first finished "
-                             "episode counts (chunks x chunk_steps must be >= env.max_steps)",
-                             static=True, ge=1)
-    lr_schedule: ScheduleParams = section(default_lr_schedule, doc="Q-learning rate of each "
-                                          "training chunk, count = training chunks done "
-                                          "(overrides learner.runner.agent.learning_rate)")
+from vbl.envs.shoot_pass import ENV_TASKS, ShootPassParams
+from vbl.params import param, section
 
 
 @struct.dataclass
@@ -105,103 +38,30 @@ class Table2Config:
                       "tasks)", static=True, choices=ENV_TASKS)
     learner: CVAStateParams = section(default_learner, doc="the Figure 11 pipeline")
     env: ShootPassParams = section(ShootPassParams, doc="the two-robot task")
-    train: Table2Train = section(Table2Train, doc="run length and evaluation")
+    train: CVATrainParams = section(CVATrainParams, doc="run length and evaluation")
 
 
-@struct.dataclass
-class Carry:
-    runner: object       # QRunnerState of the learner
-    fparams: object      # FilteredParams (CVA models, quantiser)
-    chunk: jax.Array     # () int32 chunks done
-    eval_key: jax.Array  # uint32[2] key of the evaluation restarts
-
-
-def make_program(cfg: Table2Config) -> Program:
-    """Training chunks, then ``eval_chunks`` greedy chunks through the same compiled step."""
-    env = ShootPassEnv(cfg.task)
-    lrn = make_cva_learner(env, cfg.learner, m=2)
-    n_train, n_eval = cfg.train.num_chunks, cfg.train.eval_chunks
-    if n_eval * cfg.learner.runner.chunk_steps < cfg.env.max_steps:
-        raise ParamError(f"train.eval_chunks={n_eval} x learner.runner.chunk_steps="
-                         f"{cfg.learner.runner.chunk_steps} must be >= env.max_steps="
-                         f"{cfg.env.max_steps} (every evaluation episode must finish)")
-
-    def init(key, c):
-        k_prep, k_run, k_eval = jax.random.split(key, 3)
-        fp = lrn.prepare(k_prep, c.learner, c.env)
-        rs = lrn.runner.init(k_run, lrn.runner_params(c.learner), fp)
-        return Carry(rs, fp, jnp.int32(0), k_eval)
-
-    def step(carry, c):
-        rp = lrn.runner_params(c.learner)
-        lr = schedule_value(c.train.lr_schedule, carry.chunk)
-        rp = rp.replace(agent=rp.agent.replace(learning_rate=lr))
-        rs = carry.runner
-        # at the first evaluation chunk every env restarts fresh (counters reset), Q kept
-        fresh = lrn.runner.init(carry.eval_key, rp, carry.fparams).replace(
-            key=rs.key, q=rs.q, steps=rs.steps, episodes=rs.episodes)
-        rs = jax.tree.map(lambda a, b: jnp.where(carry.chunk == n_train, a, b), fresh, rs)
-        rs, m = lrn.runner.run_chunk(rs, greedy_params(rp, carry.chunk >= n_train),
-                                     carry.fparams)
-        eps = jnp.sum(m["episodes"]).astype(jnp.float32)
-        sr = jnp.sum(m["successes"]).astype(jnp.float32) / jnp.maximum(eps, 1.0)
-        return Carry(rs, carry.fparams, carry.chunk + 1, carry.eval_key), {
-            "episodes": eps, "chunk_success": sr, "epsilon": m["rate"][-1]}
-
-    def final(carry, c, key):
-        ev = first_episode_stats(carry.runner.env_state)
-        out = {"greedy_success_rate": ev["success_rate"], "greedy_finished": ev["finished"]}
-        for name, mod in zip(cfg.learner.objects, carry.fparams.models, strict=False):
-            out[f"lag_{name}"] = mod.lag.astype(jnp.float32)
-            out[f"n_{name}"] = mod.n.astype(jnp.float32)
-        return out
-
-    return Program(init=init, step=step, num_chunks=n_train + n_eval, final=final)
-
-
-def _task_label(pt: dict, config) -> str:
-    if config.task != "select" and "task" not in pt:
-        return config.task
-    if "task" in pt and pt["task"] != "select":
-        return pt["task"]
-    return "pass" if pt.get("env.task_pass", config.env.task_pass) else "shoot"
-
-
-def _state_label(pt: dict, config) -> str:
-    if "learner.use_cva" in pt or config.learner.state == "select":
-        return "cva" if pt.get("learner.use_cva", config.learner.use_cva) else "current"
-    return pt.get("learner.state", config.learner.state)
-
-
-def _ci(x: np.ndarray) -> tuple[float, float]:
-    from scipy import stats
-
-    x = np.asarray(x, float)
-    if x.size < 2:
-        return float(x.mean()), float("nan")
-    half = stats.t.ppf(0.975, x.size - 1) * x.std(ddof=1) / np.sqrt(x.size)
-    return float(x.mean()), float(half)
+def _row(pt: dict, config) -> tuple[str, str, str]:
+    """(task, state vector, the point's other settings) of a sweep point."""
+    more = ", ".join(f"{k}={v}" for k, v in pt.items() if k not in POINT_KEYS)
+    return task_label(pt, config), state_label(pt, config), more
 
 
 def report(res) -> ReportSection:
-    rows = ["| task | state vector | ours: greedy success % (mean +- 95% CI) | ours: last "
+    rows = ["| task | state vector | ours: greedy success % (mean ± 95% CI) | ours: last "
             "training chunk % | paper % | CVA (l, n*) ball / goal / other |",
             "|---|---|---|---|---|---|"]
     n_ev = res.config.train.eval_chunks  # the last curve points are the greedy chunks
     for i, pt in enumerate(res.points):
-        task = _task_label(pt, res.config)
-        state = _state_label(pt, res.config)
-        g, gh = _ci(100 * np.asarray(res.final["greedy_success_rate"][i]))
-        t, th = _ci(100 * np.asarray(res.curves["chunk_success"][i][-1 - n_ev]))
+        task, state, more = _row(pt, res.config)
+        greedy = seeds_cell(res.final["greedy_success_rate"][i], 100.0, ".1f")
+        train = seeds_cell(res.curves["chunk_success"][i][-1 - n_ev], 100.0, ".1f")
         ident = " / ".join(
             f"{np.median(res.final[f'lag_{o}'][i]):.0f}, {np.median(res.final[f'n_{o}'][i]):.0f}"
             for o in res.config.learner.objects if f"lag_{o}" in res.final)
-        more = ", ".join(f"{k}={v}" for k, v in pt.items()
-                         if k not in ("task", "env.task_pass", "learner.use_cva",
-                                      "learner.state"))
         label = f"{task} ({more})" if more else task
-        rows.append(f"| {label} | {state} | {g:.1f} +- {gh:.1f} | {t:.1f} +- {th:.1f} | "
-                    f"{PAPER[task][state]} | {ident if state == 'cva' else '-'} |")
+        rows.append(f"| {label} | {state} | {greedy} | {train} | {TABLE2[task][state]} | "
+                    f"{ident if state == 'cva' else '-'} |")
     md = ("Table 2 (success rates, %), " + f"{res.seeds} seeds per row; greedy success = "
           "first episode from a fresh start of each of the learner's envs after training "
           "(CVA column: median selected lag and AIC order).\n\n" + "\n".join(rows))
@@ -214,13 +74,11 @@ def paper_rows(res) -> list[PaperRow]:
                                                                            f", {update}")
     rows = []
     for i, pt in enumerate(res.points):
-        task, state = _task_label(pt, res.config), _state_label(pt, res.config)
-        more = "".join(f", {k}={v}" for k, v in pt.items()
-                       if k not in ("task", "env.task_pass", "learner.use_cva", "learner.state"))
+        task, state, more = _row(pt, res.config)
         rows.append(PaperRow(
             f"Table 2, {'passing' if task == 'pass' else 'shooting'}, "
-            f"{'CVA state' if state == 'cva' else 'current features'}{values}{more}: greedy "
-            "success %", str(PAPER[task][state]),
+            f"{'CVA state' if state == 'cva' else 'current features'}{values}"
+            f"{', ' + more if more else ''}: greedy success %", str(TABLE2[task][state]),
             seeds_cell(res.final["greedy_success_rate"][i], 100.0, ".1f")))
     return rows
 
@@ -229,7 +87,7 @@ EXPERIMENT = register(Experiment(
     name="table2_shoot_pass",
     description="Table 2: shoot/pass success, current features vs CVA state vectors",
     default_config=Table2Config(),
-    make_program=make_program,
+    make_program=make_cva_program,
     quick={"train.num_chunks": 40, "learner.collect_steps": 1000,
            "learner.runner.num_envs": 16, "learner.quantizer.group_codes": (8, 4, 4),
            "learner.quantizer.kmeans_iters": 10,
@@ -239,11 +97,13 @@ EXPERIMENT = register(Experiment(
     seeds=16,
     quick_seeds=4,
     paper_result=True,
-    cost=250.0,  # s of a cold --quick run on 2 cores (compile-dominated; 401 s measured while
-    # the test suite shared the cores)
-    paper=PAPER,
+    cost=250.0,  # s of a cold --quick run on 2 cores (compile-dominated)
+    paper=TABLE2,
     report=report,
     paper_rows=paper_rows,
+    presets={"monte_carlo": {"learner.runner.agent.update": "monte_carlo",
+                             "train.lr_schedule.init_value": 0.1,
+                             "train.lr_schedule.end_value": 0.01}},
     # chunk_success: the episodes that finished in a chunk (training chunks: with exploration;
     # the last train.eval_chunks: greedy, no learning); folders written before read through this
     renamed_metrics={"success_rate": "chunk_success"},
@@ -256,6 +116,6 @@ EXPERIMENT = register(Experiment(
 ))
 
 if __name__ == "__main__":
-    from vbl.engine import main_for
+    from vbl.cli import main_for
 
     main_for(EXPERIMENT)

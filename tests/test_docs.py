@@ -116,30 +116,34 @@ def test_every_parameter_table_in_these_docs_is_generated():
 
 RUN_CMD = re.compile(r"vbl run ([\w./-]+)((?:\s+(?:--[\w-]+(?:[ =]\"?[^\s`\"]+\"?)?))*)")
 OPTION = re.compile(r"--(set|sweep)[ =]\"?([\w.]+)=")
+PRESET = re.compile(r"--preset[ =]([\w-]+)")
 
 
 def _commands(text: str) -> list[tuple[str, list[str]]]:
-    """(experiment, [parameter paths of --set / --sweep]) of every `vbl run NAME ...` in
-    code (inline spans may wrap lines; fenced blocks)."""
+    """(experiment, [parameter paths of --set / --sweep, and "preset:NAME" of --preset]) of
+    every `vbl run NAME ...` in code (inline spans may wrap lines; fenced blocks)."""
     code = [m.group(0) for m in FENCE.finditer(text)]
     code += re.findall(r"`[^`]+`", FENCE.sub("", text))
     out = []
     for chunk in code:
         chunk = re.sub(r"\s+", " ", chunk)
         for m in RUN_CMD.finditer(chunk):
-            out.append((m.group(1), [p for _, p in OPTION.findall(m.group(2))]))
+            out.append((m.group(1), [p for _, p in OPTION.findall(m.group(2))]
+                        + [f"preset:{n}" for n in PRESET.findall(m.group(2))]))
     return out
 
 
 def test_commands_pattern():
-    text = "run `vbl run fig9_incremental --seeds 4 --set\nlearner.bins=8 --sweep a.b=1,2`"
-    assert _commands(text) == [("fig9_incremental", ["learner.bins", "a.b"])]
+    text = ("run `vbl run fig9_incremental --seeds 4 --set\nlearner.bins=8 --sweep a.b=1,2 "
+            "--preset p_1`")
+    assert _commands(text) == [("fig9_incremental", ["learner.bins", "a.b", "preset:p_1"])]
 
 
 @pytest.mark.parametrize("doc", DOCS, ids=_rel)
 def test_vbl_run_commands_name_real_experiments_and_parameters(doc: Path):
-    """A `vbl run NAME --set PATH=...` in the docs names a registered experiment and
-    parameters its config has (a renamed parameter makes a documented command stale)."""
+    """A `vbl run NAME --set PATH=... --preset P` in the docs names a registered experiment,
+    parameters its config has and presets it defines (a renamed parameter makes a
+    documented command stale)."""
     from vbl.engine import get
     from vbl.params import ParamError, get_path
 
@@ -148,11 +152,16 @@ def test_vbl_run_commands_name_real_experiments_and_parameters(doc: Path):
         if "_" not in name or name.endswith(".py") or "/" in name:
             continue  # placeholders (NAME), prose ("vbl run first"), script paths
         try:
-            cfg = get(name).default_config
+            exp = get(name)
+            cfg = exp.default_config
         except Exception as e:  # noqa: BLE001 - report every stale command at once
             bad.append(f"{name}: {e}")
             continue
         for p in paths:
+            if p.startswith("preset:"):
+                if p[7:] not in exp.presets:
+                    bad.append(f"vbl run {name} --preset {p[7:]}")
+                continue
             try:
                 get_path(cfg, p)
             except ParamError:

@@ -164,14 +164,13 @@ def test_grid_report_renders(chain_result):
 
 
 def test_lem_verdict_cases():
-    from vbl.engine.registry import load_script
+    from vbl.engine.curves import lem_verdict
 
-    gs = load_script(Path(__file__).parents[1] / "experiments" / "grid_shooting.py")
-    assert gs.lem_verdict(100.0, 200.0, 300.0).startswith("yes")
-    assert gs.lem_verdict(300.0, 200.0, 300.0).startswith("**no**")
-    assert gs.lem_verdict(100.0, np.inf, 300.0).startswith("yes")     # never reached in 300
-    assert gs.lem_verdict(400.0, np.inf, 300.0).startswith("**not shown**")
-    assert gs.lem_verdict(np.inf, np.inf, 300.0).startswith("**no**")
+    assert lem_verdict(100.0, 200.0, 300.0).startswith("yes")
+    assert lem_verdict(300.0, 200.0, 300.0).startswith("**no**")
+    assert lem_verdict(100.0, np.inf, 300.0).startswith("yes")     # never reached in 300
+    assert lem_verdict(400.0, np.inf, 300.0).startswith("**not shown**")
+    assert lem_verdict(np.inf, np.inf, 300.0).startswith("**no**")
 
 
 def test_trials_to_level_hand_computed():

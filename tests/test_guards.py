@@ -144,16 +144,19 @@ class RecordingEnv:
 
 
 def test_final_evaluation_draws_from_its_own_stream(monkeypatch):
-    """The grid_shooting program (``vbl.agents.programs.make_q_program``) with the engine's
+    """The grid_shooting program (``vbl.engine.baselines.grid_program``) with the engine's
     per-seed training and final keys: the final evaluation's env keys are disjoint from
     every training env key, its fresh starts are none of training's first starts, and the
     final evaluation is a function of the final key only (the same with the training
     carry's key replaced, different with another final key)."""
+    from vbl.engine import baselines
+
     gs = load_script(ROOT / "experiments" / "grid_shooting.py")
     cfg = apply_overrides(gs.EXPERIMENT.default_config, TINY)
     rec = Recorder()
-    monkeypatch.setattr(gs, "ENV", RecordingEnv(gs.ENV, rec))
-    prog = gs.make_program(cfg)
+    env = baselines.ShootingEnv()
+    monkeypatch.setattr(baselines, "ShootingEnv", lambda: RecordingEnv(env, rec))
+    prog = gs.EXPERIMENT.make_program(cfg)
     cfgs = stack_traced([cfg], SEEDS)
     init_keys, final_keys = learner_keys(0, SEEDS)
     assert not {tuple(k) for k in init_keys.tolist()} & {tuple(k) for k in final_keys.tolist()}

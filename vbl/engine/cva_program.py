@@ -1,0 +1,173 @@
+"""Table 2's program: the Figure 11 pipeline (CVA state vectors, vector quantisation,
+tabular Q-learning) in the two-robot env, trained, then evaluated greedily through the
+same compiled step; with its defaults (docs/cva_learning.md, "Choices and why").
+
+Each learner (one seed) runs :mod:`vbl.agents.cva_state` in
+:class:`vbl.envs.shoot_pass.ShootPassEnv`: random-action data collection, one CVA model per
+observed object (ball, goal, other robot), filtering inside the env loop, vector
+quantisation of the state vector, tabular Q-learning; then ``train.eval_chunks`` greedy
+chunks from fresh starts (each env's first episode counts). ``learner.use_cva=False``
+quantises the current features of the same objects instead; with ``learner.state="select"``
+both state vectors share one compilation per task, and the env's ``task="select"`` lets the
+traced ``env.task_pass`` pick the role, so task x state vector is one compilation.
+
+A config for :func:`make_cva_program` has ``task`` (static: "shoot", "pass" or "select"),
+``learner`` (:class:`~vbl.agents.cva_state.CVAStateParams`), ``env``
+(:class:`~vbl.envs.shoot_pass.ShootPassParams`) and ``train`` (:class:`CVATrainParams`).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from vbl.agents.cva_state import (
+    CVAStateParams,
+    default_runner,
+    first_episode_stats,
+    greedy_params,
+    make_cva_learner,
+)
+from vbl.agents.exploration import ScheduleParams, schedule_value
+from vbl.engine.experiment import Program
+from vbl.envs.shoot_pass import ShootPassEnv
+from vbl.params import ParamError, param, section
+from vbl.spaces.quantize import QuantizerParams
+from vbl.sysid.params import CVAParams
+
+__all__ = ["default_learner", "default_lr_schedule", "CVATrainParams", "make_cva_program",
+           "task_label", "state_label", "POINT_KEYS"]
+
+POINT_KEYS = ("task", "env.task_pass", "learner.use_cva", "learner.state")
+"""Sweep paths that name a row's task and state vector (the others are extra settings)."""
+
+
+def default_learner() -> CVAStateParams:
+    """Pipeline defaults for the two-robot task (docs/cva_learning.md, "Choices and why")."""
+    # The ball's 8 leading canonical components (keep_beyond_order: its AIC order is 4,
+    # and components 5-8 carry its approach velocity, R^2 0.45 against 0.08 with 4;
+    # docs/findings/table2_shoot_pass.md, "What the CVA state carries (probe)"), the
+    # goal's and the other robot's 4 (with 2 their horizontal image position is poorly
+    # represented). No unfiltered lost-side flags. One k-means codebook per object
+    # (product VQ): ball 64 x goal 8 x other robot 8 = 4,096 states for both state
+    # vectors. 16 seeds: pass CVA 59.5 % vs current 22.4 %, shoot 16.8 vs 16.5 % (with
+    # 4 ball components on codes 16 x 8 x 8, 1,024 states: pass 42.7 vs 40.9 %, shoot
+    # 25.8 vs 40.9 %;
+    # docs/findings/table2_shoot_pass.md, "How the passing result came about").
+    return CVAStateParams(
+        state="select", objects=("ball", "goal", "other"), n_used=4,
+        n_used_objects=(8, 4, 4), keep_beyond_order=True, extra=(), collect_steps=3000,
+        cva=CVAParams(lag=0, lag_max=3, lag_rule="paper", logdet_stop=-100.0),
+        quantizer=QuantizerParams(method="product_vq", group_codes=(64, 8, 8),
+                                  kmeans_iters=20),
+        runner=_runner(transition_steps=30000.0))
+
+
+def _runner(transition_steps: float):
+    """Runner defaults with discount 0.95 and epsilon 1.0 -> 0.05 over ``transition_steps``
+    learner steps (primitives, about 75 % of a run: num_chunks x chunk_steps)."""
+    r = default_runner()
+    # macro actions: repeat a primitive until the quantised state changes (a deviation:
+    # docs/findings/table2_shoot_pass.md, "Deviations")
+    # (async: every runner step is one primitive of every env; an env decides when its
+    # action ends; an action lasts a few primitives on average against a cap of 20, and a
+    # synchronous loop runs as long as the longest action of the batch)
+    r = r.replace(macro=r.macro.replace(enabled=True, mode="async"))
+    sch = r.agent.exploration.schedule.replace(transition_steps=transition_steps)
+    # discount 0.95 per 0.1 s primitive: a goal 3-4 s after the start is still worth ~0.17
+    # (0.8: ~4e-4); docs/cva_learning.md, "Choices and why"
+    return r.replace(agent=r.agent.replace(discount=0.95, exploration=r.agent.exploration.replace(
+        schedule=sch)))
+
+
+def default_lr_schedule() -> ScheduleParams:
+    """Learning rate per training chunk: 0.5 for the first 70 % of the default 400 chunks,
+    then linearly down to 0.05 over the next 10 % (a decreasing step size lets the tabular
+    Q estimates settle; docs/cva_learning.md, "Choices and why")."""
+    return ScheduleParams(kind="linear", init_value=0.5, end_value=0.05,
+                          transition_begin=280.0, transition_steps=40.0)
+
+
+@struct.dataclass
+class CVATrainParams:
+    """Run length, greedy evaluation and step-size schedule of :func:`make_cva_program`."""
+
+    num_chunks: int = param(400, doc="training chunks per run (each learner.runner.chunk_steps "
+                            "learner steps)", static=True, ge=1)
+    eval_chunks: int = param(1, doc="greedy evaluation chunks after training: all envs restart "
+                             "fresh, no learning, no exploration; each env's first finished "
+                             "episode counts (chunks x chunk_steps must be >= env.max_steps)",
+                             static=True, ge=1)
+    lr_schedule: ScheduleParams = section(default_lr_schedule, doc="Q-learning rate of each "
+                                          "training chunk, count = training chunks done "
+                                          "(overrides learner.runner.agent.learning_rate)")
+
+
+@struct.dataclass
+class Carry:
+    """One learner's state between chunks."""
+
+    runner: object       # QRunnerState of the learner
+    fparams: object      # FilteredParams (CVA models, quantiser)
+    chunk: jax.Array     # () int32 chunks done
+    eval_key: jax.Array  # uint32[2] key of the evaluation restarts
+
+
+def make_cva_program(cfg) -> Program:
+    """Training chunks, then ``eval_chunks`` greedy chunks through the same compiled step."""
+    env = ShootPassEnv(cfg.task)
+    lrn = make_cva_learner(env, cfg.learner, m=2)
+    n_train, n_eval = cfg.train.num_chunks, cfg.train.eval_chunks
+    if n_eval * cfg.learner.runner.chunk_steps < cfg.env.max_steps:
+        raise ParamError(f"train.eval_chunks={n_eval} x learner.runner.chunk_steps="
+                         f"{cfg.learner.runner.chunk_steps} must be >= env.max_steps="
+                         f"{cfg.env.max_steps} (every evaluation episode must finish)")
+
+    def init(key, c):
+        k_prep, k_run, k_eval = jax.random.split(key, 3)
+        fp = lrn.prepare(k_prep, c.learner, c.env)
+        rs = lrn.runner.init(k_run, lrn.runner_params(c.learner), fp)
+        return Carry(rs, fp, jnp.int32(0), k_eval)
+
+    def step(carry, c):
+        rp = lrn.runner_params(c.learner)
+        lr = schedule_value(c.train.lr_schedule, carry.chunk)
+        rp = rp.replace(agent=rp.agent.replace(learning_rate=lr))
+        rs = carry.runner
+        # at the first evaluation chunk every env restarts fresh (counters reset), Q kept
+        fresh = lrn.runner.init(carry.eval_key, rp, carry.fparams).replace(
+            key=rs.key, q=rs.q, steps=rs.steps, episodes=rs.episodes)
+        rs = jax.tree.map(lambda a, b: jnp.where(carry.chunk == n_train, a, b), fresh, rs)
+        rs, m = lrn.runner.run_chunk(rs, greedy_params(rp, carry.chunk >= n_train),
+                                     carry.fparams)
+        eps = jnp.sum(m["episodes"]).astype(jnp.float32)
+        sr = jnp.sum(m["successes"]).astype(jnp.float32) / jnp.maximum(eps, 1.0)
+        return Carry(rs, carry.fparams, carry.chunk + 1, carry.eval_key), {
+            "episodes": eps, "chunk_success": sr, "epsilon": m["rate"][-1]}
+
+    def final(carry, c, key):
+        ev = first_episode_stats(carry.runner.env_state)
+        out = {"greedy_success_rate": ev["success_rate"], "greedy_finished": ev["finished"]}
+        for name, mod in zip(cfg.learner.objects, carry.fparams.models, strict=False):
+            out[f"lag_{name}"] = mod.lag.astype(jnp.float32)
+            out[f"n_{name}"] = mod.n.astype(jnp.float32)
+        return out
+
+    return Program(init=init, step=step, num_chunks=n_train + n_eval, final=final)
+
+
+def task_label(pt: dict, config) -> str:
+    """"shoot" or "pass": the role of the learners of sweep point ``pt``."""
+    if config.task != "select" and "task" not in pt:
+        return config.task
+    if "task" in pt and pt["task"] != "select":
+        return pt["task"]
+    return "pass" if pt.get("env.task_pass", config.env.task_pass) else "shoot"
+
+
+def state_label(pt: dict, config) -> str:
+    """"cva" or "current" (or the static ``learner.state``) of sweep point ``pt``."""
+    if "learner.use_cva" in pt or config.learner.state == "select":
+        return "cva" if pt.get("learner.use_cva", config.learner.use_cva) else "current"
+    return pt.get("learner.state", config.learner.state)
