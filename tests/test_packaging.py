@@ -4,6 +4,7 @@ runs every experiment from any folder."""
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 import tomllib
@@ -24,9 +25,14 @@ def test_the_package_list_names_every_subpackage():
 
 
 def test_a_plain_install_lists_and_runs_the_experiments(tmp_path):
+    src = tmp_path / "src"  # a copy: the build writes build/ beside the sources
+    for name in ("vbl", "experiments"):
+        shutil.copytree(REPO / name, src / name, ignore=shutil.ignore_patterns("__pycache__"))
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy(REPO / name, src / name)
     site = tmp_path / "site"
     pip = subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps",
-                          "--target", str(site), str(REPO)], capture_output=True, text=True,
+                          "--target", str(site), str(src)], capture_output=True, text=True,
                          timeout=600)
     assert pip.returncode == 0, pip.stderr[-3000:]
     assert (site / "vbl" / "experiments" / "grid_shooting.py").is_file()
