@@ -1,14 +1,12 @@
-"""Build time of Figure 5's action-based state maps: cells vs ellipsoids vs NumPy.
+"""Build time of Figure 5's action-based state map: vbl's cells vs NumPy.
 
 Data: Figure 5's collection (shooting env, 9 primitives x ``episodes`` episodes x 101
 points, 7 features, start difficulty U[0, 0.3]) for L learners (one key each).
 Timed after a warm-up compile with ``block_until_ready``, best of ``repeats``:
 
 * vbl cells: ``build_cell_map`` (Figure 5's default ``CellMapParams``), vmapped over L;
-* vbl ellipsoids: ``build_state_map`` with Figure 5's ellipsoid settings (9 patterns,
-  4 clusters, chain reliability, time rank), vmapped over L - the baseline in this run;
 * NumPy: the same cell construction vectorised with ``np.add.at`` (float64), looped over
-  learners; its labels are checked against vbl's.
+  learners - the baseline; its labels are checked against vbl's.
 
     python benchmarks/state_map_build.py [--quick]
 """
@@ -32,17 +30,12 @@ import vbl  # noqa: E402,F401
 from benchmarks.hardware import hardware_info  # noqa: E402
 from vbl.envs.shooting import ShootingEnv, ShootingParams  # noqa: E402
 from vbl.spaces.action_based import (  # noqa: E402
-    ActionBasedParams,
     CollectParams,
     FeatureParams,
-    build_state_map,
     collect_experience,
     sec2_features,
 )
 from vbl.spaces.action_cells import CellMapParams, build_cell_map  # noqa: E402
-
-ELLIPSOIDS = ActionBasedParams(categorical_dims=2, clusters_per_action=4,
-                               chain_reliability=True, rank="time", min_reliability=0.4)
 
 
 def collect(learners: int, episodes: int):
@@ -117,14 +110,11 @@ def main() -> None:
     sizes = [1, 2] if args.quick else [1, 4]
     cp = CellMapParams()
     cells = jax.jit(jax.vmap(lambda e: build_cell_map(e, cp)))
-    ells = jax.jit(jax.vmap(lambda e, k: build_state_map(e, ELLIPSOIDS, k)))
     exp_all = collect(max(sizes), episodes)
     rows = []
     for n in sizes:
         exp = jax.tree_util.tree_map(lambda a: a[:n], exp_all)  # noqa: B023
-        keys = jax.random.split(jax.random.PRNGKey(1), n)
         t_cells = best_time(cells, exp, repeats=3)
-        t_ell = best_time(ells, exp, keys, repeats=2)
         cm = cells(exp)
         x, valid, goal = (np.asarray(a, np.float64 if a.dtype == jnp.float32 else None)
                           for a in (exp.x, exp.valid, exp.goal))
@@ -133,9 +123,8 @@ def main() -> None:
                             np.asarray(cm.edges[i], np.float64), cp) for i in range(n)]
         t_np = time.perf_counter() - t0
         same = all(np.array_equal(labs[i], np.asarray(cm.cell_state[i])) for i in range(n))
-        rows.append(dict(learners=n, cells_s=t_cells, ellipsoids_s=t_ell, numpy_cells_s=t_np,
-                         x_vs_ellipsoids=t_ell / t_cells, x_vs_numpy=t_np / t_cells,
-                         numpy_labels_equal=same))
+        rows.append(dict(learners=n, cells_s=t_cells, numpy_cells_s=t_np,
+                         x_vs_numpy=t_np / t_cells, numpy_labels_equal=same))
         print(rows[-1], flush=True)
     out = dict(benchmark="state_map_build", quick=args.quick, hardware=hardware_info(),
                setting=dict(episodes_per_action=episodes, primitives=9, points_per_episode=101,
@@ -143,19 +132,24 @@ def main() -> None:
     res = ROOT / "benchmarks" / "results"
     res.mkdir(parents=True, exist_ok=True)
     (res / "state_map_build.json").write_text(json.dumps(out, indent=2))
-    hw = out["hardware"]
-    md = [f"Figure 5 map construction ({episodes} episodes x 9 primitives x 101 points per "
-          f"learner, {cp.num_cells} cells) on {hw['cpu']} ({hw['cores']} cores, shared, load "
-          f"{hw['load_average']:.1f}), jax {hw['jax']}; best of 3 (ellipsoids 2) after "
-          "compilation.", "",
-          "| learners | cells (s) | ellipsoids (s) | NumPy cells (s) | x ellipsoids | x NumPy "
-          "| NumPy labels equal |", "|---|---|---|---|---|---|---|"]
-    for r in rows:
-        md.append(f"| {r['learners']} | {r['cells_s']:.3f} | {r['ellipsoids_s']:.2f} | "
-                  f"{r['numpy_cells_s']:.2f} | {r['x_vs_ellipsoids']:.1f} | "
+    md = markdown(out)
+    (res / "state_map_build.md").write_text(md)
+    print(md)
+
+
+def markdown(out: dict) -> str:
+    """The results table of one run (``out``: the JSON the run writes)."""
+    hw, st = out["hardware"], out["setting"]
+    md = [f"Figure 5 map construction ({st['episodes_per_action']} episodes x "
+          f"{st['primitives']} primitives x {st['points_per_episode']} points per learner, "
+          f"{st['cells']} cells) on {hw['cpu']} ({hw['cores']} cores, shared, load "
+          f"{hw['load_average']:.1f}), jax {hw['jax']}; best of 3 after compilation.", "",
+          "| learners | cells (s) | NumPy cells (s) | x NumPy | NumPy labels equal |",
+          "|---|---|---|---|---|"]
+    for r in out["rows"]:
+        md.append(f"| {r['learners']} | {r['cells_s']:.3f} | {r['numpy_cells_s']:.2f} | "
                   f"{r['x_vs_numpy']:.1f} | {r['numpy_labels_equal']} |")
-    (res / "state_map_build.md").write_text("\n".join(md) + "\n")
-    print("\n".join(md))
+    return "\n".join(md) + "\n"
 
 
 if __name__ == "__main__":

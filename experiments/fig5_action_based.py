@@ -1,9 +1,9 @@
 """Figure 5: off-line, action-based state-space construction (paper Section 2.1).
 
 Each learner collects experience in parallel shooting environments (each episode holds
-one primitive) and grows its state map backwards from the goal (``construction``: "cells",
-the default, :mod:`vbl.spaces.action_cells`, states made of quantile cells; or
-"ellipsoids", :mod:`vbl.spaces.action_based`, k-means hyper-ellipsoids). It is compared
+one primitive) and grows its state map backwards from the goal
+(:mod:`vbl.spaces.action_cells`: states made of quantile cells), then refines the map's
+policy in closed loop (:mod:`vbl.spaces.cell_refine`). It is compared
 with the grid baseline exactly as the ``grid_shooting`` experiment trains and evaluates it
 (its default config, used by reference through :func:`grid_shooting`: Q-learning on the
 programmer's 319-state grid with macro actions and Learning from Easy Missions), trained
@@ -36,16 +36,9 @@ from vbl.engine.report import seeds_cell
 from vbl.envs.shooting import ShootingEnv, ShootingParams
 from vbl.params import ParamError, param, section, validate
 from vbl.spaces.action_based import (
-    ActionBasedParams,
     CollectParams,
     FeatureParams,
-    StateMap,
-    build_state_map,
-    check_build,
-    classify,
     collect_experience,
-    num_states,
-    policy_action,
     rollout_success,
     sec2_features,
 )
@@ -119,7 +112,7 @@ def grid_config(env: ShootingParams, g: GridBaseline):
 
 def grid_program(env: ShootingParams, g: GridBaseline) -> Program:
     """``grid_shooting``'s engine program for these settings (static fields of ``g``)."""
-    return grid_shooting().make_program(grid_config(env, g))
+    return grid_shooting().EXPERIMENT.make_program(grid_config(env, g))
 
 
 @struct.dataclass
@@ -131,97 +124,60 @@ class EvalParams:
                                 "compile time short)", static=True)
 
 
-def _build_default() -> ActionBasedParams:
-    """The library's thresholds, with the two lost-side features (``features.lost_sides``)
-    categorical: clusters and ellipsoids never mix "ball seen", "ball lost left" and "ball
-    lost right" (nor the goal's three), which the Gaussian ellipsoids of mixed clusters did
-    (spanning the lost-side axes); 4 clusters per primitive, iteration and pattern (36
-    ellipsoids per primitive and iteration). With these the reliability is the chance of
-    scoring through the chain (threshold 0.4) and a point goes to the containing ellipsoid
-    of fewest expected primitives to the goal (4 seeds: 0.18 -> 0.26, every seed up;
-    docs/findings/fig5_action_based.md, "Tried, did not help")."""
-    return ActionBasedParams(categorical_dims=2, clusters_per_action=4,
-                             chain_reliability=True, rank="time", min_reliability=0.4)
-
-
 def _collect_default() -> CollectParams:
     """Start difficulty U[0, 0.3] (0 = ball in front near the goal): the data lie where the
     map is evaluated (0.1) and F reaches the goal from far more of them than from fully
     random starts (chosen on single-seed prototypes, not re-measured through the engine:
-    docs/findings/fig5_action_based.md, "Deviations and the evidence for them"). The
-    ellipsoid construction's numbers in that note were measured with
-    ``collect.difficulty_hi=1.0``."""
+    docs/findings/fig5_action_based.md, "Deviations and the evidence for them")."""
     return CollectParams(difficulty_hi=0.3)
-
-
-CONSTRUCTIONS = ("cells", "ellipsoids")
 
 
 @struct.dataclass
 class Fig5Config:
-    construction: str = param("cells", doc="clusters of the construction: 'cells' (quantile "
-                              "cells, vbl.spaces.action_cells: 0.66 on 4 seeds) or "
-                              "'ellipsoids' (k-means hyper-ellipsoids, vbl.spaces.action_based: "
-                              "0.26)", static=True, choices=CONSTRUCTIONS)
     env: ShootingParams = section(ShootingParams, doc="shooting task")
     features: FeatureParams = section(FeatureParams, doc="feature normalisation")
     collect: CollectParams = section(_collect_default, doc="experience collection")
-    cells: CellMapParams = section(CellMapParams, doc="cell construction (construction="
-                                   "'cells')")
-    build: ActionBasedParams = section(_build_default, doc="ellipsoid construction thresholds "
-                                       "(construction='ellipsoids')")
+    cells: CellMapParams = section(CellMapParams, doc="cell construction")
     refine: RefineParams = section(RefineParams, doc="closed-loop refinement of the cell map "
-                                   "(construction='cells'; an extension of the paper: "
-                                   "refine.iterations=0 turns it off)")
+                                   "(an extension of the paper: refine.iterations=0 turns it "
+                                   "off)")
     grid: GridBaseline = section(GridBaseline, doc="grid baseline (grid_shooting's settings; "
                                  "its chunks are this run's chunks)")
     eval: EvalParams = section(EvalParams, doc="evaluation of the map")
 
 
 def ball_speed(state) -> jax.Array:
-    """The ball's speed (m/s) in a shooting state: the world speed the construction's
-    ``build.start_max_speed`` filters start points by."""
+    """The ball's speed (m/s) in a shooting state, recorded with the experience."""
     return jnp.linalg.norm(state.world.ball_vel).astype(F32)
 
 
 @struct.dataclass
 class Carry:
-    smap: StateMap | CellMap
+    smap: CellMap
     grid: object
     refined: RefinedMap | None
     collect_primitives: jax.Array   # () float32 primitives of the collection
     grid_primitives: jax.Array      # () float32 primitives of the grid's finished episodes
 
 
-def _map_fns(construction: str):
-    """(policy_action, num_states, classify) of a construction's map type."""
-    if construction == "cells":
-        return cell_policy_action, num_cell_states, classify_cells
-    return policy_action, num_states, classify
-
-
 def make_program(cfg: Fig5Config) -> Program:
     n_act = ENV.num_actions
-    cells = cfg.construction == "cells"
-    sec = "cells" if cells else "build"
-    cat = (cfg.cells if cells else cfg.build).categorical_dims
+    cat = cfg.cells.categorical_dims
     if cat > (2 if cfg.features.lost_sides else 0):
-        raise ParamError(f"{sec}.categorical_dims={cat}: only the lost-side features are "
+        raise ParamError(f"cells.categorical_dims={cat}: only the lost-side features are "
                          "categorical (2 with features.lost_sides, else 0)")
-    check = check_cells if cells else check_build
-    check(cfg.cells if cells else cfg.build, cfg.features.dim, cfg.collect.horizon)
-    act_fn, count_fn, _ = _map_fns(cfg.construction)
+    check_cells(cfg.cells, cfg.features.dim, cfg.collect.horizon)
+    act_fn, count_fn = cell_policy_action, num_cell_states
     gprog = grid_program(cfg.env, cfg.grid) if cfg.eval.grid_baseline else None
-    refine = cells and cfg.refine.iterations > 0
+    refine = cfg.refine.iterations > 0
     validate(cfg.refine, "refine.")
 
     def init(key, c):
         k_col, k_build, k_grid = jax.random.split(key, 3)
-        k_ref = jax.random.fold_in(k_build, 1)    # keeps the other keys of earlier runs
+        k_ref = jax.random.fold_in(k_build, 1)    # keeps the keys of the recorded runs
         feat = lambda o: sec2_features(o, c.features)  # noqa: E731
         exp = collect_experience(ENV, c.env, k_col, feat, n_act, c.collect, ball_speed)
-        smap = (build_cell_map(exp, c.cells) if cells
-                else build_state_map(exp, c.build, k_build))
+        smap = build_cell_map(exp, c.cells)
         refined = (refine_cell_map(ENV, c.env, k_ref, feat, smap, c.refine) if refine
                    else None)
         grid = None if gprog is None else gprog.init(k_grid, grid_config(c.env, c.grid))
@@ -265,18 +221,9 @@ def make_program(cfg: Fig5Config) -> Program:
                        refine_primitives=rm.primitives, refine_train_success=rm.train_success,
                        refined_policy=rm.policy.astype(F32),
                        refined_transitions=rm.transitions.astype(F32))
-        if cells:
-            out.update(edges=sm.edges, cell_state=sm.cell_state.astype(F32),
-                       cell_time=sm.cell_time,
-                       cell_transitions=sm.cell_transitions.astype(F32),
-                       fallback=sm.fallback.astype(F32))
-        else:
-            out.update({"centre": sm.centre, "shape": sm.shape,
-                        "ell_active": sm.ell_active.astype(F32),
-                        "ell_state": sm.ell_state.astype(F32),
-                        "ell_pattern": sm.ell_pattern.astype(F32),
-                        "ell_reliability": sm.ell_reliability, "ell_value": sm.ell_value,
-                        "ell_time": sm.ell_time})
+        out.update(edges=sm.edges, cell_state=sm.cell_state.astype(F32),
+                   cell_time=sm.cell_time, cell_transitions=sm.cell_transitions.astype(F32),
+                   fallback=sm.fallback.astype(F32))
         if gprog is not None:
             g = gprog.final(carry.grid, grid_config(c.env, c.grid), k_grid)
             out.update(grid_success=g["greedy_success"], random_success=g["random_success"],
@@ -287,30 +234,17 @@ def make_program(cfg: Fig5Config) -> Program:
                    num_chunks=1 if gprog is None else gprog.num_chunks)
 
 
-def map_of(final: dict, seed: int, cfg: Fig5Config | None = None) -> StateMap | CellMap:
-    """The map of one learner from the run's ``final`` arrays (one sweep point): a CellMap
-    or a StateMap after ``cfg.construction`` (``cfg``: the run's config, for the static
-    settings; default: Figure 5's)."""
-    cfg = Fig5Config() if cfg is None else cfg
+def map_of(final: dict, seed: int, cfg: Fig5Config | None = None) -> CellMap:
+    """The cell map of one learner from the run's ``final`` arrays (one sweep point)
+    (``cfg``: the run's config, for the static settings; default: Figure 5's)."""
+    c = (Fig5Config() if cfg is None else cfg).cells
     g = lambda k, t=np.float32: np.asarray(final[k])[seed].astype(t)  # noqa: E731
-    if cfg.construction == "cells":
-        c = cfg.cells
-        return CellMap(edges=g("edges"), cell_state=g("cell_state", np.int32),
-                       cell_time=g("cell_time"), cell_transitions=g("cell_transitions", np.int32),
-                       fallback=g("fallback", np.int32), action=g("action", np.int32),
-                       transitions=g("transitions", np.int32), order=g("order", np.int32),
-                       active=g("active", bool), iterations=np.int32(0), bins=tuple(c.bins),
-                       categorical_dims=c.categorical_dims,
-                       categorical_levels=c.categorical_levels)
-    b = cfg.build
-    return StateMap(centre=g("centre"), shape=g("shape"), ell_active=g("ell_active", bool),
-                    ell_state=g("ell_state", np.int32), ell_pattern=g("ell_pattern", np.int32),
-                    ell_reliability=g("ell_reliability"), ell_value=g("ell_value"),
-                    ell_time=g("ell_time"),
-                    action=g("action", np.int32), transitions=g("transitions", np.int32),
-                    order=g("order", np.int32), active=g("active", bool),
-                    iterations=np.int32(0), categorical_dims=b.categorical_dims,
-                    categorical_levels=b.categorical_levels, rank=b.rank)
+    return CellMap(edges=g("edges"), cell_state=g("cell_state", np.int32),
+                   cell_time=g("cell_time"), cell_transitions=g("cell_transitions", np.int32),
+                   fallback=g("fallback", np.int32), action=g("action", np.int32),
+                   transitions=g("transitions", np.int32), order=g("order", np.int32),
+                   active=g("active", bool), iterations=np.int32(0), bins=tuple(c.bins),
+                   categorical_dims=c.categorical_dims, categorical_levels=c.categorical_levels)
 
 
 def _slice(cfg: Fig5Config, n: int) -> np.ndarray:
@@ -359,14 +293,14 @@ def plot_fig5(final: dict, cfg: Fig5Config, out: Path, seed: int = 0, n: int = 1
     division; label = action + transitions to the goal."""
     from vbl.world.robots import action_labels
     sm = map_of(final, seed, cfg)
-    s = np.asarray(_map_fns(cfg.construction)[2](sm, jnp.asarray(_slice(cfg, n))))
+    s = np.asarray(classify_cells(sm, jnp.asarray(_slice(cfg, n))))
     order = np.where(s >= 0, np.asarray(sm.order)[np.maximum(s, 0)], -1)
     n_it = max(int(np.asarray(sm.order)[np.asarray(sm.active)].max(initial=0)) + 1, 1)
     shade = np.where(order >= 0, 0.15 + 0.7 * order / max(n_it, 1), 1.0)
     labels = action_labels("two_motor")
     return _draw_slice(
         cfg, s, shade, lambda st: f"{labels[int(sm.action[st])]}$_{{{int(sm.transitions[st])}}}$",
-        f"Fig. 5 map ({cfg.construction}, seed {seed}): {int(np.asarray(sm.active).sum())} "
+        f"Fig. 5 map (cells, seed {seed}): {int(np.asarray(sm.active).sum())} "
         "states; blue = grid", out / "fig5_state_map.png")
 
 
@@ -451,7 +385,7 @@ def report(res) -> ReportSection:
     else:
         md += ["", "Grid baseline not run (eval.grid_baseline off, e.g. --quick): see "
                "grid_shooting and the full run of this experiment."]
-    md += ["", f"Construction: {cfg.construction}; the map took "
+    md += ["", f"Construction: cells; the map took "
            f"{ms('map_iterations', '{:.1f}')} construction iterations."]
     if refined:
         r = cfg.refine
@@ -486,9 +420,8 @@ EXPERIMENT = register(Experiment(
     make_program=make_program,
     # --quick: a smaller collection and map, no grid baseline (its compile would double the
     # quick run's time; `vbl reproduce --quick` runs grid_shooting --quick anyway)
-    quick={"collect.episodes_per_action": 300, "collect.horizon": 60, "build.start_window": 30,
-           "cells.start_window": 30,
-           "build.max_iterations": 6, "eval.episodes": 64, "eval.grid_baseline": False,
+    quick={"collect.episodes_per_action": 300, "collect.horizon": 60, "cells.start_window": 30,
+           "eval.episodes": 64, "eval.grid_baseline": False,
            "refine.iterations": 8, "refine.episodes": 128, "refine.horizon": 100},
     seeds=4,
     quick_seeds=2,

@@ -242,11 +242,8 @@ def test_fig5_uses_cells_and_checks_its_bins():
 
     exp = get("fig5_action_based")
     cfg = exp.default_config
-    assert cfg.construction == "cells" and cfg.collect.difficulty_hi == pytest.approx(0.3)
+    assert cfg.collect.difficulty_hi == pytest.approx(0.3)
     assert len(cfg.cells.bins) == cfg.features.dim - cfg.cells.categorical_dims
     with pytest.raises(ParamError, match="cells.bins"):
         exp.make_program(cfg.replace(cells=cfg.cells.replace(bins=(4, 5, 3), seen_feature=(
             5, 5, 6))))
-    with pytest.raises(ParamError, match="construction"):
-        from vbl.params import validate
-        validate(cfg.replace(construction="kmeans"))

@@ -1,16 +1,17 @@
 """Off-line, action-based construction on quantile cells (paper Section 2.1).
 
-The same construction as :mod:`vbl.spaces.action_based` (a *state* is a set of input
-vectors from which repeating one kind of primitive reaches the goal or a state built
-before, whatever the number of repetitions; states grow backwards from the goal), with
-the clusters made of **cells** instead of k-means hyper-ellipsoids: each continuous
+A *state* is a set of input vectors from which repeating one kind of primitive reaches
+the goal or a state built before, whatever the number of repetitions; states grow
+backwards from the goal over the experience of :mod:`vbl.spaces.action_based`. The
+clusters are **cells** instead of the paper's hyper-ellipsoids: each continuous
 feature is cut into ``bins[d]`` bins (``spacing``: quantiles of the collected points
 that see the feature's object, or equal widths), each categorical pattern (e.g. "ball
 seen / lost left / lost right") is its own set of cells, and a state is the union of the
 cells labelled with the same primitive at the same iteration (the paper's "a hyper-
 ellipsoid, or a union of them", with axis-aligned boxes). Cells cannot spill across a
 boundary the way a Gaussian ellipsoid fitted to a mixed cluster does
-(docs/findings/fig5_action_based.md, "Deviations and the evidence for them").
+(docs/findings/fig5_action_based.md, "Deviations and the evidence for them";
+docs/findings/pruned_variants.md).
 
 Iteration ``i = 0, 1, ...`` (all fixed-shape, jit- and vmap-able):
 
