@@ -86,3 +86,19 @@ def test_two_robot_report_with_one_seed_prints_means_only(tmp_path):
 def test_diff_verdict_of_constant_samples_is_exact():
     assert diff_verdict([2.0, 2.0], [2.0, 2.0]) == "+0.0 ± 0.0 (spans 0)"
     assert diff_verdict([3.0, 3.0], [2.0, 2.0]) == "+1.0 ± 0.0 (above 0)"
+
+
+def test_ppo_agents_do_not_import_the_engine():
+    """Layers: the PPO learner (vbl/agents/ppo*.py) sits below the engine; its programs and
+    report (vbl/engine/ppo_*.py) import it, never the other way round."""
+    import ast
+
+    root = Path(__file__).resolve().parents[1] / "vbl" / "agents"
+    files = sorted(root.glob("ppo*.py"))
+    assert len(files) >= 3
+    for f in files:
+        for node in ast.walk(ast.parse(f.read_text())):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            for n in names:
+                assert not n.startswith(("vbl.engine", "vbl.cli")), f"{f.name} imports {n}"
