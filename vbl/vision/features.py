@@ -641,6 +641,21 @@ def _box_tables():
 _BOX_START, _BOX_VEC, _BOX_FWD, _BOX_BWD = _box_tables()
 
 
+#: The box's edges by direction (local x, y, z), 4 each. An edge is silhouette when one of
+#: its two faces is front and the other is not; per direction at most 2 edges are (a
+#: face pair perpendicular to the direction has at most one front face per axis).
+_BOX_CLASSES = tuple(tuple(int(e) for e in np.flatnonzero(np.abs(_BOX_VEC[:, a]) > 0))
+                     for a in range(3))
+
+
+def _pick(values, idx):
+    """values[idx] for a short static list of per-env scalars and an int scalar index."""
+    out = values[-1]
+    for i in range(len(values) - 2, -1, -1):
+        out = jnp.where(idx == i, values[i], out)
+    return out
+
+
 def _box_region(base_c, axes_c, front, cam: CameraParams, fu, fv, lo, hi, origin) -> Region:
     """The other robot's silhouette inside R boxes (see :func:`_chain_in_rects`).
 
@@ -686,8 +701,6 @@ def _box_region(base_c, axes_c, front, cam: CameraParams, fu, fv, lo, hi, origin
     tables = (jnp.asarray(_BOX_START), jnp.asarray(_BOX_VEC),
               jnp.asarray((_BOX_FWD - _BOX_BWD).T))
     _, (u0, v0, u1, v1, w, cu, cv, xf, xb) = jax.lax.scan(edge, jnp.zeros((), F32), tables)
-    carry = _green_scan(_green_init(len(boxes)), jnp.stack([u0, v0], axis=-1),
-                        jnp.stack([u1, v1], axis=-1), w, boxes, orig)
     # near-plane chords: face f leaves the near plane on one edge and returns on another
     ends = {k: [] for k in ("u0", "v0", "u1", "v1", "w")}
     for f in range(6):
@@ -700,8 +713,29 @@ def _box_region(base_c, axes_c, front, cam: CameraParams, fu, fv, lo, hi, origin
         ends["v1"].append(sum(m * cv[e] for m, (e, _) in zip(back, terms, strict=True)))
         ends["w"].append(frs[f] * jnp.minimum(sum(leave), 1.0))
     c = {k: jnp.stack(v) for k, v in ends.items()}
-    carry = _green_scan(carry, jnp.stack([c["u0"], c["v0"]], axis=-1),
-                        jnp.stack([c["u1"], c["v1"]], axis=-1), c["w"], boxes, orig)
+    # the boundary's segments of non-zero weight, picked without a gather (see
+    # _BOX_CLASSES): per edge direction its (at most 2) silhouette edges, per axis its
+    # front face's chord; picked slots of weight 0 add nothing
+    cols = (u0, v0, u1, v1, w)
+    segs = []
+    for cls in _BOX_CLASSES:
+        nz = [w[e] != 0 for e in cls]
+        # slot 1: the first edge of weight != 0 (in class order), slot 2: the last one,
+        # with weight 0 when it is the first one too
+        idx1 = jnp.where(nz[0], 0, jnp.where(nz[1], 1, jnp.where(nz[2], 2, 3)))
+        idx2 = jnp.where(nz[3], 3, jnp.where(nz[2], 2, jnp.where(nz[1], 1, 0)))
+        for idx, dup in ((idx1, None), (idx2, idx1)):
+            row = [_pick([col[e] for e in cls], idx) for col in cols]
+            if dup is not None:
+                row[4] = jnp.where(idx == dup, 0.0, row[4])
+            segs.append(row)
+    for ax in range(3):
+        pos = front[2 * ax]
+        segs.append([jnp.where(pos, c[k][2 * ax], c[k][2 * ax + 1])
+                     for k in ("u0", "v0", "u1", "v1", "w")])
+    segs = [jnp.stack(f) for f in zip(*segs, strict=True)]
+    carry = _green_scan(_green_init(len(boxes)), jnp.stack(segs[:2], axis=-1),
+                        jnp.stack(segs[2:4], axis=-1), segs[4], boxes, orig)
     return _green_region(carry, boxes, orig)
 
 
