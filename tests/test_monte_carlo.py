@@ -122,4 +122,4 @@ def test_q_learning_default_unchanged_and_bad_combinations_are_clear_errors():
     with pytest.raises(ParamError, match="truncation"):
         make_qlearning_runner(Chain(), state_fn, _params(truncation="bootstrap"))
     with pytest.raises(ParamError, match="update"):
-        make_qlearning_runner(Chain(), state_fn, _params(update="sarsa"))
+        make_qlearning_runner(Chain(), state_fn, _params(update="tree_backup"))

@@ -266,7 +266,3 @@ def test_traces_error_for_bad_parameters():
     with pytest.raises(ParamError, match="a_boot"):
         trace_update(q, trace_init(2, 2), z, z, z, z, z > 0, z > 0, 0.1, 0.9, 0.5,
                      kind="sarsa")
-    sarsa_async = chain_params(TraceParams(enabled=True, kind="sarsa"), RANDOM).replace(
-        macro=MacroActionParams(enabled=True, mode="async"))
-    with pytest.raises(ParamError, match="sarsa"):
-        make_qlearning_runner(ChainEnv(), lambda o: o[0].astype(jnp.int32), sarsa_async)

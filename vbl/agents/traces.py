@@ -67,14 +67,14 @@ TRACE_KINDS = ("peng", "naive", "watkins", "sarsa")
 
 @struct.dataclass
 class TraceParams:
-    """Eligibility traces truncated to the last ``length`` actions of each environment."""
+    """Eligibility traces truncated to the last ``length`` actions of each environment (the
+    trace rules of ``agent.update``: peng, naive, watkins, sarsa)."""
 
-    enabled: bool = param(False, doc="multi-step returns: apply each TD error to the last "
-                          "`length` (state, action) pairs of its environment with weight "
-                          "(discount**n * lambda)**k; off: one-step update", static=True)
-    kind: str = param("peng", doc="TD error and cut rule: Peng's Q(lambda), naive Q(lambda), "
-                      "Watkins' Q(lambda) (cut at non-greedy actions) or Sarsa(lambda) "
-                      "(on-policy)", static=True, choices=TRACE_KINDS)
+    enabled: bool = param(False, doc="alias of agent.update = kind (configs and run folders "
+                          "that set it run the same); prefer agent.update", static=True)
+    kind: str = param("peng", doc="the trace rule of the alias `enabled` (Peng's, naive, "
+                      "Watkins' Q(lambda) or Sarsa(lambda)); prefer agent.update",
+                      static=True, choices=TRACE_KINDS)
     lam: float = param(0.0, doc="trace decay lambda per action (0: one-step; 1: returns "
                        "over the whole window)", ge=0.0, le=1.0)
     length: int = param(16, doc="window L: (state, action) pairs kept per environment",
