@@ -30,7 +30,7 @@ import vbl  # noqa: E402,F401
 from benchmarks.hardware import hardware_info  # noqa: E402
 from vbl.envs.shooting import ShootingEnv, ShootingParams  # noqa: E402
 from vbl.spaces.action_based import (  # noqa: E402
-    CollectParams,
+    ExperienceParams,
     FeatureParams,
     collect_experience,
     sec2_features,
@@ -40,7 +40,7 @@ from vbl.spaces.action_cells import CellMapParams, build_cell_map  # noqa: E402
 
 def collect(learners: int, episodes: int):
     env, fp = ShootingEnv(), FeatureParams()
-    cp = CollectParams(episodes_per_action=episodes, difficulty_hi=0.3)
+    cp = ExperienceParams(episodes_per_action=episodes, difficulty_hi=0.3)
     fn = jax.jit(jax.vmap(lambda k: collect_experience(
         env, ShootingParams(), k, lambda o: sec2_features(o, fp), env.num_actions, cp)))
     return jax.block_until_ready(fn(jax.random.split(jax.random.PRNGKey(0), learners)))

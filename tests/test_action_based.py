@@ -7,13 +7,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from toy_worlds import LineWorld, line_world_collector
+from toy_worlds import line_world_collector
 
 from vbl.params import ParamError, validate
-from vbl.spaces.action_based import CollectParams, collect_experience
+from vbl.spaces.action_based import ExperienceParams
 
-ENV = LineWorld()
-CP = CollectParams(episodes_per_action=200, horizon=40)
+CP = ExperienceParams(episodes_per_action=200, horizon=40)
 F, B = 0, 1
 
 
@@ -35,32 +34,31 @@ def test_experience_shapes_and_dtypes(flipped):
 
 def test_bad_collection_settings_raise_clear_errors():
     with pytest.raises(ParamError, match="difficulty_lo"):
-        validate(CollectParams(difficulty_lo=0.8, difficulty_hi=0.2))
+        validate(ExperienceParams(difficulty_lo=0.8, difficulty_hi=0.2))
 
 
 def test_fig5_and_fig9_compare_with_grid_shootings_own_config():
-    """The grid baseline of Figures 5 and 9 is grid_shooting's default config by reference,
-    except the evaluation's start difficulty, pinned to 0.1 (grid_shooting's own task is
-    fully random starts), and, for Figure 9, the budget (one robot, equal experience) and a
-    curve point every chunk; Figure 9 evaluates at its training episodes' difficulty."""
-    import sys
-
+    """The grid baseline of Figures 5 and 9 is grid_shooting's default config (the preset of
+    vbl.engine.baselines), except the evaluation's start difficulty, pinned to 0.1
+    (grid_shooting's own task is fully random starts), and, for Figure 9, the budget (robots,
+    chunks: equal experience) and a curve point every chunk; Figure 9 evaluates at its
+    training episodes' difficulty."""
     from vbl.engine.registry import get
 
     gs = get("grid_shooting").default_config
-    get("fig9_incremental")
-    f9m = sys.modules["vbl_experiments.fig9_incremental"]
     for name in ("fig5_action_based", "fig9_incremental"):
         g = get(name).default_config.grid
         budget = dict(num_envs=gs.agent.num_envs), dict(num_chunks=gs.train.num_chunks)
         if name == "fig9_incremental":
             assert g.train.eval_every == 1
             budget[1]["eval_every"] = gs.train.eval_every
-            assert (g.agent.num_envs, g.train.num_chunks) == (f9m.GRID_ENVS, f9m.GRID_CHUNKS)
         assert g.agent.replace(**budget[0]) == gs.agent and g.grid == gs.grid, name
         assert g.train.replace(eval_difficulty=gs.train.eval_difficulty, **budget[1]) == \
             gs.train, name
         assert g.train.eval_difficulty == pytest.approx(0.1), name
+    f5 = get("fig5_action_based").default_config
+    assert (f5.grid.agent.num_envs, f5.grid.train.num_chunks) == (gs.agent.num_envs,
+                                                                  gs.train.num_chunks)
     f9 = get("fig9_incremental").default_config
     assert f9.env.start_difficulty == pytest.approx(f9.grid.train.eval_difficulty)
 
@@ -86,24 +84,3 @@ def test_fig5_categorical_dims_need_lost_side_features():
     bad = cfg.replace(features=cfg.features.replace(lost_sides=False))
     with pytest.raises(ParamError, match="categorical_dims"):
         exp.make_program(bad)
-
-
-def _moving(state):
-    """Line-world 'speed': 1 on [0.5, 0.75), else 0."""
-    p = state.x[0]
-    return ((p >= 0.5) & (p < 0.75)).astype(jnp.float32)
-
-
-def test_collect_records_speed_at_every_point():
-    """speed_fn is recorded at every point (here 1 exactly where 0.5 <= p < 0.75); zeros
-    without one."""
-    ep = ENV.default_params.replace(flip_below=0.5)
-    exp = jax.jit(lambda k: collect_experience(ENV, ep, k, lambda o: o, 2, CP, _moving))(
-        jax.random.PRNGKey(0))
-    x, sp, valid = (np.asarray(a) for a in (exp.x[..., 0], exp.speed, exp.valid))
-    assert exp.speed.shape == exp.valid.shape and exp.speed.dtype == jnp.float32
-    np.testing.assert_array_equal(sp[valid], ((x >= 0.5) & (x < 0.75))[valid])
-    none = jax.jit(lambda k: collect_experience(ENV, ep, k, lambda o: o, 2, CP))(
-        jax.random.PRNGKey(0))
-    np.testing.assert_array_equal(np.asarray(none.speed), 0.0)
-    np.testing.assert_array_equal(np.asarray(none.x), x[..., None])

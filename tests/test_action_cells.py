@@ -14,7 +14,7 @@ import pytest
 from toy_worlds import LineWorld, assert_line_world_swap_map, line_world_collector
 
 from vbl.params import ParamError
-from vbl.spaces.action_based import CollectParams, Experience, rollout_success
+from vbl.spaces.action_based import Experience, ExperienceParams, rollout_success
 from vbl.spaces.action_cells import (
     CellMapParams,
     build_cell_map,
@@ -26,7 +26,7 @@ from vbl.spaces.action_cells import (
 )
 
 ENV = LineWorld()
-CP = CollectParams(episodes_per_action=200, horizon=40)
+CP = ExperienceParams(episodes_per_action=200, horizon=40)
 # equal-width bins: the line world's points pile up at the wall (p = 0) and where B
 # oscillates around p = 0.5, so quantile bins would be ~0.005 wide there
 LINE = CellMapParams(bins=(20,), seen_feature=(-1,), spacing="uniform", categorical_dims=0,
@@ -155,7 +155,7 @@ def _random_experience(key, n_act=3, n_ep=30, t1=13):
     length = jax.random.randint(k3, (n_act, n_ep, 1), 4, t1 + 1)
     valid = jnp.arange(t1)[None, None] < length
     goal = (jax.random.uniform(k4, (n_act, n_ep, t1 - 1)) < 0.08) & valid[..., 1:]
-    return Experience(x=x, valid=valid, goal=goal, speed=jnp.zeros(valid.shape, jnp.float32))
+    return Experience(x=x, valid=valid, goal=goal)
 
 
 def test_labelling_matches_numpy_reference():

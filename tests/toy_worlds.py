@@ -176,9 +176,9 @@ def assert_line_world_swap_map(m, num_states, classify, policy_action) -> None:
 def line_world_collector(episodes_per_action: int = 200, horizon: int = 40):
     """Jitted ``collect(key, flip_below) -> Experience`` on LineWorld (both primitives,
     identity features), as the Section 2.1 construction tests use it."""
-    from vbl.spaces.action_based import CollectParams, collect_experience
+    from vbl.spaces.action_based import ExperienceParams, collect_experience
 
     env = LineWorld()
-    cp = CollectParams(episodes_per_action=episodes_per_action, horizon=horizon)
+    cp = ExperienceParams(episodes_per_action=episodes_per_action, horizon=horizon)
     return jax.jit(lambda k, flip: collect_experience(
         env, env.default_params.replace(flip_below=flip), k, lambda o: o, 2, cp))

@@ -21,12 +21,10 @@ docs/findings/fig5_action_based.md.
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 import jax
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[2]
 BAND_PX = 20.0
 
 
@@ -48,15 +46,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--refine", action="store_true", help="also refine the map (slow)")
     args = ap.parse_args(argv)
 
+    from vbl.engine.action_map_program import ENV as env
     from vbl.engine.jax_setup import engine_precision
-    from vbl.engine.registry import load_script
+    from vbl.engine.registry import get
     from vbl.spaces.action_based import collect_experience, rollout_success, sec2_features
     from vbl.spaces.action_cells import build_cell_map, cell_policy_action, num_cell_states
     from vbl.spaces.cell_refine import refine_cell_map, refined_policy_action
 
-    f5 = load_script(ROOT / "experiments" / "fig5_action_based.py")
-    c = f5.EXPERIMENT.default_config
-    env = f5.ENV
+    c = get("fig5_action_based").default_config
     ep = c.env.replace(start_difficulty=float(c.grid.train.eval_difficulty))
     feat = lambda o: sec2_features(o, c.features)  # noqa: E731
     k_col, k_build, k_eval = jax.random.split(jax.random.PRNGKey(args.seed), 3)
@@ -64,8 +61,7 @@ def main(argv: list[str] | None = None) -> int:
     with engine_precision():
         @jax.jit
         def build(k_col, k_ref):
-            exp = collect_experience(env, c.env, k_col, feat, env.num_actions, c.collect,
-                                     f5.ball_speed)
+            exp = collect_experience(env, c.env, k_col, feat, env.num_actions, c.collect)
             cm = build_cell_map(exp, c.cells)
             rm = refine_cell_map(env, c.env, k_ref, feat, cm, c.refine) if args.refine \
                 else None

@@ -13,7 +13,7 @@ construction and its evaluation share:
   environments, each holding its primitive for ``horizon`` steps (or until the episode
   ends); start situations are the env's random starts, optionally with a per-episode
   start difficulty drawn uniformly in ``[difficulty_lo, difficulty_hi]``
-  (:class:`CollectParams`). Returns an :class:`Experience`.
+  (:class:`ExperienceParams`). Returns an :class:`Experience`.
 * :func:`rollout_success`: a policy's success on fresh starts.
 """
 
@@ -31,7 +31,7 @@ from vbl.params import ParamError, param
 
 __all__ = [
     "FeatureParams",
-    "CollectParams",
+    "ExperienceParams",
     "Experience",
     "sec2_features",
     "pattern_of",
@@ -80,8 +80,8 @@ def sec2_features(obs: jax.Array, p: FeatureParams | None = None) -> jax.Array:
 
 
 @struct.dataclass
-class CollectParams:
-    """Experience collection: episodes holding one primitive."""
+class ExperienceParams:
+    """Experience collection for the construction: episodes each holding one primitive."""
 
     episodes_per_action: int = param(1000, doc="episodes per action primitive (all run in "
                                      "parallel)", static=True, ge=1)
@@ -101,14 +101,11 @@ class CollectParams:
 @struct.dataclass
 class Experience:
     """x (A, N, T+1, D) float32 features before each step; valid (A, N, T+1) bool (inside
-    the episode); goal (A, N, T) bool (step t scored); speed (A, N, T+1) float32 a world
-    speed at each point (``speed_fn`` of :func:`collect_experience`, e.g. the ball's; 0
-    without one). Episode group a held primitive a."""
+    the episode); goal (A, N, T) bool (step t scored). Episode group a held primitive a."""
 
     x: jax.Array
     valid: jax.Array
     goal: jax.Array
-    speed: jax.Array
 
 
 def pattern_of(x: jax.Array, categorical_dims: int, levels: int) -> jax.Array:
@@ -136,17 +133,12 @@ def reset_at_random_difficulty(env: Any, env_params: Any, k_d: jax.Array, k_rese
 
 def collect_experience(env: Any, env_params: Any, key: jax.Array,
                        feature_fn: Callable[[jax.Array], jax.Array], num_actions: int,
-                       p: CollectParams | None = None,
-                       speed_fn: Callable[[Any], jax.Array] | None = None) -> Experience:
+                       p: ExperienceParams | None = None) -> Experience:
     """Run ``episodes_per_action`` episodes per primitive, each holding it (jit-able).
 
     ``feature_fn(obs) -> (D,) float32`` normalises an observation; ``p`` defaults to
-    ``CollectParams()``; ``speed_fn(env_state) -> ()`` (optional) records a world speed
-    at each point (e.g. the ball's; zeros without it). Returns :class:`Experience` with
-    A = ``num_actions`` groups."""
-    spd = (lambda st: jnp.zeros((), F32)) if speed_fn is None else (  # noqa: E731
-        lambda st: jnp.asarray(speed_fn(st), F32))
-    p = CollectParams() if p is None else p
+    ``ExperienceParams()``. Returns :class:`Experience` with A = ``num_actions`` groups."""
+    p = ExperienceParams() if p is None else p
     n, t_len = p.episodes_per_action, p.horizon
 
     def episode(k, a):
@@ -157,20 +149,19 @@ def collect_experience(env: Any, env_params: Any, key: jax.Array,
         def body(carry, kt):
             obs, st, alive = carry
             obs2, st2, _, term, trunc, info = env.step(kt, st, a, ep)
-            out = (feature_fn(obs), alive, alive & info["success"], spd(st))
+            out = (feature_fn(obs), alive, alive & info["success"])
             return (obs2, st2, alive & ~(term | trunc)), out
 
-        (obs_t, st_t, alive_t), (xs, valid, goal, sp) = jax.lax.scan(
+        (obs_t, _, alive_t), (xs, valid, goal) = jax.lax.scan(
             body, (obs, st, jnp.ones((), bool)), jax.random.split(k_run, t_len))
         x = jnp.concatenate([xs, feature_fn(obs_t)[None]], axis=0)
         valid = jnp.concatenate([valid, alive_t[None]], axis=0)
-        sp = jnp.concatenate([sp, spd(st_t)[None]], axis=0)
-        return x.astype(F32), valid, goal, sp
+        return x.astype(F32), valid, goal
 
     keys = jax.random.split(key, num_actions * n).reshape(num_actions, n, -1)
     acts = jnp.broadcast_to(jnp.arange(num_actions, dtype=jnp.int32)[:, None], (num_actions, n))
-    x, valid, goal, speed = jax.vmap(jax.vmap(episode))(keys, acts)
-    return Experience(x=x, valid=valid, goal=goal, speed=speed)
+    x, valid, goal = jax.vmap(jax.vmap(episode))(keys, acts)
+    return Experience(x=x, valid=valid, goal=goal)
 
 
 def rollout_success(env: Any, env_params: Any, key: jax.Array,
