@@ -80,7 +80,7 @@ EXPERIMENT = register(Experiment(
     sweep={"env.task_pass": [False, True], "inputs.index": [0, 1, 2],
            "ppo.curriculum.enabled": [False, True]},
     # short: the reported run (docs/findings/ppo_comparator.md), 18 chunks = 921,600 primitives
-    presets={"short": {"run.num_chunks": 18}},
+    presets={"short": {"run.num_chunks": 18}}, removed_params={"cva.cancor_weight": False},
     cost=300.0))  # s, cold --quick on 2 cores (compile-dominated; 1,389 s at load average 12)
 
 SHOOTING = register(Experiment(

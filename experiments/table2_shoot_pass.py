@@ -113,6 +113,7 @@ EXPERIMENT = register(Experiment(
                    "learner.runner.agent.update": "q_learning",
                    "learner.runner.agent.mc_log": 128, "env.start_difficulty": 1.0},
     sweep={"env.task_pass": [False, True], "learner.use_cva": [False, True]},
+    removed_params={"learner.cancor_weight": False},  # docs/findings/pruned_variants.md
 ))
 
 if __name__ == "__main__":

@@ -57,3 +57,17 @@ def test_renamed_parameters_of_older_folders_read_under_the_current_path():
     spec = {"experiment": "toy_bandit", "config": cfg, "sweep": {}, "seeds": exp.seeds}
     command, unrecorded = run_command(exp, spec)
     assert command == "vbl run toy_bandit --set agent.epsilon=0.25" and unrecorded == []
+
+
+def test_removed_parameters_are_named_unless_they_ran_as_today():
+    """A folder that recorded a parameter the experiment no longer has: silent when its
+    value is the one under which the run equals today's code, named otherwise (the note
+    of `vbl report`; its run folders: tests/test_readme_results.py)."""
+    from vbl.engine import get
+
+    exp = dataclasses.replace(get("toy_bandit"), removed_params={"agent.old": 0.0,
+                                                                 "gone.": None})
+    assert exp.removed_as_today("agent.old", 0.0) and not exp.removed_as_today("agent.old", 1.0)
+    assert exp.removed_as_today("gone.x.y", 7) and not exp.removed_as_today("other", 0.0)
+    with pytest.raises(ValueError, match="still exists"):
+        dataclasses.replace(exp, removed_params={"agent.epsilon": 0.1})

@@ -180,6 +180,10 @@ class Experiment:
         ``--sweep`` of one of its paths replaces it.
       renamed_params: ``{old path: current path}`` of parameters the experiment moved: run
         folders that recorded the old path are read under the current one.
+      removed_params: ``{path: value}`` of parameters the experiment no longer has, with the
+        value under which a run equals today's code (``None``: any value; a path ending in
+        ``.`` covers every parameter under it). ``vbl report`` names a folder that recorded
+        another value (its command runs today's code).
     """
 
     name: str
@@ -202,6 +206,15 @@ class Experiment:
     legacy_values: Mapping[str, Any] = field(default_factory=dict)
     presets: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     renamed_params: Mapping[str, str] = field(default_factory=dict)
+    removed_params: Mapping[str, Any] = field(default_factory=dict)
+
+    def removed_as_today(self, path: str, value: Any) -> bool:
+        """Whether a run that recorded ``path = value`` (a parameter the config no longer
+        has) equals today's code (:attr:`removed_params`)."""
+        for p, v in self.removed_params.items():
+            if path == p or (p.endswith(".") and path.startswith(p)):
+                return v is None or v == value
+        return False
 
     def preset(self, name: str | None) -> dict[str, Any]:
         """The ``{path: value}`` overrides of preset ``name`` ({} for None); an unknown name
@@ -238,6 +251,12 @@ class Experiment:
                 get_path(self.default_config, path)
             except ParamError as e:
                 raise ValueError(f"experiment {self.name!r}: {what}: {e}") from None
+        for path in self.removed_params:
+            try:
+                get_path(self.default_config, path.rstrip("."))
+            except ParamError:
+                continue
+            raise ValueError(f"experiment {self.name!r}: removed_params: {path} still exists")
         for n, v in (("seeds", self.seeds), ("quick_seeds", self.quick_seeds)):
             if v is not None and (not isinstance(v, int) or v < 1):
                 raise ValueError(f"experiment {self.name!r}: {n} must be an int >= 1, got {v!r}")

@@ -510,4 +510,13 @@ def results_table(folders: list[str | Path], link_base: str | Path | None = None
         if unrecorded:
             notes.append(f"{Path(folder).name} does not record {', '.join(unrecorded)}: its "
                          f"command takes today's default for these.")
+        from vbl.engine.config import config_to_dict
+
+        current = config_to_dict(exp.default_config)
+        removed = {k: v for k, v in spec["config"].items() if k not in current
+                   and k not in exp.renamed_params and not exp.removed_as_today(k, v)}
+        if removed:
+            notes.append(f"{Path(folder).name} ran with options vbl no longer has ("
+                         + ", ".join(f"{k}={v}" for k, v in removed.items())
+                         + "): its command runs today's code.")
     return "\n".join(lines + ([""] + notes if notes else [])) + "\n"
