@@ -195,3 +195,39 @@ def test_random_close_scenes_match_numpy_reference(seed):
     for g, pose, ball, other in zip(got, poses, balls, others, strict=True):
         want = section3_features_np(pose, ball, R, GOAL, other, SIZE, CAM)
         assert np.all(np.abs(g - want) <= _tol(want)), (pose, ball, other, g, want)
+
+
+@pytest.mark.parametrize("height", [0.3, 0.6])
+def test_every_face_pattern_matches_numpy_reference(height):
+    # the camera (0.35 m high) all around the other robot, looking at it from 0.5 and
+    # 1.5 m: every pattern of front faces it can see (top front for the 0.3 m box, top
+    # not front for the 0.6 m one; per local axis the + face, the - face or neither)
+    # gives the reference's silhouette
+    size = np.array([0.5, 0.3, height])
+    other = np.array([0.4, -0.2, 0.7])
+    bearing = np.linspace(-np.pi, np.pi, 24, endpoint=False)
+    dist = np.repeat([0.5, 1.5], len(bearing))
+    bearing = np.tile(bearing, 2) + 0.07
+    cam_xy = other[:2] + dist[:, None] * np.c_[np.cos(bearing), np.sin(bearing)]
+    poses = np.c_[cam_xy - CAM.forward_offset * np.c_[np.cos(bearing + np.pi),
+                                                        np.sin(bearing + np.pi)],
+                  bearing + np.pi]
+    balls = np.tile([[-3.0, 2.9]], (len(poses), 1))
+    sec3 = jax.jit(jax.vmap(lambda p, b, o: flatten_section3(section3_features(
+        p, b, R, f32(GOAL), o, f32(size), CAM)), (0, 0, None)))
+    got = np.asarray(sec3(f32(poses), f32(balls), f32(other)))
+    patterns = set()
+    c, s = math.cos(other[2]), math.sin(other[2])
+    for g, pose, ball in zip(got, poses, balls, strict=True):
+        want = section3_features_np(pose, ball, R, GOAL, other, size, CAM)
+        assert want[22] == 1
+        assert np.all(np.abs(g - want) <= _tol(want)), (pose, g, want)
+        rel = cam_xy_of(pose) - other[:2]
+        loc = (c * rel[0] + s * rel[1], -s * rel[0] + c * rel[1])
+        patterns.add(tuple(int(np.sign(v) * (abs(v) > h / 2))
+                           for v, h in zip(loc, size[:2], strict=True)))
+    assert len(patterns) == 8
+
+
+def cam_xy_of(pose):
+    return pose[:2] + CAM.forward_offset * np.array([math.cos(pose[2]), math.sin(pose[2])])
