@@ -20,8 +20,10 @@ sampling statistics. A zero std must give exactly no noise.
   ``1 + s N(0, 1)`` per primitive with ``s = sqrt(noise.slip_std^2 +
   world.robot.slip_std^2)``.
 
-All draws use fixed seeds; a std from N = 4,000 samples has a relative standard error of
-``1 / sqrt(2 N)`` = 1.1 %, so the 7.5 % tolerances are more than 6 standard errors.
+Each source is switched on in ``params.noise_on`` where its std is set (a static switch:
+a source that is off is not drawn). All draws use fixed seeds; a std from N = 4,000
+samples has a relative standard error of ``1 / sqrt(2 N)`` = 1.1 %, so the 7.5 %
+tolerances are more than 6 standard errors.
 """
 
 from __future__ import annotations
@@ -78,6 +80,11 @@ def states(robots, ball, vel=None, phase=None, passer_delay: int = 1000) -> Shoo
     return ShootPassState(world=world, step=jnp.asarray(zi), memory=memory,
                           touched=jnp.asarray(zb), kicked=jnp.asarray(zb),
                           phase=jnp.asarray(phase))
+
+
+def switched_on(p, **on):
+    """``p`` with the static switches ``on`` (e.g. ``pixel=True``) of ``p.noise_on``."""
+    return p.replace(noise_on=p.noise_on.replace(**on))
 
 
 def actions(a) -> jax.Array:
@@ -148,8 +155,9 @@ def test_image_and_camera_pixel_noise(env, step, image_std, camera_std):
     assert np.all(clean[:, OBS_SLICES["visible"]] == 1.0), "ball, goal and passer in view"
     # no noise: the observation does not depend on the key
     np.testing.assert_array_equal(clean, np.broadcast_to(clean[0], clean.shape))
-    noisy_p = p.replace(noise=p.noise.replace(image_std=image_std),
-                        shooter_camera=p.shooter_camera.replace(pixel_noise_std=camera_std))
+    noisy_p = switched_on(p.replace(
+        noise=p.noise.replace(image_std=image_std),
+        shooter_camera=p.shooter_camera.replace(pixel_noise_std=camera_std)), pixel=True)
     obs, _, _, _, _, _ = step(keys(3), st, actions(STOP), noisy_p)
     d = np.asarray(obs, float) - clean
     np.testing.assert_array_equal(d[:, NOT_PIXEL], 0.0)
@@ -225,7 +233,8 @@ def test_rolling_ball_heading_random_walk(env, step):
         return np.stack(balls), np.stack(vels)
 
     b0, v0 = roll(p, 7)
-    b1, v1 = roll(p.replace(noise=p.noise.replace(ecc_turn_std=sigma)), 8)
+    b1, v1 = roll(switched_on(p.replace(noise=p.noise.replace(ecc_turn_std=sigma)),
+                              wobble=True), 8)
     heading0 = np.arctan2(v0[..., 1], v0[..., 0])
     heading1 = np.arctan2(v1[..., 1], v1[..., 0])
     # off: the heading never changes
@@ -256,8 +265,9 @@ def test_tire_slip(env, step, noise_slip, world_slip):
     over ``n`` sub-steps of ``h = dt / n`` the chord is ``v h sin(omega dt / 2) /
     sin(omega h / 2)``. Without slip the motion is exact."""
     p = env.default_params
-    p = p.replace(noise=p.noise.replace(slip_std=noise_slip),
-                  world=p.world.replace(robot=p.world.robot.replace(slip_std=world_slip)))
+    p = switched_on(p.replace(
+        noise=p.noise.replace(slip_std=noise_slip),
+        world=p.world.replace(robot=p.world.robot.replace(slip_std=world_slip))), slip=True)
     fw = p.world.four_wheel
     dt, n = p.world.action_dt, p.world.substeps
     h = dt / n

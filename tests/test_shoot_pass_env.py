@@ -93,7 +93,7 @@ def test_jit_vmap_equals_loop(env, step_jit, batch_run):
 def test_step_compiles_once(env, step_jit, batch_run):
     p = env.default_params
     st = jax.tree_util.tree_map(lambda x: x[5], batch_run["states"][3])
-    p2 = p.replace(shooter_kick_speed=1.5, noise=p.noise.replace(image_std=1.0))
+    p2 = p.replace(shooter_kick_speed=1.5, other=p.other.replace(aim_noise_deg=10.0))
     for a in (0, 3):
         step_jit(jax.random.PRNGKey(a), st, jnp.int32(a), p2)  # no retrace (max_traces=1)
 

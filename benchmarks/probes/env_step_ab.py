@@ -1,17 +1,19 @@
 """Probe: the env step of this checkout against the env step of an earlier commit.
 
-What it measures: CPU time per env step (observation consumed, auto-reset, random actions)
-of both vbl tasks at one batch, for the working tree and for ``--base REV`` (exported with
-``git archive`` into a temporary folder), in separate processes that alternate, so both
-sides see the same machine load. Two ways of passing the env parameters: ``shared`` (one
-set for every env, as ``benchmarks/env_throughput.py`` does; a ``lax.cond`` on a noise
-std then skips its branch) and ``batched`` (one set per env, as the engine passes a swept
-config: every ``lax.cond`` on a parameter becomes a select that computes both branches).
+What it measures: CPU time per env step (observation consumed, auto-reset, random actions,
+default parameters) of both vbl tasks at one batch, for the working tree (or ``--head
+REV``) and for ``--base REV`` (exported with ``git archive`` into a temporary folder), in
+separate processes that alternate, so both sides see the same machine load. Two ways of
+passing the env parameters: ``shared`` (one set for every env, as
+``benchmarks/env_throughput.py`` does; a ``lax.cond`` on an unbatched value skips its
+branch) and ``batched`` (one set per env, as the engine passes a swept config: every
+``lax.cond`` on a parameter becomes a select that computes both branches).
 
 Not an experiment and not a benchmark (``vbl bench`` reads ``benchmarks/*.py`` only). Run
 from the repository root:
 
-    python benchmarks/probes/env_step_ab.py --base 97abd1d [--batch 4096] [--rounds 2]
+    python benchmarks/probes/env_step_ab.py --base 97abd1d [--head REV] [--batch 4096]
+        [--rounds 2]
 
 Cost: about 4 CPU-minutes at the defaults (compilation of 8 programs per round). Cited by
 docs/world.md ("Random numbers").
@@ -79,6 +81,8 @@ def cpu_us(root: Path, env: str, mode: str, batch: int, steps: int) -> float:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--base", required=True, help="git revision to compare with")
+    ap.add_argument("--head", default=None, help="git revision to measure (default: the "
+                    "working tree)")
     ap.add_argument("--batch", type=int, default=4096)
     ap.add_argument("--steps", type=int, default=100, help="steps per timed call")
     ap.add_argument("--rounds", type=int, default=2, help="alternations of the two sides")
@@ -86,18 +90,25 @@ def main() -> None:
     rows = [(e, m) for e in ("shooting", "shoot_pass") for m in ("shared", "batched")]
     best = {}
     with tempfile.TemporaryDirectory() as tmp:
-        base = Path(tmp)
+        base, head = Path(tmp) / "base", Path(tmp) / "head"
+        base.mkdir()
         export(args.base, base)
+        if args.head is None:
+            head = ROOT
+        else:
+            head.mkdir()
+            export(args.head, head)
         for _ in range(args.rounds):
             for env, mode in rows:
-                for side, root in (("base", base), ("this", ROOT)):
+                for side, root in (("base", base), ("this", head)):
                     t = cpu_us(root, env, mode, args.batch, args.steps)
                     key = (env, mode, side)
                     best[key] = min(best.get(key, t), t)
     load = os.getloadavg()[0]
     print(f"CPU us per env step, batch {args.batch}, best of {args.rounds} rounds x 3 calls "
-          f"(load average {load:.1f} at the end); base = {args.base}")
-    print("| env | parameters | base | this checkout | this / base |")
+          f"(load average {load:.1f} at the end); base = {args.base}, this = "
+          f"{args.head or 'the working tree'}")
+    print("| env | parameters | base | this | this / base |")
     print("|---|---|---:|---:|---:|")
     for env, mode in rows:
         b, t = best[(env, mode, "base")], best[(env, mode, "this")]

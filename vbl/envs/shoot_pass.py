@@ -44,8 +44,12 @@ API::
     obs, state, reward, terminated, truncated, info = env.step(key, state, action, params)
 
 Random numbers: each call of ``reset``, ``step_env`` or ``step`` hashes its key once
-(:class:`vbl.draws.Words`) and slices every draw it needs from those bits: tire slip,
+(:func:`vbl.draws.draw_blocks`) and slices every draw it needs from those bits: tire slip,
 kick aim, rolling eccentricity, the start draw after an episode ends and the pixel noise.
+The static switches ``params.noise_on`` (:class:`ShootPassNoiseOn`) say which noise
+sources are drawn at all; a source that is off costs nothing and leaves the others' draws
+unchanged. Validation refuses a std above 0 with its switch off; inside ``jit`` with
+traced parameters that is not checked, so set the switch together with the std.
 
 ``step`` auto-resets; ``info``: ``success``, ``episode_done``, ``episode_length``,
 ``u`` (2,) float32 of the learner's action, ``touched`` (learner touched the ball this
@@ -62,7 +66,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from vbl.draws import Words, normal, uniform01
+from vbl.draws import check_switched_off, draw_blocks, normals, uniform01
 from vbl.envs.checks import check_action_index
 from vbl.envs.noise import (
     NoiseParams,
@@ -88,9 +92,8 @@ from vbl.world.physics import WorldState, goal_corners, world_step, wrap_angle
 from vbl.world.robots import FOUR_WHEEL_LABELS, FOUR_WHEEL_U
 
 __all__ = ["TASKS", "ENV_TASKS", "OBS_SLICES", "OBS_DIM", "SHOOTER", "PASSER", "StartParams",
-           "ShootPassParams", "ShootPassState", "ShootPassEnv", "apply_kicks", "EASY_SHOOT",
-           "EASY_PASS",
-           "observe", "default_world"]
+           "ShootPassNoiseOn", "ShootPassParams", "ShootPassState", "ShootPassEnv",
+           "apply_kicks", "EASY_SHOOT", "EASY_PASS", "observe", "default_world"]
 
 F32 = jnp.float32
 I32 = jnp.int32
@@ -103,9 +106,10 @@ ENV_TASKS = (*TASKS, "select")
 #: Random draws of this env (slices of one hash per call, :class:`vbl.draws.Words`).
 START_DRAWS = 12  #: uniforms of a start draw (:meth:`ShootPassEnv.start_from_uniform`)
 FRESH_DRAWS = START_DRAWS + MEMORY_DRAWS  #: uniforms of a fresh episode (start + memory)
-#: standard normals of one transition: tire slip (2 robots x 2), kick aim (2), eccentric
-#: rolling (1)
-TRANSITION_NORMALS = 4 + 2 + 1
+#: standard normals of one transition, three blocks: tire slip (2 robots x 2), kick aim (2),
+#: eccentric rolling (1)
+SLIP_NORMALS, AIM_NORMALS, WOBBLE_NORMALS = 4, 2, 1
+TRANSITION_NORMALS = SLIP_NORMALS + AIM_NORMALS + WOBBLE_NORMALS
 SHOOTER, PASSER = 0, 1
 _ = float("nan")
 #: Easy value of each start uniform (start_difficulty 0; nan = no easy value, the draw is
@@ -186,6 +190,25 @@ class StartParams:
 
 
 @struct.dataclass
+class ShootPassNoiseOn:
+    """Static switches of the task's random noise sources (the centroid eccentricity draws
+    nothing and has none). A source that is off draws no random numbers and computes
+    nothing (its std must then be 0); one that is on draws them
+    whatever its std, so a sweep over the std (0 included) is one compiled program. The
+    draws of a source are the same whichever other sources are on
+    (:func:`vbl.draws.draw_blocks`)."""
+
+    slip: bool = param(False, doc="tire slip is drawn (world.robot.slip_std, "
+                       "noise.slip_std; off: both must be 0)", static=True)
+    aim: bool = param(True, doc="the scripted passer's kick aim error is drawn "
+                      "(other.aim_noise_deg; off: it must be 0)", static=True)
+    wobble: bool = param(False, doc="the rolling ball's random turns are drawn "
+                         "(noise.ecc_turn_std; off: it must be 0)", static=True)
+    pixel: bool = param(False, doc="pixel noise is drawn (noise.image_std and both cameras'"
+                        " pixel_noise_std; off: all must be 0)", static=True)
+
+
+@struct.dataclass
 class ShootPassParams:
     """Parameters of the two-robot task (``vbl.params`` fields)."""
 
@@ -231,8 +254,20 @@ class ShootPassParams:
     task_pass: bool = param(False, doc="env task 'select' only: False = shoot (learner = "
                             "shooter), True = pass (learner = passer); traced, so one "
                             "compiled program serves both tasks (ignored by a fixed task)")
+    noise_on: ShootPassNoiseOn = section(ShootPassNoiseOn, doc="static switches of the noise "
+                                         "sources")
 
     def check(self) -> None:
+        on, nz = self.noise_on, self.noise
+        check_switched_off(on.slip, "noise_on.slip", {
+            "world.robot.slip_std": self.world.robot.slip_std, "noise.slip_std": nz.slip_std})
+        check_switched_off(on.aim, "noise_on.aim",
+                           {"other.aim_noise_deg": self.other.aim_noise_deg})
+        check_switched_off(on.wobble, "noise_on.wobble", {"noise.ecc_turn_std": nz.ecc_turn_std})
+        check_switched_off(on.pixel, "noise_on.pixel", {
+            "noise.image_std": nz.image_std,
+            "shooter_camera.pixel_noise_std": self.shooter_camera.pixel_noise_std,
+            "passer_camera.pixel_noise_std": self.passer_camera.pixel_noise_std})
         s = self.start
         for lo, hi in (("shooter_x_min", "shooter_x_max"), ("pass_dist_min", "pass_dist_max"),
                        ("pass_angle_min_deg", "pass_angle_max_deg"),
@@ -285,14 +320,15 @@ def apply_kicks(eps: jax.Array, world: WorldState, touch: jax.Array, actions: ja
     speeds: (R,) float32 kick speeds (m/s; 0 = this robot never kicks);
     aim_at: (R,) int32, -1 = kick along the own heading, j >= 0 = towards robot j's centre;
     aim_noise: (R,) float32 std of the kick direction, rad; eps: (R,) float32 standard
-    normals (the aim error in units of ``aim_noise``); cone_deg: () half-angle, deg.
+    normals (the aim error in units of ``aim_noise``) or None (no aim error); cone_deg: ()
+    half-angle, deg.
     A robot kicks when it touched the ball, drives forward (v > 0) and the ball is within
     the cone around its heading. When several kick, the last robot index wins.
     Returns (world with the new ball velocity, kicked (R,) bool).
     """
     n = world.robots.shape[0]
     v_sign = jnp.asarray(FOUR_WHEEL_U, I32)[actions, 0]
-    noise = jnp.asarray(eps, F32).reshape(n) * aim_noise
+    noise = None if eps is None else jnp.asarray(eps, F32).reshape(n) * aim_noise
     cone = jnp.deg2rad(jnp.asarray(cone_deg, F32))
     vel = world.ball_vel
     kicked = []
@@ -301,7 +337,9 @@ def apply_kicks(eps: jax.Array, world: WorldState, touch: jax.Array, actions: ja
         d = world.ball - pose[:2]
         bearing = wrap_angle(jnp.arctan2(d[1], d[0]) - pose[2])
         target = world.robots[jnp.maximum(aim_at[i], 0), :2] - world.ball
-        ang = jnp.where(aim_at[i] >= 0, jnp.arctan2(target[1], target[0]), pose[2]) + noise[i]
+        ang = jnp.where(aim_at[i] >= 0, jnp.arctan2(target[1], target[0]), pose[2])
+        if noise is not None:
+            ang = ang + noise[i]
         k = touch[i] & (v_sign[i] > 0) & (jnp.abs(bearing) <= cone) & (speeds[i] > 0) \
             & ~world.scored
         vel = jnp.where(k, speeds[i] * jnp.stack([jnp.cos(ang), jnp.sin(ang)]), vel)
@@ -311,13 +349,14 @@ def apply_kicks(eps: jax.Array, world: WorldState, touch: jax.Array, actions: ja
 
 def observe(world: WorldState, me: int, cam: CameraParams, world_params: WorldParams,
             noise: NoiseParams, robot_height: jax.Array, phase: jax.Array,
-            eps: jax.Array) -> jax.Array:
+            eps: jax.Array | None) -> jax.Array:
     """Section 3 features (26,) float32 of robot ``me`` (static int) seeing the ball, the
     goal and the other robot ``1 - me`` (seen as a box of length and width = the robot's
     diameter and height ``robot_height``),
     with image noise and ball centroid eccentricity from ``noise``.
     ``cam``: that robot's camera (before noise); ``phase``: the ball's rolling phase, rad;
-    ``eps``: (SEC3_NOISE_DIM,) float32 standard normals of the pixel noise."""
+    ``eps``: (SEC3_NOISE_DIM,) float32 standard normals of the pixel noise (None: exact
+    features)."""
     from vbl.vision.features import flatten_section3, section3_features
 
     other = 1 - me
@@ -492,7 +531,7 @@ class ShootPassEnv:
     def get_obs(self, state: ShootPassState, params: ShootPassParams,
                 eps: jax.Array) -> jax.Array:
         """The learner's Section 3 features (26,) float32; ``eps``: (SEC3_NOISE_DIM,)
-        float32 standard normals of the pixel noise."""
+        float32 standard normals of the pixel noise, or None (``noise_on.pixel`` off)."""
         me = self.roles(params)[0] if self.task == "select" else (
             PASSER if self.task == "pass" else SHOOTER)
         return observe(state.world, me, self.learner_camera(params), params.world,
@@ -504,15 +543,29 @@ class ShootPassEnv:
         params = self._default_params if params is None else params
         if not _is_traced(params):
             self.validate(params)
-        w = Words.draw(key, FRESH_DRAWS + SEC3_NOISE_DIM)
-        state = self._fresh(uniform01(w.take(FRESH_DRAWS)), params)
-        return self.get_obs(state, params, normal(w.take(SEC3_NOISE_DIM))), state
+        fresh, pixel = draw_blocks(key, FRESH_DRAWS,
+                                   (SEC3_NOISE_DIM, params.noise_on.pixel))
+        state = self._fresh(uniform01(fresh), params)
+        return self.get_obs(state, params, normals(pixel)), state
 
     # ------------------------------------------------------------------ dynamics
+    def _draw_transition(self, key, params: ShootPassParams, fresh: bool):
+        """One hash of ``key``: the transition's standard normals (tire slip (4,), kick aim
+        (2,), eccentric rolling (1,); None where ``params.noise_on`` switches the source
+        off), then (``fresh``; else None and no words) the uniforms of a fresh episode, then
+        the pixel noise (None when off)."""
+        on = params.noise_on
+        blocks = draw_blocks(key, (SLIP_NORMALS, on.slip), (AIM_NORMALS, on.aim),
+                             (WOBBLE_NORMALS, on.wobble), (FRESH_DRAWS if fresh else 0, fresh),
+                             (SEC3_NOISE_DIM, on.pixel))
+        slip, aim, wobble, u, pixel = blocks
+        return ((normals(slip), normals(aim), normals(wobble)),
+                None if u is None else uniform01(u), normals(pixel))
+
     def _transition(self, eps, state: ShootPassState, action, params: ShootPassParams):
-        """One primitive; ``eps``: (TRANSITION_NORMALS,) float32 standard normals [tire slip
-        (2, 2) | kick aim (2,) | eccentric rolling]."""
-        eps = jnp.asarray(eps, F32)
+        """One primitive; ``eps``: standard normals (tire slip (4,), kick aim (2,), eccentric
+        rolling (1,)), each float32 or None (that source off)."""
+        slip_eps, aim_eps, wobble_eps = eps
         # the passer and the waiter draw nothing (no random walk): zero uniforms
         no_draws = jnp.zeros((ACT_DRAWS,), F32)
         is_pass = self.is_pass(params)
@@ -526,7 +579,8 @@ class ShootPassEnv:
         a_me = jnp.asarray(action, I32).reshape(())
         actions = (jnp.zeros(2, I32).at[me].set(a_me).at[other].set(a_other))
         wp = noisy_world(params.world, params.noise)
-        world, events = world_step(state.world, actions, wp, slip_eps=eps[:4].reshape(2, 2))
+        world, events = world_step(state.world, actions, wp, slip_eps=None if slip_eps is None
+                                   else slip_eps.reshape(2, 2))
         # kicks
         # shoot: learning shooter kicks along its heading, scripted passer aims at the
         # shooter; pass: the waiting shooter never kicks, learning passer along its heading
@@ -538,13 +592,14 @@ class ShootPassEnv:
         aim_at = jnp.where(is_pass, jnp.array([-1, -1], I32), jnp.array([-1, SHOOTER], I32))
         aim_noise = jnp.where(is_pass, jnp.zeros(2, F32), jnp.stack([
             jnp.zeros((), F32), jnp.deg2rad(jnp.asarray(params.other.aim_noise_deg, F32))]))
-        world, kicks = apply_kicks(eps[4:6], world, events.touch, actions, speeds, aim_at,
+        world, kicks = apply_kicks(aim_eps, world, events.touch, actions, speeds, aim_at,
                                    aim_noise, params.kick_cone_deg)
         # eccentric rolling (noise model)
-        rolled = jnp.sqrt(jnp.sum((world.ball - state.world.ball) ** 2))
         rb = jnp.asarray(params.world.ball.radius, F32)
-        world = world.replace(ball_vel=perturb_ball_velocity(eps[6], world.ball_vel, rolled, rb,
-                                                             params.noise))
+        if wobble_eps is not None:
+            rolled = jnp.sqrt(jnp.sum((world.ball - state.world.ball) ** 2))
+            world = world.replace(ball_vel=perturb_ball_velocity(
+                wobble_eps[0], world.ball_vel, rolled, rb, params.noise))
         phase = advance_phase(state.phase, state.world.ball, world.ball, rb)
         memory = memory.replace(kicked=memory.kicked | kicks[other])
         touched = state.touched | events.touch[me]
@@ -576,10 +631,10 @@ class ShootPassEnv:
         """One primitive without auto-reset: (obs, state, reward, terminated, truncated, info)."""
         params = self._default_params if params is None else params
         self._check_inputs(state, action, params)
-        w = Words.draw(key, TRANSITION_NORMALS + SEC3_NOISE_DIM)
-        state, reward, terminated, truncated, info = self._transition(
-            normal(w.take(TRANSITION_NORMALS)), state, action, params)
-        obs = self.get_obs(state, params, normal(w.take(SEC3_NOISE_DIM)))
+        eps, _, pixel = self._draw_transition(key, params, fresh=False)
+        state, reward, terminated, truncated, info = self._transition(eps, state, action,
+                                                                      params)
+        obs = self.get_obs(state, params, pixel)
         return obs, state, reward, terminated, truncated, info
 
     def step(self, key: jax.Array, state: ShootPassState, action: jax.Array,
@@ -592,13 +647,13 @@ class ShootPassEnv:
         """
         params = self._default_params if params is None else params
         self._check_inputs(state, action, params)
-        w = Words.draw(key, TRANSITION_NORMALS + FRESH_DRAWS + SEC3_NOISE_DIM)
-        nstate, reward, terminated, truncated, info = self._transition(
-            normal(w.take(TRANSITION_NORMALS)), state, action, params)
+        eps, u, pixel = self._draw_transition(key, params, fresh=True)
+        nstate, reward, terminated, truncated, info = self._transition(eps, state, action,
+                                                                      params)
         done = info["episode_done"]
-        fresh = self._fresh(uniform01(w.take(FRESH_DRAWS)), params)
+        fresh = self._fresh(u, params)
         nstate = jax.tree_util.tree_map(lambda a, b: jnp.where(done, a, b), fresh, nstate)
-        obs = self.get_obs(nstate, params, normal(w.take(SEC3_NOISE_DIM)))
+        obs = self.get_obs(nstate, params, pixel)
         return obs, nstate, reward, terminated, truncated, info
 
     def __repr__(self) -> str:

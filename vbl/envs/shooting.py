@@ -24,9 +24,13 @@ API::
     obs, state, reward, terminated, truncated, info = env.step(key, state, action, params)
 
 ``step`` auto-resets with a fresh start draw; ``step_env`` does not (used by the
-brax adapter). ``info``: ``success`` (goal this step), ``ball_out``,
-``episode_done``, ``episode_length`` (primitives in the episode that just ended
-or is running, before the reset).
+brax adapter). Tire slip (``world.robot.slip_std``) and pixel noise
+(``camera.pixel_noise_std``) are drawn only when switched on in the static
+``params.noise_on`` (:class:`ShootingNoiseOn`; off by default, and a std above 0 with its
+switch off is refused by validation, which ``jit`` with traced parameters skips).
+
+``info``: ``success`` (goal this step), ``ball_out``, ``episode_done``, ``episode_length``
+(primitives in the episode that just ended or is running, before the reset).
 
 Errors: the constructor and :meth:`ShootingEnv.validate` check parameters
 (:class:`vbl.params.ParamError`); ``reset``/``step`` called outside ``jit`` with
@@ -44,7 +48,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from vbl.draws import Words, normal
+from vbl.draws import check_switched_off, draw_blocks, normals
 from vbl.envs.checks import check_action_index
 from vbl.params import ParamError, param, section, validate
 from vbl.vision.camera import CameraParams
@@ -53,7 +57,7 @@ from vbl.world.params import ROBOT_KINDS, WorldParams
 from vbl.world.physics import WorldState, goal_corners, world_step, wrap_angle
 from vbl.world.robots import action_labels, num_actions
 
-__all__ = ["StartParams", "ShootingParams", "ShootingState", "ShootingEnv"]
+__all__ = ["StartParams", "ShootingNoiseOn", "ShootingParams", "ShootingState", "ShootingEnv"]
 
 F32 = jnp.float32
 #: Random draws of this env (slices of one hash per call, :class:`vbl.draws.Words`).
@@ -81,6 +85,20 @@ class StartParams:
 
 
 @struct.dataclass
+class ShootingNoiseOn:
+    """Static switches of the task's random noise sources. A source that is off draws no
+    random numbers and computes nothing (its std must then be 0); one that is on draws them
+    whatever its std, so a sweep over the std (0 included) is one compiled program. The
+    draws of a source are the same whichever other sources are on
+    (:func:`vbl.draws.draw_blocks`)."""
+
+    slip: bool = param(False, doc="tire slip is drawn (world.robot.slip_std; off: it must "
+                       "be 0)", static=True)
+    pixel: bool = param(False, doc="pixel noise is drawn (camera.pixel_noise_std; off: it "
+                        "must be 0)", static=True)
+
+
+@struct.dataclass
 class ShootingParams:
     """Parameters of the shooting task."""
 
@@ -93,6 +111,14 @@ class ShootingParams:
     max_steps: int = param(300, doc="time limit: action primitives per episode (each "
                            "world.action_dt long; the library default 300 is 30 s)",
                            unit="primitives", static=True, ge=1)
+    noise_on: ShootingNoiseOn = section(ShootingNoiseOn, doc="static switches of the random "
+                                        "noise sources")
+
+    def check(self) -> None:
+        check_switched_off(self.noise_on.slip, "noise_on.slip",
+                           {"world.robot.slip_std": self.world.robot.slip_std})
+        check_switched_off(self.noise_on.pixel, "noise_on.pixel",
+                           {"camera.pixel_noise_std": self.camera.pixel_noise_std})
 
 
 @struct.dataclass
@@ -225,7 +251,8 @@ class ShootingEnv:
     def get_obs(self, world: WorldState, params: ShootingParams,
                 eps: jax.Array | None = None) -> jax.Array:
         """Section 2 features (9,) float32 of the robot's camera; ``eps``: optional
-        (SEC2_NOISE_DIM,) float32 standard normals of the pixel noise (None = exact)."""
+        (SEC2_NOISE_DIM,) float32 standard normals of the pixel noise (None = exact, what
+        ``noise_on.pixel`` off gives)."""
         return section2_features(world.robots[0], world.ball,
                                  jnp.asarray(params.world.ball.radius, F32),
                                  goal_corners(params.world), params.camera, eps)
@@ -236,14 +263,17 @@ class ShootingEnv:
         params = self._default_params if params is None else params
         if not _is_traced(params):
             self.validate(params)
-        w = Words.draw(key, START_WORDS + SEC2_NOISE_DIM)
-        world = self.start_from_words(w.take(START_WORDS), params)
+        start, pixel = draw_blocks(key, START_WORDS, (SEC2_NOISE_DIM, params.noise_on.pixel))
+        world = self.start_from_words(start, params)
         state = ShootingState(world=world, step=jnp.zeros((), jnp.int32))
-        return self.get_obs(world, params, normal(w.take(SEC2_NOISE_DIM))), state
+        return self.get_obs(world, params, normals(pixel)), state
 
     def _transition(self, slip_eps, state: ShootingState, action, params: ShootingParams):
+        """One primitive; ``slip_eps``: (SLIP_NORMALS,) float32 standard normals of the tire
+        slip, or None (slip off)."""
         world, events = world_step(state.world, jnp.reshape(action, (1,)).astype(jnp.int32),
-                                   params.world, slip_eps=jnp.reshape(slip_eps, (1, 2)))
+                                   params.world, slip_eps=None if slip_eps is None else
+                                   jnp.reshape(slip_eps, (1, 2)))
         step = state.step + 1
         terminated = events.goal | events.ball_out
         truncated = (step >= params.max_steps) & ~terminated
@@ -264,10 +294,11 @@ class ShootingEnv:
         """One primitive without auto-reset: (obs, state, reward, terminated, truncated, info)."""
         params = self._default_params if params is None else params
         self._check_inputs(state, action, params)
-        w = Words.draw(key, SLIP_NORMALS + SEC2_NOISE_DIM)
+        on = params.noise_on
+        slip, pixel = draw_blocks(key, (SLIP_NORMALS, on.slip), (SEC2_NOISE_DIM, on.pixel))
         state, reward, terminated, truncated, info = self._transition(
-            normal(w.take(SLIP_NORMALS)), state, action, params)
-        obs = self.get_obs(state.world, params, normal(w.take(SEC2_NOISE_DIM)))
+            normals(slip), state, action, params)
+        obs = self.get_obs(state.world, params, normals(pixel))
         return obs, state, reward, terminated, truncated, info
 
     def step(self, key: jax.Array, state: ShootingState, action: jax.Array,
@@ -277,19 +308,22 @@ class ShootingEnv:
         Returns (obs (9,) float32, state, reward () float32, terminated () bool,
         truncated () bool, info dict); obs is the first observation of the new episode
         when it reset, while reward/terminated/truncated/info describe the finished step.
-        The key is hashed once; tire slip, the start draw and the pixel noise are slices of
-        those bits (:class:`vbl.draws.Words`).
+        The key is hashed once: tire slip, the start draw and the pixel noise are blocks of
+        those bits (:func:`vbl.draws.draw_blocks`; a noise source switched off in
+        ``params.noise_on`` is not drawn).
         """
         params = self._default_params if params is None else params
         self._check_inputs(state, action, params)
-        w = Words.draw(key, SLIP_NORMALS + START_WORDS + SEC2_NOISE_DIM)
+        on = params.noise_on
+        slip, start, pixel = draw_blocks(key, (SLIP_NORMALS, on.slip), START_WORDS,
+                                         (SEC2_NOISE_DIM, on.pixel))
         nstate, reward, terminated, truncated, info = self._transition(
-            normal(w.take(SLIP_NORMALS)), state, action, params)
+            normals(slip), state, action, params)
         done = info["episode_done"]
-        fresh = ShootingState(world=self.start_from_words(w.take(START_WORDS), params),
+        fresh = ShootingState(world=self.start_from_words(start, params),
                               step=jnp.zeros((), jnp.int32))
         nstate = jax.tree_util.tree_map(lambda a, b: jnp.where(done, a, b), fresh, nstate)
-        obs = self.get_obs(nstate.world, params, normal(w.take(SEC2_NOISE_DIM)))
+        obs = self.get_obs(nstate.world, params, normals(pixel))
         return obs, nstate, reward, terminated, truncated, info
 
     def __repr__(self) -> str:
