@@ -12,17 +12,30 @@ import numpy as np
 import pytest
 from toy_worlds import TwoRegionWorld
 
+from vbl.agents.segmentation_learner import (
+    IncrementalParams,
+    Option,
+    greedy_action,
+    init_learner,
+    init_option,
+    init_run,
+    learner_step,
+    log_decision,
+    monte_carlo_update,
+    policy_success,
+    run_updates,
+    update_structure,
+)
 from vbl.params import ParamError, validate
 from vbl.spaces.incremental import (
     Buffer,
-    IncrementalParams,
+    _greedy_value,
     _sse,
-    init_learner,
-    init_run,
     leaf_of,
     num_states,
-    run_updates,
+    record,
     structure_update,
+    td_targets,
 )
 
 # as the engine runs them: with 64-bit types on (conftest.engine_precision)
@@ -52,7 +65,7 @@ def fill(lr, key, params, noise=0.0):
 
 @pytest.fixture(scope="module")
 def update():
-    return jax.jit(lambda lr: structure_update(lr, P))
+    return jax.jit(lambda lr: update_structure(lr, P))
 
 
 def boxes(lr):
@@ -122,7 +135,7 @@ def test_identical_regions_never_split(update):
 
 def test_new_box_inherits_parent_q_or_starts_at_q_init_traced():
     """inherit_q is a traced switch (sweepable): one compiled update serves both values."""
-    upd = jax.jit(structure_update)
+    upd = jax.jit(update_structure)
     lr = fill(init_learner(P, 2, 4), jax.random.PRNGKey(0), ENV.default_params, noise=1e-4)
     lr = lr.replace(q=lr.q.at[0].set(jnp.array([0.7, 0.1, 0.2, 0.3], jnp.float32)))
     for inherit, want in ((True, [0.7, 0.1, 0.2, 0.3]), (False, [-0.3] * 4)):
@@ -179,30 +192,26 @@ def test_bad_thresholds_raise_clear_errors():
         validate(IncrementalParams(temperature=0.0))
 
 
-def test_fig9_change_windows_by_hand():
-    """Figure 9's report windows: before, right after and at the end of each recovery window."""
-    import sys
-
-    from vbl.engine.registry import get
-
-    get("fig9_incremental")
-    windows = sys.modules["vbl_experiments.fig9_incremental"].change_windows
-    succ = np.zeros((2, 40))
-    succ[:, 8:10] = 1.0                  # trials 8, 9 (before change 1 at 10) succeed
-    succ[0, 18:20] = 1.0                 # end of recovery window 1 (before change 2 at 20)
-    states = np.tile(np.arange(40.0), (2, 1))
-    w = windows(succ, states, (10, 20), 4)
-    np.testing.assert_allclose(w[0]["rates"], [[0.5, 0.0, 0.5], [0.5, 0.0, 0.0]])
-    np.testing.assert_allclose(w[1]["rates"], [[0.5, 0.0, 0.0], [0.0, 0.0, 0.0]])
-    assert w[1]["spans"] == [(16, 20), (20, 24), (36, 40)]
-    np.testing.assert_allclose(w[0]["states"], [[9.0, 14.0, 19.0]] * 2)
-    np.testing.assert_allclose(w[1]["states"], [[19.0, 24.0, 39.0]] * 2)
+def test_partition_update_takes_and_returns_the_q_table():
+    """vbl.spaces.incremental.structure_update works on arrays (boxes, buffer, Q): the split
+    at x0 = 0.5 gives the new box the parent's Q row; the learner's update_structure counts
+    it."""
+    lr = fill(init_learner(P, 2, 4), jax.random.PRNGKey(0), ENV.default_params, noise=1e-4)
+    q = lr.q.at[0].set(jnp.array([0.4, 0.3, 0.2, 0.1], jnp.float32))
+    seg, q2, split, merge, vsplit = jax.jit(structure_update)(lr.seg, lr.buf, q, P)
+    assert bool(split) and not bool(merge) and not bool(vsplit)
+    new = int(np.flatnonzero(np.asarray(seg.active))[-1])
+    np.testing.assert_array_equal(np.asarray(q2[new]),
+                                  np.array([0.4, 0.3, 0.2, 0.1], np.float32))
+    np.testing.assert_array_equal(np.asarray(q2[0]), np.asarray(q[0]))
+    counted, _, _ = update_structure(lr.replace(q=q), P)
+    assert int(counted.splits) == 1 and int(counted.merges) == 0
+    np.testing.assert_array_equal(np.asarray(counted.seg.lo), np.asarray(seg.lo))
 
 
 def _held_option_update(held, x_before, gamma=0.9, alpha=0.5):
     """One learner_step of TwoRegionWorld (gain +1 everywhere, step 0.02, action +x0) that
     ends an action held ``held`` primitives; boxes [0, 0.5) and [0.5, 1] along x0."""
-    from vbl.spaces.incremental import Option, learner_step
 
     ep = ENV.default_params.replace(gain_right=1.0)
     p = P.replace(gamma=gamma, alpha=alpha)
@@ -244,7 +253,6 @@ def test_terminal_reward_of_a_held_action_is_not_discounted():
     # starting in box 1 ([0.5, 1]); reuse the helper's boxes with s0 = 1 via a direct call
     from toy_worlds import ToyState
 
-    from vbl.spaces.incremental import Option, learner_step
     ep = ENV.default_params.replace(gain_right=1.0)
     p = P.replace(gamma=g, alpha=a)
     lr = init_learner(p, 2, 4)
@@ -259,7 +267,6 @@ def test_terminal_reward_of_a_held_action_is_not_discounted():
 
 
 def test_greedy_action_breaks_ties_at_random_only_with_a_key():
-    from vbl.spaces.incremental import greedy_action
     lr = init_learner(P, 2, 4)
     lr = lr.replace(q=lr.q.at[0].set(jnp.array([0.5, 0.5, 0.1, 0.5], jnp.float32)))
     x = jnp.array([0.3, 0.3], jnp.float32)
@@ -291,7 +298,7 @@ def scoring_buffer(key, p):
 
 
 def test_value_split_cuts_where_the_best_primitive_changes_and_model_error_does_not():
-    upd = jax.jit(structure_update)
+    upd = jax.jit(update_structure)
     lr0 = scoring_buffer(jax.random.PRNGKey(4), PV)
     # the model-error criterion alone (value criterion off): one box, nothing splits
     lr = lr0
@@ -314,7 +321,7 @@ def test_value_split_cuts_where_the_best_primitive_changes_and_model_error_does_
 
 
 def test_value_split_threshold_above_the_hand_gain_does_not_split():
-    upd = jax.jit(structure_update)
+    upd = jax.jit(update_structure)
     lr = scoring_buffer(jax.random.PRNGKey(4), PV)
     assert not bool(upd(lr, PV.replace(value_split_gain=0.55, value_merge_tol=0.01))[1])
     assert bool(upd(lr, PV.replace(value_split_gain=0.45, value_merge_tol=0.01))[1])
@@ -325,7 +332,6 @@ def test_td_targets_follow_the_held_primitive_to_the_box_exit_by_hand():
     primitive 0 held from x0 = 0.43 in steps of 0.02 (clocks 5, 6, 7, 8: the 4th step
     leaves the left box), then primitive 2 (clock 9) scores, then a new trial's step
     (clock 10) that ends without scoring (term), then the newest one (clock 11)."""
-    from vbl.spaces.incremental import record, td_targets
     g = 0.9
     lr = init_learner(P, 2, 4)
     seg = lr.seg
@@ -351,7 +357,7 @@ def test_value_criterion_off_leaves_the_old_updates_unchanged(update):
     model-error criterion alone (the two-region test above)."""
     lr = fill(init_learner(P, 2, 4), jax.random.PRNGKey(0), ENV.default_params, noise=1e-4)
     a, s1, _ = update(lr)
-    b, s2, _ = jax.jit(structure_update)(lr, P.replace(value_min_count=1.0,
+    b, s2, _ = jax.jit(update_structure)(lr, P.replace(value_min_count=1.0,
                                                        value_merge_tol=0.0))
     assert bool(s1) and bool(s2) and int(b.value_splits) == 0
     for u, v in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b), strict=True):
@@ -374,7 +380,6 @@ def test_cross_fitted_greedy_value_by_hand():
     means is 1/2; cross-fitted, the primitive chosen on one half scores 0 on the other, so
     the greedy value is 0 (noise does not pay). A primitive under min_count / 2 in one
     half does not count; none qualifying gives -inf."""
-    from vbl.spaces.incremental import _greedy_value
     tsum = jnp.array([[[10.0, 0.0], [0.0, 10.0]]], jnp.float64)          # (L=1, A=2, 2)
     tcnt = jnp.full((1, 2, 2), 10.0, jnp.float64)
     assert float(_greedy_value(tsum, tcnt, 10.0, False)[0]) == pytest.approx(0.5)
@@ -403,7 +408,6 @@ def test_monte_carlo_update_by_hand():
     goal on clock 7, gamma 0.5: returns 1/16, 1/4 (mean 5/32, two updates at alpha 1/2:
     step 3/4) and 1/2 (step 1/2). A failed trial moves towards 0; before the trial ends
     nothing changes; a fifth decision does not fit the 4-slot log."""
-    from vbl.spaces.incremental import log_decision, monte_carlo_update
     p, lr = _mc_learner()
     log = lr.log
     left, right = jnp.array([0.2, 0.3], jnp.float32), jnp.array([0.7, 0.3], jnp.float32)
@@ -438,7 +442,6 @@ def test_monte_carlo_learner_step_learns_at_the_trial_end():
     step-by-step TD path is checked to be off by a non-terminal step first."""
     from toy_worlds import ToyState
 
-    from vbl.spaces.incremental import init_option, learner_step
     p, lr = _mc_learner()
     p = p.replace(temperature=1e-3)
     ep = ENV.default_params.replace(gain_right=1.0)
@@ -464,7 +467,6 @@ def test_policy_success_follows_the_frozen_boltzmann_policy():
     at a low temperature the robot, re-deciding every 5 held primitives, mixes the two and
     every start reaches the goal corner; with the preferences towards the walls (-x0, -x1)
     none does."""
-    from vbl.spaces.incremental import policy_success
     p, lr = _mc_learner()
     p = p.replace(max_repeat=5)
     ep = ENV.default_params.replace(gain_right=1.0, max_steps=1000)

@@ -1,19 +1,17 @@
-"""On-line, incremental state-space segmentation (paper Section 2.2).
+"""On-line, incremental state-space segmentation (paper Section 2.2): the partition.
 
 State representation: a **partition of the normalised feature cube [0, 1]^D into
 axis-aligned boxes** (the leaves of a binary tree of axis-aligned splits, stored
 flat as fixed-capacity arrays ``lo``, ``hi`` (L, D) and ``active`` (L,)). A state is
 a box; the goal is the terminal event (not a box). Classification is one vectorised
-box test, no tree walk.
+box test, no tree walk. The learner on top (Boltzmann selection, held primitives, value
+updates, the run loop) is :mod:`vbl.agents.segmentation_learner`.
 
-Learning (one robot, one environment; :func:`make_learner` vmaps over seeds):
-
-1. Start with one box (the paper's two states: "goal" and "other").
-2. Every step, the transition ``(x, a, y)`` goes into a ring buffer of the last
-   ``buffer_size`` transitions, with ``y = (x' - x, scored)`` (``x' - x`` is taken as 0
-   on a terminal step; truncated steps are not stored). The residual weighs the outputs
-   1 and ``outcome_weight``.
-3. Every ``update_every`` steps the local models are refitted from the buffer:
+1. The partition starts with one box (the paper's two states: "goal" and "other").
+2. Transitions ``(x, a, y)`` go into a ring buffer of the last ``buffer_size``
+   transitions (:func:`record`), with ``y = (x' - x, scored)`` (``x' - x`` taken as 0 on a
+   terminal step). The residual weighs the outputs 1 and ``outcome_weight``.
+3. :func:`structure_update` refits the local models from the buffer:
    per box and primitive an affine least-squares model ``y ~ W^T [x, 1]`` (ridge
    ``ridge``) from sufficient statistics (sums of ``z z^T``, ``z y^T``, ``|y|^2``,
    scatter-added in float64), also per box, primitive, axis and ``bins`` equal bins
@@ -36,16 +34,13 @@ Learning (one robot, one environment; :func:`make_learner` vmaps over seeds):
    transitions of the mean target, cross-fitted over two halves of the buffer with
    ``value_crossfit``); the best cut with gain >= ``value_split_gain`` is made. Merges
    whose pair gains more than ``value_merge_tol`` by staying apart are vetoed.
-4. Q-learning on boxes with Boltzmann action selection; an *action* holds its
-   primitive until the box changes, the episode ends or ``max_repeat`` steps pass,
-   then ``Q(s, a) += alpha (r + gamma max Q(s') - Q(s, a))`` (target ``r`` when the
-   episode terminated; no update on truncation); with ``value_update = "monte_carlo"``
-   every decision of a trial moves towards the trial's discounted outcome instead.
+
+The Q table (L, A) enters as an array where value-driven splits and new boxes need it;
+:func:`structure_update` returns the new one.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import Any
 
 import jax
@@ -53,30 +48,24 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from vbl.agents.exploration import boltzmann_action
-from vbl.agents.monte_carlo import MCLog, log_append, mc_update
 from vbl.params import ParamError, param
 
 __all__ = [
-    "IncrementalParams",
+    "SegmentationParams",
     "Segmentation",
     "Buffer",
-    "Learner",
-    "init_learner",
-    "policy_success",
-    "log_decision",
-    "monte_carlo_update",
+    "init_segmentation",
+    "init_buffer",
     "leaf_of",
+    "num_states",
     "record",
     "structure_update",
     "td_targets",
-    "num_states",
-    "greedy_action",
-    "learner_step",
 ]
 
 F32 = jnp.float32
 F64 = jnp.float64
+I32 = jnp.int32
 
 
 def _require_x64() -> None:
@@ -86,15 +75,11 @@ def _require_x64() -> None:
         raise RuntimeError("the on-line learner's statistics need 64-bit types: call it "
                            "inside `with jax.enable_x64(True):` (the engine runs every "
                            "experiment so)")
-I32 = jnp.int32
-
-
-VALUE_UPDATES = ("q_learning", "monte_carlo")
 
 
 @struct.dataclass
-class IncrementalParams:
-    """Segmentation thresholds (normalised feature units) and the Q-learner."""
+class SegmentationParams:
+    """Segmentation thresholds (normalised feature units) and the Q-values of new boxes."""
 
     max_states: int = param(64, doc="capacity: most boxes (states, the goal not counted)",
                             static=True, ge=1)
@@ -122,14 +107,10 @@ class IncrementalParams:
                             "q_init)")
     q_init: float = param(0.0, doc="initial Q-value of new boxes (inherit_q off, and at "
                           "start)")
-    alpha: float = param(0.25, doc="Q-learning rate", gt=0.0, le=1.0)
-    gamma: float = param(0.95, doc="discount per action (state change)", ge=0.0, lt=1.0)
-    temperature: float = param(0.02, doc="Boltzmann temperature (at the start of the "
-                               "schedule)", unit="Q units", gt=0.0)
+    gamma: float = param(0.95, doc="discount per action (state change): TD targets of the "
+                         "value-driven splits and the one-step Q-learning update", ge=0.0, lt=1.0)
     split_candidates: int = param(8, doc="boxes (largest residual per transition) whose cuts "
                                   "are evaluated at each update", static=True, ge=1)
-    max_repeat: int = param(50, doc="most primitives one action holds in an unchanged box",
-                            unit="steps", ge=1)
     value_split_gain: float = param(0.06, doc="value-driven splits: least gain per transition "
                                     "of a cut in the value of acting greedily on each side "
                                     "separately over acting greedily in the whole box, from "
@@ -146,17 +127,6 @@ class IncrementalParams:
                                    "if acting greedily in each separately beats acting greedily "
                                    "in their union by at most this per transition "
                                    "(< value_split_gain: hysteresis)", unit="Q units", ge=0.0)
-
-    value_update: str = param("q_learning", doc="how Q learns: 'q_learning' (one-step target "
-                              "r + gamma max Q(s') per action) or 'monte_carlo' (every "
-                              "decision of a trial moves towards mc_gamma^(primitives to the "
-                              "goal) if the trial scored, else 0, when the trial ends; no "
-                              "bootstrapping through aliased boxes)", static=True,
-                              choices=VALUE_UPDATES)
-    mc_gamma: float = param(0.98, doc="monte_carlo: discount per primitive of a decision's "
-                            "return", gt=0.0, le=1.0)
-    mc_log: int = param(256, doc="monte_carlo: most decisions of one trial remembered (later "
-                        "ones are not learned from)", static=True, ge=1)
 
     def check(self) -> None:
         if np.any(np.asarray(self.merge_tol) >= np.asarray(self.split_gain)):
@@ -197,52 +167,21 @@ class Buffer:
     term: jax.Array
 
 
-@struct.dataclass
-class TrialLog:
-    """The decisions of the running trial (``value_update='monte_carlo'``): x (N, D)
-    float32 features at the decision, a (N,) int32 primitive, clock (N,) int32 the
-    learner's primitive count at the decision, n () int32 decisions logged. N = mc_log
-    (1 with Q-learning, unused)."""
-
-    x: jax.Array
-    a: jax.Array
-    clock: jax.Array
-    n: jax.Array
+def init_segmentation(p: SegmentationParams, dim: int) -> Segmentation:
+    """One box covering [0, 1]^dim (capacity ``max_states``)."""
+    cap = p.max_states
+    return Segmentation(lo=jnp.zeros((cap, dim), F32),
+                        hi=jnp.zeros((cap, dim), F32).at[0].set(1.0),
+                        active=jnp.zeros((cap,), bool).at[0].set(True))
 
 
-@struct.dataclass
-class Learner:
-    """seg, buf, q (L, A) float32, splits/merges () int32 counters (value_splits: the
-    splits made by the value criterion, included in splits), clock () int32 primitives
-    taken, log the running trial's decisions (Monte Carlo updates)."""
-
-    seg: Segmentation
-    buf: Buffer
-    q: jax.Array
-    splits: jax.Array
-    merges: jax.Array
-    clock: jax.Array
-    value_splits: jax.Array
-    log: TrialLog
-
-
-def init_learner(p: IncrementalParams, dim: int, num_actions: int) -> Learner:
-    """One box covering [0, 1]^dim, an empty buffer, Q = q_init."""
-    cap, m = p.max_states, p.buffer_size
-    seg = Segmentation(lo=jnp.zeros((cap, dim), F32),
-                       hi=jnp.zeros((cap, dim), F32).at[0].set(1.0),
-                       active=jnp.zeros((cap,), bool).at[0].set(True))
-    buf = Buffer(x=jnp.zeros((m, dim), F32), a=jnp.zeros((m,), I32),
-                 y=jnp.zeros((m, dim + 1), F32),
-                 valid=jnp.zeros((m,), bool),
-                 ptr=jnp.zeros((), I32), clock=jnp.zeros((m,), I32),
-                 term=jnp.zeros((m,), bool))
-    q = jnp.full((cap, num_actions), p.q_init, F32)
-    n_log = p.mc_log if p.value_update == "monte_carlo" else 1
-    log = TrialLog(x=jnp.zeros((n_log, dim), F32), a=jnp.zeros((n_log,), I32),
-                   clock=jnp.zeros((n_log,), I32), n=jnp.zeros((), I32))
-    return Learner(seg=seg, buf=buf, q=q, splits=jnp.zeros((), I32), merges=jnp.zeros((), I32),
-                   clock=jnp.zeros((), I32), value_splits=jnp.zeros((), I32), log=log)
+def init_buffer(p: SegmentationParams, dim: int) -> Buffer:
+    """An empty ring buffer of ``buffer_size`` transitions."""
+    m = p.buffer_size
+    return Buffer(x=jnp.zeros((m, dim), F32), a=jnp.zeros((m,), I32),
+                  y=jnp.zeros((m, dim + 1), F32), valid=jnp.zeros((m,), bool),
+                  ptr=jnp.zeros((), I32), clock=jnp.zeros((m,), I32),
+                  term=jnp.zeros((m,), bool))
 
 
 def leaf_of(seg: Segmentation, x: jax.Array) -> jax.Array:
@@ -270,31 +209,6 @@ def record(buf: Buffer, x: jax.Array, a: jax.Array, y: jax.Array, valid: jax.Arr
                   clock=w(buf.clock, jnp.asarray(clock, I32)),
                   term=w(buf.term, jnp.asarray(term, bool)))
 
-
-def log_decision(log: TrialLog, decide: jax.Array, x: jax.Array, a: jax.Array,
-                 clock: jax.Array) -> TrialLog:
-    """Append a decision (features x (D,), primitive a, clock) when ``decide``; a full log
-    drops it."""
-    one = lambda v: jnp.asarray(v)[None]  # noqa: E731  (a batch of one env)
-    (xs, a_s, clocks), n = log_append((log.x[None], log.a[None], log.clock[None]),
-                                      log.n[None], one(decide), (one(x), one(a), one(clock)))
-    return TrialLog(x=xs[0], a=a_s[0], clock=clocks[0], n=n[0])
-
-
-def monte_carlo_update(q: jax.Array, seg: Segmentation, log: TrialLog, ended: jax.Array,
-                       scored: jax.Array, clock: jax.Array, alpha: Any,
-                       gamma: Any) -> tuple[jax.Array, TrialLog]:
-    """When the trial ``ended`` (a time-limit end counts as a failure): every logged decision
-    (its box *now*, its primitive) gets the return ``gamma^(clock - its clock)`` if the
-    trial ``scored`` (``clock`` = the scoring primitive's), else 0; a (box, primitive) with
-    c decisions moves towards their mean return by ``1 - (1 - alpha)^c``
-    (:func:`vbl.agents.monte_carlo.mc_update` with one env); the log empties.
-    Returns (q (L, A), log)."""
-    one = MCLog(s=leaf_of(seg, log.x)[None], a=log.a[None], clock=log.clock[None],
-                n=log.n[None])
-    q, _, _ = mc_update(q, one, jnp.asarray(ended)[None], jnp.asarray(scored)[None],
-                        jnp.asarray(clock, I32)[None], alpha, gamma)
-    return q, log.replace(n=jnp.where(ended, 0, log.n).astype(I32))
 
 
 def _spd_solve(a: jax.Array, b: jax.Array) -> jax.Array:
@@ -450,23 +364,27 @@ def _greedy_value(tsum, tcnt, min_count, crossfit):
     return jnp.where(jnp.asarray(crossfit, bool), cross, plain)
 
 
-def structure_update(lr: Learner, p: IncrementalParams) -> tuple[Learner, jax.Array, jax.Array]:
+
+def structure_update(seg: Segmentation, buf: Buffer, q: jax.Array, p: SegmentationParams
+                     ) -> tuple[Segmentation, jax.Array, jax.Array, jax.Array, jax.Array]:
     """Refit the local models from the buffer; split one box, or else merge two.
 
     Cost control (fixed shapes): cuts are evaluated for the ``split_candidates`` boxes with
     the largest residual per transition only, and each box is tried for a merge with one
     partner (the adjacent box, union a box, holding the most transitions).
 
-    Returns (learner, split happened () bool, merge happened () bool).
+    Args: the boxes, the buffer, q (L, A) float32 the Q table (TD targets of the value
+    criterion; a new box's values, a merged box's mean), p (static shapes and thresholds).
+    Returns (boxes, q (L, A), split () bool, merge () bool, value split () bool: the split
+    was made by the value criterion).
     """
     _require_x64()
-    seg = lr.seg
     cap, dim = seg.lo.shape
-    n_act = lr.q.shape[1]
+    n_act = q.shape[1]
     nb = p.bins
     k_c = min(p.split_candidates, cap)
     ridge = jnp.asarray(p.ridge, F64)
-    szz, szy, syy, cnt = _stats(seg, lr.buf, n_act, nb, p.outcome_weight)
+    szz, szy, syy, cnt = _stats(seg, buf, n_act, nb, p.outcome_weight)
     # whole boxes: sum the bins of axis 0
     tots = [a[:, :, 0].sum(axis=2) for a in (szz, szy, syy, cnt)]                # (L, A, ...)
     t_n = tots[3]
@@ -521,8 +439,8 @@ def structure_update(lr: Learner, p: IncrementalParams) -> tuple[Learner, jax.Ar
     # summed per (box, primitive, axis, bin); a cut's gain is the greedy value per
     # transition of its two sides acted on separately minus that of the whole box
     v_on = jnp.asarray(p.value_split_gain) > 0
-    tgt = td_targets(seg, lr.buf, lr.q, p.gamma)
-    tsum, tcnt = _value_stats(seg, lr.buf, tgt, n_act, nb)                       # (L, A, D, B)
+    tgt = td_targets(seg, buf, q, p.gamma)
+    tsum, tcnt = _value_stats(seg, buf, tgt, n_act, nb)                       # (L, A, D, B)
     b_sum, b_cnt = tsum[:, :, 0].sum(axis=2), tcnt[:, :, 0].sum(axis=2)           # (L, A, 2)
     mc, xf = p.value_min_count, p.value_crossfit
     v_box = _greedy_value(b_sum, b_cnt, mc, xf)                                   # (L,)
@@ -554,9 +472,9 @@ def structure_update(lr: Learner, p: IncrementalParams) -> tuple[Learner, jax.Ar
     new = jnp.argmin(seg.active)                                                  # free slot
     s_lo = seg.lo.at[new].set(seg.lo[leaf].at[axis].set(cut))
     s_hi = seg.hi.at[new].set(seg.hi[leaf]).at[leaf, axis].set(cut)
-    q_new = jnp.where(p.inherit_q, lr.q[leaf], jnp.full((n_act,), p.q_init, F32))
+    q_new = jnp.where(p.inherit_q, q[leaf], jnp.full((n_act,), p.q_init, F32))
     split_seg = Segmentation(lo=s_lo, hi=s_hi, active=seg.active.at[new].set(True))
-    split_q = lr.q.at[new].set(q_new)
+    split_q = q.at[new].set(q_new)
 
     # merge: the box whose union with its partner raises the residual least; with the
     # value criterion on, not a pair whose greedy value gains from staying apart
@@ -575,157 +493,8 @@ def structure_update(lr: Learner, p: IncrementalParams) -> tuple[Learner, jax.Ar
     merge_seg = Segmentation(lo=seg.lo.at[i].set(jnp.minimum(seg.lo[i], seg.lo[j])),
                              hi=seg.hi.at[i].set(jnp.maximum(seg.hi[i], seg.hi[j])),
                              active=seg.active.at[j].set(False))
-    merge_q = lr.q.at[i].set(0.5 * (lr.q[i] + lr.q[j]))
+    merge_q = q.at[i].set(0.5 * (q[i] + q[j]))
 
     pick = lambda a, b, c0: jnp.where(do_split, a, jnp.where(do_merge, b, c0))  # noqa: E731
     seg2 = jax.tree_util.tree_map(pick, split_seg, merge_seg, seg)
-    q2 = pick(split_q, merge_q, lr.q)
-    lr = lr.replace(seg=seg2, q=q2, splits=lr.splits + do_split.astype(I32),
-                    merges=lr.merges + do_merge.astype(I32),
-                    value_splits=lr.value_splits + do_vsplit.astype(I32))
-    return lr, do_split, do_merge
-
-
-def greedy_action(lr: Learner, x: jax.Array, key: jax.Array | None = None) -> jax.Array:
-    """argmax_a Q(box(x), a), int32. Ties (e.g. a box never updated, all ``q_init``) go to
-    the first action without ``key``, to a uniformly drawn tied action with it."""
-    q = lr.q[leaf_of(lr.seg, x)]
-    if key is None:
-        return jnp.argmax(q, axis=-1).astype(I32)
-    tied = q >= jnp.max(q, axis=-1, keepdims=True)
-    return jax.random.categorical(key, jnp.where(tied, 0.0, -jnp.inf), axis=-1).astype(I32)
-
-
-@struct.dataclass
-class Option:
-    """The action being held: state s0, primitive a, steps n, active (False: choose anew)."""
-
-    s0: jax.Array
-    a: jax.Array
-    n: jax.Array
-    active: jax.Array
-
-
-def init_option() -> Option:
-    return Option(jnp.zeros((), I32), jnp.zeros((), I32), jnp.zeros((), I32),
-                  jnp.zeros((), bool))
-
-
-def learner_step(key: jax.Array, lr: Learner, opt: Option, env: Any, env_state: Any,
-                 obs: jax.Array, env_params: Any, p: IncrementalParams,
-                 feature_fn: Callable[[jax.Array], jax.Array]):
-    """One primitive of the on-line learner (Q-learning + buffer; no structure change).
-
-    Returns (learner, option, env_state, obs, info) with info from the env plus
-    ``reward``, ``terminated``, ``truncated``.
-    """
-    k_act, k_env = jax.random.split(key)
-    x = feature_fn(obs)
-    s = leaf_of(lr.seg, x)
-    a_new = boltzmann_action(k_act, lr.q[s], p.temperature)
-    a = jnp.where(opt.active, opt.a, a_new)
-    s0 = jnp.where(opt.active, opt.s0, s)
-    n = jnp.where(opt.active, opt.n, 0) + 1
-    obs2, env_state2, r, term, trunc, info = env.step(k_env, env_state, a, env_params)
-    done = term | trunc
-    x2 = feature_fn(obs2)
-    s2 = leaf_of(lr.seg, x2)
-    dx = jnp.where(term, 0.0, x2 - x)
-    y = jnp.concatenate([dx, info["success"].astype(F32)[None]])
-    buf = record(lr.buf, x, a, y, ~(trunc & ~term), lr.clock, term)
-    end = done | (s2 != s0) | (n >= p.max_repeat)
-    target = jnp.where(term, r, r + jnp.asarray(p.gamma, F32) * jnp.max(lr.q[s2]))
-    upd = end & ~(trunc & ~term)
-    if p.value_update == "monte_carlo":
-        log = log_decision(lr.log, ~opt.active, x, a, lr.clock)
-        q, log = monte_carlo_update(lr.q, lr.seg, log, done, info["success"], lr.clock,
-                                    p.alpha, p.mc_gamma)
-        lr = lr.replace(log=log)
-    else:
-        q = lr.q.at[s0, a].add(jnp.where(upd, p.alpha * (target - lr.q[s0, a]), 0.0))
-    lr = lr.replace(buf=buf, q=q.astype(F32), clock=lr.clock + 1)
-    opt = Option(s0=s0.astype(I32), a=a.astype(I32), n=n.astype(I32), active=~end)
-    info = dict(info, reward=r, terminated=term, truncated=trunc)
-    return lr, opt, env_state2, obs2, info
-
-
-def policy_success(key: jax.Array, lr: Learner, env: Any, env_params: Any,
-                   p: IncrementalParams, feature_fn: Callable[[jax.Array], jax.Array],
-                   num_episodes: int, max_steps: int, temperature: Any) -> jax.Array:
-    """The learner's own behaviour, frozen (no learning, no structure change): Boltzmann
-    selection at ``temperature`` whenever the box changes, an episode starts or
-    ``max_repeat`` primitives pass, the primitive held in between (as in training).
-    Returns success (num_episodes,) bool: the first episode from a fresh start scored
-    within ``max_steps`` primitives."""
-    def one(k):
-        k0, k1 = jax.random.split(k)
-        obs, st = env.reset(k0, env_params)
-
-        def body(carry, kt):
-            obs, st, alive, ok, s0, a, n = carry
-            k_a, k_e = jax.random.split(kt)
-            s = leaf_of(lr.seg, feature_fn(obs))
-            decide = (s != s0) | (n >= p.max_repeat)
-            a = jnp.where(decide, boltzmann_action(k_a, lr.q[s], temperature), a).astype(I32)
-            n = jnp.where(decide, 1, n + 1).astype(I32)
-            obs2, st2, _, term, trunc, info = env.step(k_e, st, a, env_params)
-            ok = ok | (alive & info["success"])
-            return (obs2, st2, alive & ~(term | trunc), ok, s, a, n), None
-
-        init = (obs, st, jnp.ones((), bool), jnp.zeros((), bool), jnp.full((), -1, I32),
-                jnp.zeros((), I32), jnp.zeros((), I32))
-        (_, _, _, ok, _, _, _), _ = jax.lax.scan(body, init, jax.random.split(k1, max_steps))
-        return ok
-
-    return jax.vmap(one)(jax.random.split(key, num_episodes))
-
-
-@struct.dataclass
-class RunCarry:
-    """Everything one on-line learner carries between chunks."""
-
-    key: jax.Array
-    lr: Learner
-    opt: Option
-    env_state: Any
-    obs: jax.Array
-    trials: jax.Array      # () int32 finished episodes
-
-
-def init_run(key: jax.Array, env: Any, env_params: Any, p: IncrementalParams, dim: int,
-             num_actions: int) -> RunCarry:
-    """Fresh learner (one box) and a fresh episode."""
-    k_env, k_run = jax.random.split(key)
-    obs, st = env.reset(k_env, env_params)
-    return RunCarry(key=k_run, lr=init_learner(p, dim, num_actions), opt=init_option(),
-                    env_state=st, obs=obs, trials=jnp.zeros((), I32))
-
-
-def run_updates(carry: RunCarry, env: Any, params_fn: Callable[[jax.Array], Any],
-                p: IncrementalParams, feature_fn: Callable[[jax.Array], jax.Array],
-                num_updates: int):
-    """``num_updates`` x (``update_every`` primitives, then :func:`structure_update`).
-
-    ``params_fn(trials) -> env params`` lets the environment change with the number of
-    finished trials (Figure 9's ball-size changes). Returns (carry, per-step dict with
-    ``success``, ``done`` (U * K,) bool and ``trial`` (U * K,) int32 index of the trial
-    the step belonged to, ``states`` (U * K,) int32 number of boxes during the step).
-    """
-    def prim(c, _):
-        key, k = jax.random.split(c.key)
-        ep = params_fn(c.trials)
-        lr, opt, st, obs, info = learner_step(k, c.lr, c.opt, env, c.env_state, c.obs, ep, p,
-                                              feature_fn)
-        done = info["terminated"] | info["truncated"]
-        out = dict(success=info["success"] & done, done=done, trial=c.trials,
-                   states=num_states(lr.seg))
-        opt = opt.replace(active=opt.active & ~done)
-        return RunCarry(key, lr, opt, st, obs, c.trials + done.astype(I32)), out
-
-    def block(c, _):
-        c, out = jax.lax.scan(prim, c, None, length=p.update_every)
-        lr, _, _ = structure_update(c.lr, p)
-        return c.replace(lr=lr), out
-
-    carry, out = jax.lax.scan(block, carry, None, length=num_updates)
-    return carry, jax.tree_util.tree_map(lambda a: a.reshape((-1,) + a.shape[2:]), out)
+    return seg2, pick(split_q, merge_q, q), do_split, do_merge, do_vsplit
