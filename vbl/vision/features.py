@@ -668,9 +668,10 @@ def _box_region(base_c, axes_c, front, cam: CameraParams, fu, fv, lo, hi, origin
     body); its boundary is every edge between a front and a back face (weight
     ``front[f+] - front[f-]``: an edge between two front faces cancels) plus each front
     face's near-plane chord. One ``lax.scan`` over the 12 edges builds them (corners,
-    near-plane clip, projection); :func:`_green_scan` then adds the 12 edges and the 6
-    chords (building and adding in one step makes XLA recompute the edge in every
-    loop that writes one of the step's outputs).
+    near-plane clip, projection); selects pick the boundary's 9 slots (per edge direction
+    its at most 2 edges of non-zero weight, per axis its front face's chord; see
+    ``_BOX_CLASSES``) and :func:`_green_scan` adds them (building and adding in one step
+    makes XLA recompute the edge in every loop that writes one of the step's outputs).
     """
     zn = jnp.asarray(cam.near_plane, F32)
     boxes, orig = _boxes_and_origins(lo, hi, origin)
