@@ -18,10 +18,11 @@ from vbl.agents.cva_state import (
     CVAStateParams,
     collect,
     default_runner,
-    filter_state,
+    history_wrapper,
     identify_object,
     make_cva_learner,
 )
+from vbl.envs.wrappers import linear_filter
 from vbl.params import ParamError
 from vbl.spaces.quantize import QuantizerParams
 from vbl.sysid.params import CVAParams
@@ -70,7 +71,7 @@ def results():
 def test_cva_learner_beats_current_features(results):
     cva, fp = results["cva"]
     cur, _ = results["current"]
-    model = fp.models[0]
+    model = fp.inner.filters[0]
     # the identification finds position + velocity: n* = 2 at a lag >= 2
     assert np.all(np.asarray(model.n) == 2)
     assert np.all(np.asarray(model.lag) >= 2)
@@ -96,7 +97,7 @@ def test_filter_matches_cva_state_on_data():
     U = np.concatenate([np.asarray(mod.Uu).reshape(2, -1), np.asarray(mod.Uy).reshape(2, -1)],
                        axis=1)
     ref = U @ p
-    got = filter_state(mod, jnp.asarray(u[[t, t - 1]]), jnp.asarray(y[[t, t - 1]]))
+    got = linear_filter(mod, jnp.asarray(u[[t, t - 1]]), jnp.asarray(y[[t, t - 1]]))
     np.testing.assert_allclose(np.asarray(got), ref, rtol=1e-4, atol=1e-4)
 
 
@@ -169,14 +170,15 @@ def test_select_state_and_first_episode_counters():
     p = params("cva").replace(state="select", quantizer=vq, collect_steps=200)
     lrn = make_cva_learner(env, p)
     fp = lrn.prepare(jax.random.PRNGKey(1), p, env.default_params)
-    fenv = lrn.env
+    fenv, hist, models = lrn.env, history_wrapper(env, p, 1), fp.inner.filters
     obs, st = fenv.reset(jax.random.PRNGKey(2), fp)
-    hu, hy = st.hist_u, st.hist_y
+    hu, hy = st.inner.hist_u, st.inner.hist_y
     y0 = hy[0][0]                      # the raw first observation (1,) fills the history
-    x_cva = fenv.state_vector(hu, hy, y0, fp.models, True)
-    ref_cva = filter_state(fp.models[0], hu[0], hy[0])    # (2,): d = max(2, 1)
+    x_cva = hist.state_vector(hu, hy, y0, models, True)
+    ref_cva = linear_filter(models[0], hu[0], hy[0])    # (2,): d = max(2, 1)
     np.testing.assert_allclose(np.asarray(x_cva), np.asarray(ref_cva), rtol=1e-6)
-    x_cur = fenv.state_vector(hu, hy, y0, fp.models, False)
+    np.testing.assert_allclose(np.asarray(obs["state"]), np.asarray(ref_cva), rtol=1e-6)
+    x_cur = hist.state_vector(hu, hy, y0, models, False)
     np.testing.assert_allclose(np.asarray(x_cur), [float(y0[0]), 0.0])  # zero-padded
     # counters: strike at once (action 1) ends the episode after one step
     succ = []
@@ -199,7 +201,7 @@ def test_select_state_and_first_episode_counters():
 def test_select_pads_each_object_block_for_a_per_object_quantiser():
     """state='select': object g occupies the same components in the CVA and the current
     vector (each block zero-padded to the larger size), so product VQ groups = objects."""
-    from vbl.agents.cva_state import FilteredEnv, ObjectModel, state_dim
+    from vbl.agents.cva_state import ObjectModel, state_dim
     from vbl.envs.shoot_pass import ShootPassEnv
 
     env = ShootPassEnv("shoot")
@@ -207,7 +209,7 @@ def test_select_pads_each_object_block_for_a_per_object_quantiser():
     p = CVAStateParams(state="select", objects=("ball", "goal", "other"),
                        n_used_objects=(4, 2, 1), quantizer=pq,
                        cva=CVAParams(lag=0, lag_max=2, lag_rule="paper"))
-    fenv = FilteredEnv(env, p, 2)
+    fenv = history_wrapper(env, p, 2)
     assert fenv.block_dims() == (4, 11, 5) and state_dim(env, p) == 20
     rng = np.random.default_rng(0)
     models, hu, hy = [], [], []
@@ -224,7 +226,7 @@ def test_select_pads_each_object_block_for_a_per_object_quantiser():
     obs = jnp.asarray(rng.normal(size=(26,)), jnp.float32)
     x_cva = np.asarray(fenv.state_vector(tuple(hu), tuple(hy), obs, tuple(models), True))
     x_cur = np.asarray(fenv.state_vector(tuple(hu), tuple(hy), obs, tuple(models), False))
-    mus = [np.asarray(filter_state(m, a, b)) for m, a, b in zip(models, hu, hy, strict=True)]
+    mus = [np.asarray(linear_filter(m, a, b)) for m, a, b in zip(models, hu, hy, strict=True)]
     np.testing.assert_allclose(x_cva[0:4], mus[0], rtol=1e-6)
     np.testing.assert_allclose(x_cva[4:6], mus[1], rtol=1e-6)
     np.testing.assert_array_equal(x_cva[6:15], 0.0)

@@ -81,12 +81,12 @@ def main(argv: list[str] | None = None) -> int:
                     ka, kst = jax.random.split(k)
                     a = jnp.where(still, 0, jax.random.randint(ka, (), 0, env.num_actions))
                     obs, st, *_ = fenv.step(kst, st, a, fp)
-                    w = st.inner.world
+                    w = st.inner.inner.world  # EpisodeCounts(HistoryState(env state))
                     th = w.robots[0, 2]
                     v = w.ball_vel
                     vel = jnp.stack([v[0] * jnp.cos(th) + v[1] * jnp.sin(th),
                                      -v[0] * jnp.sin(th) + v[1] * jnp.cos(th)])
-                    hy = st.hist_y[0]
+                    hy = st.inner.hist_y[0]
                     return st, dict(cva=obs["state"], cur=hy[0], raw3=hy[:3].reshape(-1),
                                     vel=vel, speed=jnp.linalg.norm(v))
 

@@ -7,10 +7,11 @@ One learner (all functions are written for one learner and ``vmap``-ed over lear
    AIC order and the lag rule of Sec. 3.1.2 (:func:`identify_object`, built on
    :func:`vbl.sysid.cva.fit_one`);
 3. **filter**: inside the env loop, each object's model turns the running history of its
-   outputs and the learner's inputs into the canonical state ``mu`` (:func:`filter_state`);
-   the first ``n_used`` components of every object (``n_used_objects``: one count per
-   object; CVA orders them by canonical correlation, i.e. importance) are concatenated
-   into the state vector ``[mu_ball, mu_goal, mu_other]``;
+   outputs and the learner's inputs into the canonical state ``mu``
+   (:func:`vbl.envs.wrappers.linear_filter`); the first ``n_used`` components of every
+   object (``n_used_objects``: one count per object; CVA orders them by canonical
+   correlation, i.e. importance) are concatenated into the state vector
+   ``[mu_ball, mu_goal, mu_other]``;
 4. **quantise** the state vector into a Q-table index with a quantiser fitted to the states
    of the collected data (:mod:`vbl.spaces.quantize`);
 5. **Q-learning** with the batched runner of :mod:`vbl.agents.qlearning`.
@@ -18,11 +19,12 @@ One learner (all functions are written for one learner and ``vmap``-ed over lear
 The baseline of Table 2 (``state="current"``) is the same pipeline with the current
 features ``y(t)`` of the same objects as the state vector (no history, no CVA).
 
-The memory (the filter history) lives in the env-loop carry: :class:`FilteredEnv` wraps a
-gymnax-style env; its state holds the inner env state and the history; its observation is
+The memory (the filter history) lives in the env-loop carry: :func:`filtered_env` wraps a
+gymnax-style env in the wrapper stack of :mod:`vbl.envs.wrappers` (history filter, then
+first-episode counts, then quantisation); its observation is
 ``{"index": int32 (), "state": float32 (d,)}``, so the generic Q-learning runner uses
-``state_fn = lambda o: o["index"]``. Its params hold the fitted models and the quantiser,
-which are per-learner pytrees.
+``state_fn = lambda o: o["index"]``. Its params (:func:`filtered_params`) hold the fitted
+models and the quantiser, which are per-learner pytrees.
 
 Decision-time state: at time ``t`` (after observing ``y(t)``, before choosing ``u(t)``) the
 state is ``mu(t+1) = [I_n 0] U p(t+1)`` with the not-yet-chosen ``u(t)`` at its data mean
@@ -43,6 +45,16 @@ from flax import struct
 from vbl.agents.exploration import ExplorationParams, ScheduleParams
 from vbl.agents.lem import LEMParams
 from vbl.agents.qlearning import QLearningParams, QRunnerParams, make_qlearning_runner
+from vbl.envs.wrappers import (
+    KINDS,
+    EpisodeCounts,
+    FirstEpisodeWrapper,
+    HistoryFilterWrapper,
+    HistoryParams,
+    LinearFilter,
+    QuantizeParams,
+    QuantizeWrapper,
+)
 from vbl.params import ParamError, param, section, validate
 from vbl.spaces.macro_action import MacroActionParams
 from vbl.spaces.quantize import (
@@ -54,18 +66,18 @@ from vbl.spaces.quantize import (
     quantize,
 )
 from vbl.sysid.cva import fit_one, n_identifiable
+from vbl.sysid.lag_rule import select_lag
 from vbl.sysid.params import CVAParams
 
 __all__ = [
     "STATE_KINDS",
     "CVAStateParams",
     "ObjectModel",
-    "FilteredParams",
-    "FilteredState",
-    "FilteredEnv",
     "collect",
     "identify_object",
-    "filter_state",
+    "history_wrapper",
+    "filtered_env",
+    "filtered_params",
     "state_dim",
     "make_cva_learner",
     "greedy_params",
@@ -75,7 +87,7 @@ __all__ = [
 #: What the Q-learner sees (static choice). "select": both state vectors are built (zero-padded
 #: to one length) and the traced ``use_cva`` picks one per learner, so one compilation serves
 #: both rows of Table 2.
-STATE_KINDS = ("cva", "current", "select")
+STATE_KINDS = KINDS
 
 
 def default_runner() -> QRunnerParams:
@@ -161,19 +173,15 @@ class CVAStateParams:
 
 
 @struct.dataclass
-class ObjectModel:
+class ObjectModel(LinearFilter):
     """A fitted CVA filter of one object, padded to ``lag_max`` (normalised units).
 
-    ``mu = sum_j Uu[:, j] @ u_n(t-j) + Uy[:, j] @ y_n(t-j)`` over j = 0 .. lag_max-1 (the
-    decision-time state; ``u_n(t) = 0``), where ``x_n = (x - mean) / scale``.
+    A :class:`vbl.envs.wrappers.LinearFilter` (``Uu`` (n_used, lag_max, m), ``Uy``
+    (n_used, lag_max, q), means, scales): ``mu = sum_j Uu[:, j] @ u_n(t-j) + Uy[:, j] @
+    y_n(t-j)`` over j = 0 .. lag_max-1 (the decision-time state; ``u_n(t) = 0``), where
+    ``x_n = (x - mean) / scale``; plus the identification's figures at the chosen lag.
     """
 
-    Uu: jax.Array       # (n_used, lag_max, m)
-    Uy: jax.Array       # (n_used, lag_max, q)
-    u_mean: jax.Array   # (m,)
-    u_scale: jax.Array  # (m,)
-    y_mean: jax.Array   # (q,)
-    y_scale: jax.Array  # (q,)
     lag: jax.Array      # () int32 selected l
     n: jax.Array        # () int32 AIC order n* at that l
     logdet: jax.Array   # () log det R(n*) at that l
@@ -210,9 +218,10 @@ def identify_object(u: jax.Array, y: jax.Array, cva: CVAParams, n_used: int,
     The filter holds the first ``n_used`` canonical components; those beyond the AIC order
     n* are 0 unless ``keep_beyond_order`` (bool, may be traced).
 
-    Lag rule (Sec. 3.1.2): from ``l = 1``, stop at the first l whose ``log det R(n*) <
-    cva.logdet_stop``; otherwise keep growing l while ``AIC(n*)`` decreases; at most
-    ``cva.lag_max`` (a fixed ``cva.lag > 0`` skips the rule).
+    Lag rule (Sec. 3.1.2, :func:`vbl.sysid.lag_rule.select_lag`): from ``l = 1``, stop at
+    the first l whose ``log det R(n*) < cva.logdet_stop`` (keep l); otherwise keep growing l
+    while ``AIC(n*)`` decreases (keep the last l that lowered it); at most ``cva.lag_max``
+    (a fixed ``cva.lag > 0`` skips the rule). Every lag is fitted (one traced program).
     """
     m, q = u.shape[1], y.shape[1]
     lags = cva.lags()
@@ -244,170 +253,48 @@ def identify_object(u: jax.Array, y: jax.Array, cva: CVAParams, n_used: int,
                                 logdet=f.logdet[f.n].astype(jnp.float32),
                                 aic=f.aic[f.n].astype(jnp.float32),
                                 cancor=(cc * keep).astype(jnp.float32)))
-    # lag rule as a static sweep with a "stopped" flag
-    chosen = fits[0]
-    stopped = fits[0].logdet < cva.logdet_stop
-    for f in fits[1:]:
-        take = (~stopped) & (f.aic < chosen.aic)
-        stopped = stopped | (~take) | (f.logdet < cva.logdet_stop)
-        chosen = jax.tree.map(lambda a, b, t=take: jnp.where(t, a, b), f, chosen)
-    return chosen
+    if len(fits) == 1:
+        return fits[0]
+    j, _ = select_lag(jnp.stack([f.logdet for f in fits]), jnp.stack([f.aic for f in fits]),
+                      cva.logdet_stop)
+    return jax.tree.map(lambda *leaves: jnp.stack(leaves)[j], *fits)
 
 
-def filter_state(model: ObjectModel, hist_u: jax.Array, hist_y: jax.Array) -> jax.Array:
-    """Decision-time canonical state (n_used,) float32 from raw histories.
-
-    ``hist_u`` (lag_max, m): row j = u(t-j) (row 0 is ignored: u(t) is not chosen yet);
-    ``hist_y`` (lag_max, q): row j = y(t-j).
-    """
-    un = (hist_u - model.u_mean) / model.u_scale
-    un = un.at[0].set(0.0)
-    yn = (hist_y - model.y_mean) / model.y_scale
-    return (jnp.einsum("njm,jm->n", model.Uu, un)
-            + jnp.einsum("njq,jq->n", model.Uy, yn)).astype(jnp.float32)
+# ---------------------------------------------------------------------------- the env stack
 
 
-# ---------------------------------------------------------------------------- the env wrapper
+def history_wrapper(env: Any, p: CVAStateParams, m: int) -> HistoryFilterWrapper:
+    """The history filter of ``p``: objects, lag ``max(p.cva.lags())``, ``n_used`` per
+    object, state kind and extra slices (its filters are the :class:`ObjectModel` s)."""
+    return HistoryFilterWrapper(env, tuple(p.objects), max(p.cva.lags()), m,
+                                p.n_used_per_object(), p.state, tuple(p.extra))
 
 
-@struct.dataclass
-class FilteredParams:
-    """Per-learner params of :class:`FilteredEnv` (a pytree; vmapped over learners)."""
-
-    inner: Any                      # the wrapped env's params
-    models: tuple                   # one ObjectModel per object (empty for 'current')
-    quantizer: Quantizer
-    use_cva: jax.Array              # () bool, state 'select' only
+def filtered_env(env: Any, p: CVAStateParams, m: int) -> QuantizeWrapper:
+    """The env the Q-learner sees: ``QuantizeWrapper(FirstEpisodeWrapper(history_wrapper))``
+    (quantised by :func:`vbl.spaces.quantize.quantize`); its state is an
+    :class:`~vbl.envs.wrappers.EpisodeCounts` around a ``HistoryState``."""
+    return QuantizeWrapper(FirstEpisodeWrapper(history_wrapper(env, p, m)), quantize)
 
 
-@struct.dataclass
-class FilteredState:
-    """inner: the wrapped env's state; hist_u/hist_y: per object (lag_max, m) / (lag_max, q)
-    raw histories, row 0 = newest; episodes () int32: episodes finished since this state was
-    reset; first_success () bool: the first of them succeeded (a first-episode evaluation
-    reads these two after a greedy run from fresh resets)."""
-
-    inner: Any
-    hist_u: tuple
-    hist_y: tuple
-    episodes: jax.Array
-    first_success: jax.Array
-
-
-class FilteredEnv:
-    """A gymnax-style env whose observation is the quantised (CVA or current) state."""
-
-    def __init__(self, env: Any, p: CVAStateParams, m: int):
-        self.env, self.p, self.m = env, p, int(m)
-        self.num_actions = env.num_actions
-        slices = env.obs_slices
-        for name in tuple(p.objects) + tuple(p.extra):
-            if name not in slices:
-                raise ParamError(f"object {name!r} is not in the env's obs_slices; valid: "
-                                 f"{sorted(slices)}")
-        self.slices = [slices[o] for o in p.objects]
-        self.extra = [slices[o] for o in p.extra]
-        self.lag_max = max(p.cva.lags())
-
-    def block_dims(self) -> tuple[int, ...]:
-        """Sizes of the state vector's blocks: one per object (CVA: its ``n_used``; current:
-        its features; 'select': the larger of the two), then one per ``extra`` slice."""
-        n_cva = self.p.n_used_per_object()
-        n_cur = [s.stop - s.start for s in self.slices]
-        per = {"cva": n_cva, "current": n_cur,
-               "select": [max(a, b) for a, b in zip(n_cva, n_cur, strict=True)]}[self.p.state]
-        return tuple(int(k) for k in per) + tuple(s.stop - s.start for s in self.extra)
-
-    def state_vector(self, hist_u, hist_y, obs, models, use_cva=True) -> jax.Array:
-        """(d,) float32: the object blocks then the extra slices; state 'select': both
-        vectors with every object block zero-padded to :meth:`block_dims`, ``use_cva`` picks
-        (object g occupies the same components in both, so a per-object quantiser applies)."""
-        extra = [obs[s].astype(jnp.float32) for s in self.extra]
-        cur = [obs[s].astype(jnp.float32) for s in self.slices]
-        if self.p.state == "current":
-            return jnp.concatenate(cur + extra)
-        cva = [filter_state(mod, hu, hy).astype(jnp.float32) for mod, hu, hy in
-               zip(models, hist_u, hist_y, strict=True)]
-        if self.p.state == "cva":
-            return jnp.concatenate(cva + extra)
-        dims = self.block_dims()
-        pad = lambda v, k: jnp.pad(v, (0, k - v.shape[0]))  # noqa: E731
-        cva = jnp.concatenate([pad(v, k) for v, k in zip(cva, dims, strict=False)] + extra)
-        cur = jnp.concatenate([pad(v, k) for v, k in zip(cur, dims, strict=False)] + extra)
-        return jnp.where(jnp.asarray(use_cva, bool), cva, cur)
-
-    def _fresh_hist(self, obs):
-        hu = tuple(jnp.zeros((self.lag_max, self.m), jnp.float32) for _ in self.slices)
-        hy = tuple(jnp.broadcast_to(obs[s], (self.lag_max, s.stop - s.start)).astype(
-            jnp.float32) for s in self.slices)
-        return hu, hy
-
-    def _out(self, obs, hu, hy, params: FilteredParams):
-        x = self.state_vector(hu, hy, obs, params.models, params.use_cva)
-        return {"index": quantize(params.quantizer, x), "state": x}
-
-    def reset(self, key, params: FilteredParams):
-        obs, st = self.env.reset(key, params.inner)
-        hu, hy = self._fresh_hist(obs)
-        return self._out(obs, hu, hy, params), FilteredState(st, hu, hy, jnp.int32(0),
-                                                             jnp.bool_(False))
-
-    def step(self, key, state: FilteredState, action, params: FilteredParams):
-        obs, st, r, term, trunc, info = self.env.step(key, state.inner, action, params.inner)
-        u = jnp.asarray(info["u"], jnp.float32)
-        done = term | trunc
-        hu_new, hy_new = [], []
-        for hu, hy, s in zip(state.hist_u, state.hist_y, self.slices, strict=True):
-            hu = jnp.roll(hu, 1, axis=0).at[1].set(u).at[0].set(0.0)
-            hy = jnp.roll(hy, 1, axis=0).at[0].set(obs[s])
-            hu_new.append(hu)
-            hy_new.append(hy)
-        fu, fy = self._fresh_hist(obs)
-        hu = tuple(jnp.where(done, a, b) for a, b in zip(fu, hu_new, strict=True))
-        hy = tuple(jnp.where(done, a, b) for a, b in zip(fy, hy_new, strict=True))
-        success = jnp.asarray(info["success"], bool) & done
-        first = jnp.where(done & (state.episodes == 0), success, state.first_success)
-        new = FilteredState(st, hu, hy, state.episodes + done.astype(jnp.int32), first)
-        return self._out(obs, hu, hy, params), new, r, term, trunc, info
+def filtered_params(env_params: Any, models: tuple, quantizer: Quantizer,
+                    use_cva: Any) -> QuantizeParams:
+    """Params of :func:`filtered_env` for one learner: the inner env's, the CVA models (one
+    per object; () for 'current'), the quantiser and the traced ``use_cva`` ('select')."""
+    return QuantizeParams(HistoryParams(env_params, tuple(models), use_cva), quantizer)
 
 
 def state_dim(env: Any, p: CVAStateParams) -> int:
     """Dimension d of the state vector that is quantised."""
-    sl = env.obs_slices
-    n_cva = p.n_used_per_object()
-    n_cur = [sl[o].stop - sl[o].start for o in p.objects]
-    per = {"cva": n_cva, "current": n_cur,
-           "select": [max(a, b) for a, b in zip(n_cva, n_cur, strict=True)]}[p.state]
-    return int(sum(per) + sum(sl[o].stop - sl[o].start for o in p.extra))
-
-
-def _history_states(fenv: FilteredEnv, data, models, use_cva=True) -> jax.Array:
-    """State vectors (N, d) of the collected data, with the same history rule as the env loop."""
-    obs, u, start = data["obs"], data["u"], data["start"]
-
-    def body(c, x):
-        hu, hy = c
-        o, u_prev, st = x
-        rolled_u = tuple(jnp.roll(h, 1, axis=0).at[1].set(u_prev).at[0].set(0.0) for h in hu)
-        rolled_y = tuple(jnp.roll(h, 1, axis=0).at[0].set(o[s])
-                         for h, s in zip(hy, fenv.slices, strict=True))
-        fu, fy = fenv._fresh_hist(o)
-        hu = tuple(jnp.where(st, a, b) for a, b in zip(fu, rolled_u, strict=True))
-        hy = tuple(jnp.where(st, a, b) for a, b in zip(fy, rolled_y, strict=True))
-        return (hu, hy), fenv.state_vector(hu, hy, o, models, use_cva)
-
-    u_prev = jnp.concatenate([jnp.zeros_like(u[:1]), u[:-1]])
-    init = fenv._fresh_hist(obs[0])
-    _, xs = jax.lax.scan(body, init, (obs, u_prev, start))
-    return xs
+    return int(sum(history_wrapper(env, p, 1).block_dims()))
 
 
 class CVALearner(struct.PyTreeNode):
     """Pure functions of one learner (vmap over learners); built by :func:`make_cva_learner`."""
 
-    prepare: Any = struct.field(pytree_node=False)  # (key, p, env_params) -> FilteredParams
-    runner: Any = struct.field(pytree_node=False)   # QLearningRunner on the FilteredEnv
-    env: Any = struct.field(pytree_node=False)      # the FilteredEnv
+    prepare: Any = struct.field(pytree_node=False)  # (key, p, env_params) -> QuantizeParams
+    runner: Any = struct.field(pytree_node=False)   # QLearningRunner on the filtered env
+    env: Any = struct.field(pytree_node=False)      # the filtered env (filtered_env)
     num_states: int = struct.field(pytree_node=False)
     runner_params: Any = struct.field(pytree_node=False)  # p -> QRunnerParams with S set
 
@@ -420,8 +307,9 @@ def make_cva_learner(env: Any, p: CVAStateParams, m: int | None = None) -> CVALe
     (default: the length of ``info["u"]``, found by one abstract step).
 
     ``prepare(key, p, env_params)``: collect, identify, fit the quantiser; returns the
-    :class:`FilteredParams` for the runner. The runner's ``agent.num_states`` must equal
-    the quantiser's number of states: use ``learner.runner_params(p)`` (sets it).
+    params of the filtered env (:func:`filtered_params`) for the runner. The runner's
+    ``agent.num_states`` must equal the quantiser's number of states: use
+    ``learner.runner_params(p)`` (sets it).
     """
     validate(p)
     if m is None:
@@ -430,31 +318,33 @@ def make_cva_learner(env: Any, p: CVAStateParams, m: int | None = None) -> CVALe
         _, st = jax.eval_shape(env.reset, key, ep)
         out = jax.eval_shape(lambda s: env.step(key, s, jnp.int32(0), ep), st)
         m = int(np.prod(out[5]["u"].shape))
-    fenv = FilteredEnv(env, p, m)
-    d = state_dim(env, p)
-    groups = fenv.block_dims()
+    fenv = filtered_env(env, p, m)
+    hist = history_wrapper(env, p, m)
+    groups = hist.block_dims()
+    d = int(sum(groups))
     make_quantizer(p.quantizer, d, groups)
     s = num_states(p.quantizer, d)
     lags = p.cva.lags()
-    q_max = max(sl.stop - sl.start for sl in fenv.slices)
+    q_max = max(sl.stop - sl.start for sl in hist.slices)
     need = p.cva.min_samples_factor * 2 * max(lags) * (m + q_max) + 2 * max(lags)
     if p.state != "current" and p.collect_steps < need:
         raise ParamError(f"collect_steps={p.collect_steps} is too few for CVA up to lag "
                          f"{max(lags)}; use >= {int(need)}")
     runner = make_qlearning_runner(fenv, lambda o: o["index"], runner_params(p, s))
 
-    def prepare(key, pp: CVAStateParams, env_params) -> FilteredParams:
+    def prepare(key, pp: CVAStateParams, env_params) -> QuantizeParams:
         k_col, k_q = jax.random.split(key)
         data = collect(env, k_col, env_params, p.collect_steps)
         models = ()
         if p.state != "current":
             models = tuple(identify_object(data["u"], data["obs"][:, sl], pp.cva, k,
                                            pp.keep_beyond_order)
-                           for sl, k in zip(fenv.slices, p.n_used_per_object(), strict=True))
+                           for sl, k in zip(hist.slices, p.n_used_per_object(), strict=True))
         use_cva = jnp.asarray(pp.use_cva, bool)
-        xs = _history_states(fenv, data, models, use_cva)
+        xs = hist.replay(data["obs"], data["u"], data["start"],
+                         HistoryParams(env_params, models, use_cva))
         qz = fit_quantizer(k_q, xs, pp.quantizer, groups=groups)
-        return FilteredParams(inner=env_params, models=models, quantizer=qz, use_cva=use_cva)
+        return filtered_params(env_params, models, qz, use_cva)
 
     return CVALearner(prepare=prepare, runner=runner, env=fenv, num_states=s,
                       runner_params=lambda pp: runner_params(pp, s))
@@ -479,10 +369,11 @@ def greedy_params(rp: QRunnerParams, greedy: jax.Array) -> QRunnerParams:
     return rp.replace(agent=agent)
 
 
-def first_episode_stats(env_state: FilteredState) -> dict[str, jax.Array]:
-    """First-episode evaluation from the counters of a batch (E,) of :class:`FilteredState`
-    (reset at the start of the evaluation): ``success_rate`` = fraction of the E envs whose
-    first episode succeeded, ``finished`` = fraction that finished one."""
+def first_episode_stats(env_state: EpisodeCounts) -> dict[str, jax.Array]:
+    """First-episode evaluation from the counters of a batch (E,) of
+    :class:`~vbl.envs.wrappers.EpisodeCounts` (the state of :func:`filtered_env`, reset at
+    the start of the evaluation): ``success_rate`` = fraction of the E envs whose first
+    episode succeeded, ``finished`` = fraction that finished one."""
     fin = (env_state.episodes > 0).astype(jnp.float32)
     ok = (env_state.first_success & (env_state.episodes > 0)).astype(jnp.float32)
     return {"success_rate": jnp.mean(ok), "finished": jnp.mean(fin)}

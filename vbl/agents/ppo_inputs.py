@@ -7,9 +7,10 @@
 * ``"stack"``: the last ``frames`` observations [y(t), y(t-1), ...] concatenated
   (frames x 26,), an episode's first observation repeated at its start;
 * ``"cva"``: the CVA state vector of the tabular learner of Table 2,
-  ``[mu_ball, mu_goal, mu_other]`` (:meth:`vbl.agents.cva_state.FilteredEnv.state_vector`,
-  unquantised), filtered from the same histories of outputs and motor commands with the
-  learner's own fitted models (:func:`prepare_models`);
+  ``[mu_ball, mu_goal, mu_other]`` (the ``state_vector`` of
+  :func:`vbl.agents.cva_state.history_wrapper`, unquantised), filtered from the same
+  histories of outputs and motor commands with the learner's own fitted models
+  (:func:`prepare_models`);
 * ``"select"``: all three, zero-padded to the longest, and the traced
   ``InputParams.index`` picks one per learner (one compilation for all inputs; the
   padding is constant 0 and carries no signal).
@@ -27,7 +28,8 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from vbl.agents.cva_state import CVAStateParams, FilteredEnv, collect, identify_object
+from vbl.agents.cva_state import CVAStateParams, collect, history_wrapper, identify_object
+from vbl.envs.wrappers import fresh_history, push_history
 from vbl.params import ParamError
 
 __all__ = ["INPUTS", "KINDS", "InputParams", "InputState", "InputEnv", "prepare_models"]
@@ -92,7 +94,7 @@ class InputEnv:
         self.use_stack = kind in ("stack", "select")
         self.use_cva = kind in ("cva", "select")
         self.cva = cva.replace(state="cva") if self.use_cva else None
-        self.filtered = FilteredEnv(env, self.cva, m) if self.use_cva else None
+        self.filtered = history_wrapper(env, self.cva, m) if self.use_cva else None
 
     def dims(self) -> dict[str, int]:
         """Observation length of each input."""
@@ -117,11 +119,8 @@ class InputEnv:
         if self.use_stack:
             st = st.replace(stack=jnp.broadcast_to(obs.astype(F32), (self.frames,) + obs.shape))
         if self.use_cva:
-            lag = self.filtered.lag_max
-            st = st.replace(
-                hist_y=tuple(jnp.broadcast_to(obs[s].astype(F32), (lag, s.stop - s.start))
-                             for s in self.filtered.slices),
-                hist_u=tuple(jnp.zeros((lag, self.m), F32) for _ in self.filtered.slices))
+            hu, hy = fresh_history(obs, self.filtered.slices, self.filtered.lag, self.m)
+            st = st.replace(hist_y=hy, hist_u=hu)
         return st
 
     def _obs(self, obs: jax.Array, st: InputState, params: InputParams) -> jax.Array:
@@ -149,14 +148,10 @@ class InputEnv:
         if self.use_stack:
             st = st.replace(stack=_push(state.stack, obs))
         if self.use_cva:
-            u = jnp.asarray(info["u"], F32)
-            # decision-time rule of FilteredEnv: row 1 = the command just taken, row 0 = 0
-            st = st.replace(
-                hist_u=tuple(jnp.roll(h, 1, axis=0).at[1].set(u).at[0].set(0.0)
-                             for h in state.hist_u),
-                hist_y=tuple(_push(h, obs[s]) for h, s in zip(state.hist_y,
-                                                               self.filtered.slices,
-                                                               strict=True)))
+            # the tabular learner's decision-time rule: row 1 = the command just taken, row 0 = 0
+            hu, hy = push_history(state.hist_u, state.hist_y, jnp.asarray(info["u"], F32), obs,
+                                  self.filtered.slices)
+            st = st.replace(hist_u=hu, hist_y=hy)
         return self._obs(obs, st, params), st, r, term, trunc, info
 
 

@@ -109,7 +109,7 @@ class Carry:
     """One learner's state between chunks."""
 
     runner: object       # QRunnerState of the learner
-    fparams: object      # FilteredParams (CVA models, quantiser)
+    fparams: object      # params of the filtered env (CVA models, quantiser)
     chunk: jax.Array     # () int32 chunks done
     eval_key: jax.Array  # uint32[2] key of the evaluation restarts
 
@@ -149,7 +149,7 @@ def make_cva_program(cfg) -> Program:
     def final(carry, c, key):
         ev = first_episode_stats(carry.runner.env_state)
         out = {"greedy_success_rate": ev["success_rate"], "greedy_finished": ev["finished"]}
-        for name, mod in zip(cfg.learner.objects, carry.fparams.models, strict=False):
+        for name, mod in zip(cfg.learner.objects, carry.fparams.inner.filters, strict=False):
             out[f"lag_{name}"] = mod.lag.astype(jnp.float32)
             out[f"n_{name}"] = mod.n.astype(jnp.float32)
         return out
