@@ -14,6 +14,7 @@ With ``lag = 0`` the lag is chosen per data set by ``params.lag_rule``:
 
 from __future__ import annotations
 
+import functools
 import warnings
 
 import jax
@@ -130,16 +131,10 @@ def _identify(u, y, params, model_dtype) -> Identification:
         out = _by_predictor(u, y, params)
     else:
         out = _by_lag(u, y, params)
-    _check_finite(out, params)
-    return _assemble(out, shift, params, b, m, q, batched, model_dtype)
-
-
-def _check_finite(out: dict, params: CVAParams) -> None:
-    bad = ~np.isfinite(out["logdet_R"]) | ~np.isfinite(out["aic"])
-    for k in ("U", "A", "B", "C", "D", "R"):
-        bad |= ~np.isfinite(out[k]).reshape(len(bad), -1).all(1)
-    if bad.any():
-        raise ValueError(_ill_conditioned(np.flatnonzero(bad), params))
+    res, checks = _assemble(out, shift, m=m, q=q, batched=batched,
+                            model_dtype=np.dtype(model_dtype).name)
+    _raise_or_warn(jax.device_get(checks), params, model_dtype)
+    return res
 
 
 def _ill_conditioned(ds: np.ndarray, params: CVAParams, lag: int | None = None) -> str:
@@ -151,40 +146,55 @@ def _ill_conditioned(ds: np.ndarray, params: CVAParams, lag: int | None = None) 
             "raise params.reg (reg_float32 for float32) or drop collinear channels")
 
 
-def _check_model_range(out: dict, shift, model_dtype) -> None:
-    """The model's channel means and scales (raw units) must fit its dtype."""
+def _raise_or_warn(checks, params: CVAParams, model_dtype) -> None:
+    """Errors and the order-cap warning from :func:`_assemble`'s checks (host values):
+    ``(bad, at_cap, lag, horizon, n) (5, B)`` and the model's channel ranges ``(6,)``."""
+    per_set, ranges = checks
+    bad, at_cap, lag, horizon, n = per_set
+    if bad.any():
+        raise ValueError(_ill_conditioned(np.flatnonzero(bad), params))
     fi = np.finfo(np.dtype(model_dtype))
-    for name, off, mul, key in (("u", shift[0], shift[1], "u"), ("y", shift[2], shift[3], "y")):
-        mean = np.abs(off + mul * np.asarray(out[key + "_mean"], np.float64))
-        scale = mul * np.asarray(out[key + "_scale"], np.float64)
-        if (mean > fi.max).any() or (scale > fi.max).any() or (scale < fi.tiny).any():
-            raise ValueError(f"{name}'s channel means / scales (up to {mean.max():.3g} / "
-                             f"{scale.max():.3g}, down to scale {scale.min():.3g}) do not fit "
+    for name, (mean, smax, smin) in (("u", ranges[:3]), ("y", ranges[3:])):
+        if mean > fi.max or smax > fi.max or smin < fi.tiny:
+            raise ValueError(f"{name}'s channel means / scales (up to {mean:.3g} / "
+                             f"{smax:.3g}, down to scale {smin:.3g}) do not fit "
                              f"the {fi.dtype} filtering model; pass model_dtype=jnp.float64 or "
                              f"rescale {name}")
+    if at_cap.any():
+        ds = np.flatnonzero(at_cap)
+        i = ds[0]
+        warnings.warn(OrderCapWarning(
+            f"n* equals the largest identifiable order min(l(m+q), kq) for "
+            f"{len(ds)} data set(s) (first {ds[:10].tolist()}: l={int(lag[i])}, "
+            f"k={int(horizon[i])}, n*={int(n[i])}): the true order may be "
+            "larger; fix a larger lag, lag_max or horizon"), stacklevel=4)
 
 
 def _by_predictor(u, y, params: CVAParams) -> dict:
-    """Lag rule 'predictor': one program for all lags (:mod:`vbl.sysid.sweep`)."""
-    b, n_samp, m = u.shape
+    """Lag rule 'predictor': one program for all lags (:mod:`vbl.sysid.sweep`); the fields
+    stay on the device."""
+    n_samp, m = u.shape[1:]
     q = y.shape[2]
     lags = np.asarray(params.lags())
     hors = np.asarray([params.horizon_for(int(lg)) for lg in lags])
-    c = n_cap_for(params, m, q)
-    fit, j, (ln, la, lld, lpe) = jax.device_get(
-        fit_select_batch(u, y, params, n_cap=c))
-    j = np.asarray(j)
-    n = np.asarray(fit.n, np.int32)
-    rows = np.arange(b)
-    return dict(lag=lags[j].astype(np.int32), horizon=hors[j], n=n,
-                n_samples=np.full(b, n_samp - lags.max() - hors.max() + 1, np.int32),
-                logdet_R=np.asarray(lld)[rows, j], aic=np.asarray(la)[rows, j],
-                aic_curve=fit.aic, logdet_curve=fit.logdet, cancor=fit.cancor,
-                lag_aic=np.asarray(la), lag_logdet=np.asarray(lld),
-                lag_n=np.asarray(ln, np.int32), lag_criterion=np.asarray(lpe),
-                U=np.asarray(fit.U), A=fit.A, B=fit.B, C=fit.C, D=fit.D, R=fit.R,
-                u_mean=fit.u_mean, u_scale=fit.u_scale, y_mean=fit.y_mean,
-                y_scale=fit.y_scale)
+    fit, j, per_lag = fit_select_batch(u, y, params, n_cap=n_cap_for(params, m, q))
+    return _predictor_fields(fit, j, per_lag, lags=tuple(lags.tolist()),
+                             hors=tuple(hors.tolist()),
+                             n_samples=n_samp - int(lags.max()) - int(hors.max()) + 1)
+
+
+@functools.partial(jax.jit, static_argnames=("lags", "hors", "n_samples"))
+def _predictor_fields(fit: CVAFit, j, per_lag, *, lags, hors, n_samples) -> dict:
+    ln, la, lld, lpe = per_lag
+    rows = jnp.arange(j.shape[0])
+    return dict(lag=jnp.asarray(lags, jnp.int32)[j], horizon=jnp.asarray(hors, jnp.int32)[j],
+                n=fit.n.astype(jnp.int32),
+                n_samples=jnp.full(j.shape, n_samples, jnp.int32),
+                logdet_R=lld[rows, j], aic=la[rows, j], aic_curve=fit.aic,
+                logdet_curve=fit.logdet, cancor=fit.cancor, lag_aic=la, lag_logdet=lld,
+                lag_n=ln.astype(jnp.int32), lag_criterion=lpe, U=fit.U, A=fit.A, B=fit.B,
+                C=fit.C, D=fit.D, R=fit.R, u_mean=fit.u_mean, u_scale=fit.u_scale,
+                y_mean=fit.y_mean, y_scale=fit.y_scale)
 
 
 def _by_lag(u, y, params: CVAParams) -> dict:
@@ -234,47 +244,38 @@ def _by_lag(u, y, params: CVAParams) -> dict:
     return out
 
 
-def _assemble(out: dict, shift, params, b, m, q, batched, model_dtype) -> Identification:
-    """Build the result and the model (raw units restored), warn when n* hits the cap."""
-    n = out["n"]
+@functools.partial(jax.jit, static_argnames=("m", "q", "batched", "model_dtype"))
+def _assemble(out: dict, shift, *, m: int, q: int, batched: bool, model_dtype: str):
+    """Result and model (raw units restored) in one program, so the fields stay on the device;
+    returns ``(Identification, checks)``, ``checks`` = the few values the host needs for its
+    errors and warning (:func:`_raise_or_warn`)."""
+    n = out["n"].astype(jnp.int32)
     c = out["A"].shape[-1]
-    umat = out["U"] * (np.arange(c)[None, :, None] < n[:, None, None])   # mu masked beyond n*
-    n_id = np.asarray([n_identifiable(int(lg), int(k), m, q)
-                       for lg, k in zip(out["lag"], out["horizon"], strict=True)], np.int32)
+    umat = out["U"] * (jnp.arange(c)[None, :, None] < n[:, None, None])   # mu masked beyond n*
+    n_id = jnp.minimum(out["lag"] * (m + q), out["horizon"] * q).astype(jnp.int32)
     at_cap = n == n_id
-    if at_cap.any():
-        ds = np.flatnonzero(at_cap)
-        warnings.warn(OrderCapWarning(
-            f"n* equals the largest identifiable order min(l(m+q), kq) for "
-            f"{len(ds)} data set(s) (first {ds[:10].tolist()}: l={int(out['lag'][ds[0]])}, "
-            f"k={int(out['horizon'][ds[0]])}, n*={int(n[ds[0]])}): the true order may be "
-            "larger; fix a larger lag, lag_max or horizon"), stacklevel=4)
+    bad = ~jnp.isfinite(out["logdet_R"]) | ~jnp.isfinite(out["aic"])
+    for k in ("U", "A", "B", "C", "D", "R"):
+        bad |= ~jnp.isfinite(out[k]).reshape(bad.shape[0], -1).all(1)
     u_off, u_mul, y_off, y_mul = shift
-    md = model_dtype
-    _check_model_range(out, shift, md)
-
-    def cast(a):
-        return np.asarray(a, md)
-
-    # NumPy leaves, sliced for unbatched input, then one device_put of the whole result
-    # (one transfer call instead of one per field: most of a small batch's time otherwise)
-    model = CVAModel(U=cast(umat), A=cast(out["A"]), B=cast(out["B"]), C=cast(out["C"]),
-                     D=cast(out["D"]), R=cast(out["R"]), n=np.asarray(n),
-                     lag=np.asarray(out["lag"]),
-                     u_mean=cast(u_off + u_mul * np.asarray(out["u_mean"], np.float64)),
-                     u_scale=cast(u_mul * np.asarray(out["u_scale"], np.float64)),
-                     y_mean=cast(y_off + y_mul * np.asarray(out["y_mean"], np.float64)),
-                     y_scale=cast(y_mul * np.asarray(out["y_scale"], np.float64)))
+    raw = dict(u_mean=u_off + u_mul * out["u_mean"], u_scale=u_mul * out["u_scale"],
+               y_mean=y_off + y_mul * out["y_mean"], y_scale=y_mul * out["y_scale"])
+    # two arrays (one transfer each): per data set, and the model's channel ranges
+    ranges = [jnp.max(jnp.abs(raw["u_mean"])), jnp.max(raw["u_scale"]), jnp.min(raw["u_scale"]),
+              jnp.max(jnp.abs(raw["y_mean"])), jnp.max(raw["y_scale"]), jnp.min(raw["y_scale"])]
+    checks = (jnp.stack([bad, at_cap, out["lag"], out["horizon"], n]).astype(jnp.int32),
+              jnp.stack(ranges).astype(jnp.float64))
+    md = jnp.dtype(model_dtype)
+    model = CVAModel(U=umat.astype(md), A=out["A"].astype(md), B=out["B"].astype(md),
+                     C=out["C"].astype(md), D=out["D"].astype(md), R=out["R"].astype(md), n=n,
+                     lag=out["lag"].astype(jnp.int32),
+                     **{k: v.astype(md) for k, v in raw.items()})
     res = Identification(
-        lag=np.asarray(out["lag"]), n=np.asarray(n),
-        logdet_R=np.asarray(out["logdet_R"]), aic=np.asarray(out["aic"]),
-        n_samples=np.asarray(out["n_samples"]),
-        aic_curve=np.asarray(out["aic_curve"]), logdet_curve=np.asarray(out["logdet_curve"]),
-        cancor=np.asarray(out["cancor"]), lag_aic=np.asarray(out["lag_aic"]),
-        lag_logdet=np.asarray(out["lag_logdet"]), lag_n=np.asarray(out["lag_n"]),
-        lag_criterion=np.asarray(out["lag_criterion"]), n_ident=np.asarray(n_id),
-        n_at_cap=np.asarray(at_cap), model=model)
+        lag=out["lag"].astype(jnp.int32), n=n, logdet_R=out["logdet_R"], aic=out["aic"],
+        n_samples=out["n_samples"].astype(jnp.int32), aic_curve=out["aic_curve"],
+        logdet_curve=out["logdet_curve"], cancor=out["cancor"], lag_aic=out["lag_aic"],
+        lag_logdet=out["lag_logdet"], lag_n=out["lag_n"].astype(jnp.int32),
+        lag_criterion=out["lag_criterion"], n_ident=n_id, n_at_cap=at_cap, model=model)
     if not batched:
         res = jax.tree_util.tree_map(lambda a: a[0], res)
-    return jax.device_put(res)
-
+    return res, checks

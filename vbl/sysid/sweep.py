@@ -21,9 +21,12 @@ Cost (the kernel is the whole of ``identify``'s time at large batches):
   ``b`` outer products entering at the end minus the ``b`` leaving at the start
   (:func:`hankel_gram`), about ``2(L+K)`` times fewer operations than ``Z^T Z``.
 * Each lag runs at its own sizes (a loop over lags unrolled in the one program), not padded
-  to the largest lag; the order sweep's covariances come from the ``(l+1)(m+q)`` rows of
-  ``G`` that ``[mu(t); mu(t+1); u(t); y(t)]`` depend on, with all orders from one Cholesky
-  factor (nested regressions).
+  to the largest lag, and takes its stacks as slices of ``G`` seen as ``(w, m+q, w, m+q)``
+  (past = consecutive offsets, future = the u or y channels of consecutive offsets), not as
+  index gathers, which XLA's CPU backend runs element by element; the order sweep's
+  covariances come from the ``(l+1)(m+q)`` rows of ``G`` that
+  ``[mu(t); mu(t+1); u(t); y(t)]`` depend on, with all orders from one Cholesky factor
+  (nested regressions).
 * :func:`fit_select_batch` runs chunks of ``CHUNK`` data sets (one compiled ``vmap`` per
   chunk), so a chunk's intermediate arrays stay in the cache at any batch size and one
   compiled program serves every batch size.
@@ -39,7 +42,7 @@ import numpy as np
 from jax.scipy.linalg import cho_solve, solve_triangular
 
 from vbl.sysid.aic import aic as aic_fn
-from vbl.sysid.cva import CVAFit, _normalise, _ridge, first_argmin, stack_indices
+from vbl.sysid.cva import CVAFit, _normalise, _ridge, first_argmin
 from vbl.sysid.linalg import eigh_desc, svd_thin, x64_scope
 from vbl.sysid.params import CVAParams
 
@@ -93,36 +96,37 @@ def hankel_gram(x: jnp.ndarray, w: int) -> jnp.ndarray:
     return blk.transpose(0, 2, 1, 3).reshape(w * d, w * d)
 
 
-def _lag_indices(big_l: int, big_k: int, lag: int, horizon: int, m: int, q: int):
-    """Rows of the time-major Gram matrix of window length L+K for lag ``lag``'s stacks."""
+def _fit_lag(g4, params, floor, *, big_l, lag, horizon, m, q, ne, n_cap, means) -> CVAFit:
+    """CVA + order sweep of lag ``lag`` at its own sizes from the Gram matrix ``g4``
+    ``(w, d, w, d)`` (block ``(a, b)``: window offsets a and b, ``d = m + q``); fields padded
+    to ``n_cap`` orders and the state map to the layout of lag ``big_l`` (zero beyond l).
+
+    Every stack is a slice of ``g4`` (no gather): the past ``p(t)`` = offsets
+    ``big_l - l .. big_l - 1`` (oldest first, ``[u; y]`` per offset), ``p(t+1)`` the same
+    shifted by one, the future ``f(t)`` / ``u_f(t)`` = the y / u channels of offsets
+    ``big_l .. big_l + k - 1``, ``[u(t); y(t)]`` = offset ``big_l``. The order of p's entries
+    changes neither the canonical correlations nor U (whose columns are permuted back to
+    ``p(t)``'s layout at the end).
+    """
+    dt = g4.dtype
     d = m + q
-    full = stack_indices(big_l, big_k, m, q)
-    w = big_l + big_k
-    # stack_indices' layout is [u(0..w-1); y(0..w-1)]: map to time-major rows.
-    to_time = np.r_[np.arange(w * m) // m * d + np.arange(w * m) % m,
-                    np.arange(w * q) // q * d + m + np.arange(w * q) % q]
+    lo, hi, k = big_l - lag, big_l, horizon
+    dp = lag * d
+    al, uu, yy = slice(None), slice(0, m), slice(m, d)
 
-    def past(ix):
-        return np.r_[ix[:lag * m], ix[big_l * m:big_l * m + lag * q]]
+    def blk(a0, a1, ca, b0, b1, cb):
+        x = g4[a0:a1, ca, b0:b1, cb]
+        return x.reshape((a1 - a0) * x.shape[1], (b1 - b0) * x.shape[3])
 
-    ix = dict(p=past(full["p"]), p1=past(full["p1"]), f=full["f"][:horizon * q],
-              uf=full["uf"][:horizon * m], u0=full["u0"], y0=full["y0"])
-    return {k: to_time[v] for k, v in ix.items()}
-
-
-def _fit_lag(g, params, floor, *, big_l, big_k, lag, horizon, m, q, ne, n_cap, means
-             ) -> CVAFit:
-    """CVA + order sweep of lag ``lag`` at its own sizes; fields padded to ``n_cap`` orders
-    and the state map to the layout of lag ``big_l`` (entries beyond ``lag`` zero)."""
-    dt = g.dtype
-    ix = _lag_indices(big_l, big_k, lag, horizon, m, q)
-    p, f = ix["p"], ix["f"]
-    spp, sff, spf = g[np.ix_(p, p)], g[np.ix_(f, f)], g[np.ix_(p, f)]
+    spp = blk(lo, hi, al, lo, hi, al)
+    sff = blk(hi, hi + k, yy, hi, hi + k, yy)
+    spf = blk(lo, hi, al, hi, hi + k, yy)
     if params.method == "projected":
-        uf = ix["uf"]
-        lu = jnp.linalg.cholesky(_ridge(g[np.ix_(uf, uf)], floor))
-        ap = solve_triangular(lu, g[np.ix_(uf, p)], lower=True)
-        af = solve_triangular(lu, g[np.ix_(uf, f)], lower=True)
+        lu = jnp.linalg.cholesky(_ridge(blk(hi, hi + k, uu, hi, hi + k, uu), floor))
+        a = solve_triangular(lu, jnp.concatenate([blk(hi, hi + k, uu, lo, hi, al),
+                                                  blk(hi, hi + k, uu, hi, hi + k, yy)], 1),
+                             lower=True)
+        ap, af = a[:, :dp], a[:, dp:]
         spp = spp - ap.T @ ap
         sff = sff - af.T @ af
         spf = spf - ap.T @ af
@@ -139,12 +143,11 @@ def _fit_lag(g, params, floor, *, big_l, big_k, lag, horizon, m, q, ne, n_cap, m
     umat = solve_triangular(lp, ua[:, :c], lower=True, trans="T").T       # (c, dp)
     n_ident = min(lag * (m + q), horizon * q)
 
-    # Covariances of mu(t) = U p(t), mu(t+1) = U p1(t), u(t), y(t): blocks of G times U.
-    dp, p1, x0 = len(p), ix["p1"], np.r_[ix["u0"], ix["y0"]]
-    ug = umat @ g[np.ix_(p, np.r_[p, p1, x0])]                          # (c, 2dp+m+q)
-    s_mm, s_mm1, s_mx = ug[:, :dp] @ umat.T, ug[:, dp:2 * dp] @ umat.T, ug[:, 2 * dp:]
-    s_xm1 = g[np.ix_(x0, p1)] @ umat.T                                   # (m+q, c)
-    s_x0 = g[np.ix_(x0, x0)]
+    # Covariances of mu(t) = U p(t), mu(t+1) = U p(t+1), x0 = [u(t); y(t)]: offsets lo..hi.
+    ug = umat @ blk(lo, hi, al, lo, hi + 1, al)                         # (c, dp + d)
+    s_mm, s_mm1, s_mx = ug[:, :dp] @ umat.T, ug[:, d:] @ umat.T, ug[:, dp:]
+    s_xm1 = blk(hi, hi + 1, al, lo + 1, hi + 1, al) @ umat.T             # (d, c)
+    s_x0 = g4[hi, :, hi, :]
     # regressors [u(t); mu(t)], output y(t), targets [mu(t+1); y(t)]
     sxx = jnp.block([[s_x0[:m, :m], s_mx[:, :m].T], [s_mx[:, :m], s_mm]])
     sxy = jnp.concatenate([s_x0[:m, m:], s_mx[:, m:]])
@@ -176,9 +179,12 @@ def _fit_lag(g, params, floor, *, big_l, big_k, lag, horizon, m, q, ne, n_cap, m
     big_a = jnp.pad(theta[:c, m:], ((0, pad), (0, pad)))
     big_b = jnp.pad(theta[:c, :m], ((0, pad), (0, 0)))
     big_c = jnp.pad(theta[c:, m:], ((0, 0), (0, pad)))
-    u_big = jnp.zeros((n_cap, big_l * (m + q)), dt)
-    u_big = u_big.at[:c, :lag * m].set(umat[:, :lag * m])
-    u_big = u_big.at[:c, big_l * m:big_l * m + lag * q].set(umat[:, lag * m:])
+    # columns to p(t)'s layout [u(t-1..t-l); y(t-1..t-l)], zero beyond l, rows to n_cap
+    ur = umat.reshape(c, lag, d)[:, ::-1]
+    ur = jnp.concatenate([ur, jnp.zeros((c, big_l - lag, d), dt)], axis=1)
+    u_big = jnp.pad(jnp.concatenate([ur[:, :, :m].reshape(c, big_l * m),
+                                     ur[:, :, m:].reshape(c, big_l * q)], 1),
+                    ((0, pad), (0, 0)))
     return CVAFit(cancor=jnp.pad(jnp.clip(s[:c], 0.0, 1.0), (0, pad)), logdet=logdet, aic=a,
                   n=n_star, U=u_big, A=big_a, B=big_b, C=big_c, D=theta[c:, :m],
                   R=rs[n_star], u_mean=means[0], u_scale=means[1], y_mean=means[2],
@@ -208,8 +214,9 @@ def _fit_select_one(u, y, params, *, n_cap):
     ne = n_samp - big_l - big_k + 1
     un, u_mean, u_scale = _normalise(u, params.demean, params.standardize)
     yn, y_mean, y_scale = _normalise(y, params.demean, params.standardize)
-    g = hankel_gram(jnp.concatenate([un, yn], axis=1), big_l + big_k) / ne
-    fits = [_fit_lag(g, params, floor, big_l=big_l, big_k=big_k, lag=int(lg),
+    w, d = big_l + big_k, m + q
+    g4 = (hankel_gram(jnp.concatenate([un, yn], axis=1), w) / ne).reshape(w, d, w, d)
+    fits = [_fit_lag(g4, params, floor, big_l=big_l, lag=int(lg),
                      horizon=int(k), m=m, q=q, ne=ne, n_cap=n_cap,
                      means=(u_mean, u_scale, y_mean, y_scale))
             for lg, k in zip(lags, hors, strict=True)]
@@ -244,11 +251,10 @@ def fit_select_batch(u, y, params: CVAParams, *, n_cap: int, chunk: int = CHUNK)
     data set, padding dropped), chunks dispatched in sequence (no input checks; use
     :func:`vbl.sysid.identify`)."""
     with x64_scope():
-        u, y = jnp.asarray(u), jnp.asarray(y)
         parts, start = [], 0
         for count, size in chunk_sizes(u.shape[0], chunk):
             sl = slice(start, start + count)
-            uc, yc = u[sl], y[sl]
+            uc, yc = (u, y) if count == u.shape[0] else (u[sl], y[sl])
             if size > count:
                 reps = np.r_[np.arange(count), np.zeros(size - count, int)]
                 uc, yc = uc[reps], yc[reps]
