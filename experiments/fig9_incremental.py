@@ -13,12 +13,12 @@ import jax.numpy as jnp
 from flax import struct
 
 from vbl.agents import segmentation_learner as sl
-from vbl.agents.programs import QTrainParams
 from vbl.agents.qlearning import QRunnerParams
 from vbl.engine import Experiment, Program, register
 from vbl.engine import segmentation_figures as figs
 from vbl.engine.baselines import GridBaseline, grid_agent, grid_program, grid_space, grid_train
 from vbl.engine.nested import run_program
+from vbl.engine.q_program import QTrainParams
 from vbl.envs.schedules import BallChangeParams, ball_radius_params
 from vbl.envs.shooting import ShootingEnv, ShootingParams
 from vbl.params import param, section

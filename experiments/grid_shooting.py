@@ -22,7 +22,6 @@ from pathlib import Path
 import numpy as np
 from flax import struct
 
-from vbl.agents.programs import RENAMED_METRICS, QTrainParams
 from vbl.agents.qlearning import QRunnerParams
 from vbl.engine import Experiment, ReportSection, RunResult, register
 from vbl.engine.baselines import (
@@ -43,6 +42,7 @@ from vbl.engine.curves import (
     trials_to_levels,
 )
 from vbl.engine.experiment import PaperRow
+from vbl.engine.q_program import RENAMED_METRICS, QTrainParams
 from vbl.engine.report import seeds_cell
 from vbl.envs.shooting import ShootingParams
 from vbl.params import section

@@ -204,7 +204,7 @@ def test_run_folders_with_old_metric_names_read_under_the_new_ones(tmp_path):
 
 
 def test_q_program_names_its_success_curves_by_what_they_measure():
-    from vbl.agents.programs import RENAMED_METRICS, curve_metric
+    from vbl.engine.q_program import RENAMED_METRICS, curve_metric
 
     assert curve_metric({"eval_success": 1, "train_success": 0}) == "eval_success"
     assert curve_metric({"train_success": 0}) == "train_success"

@@ -1,4 +1,4 @@
-"""The Q-learning engine program (`vbl.agents.programs`) and the grid_shooting experiment.
+"""The Q-learning engine program (`vbl.engine.q_program`) and the grid_shooting experiment.
 
 * Fast: `make_q_program` runs through the engine on a tiny chain task with a start
   difficulty (LEM off / on in one compiled group, 2 seeds): metrics are written with the
@@ -25,9 +25,10 @@ from flax import struct
 import vbl  # noqa: F401
 from tests import toy_worlds
 from vbl.agents import QRunnerParams
-from vbl.agents.programs import QTrainParams, make_q_program, trials_to_level
 from vbl.engine import Experiment, discover, get, run_experiment
+from vbl.engine.q_program import QTrainParams, make_q_program
 from vbl.params import ParamError, param, section
+from vbl.stats import first_crossing
 
 # ------------------------------------------------------------------ a chain with a start difficulty
 N = 6  # positions 0..5; reaching 5 scores and ends the episode
@@ -174,19 +175,20 @@ def test_lem_verdict_cases():
 
 
 def test_trials_to_level_hand_computed():
+    """Trials until a success level (the reports' crossing): vbl.stats.first_crossing on
+    cumulative episodes, by hand."""
     success = np.array([[0.0, 0.1], [0.5, 0.2], [0.2, 0.3], [0.9, 0.4]])   # (chunks, seeds)
-    episodes = np.array([[10, 20], [10, 20], [5, 20], [5, 20]])
-    np.testing.assert_array_equal(trials_to_level(success, episodes, 0.5), [20.0, np.nan])
-    np.testing.assert_array_equal(trials_to_level(success, episodes, 0.3), [20.0, 60.0])
-    with pytest.raises(ValueError, match="chunks, seeds"):
-        trials_to_level(success[:, 0], episodes[:, 0], 0.5)
+    trials = np.cumsum(np.array([[10, 20], [10, 20], [5, 20], [5, 20]]), axis=0)
+    np.testing.assert_array_equal(first_crossing(success, trials, 0.5), [20.0, np.nan])
+    np.testing.assert_array_equal(first_crossing(success, trials, 0.3), [20.0, 60.0])
+    with pytest.raises(ValueError, match="rows, columns"):
+        first_crossing(success[:, 0], trials[:, 0], 0.5)
     # window 2: running means seed 0 (0, .25, .35, .55), seed 1 (.1, .15, .25, .35)
-    np.testing.assert_array_equal(trials_to_level(success, episodes, 0.3, window=2),
-                                  [25.0, 80.0])
-    np.testing.assert_array_equal(trials_to_level(success, episodes, 0.5, window=2),
+    np.testing.assert_array_equal(first_crossing(success, trials, 0.3, window=2), [25.0, 80.0])
+    np.testing.assert_array_equal(first_crossing(success, trials, 0.5, window=2),
                                   [30.0, np.nan])
     with pytest.raises(ValueError, match="window"):
-        trials_to_level(success, episodes, 0.5, window=0)
+        first_crossing(success, trials, 0.5, window=0)
 
 
 def run_chain_program(train: QTrainParams, steps: int, seed: int = 0):

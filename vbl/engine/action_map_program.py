@@ -23,11 +23,11 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from vbl.agents.programs import QTrainParams
 from vbl.agents.qlearning import QRunnerParams
 from vbl.engine.baselines import GridBaseline, grid_agent, grid_program, grid_space, grid_train
 from vbl.engine.experiment import Program
 from vbl.engine.map_figures import map_arrays
+from vbl.engine.q_program import QTrainParams
 from vbl.envs.shooting import ShootingEnv, ShootingParams
 from vbl.params import ParamError, param, section, validate
 from vbl.spaces.action_based import (

@@ -13,9 +13,9 @@ from typing import Any
 from flax import struct
 
 from vbl.agents.exploration import ScheduleParams
-from vbl.agents.programs import QTrainParams, make_q_program
 from vbl.agents.qlearning import QRunnerParams
 from vbl.agents.traces import TraceParams
+from vbl.engine.q_program import QTrainParams, make_q_program
 from vbl.envs.shooting import ShootingEnv, ShootingParams
 from vbl.params import section
 from vbl.spaces.grid import NUM_GRID_STATES, GridParams, grid_state

@@ -9,8 +9,8 @@ from typing import Any
 import numpy as np
 from flax import struct
 
-from vbl.agents.programs import curve_metric
 from vbl.engine.experiment import RunResult
+from vbl.engine.q_program import curve_metric
 from vbl.params import ParamError, param
 from vbl.stats import first_crossing, mean_ci95
 

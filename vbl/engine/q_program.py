@@ -57,9 +57,10 @@ from flax import struct
 
 from vbl.agents.exploration import ScheduleParams, schedule_value
 from vbl.agents.qlearning import QRunnerState, make_qlearning_runner
+from vbl.engine.experiment import Program
 from vbl.params import ParamError, param, section, validate
 
-__all__ = ["QTrainParams", "make_q_program", "trials_to_level", "curve_metric",
+__all__ = ["QTrainParams", "make_q_program", "curve_metric",
            "RENAMED_METRICS", "EVAL_STREAM"]
 
 F32 = jnp.float32
@@ -142,8 +143,6 @@ def make_q_program(env: Any, state_fn: Callable[[jax.Array, Any], jax.Array], cf
     Returns ``Program(init, step, num_chunks=cfg.train.num_chunks, final)``; metrics in the
     module docstring. Raises ParamError for a bad config.
     """
-    from vbl.engine import Program  # lazy: keep vbl.agents importable without the engine
-
     _require(cfg, ("env", "agent", "train"))
     validate(cfg.agent)
     train = validate(cfg.train, "train.")
@@ -228,26 +227,3 @@ def make_q_program(env: Any, state_fn: Callable[[jax.Array, Any], jax.Array], cf
 
     return Program(init=init, step=step, num_chunks=train.num_chunks // train.eval_every,
                    final=final)
-
-
-def trials_to_level(success: Any, episodes: Any, level: float, window: int = 1) -> Any:
-    """Per seed: cumulative training trials at the first chunk where the mean ``success`` of
-    the last ``window`` chunks (that chunk included; fewer at the start) is >= ``level``
-    (NaN if never). ``success``, ``episodes``: (chunks, seeds) host arrays (a run's
-    ``curves["eval_success"][point]`` and ``curves["episodes"][point]``) -> (seeds,) float.
-    ``window`` > 1 averages out the evaluation noise of one chunk (a few dozen starts)."""
-    import numpy as np
-
-    success, episodes = np.asarray(success, float), np.asarray(episodes, float)
-    if success.shape != episodes.shape or success.ndim != 2:
-        raise ValueError(f"success {success.shape} and episodes {episodes.shape} must both be "
-                         "(chunks, seeds)")
-    if int(window) < 1:
-        raise ValueError(f"window={window}: must be >= 1 chunk")
-    cum = np.cumsum(episodes, axis=0)
-    csum = np.cumsum(success, axis=0)
-    lagged = np.concatenate([np.zeros((window, success.shape[1])), csum], axis=0)[:len(csum)]
-    count = np.minimum(np.arange(1, len(csum) + 1), window)[:, None]
-    hit = (csum - lagged) / count >= level
-    first = np.argmax(hit, axis=0)
-    return np.where(hit.any(axis=0), cum[first, np.arange(cum.shape[1])], np.nan)
