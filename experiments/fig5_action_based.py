@@ -147,7 +147,10 @@ EXPERIMENT = register(Experiment(
              "construction_only": {"refine.iterations": 0, "grid.train.eval_every": 1}},
     # parameters added after run folders were written: the values of the code before them
     legacy_values={"refine.iterations": 0, "grid.train.eval_every": 1,
-                   "grid.agent.agent.update": "q_learning", "grid.agent.agent.mc_log": 128},
+                   "grid.agent.agent.update": "q_learning", "grid.agent.agent.mc_log": 128,
+                   "env.noise_on.pixel": False, "env.noise_on.slip": False},
+    # the ellipsoid construction (docs/findings/pruned_variants.md)
+    removed_params={"construction": "cells", "build.": None},
 ))
 
 if __name__ == "__main__":

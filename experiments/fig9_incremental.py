@@ -147,7 +147,14 @@ EXPERIMENT = register(Experiment(
     paper={"trials": 1110, "ball size change": "twice, around trial 500"},
     report=figs.report, paper_rows=figs.paper_rows,
     renamed_metrics={"success_rate": "train_success"},
-    legacy_values={"grid.train.eval_every": 1},  # folders written before it existed
+    legacy_values={"grid.train.eval_every": 1, "env.noise_on.pixel": False,  # not recorded
+                   "env.noise_on.slip": False},  # by older folders
+    # default-off options of the segmentation (docs/findings/pruned_variants.md)
+    removed_params={"learner.return_output": False, "learner.return_weight": None,
+                    "learner.return_gamma": None, "learner.exit_output": False,
+                    "learner.exit_weight": None, "learner.value_fringe": False,
+                    "learner.value_per_buffer": False, "learner.discount_per_primitive": False,
+                    "learner.anneal_trials": 0, "learner.temperature_final": None},
 ))
 
 if __name__ == "__main__":

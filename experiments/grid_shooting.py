@@ -138,7 +138,8 @@ EXPERIMENT = register(Experiment(
     presets={"every_chunk": {"train.eval_every": 1, "report.smooth_chunks": 3}},
     # parameters added after run folders were written: the values of the code before them
     legacy_values={"train.eval_every": 1, "agent.agent.update": "q_learning",
-                   "agent.agent.mc_log": 128},
+                   "agent.agent.mc_log": 128, "env.noise_on.pixel": False,
+                   "env.noise_on.slip": False},
 ))
 
 if __name__ == "__main__":

@@ -111,7 +111,9 @@ EXPERIMENT = register(Experiment(
     legacy_values={"learner.keep_beyond_order": False,
                    "learner.cva.lag_rule": "paper", "learner.cva.collinear_tol": 1e-8,
                    "learner.runner.agent.update": "q_learning",
-                   "learner.runner.agent.mc_log": 128, "env.start_difficulty": 1.0},
+                   "learner.runner.agent.mc_log": 128, "env.start_difficulty": 1.0,
+                   "env.noise_on.aim": True,
+                   **{f"env.noise_on.{n}": False for n in ("pixel", "slip", "wobble")}},
     sweep={"env.task_pass": [False, True], "learner.use_cva": [False, True]},
     removed_params={"learner.cancor_weight": False},  # docs/findings/pruned_variants.md
 ))

@@ -143,7 +143,9 @@ EXPERIMENT = register(Experiment(
     report=report,
     paper_rows=paper_rows,
     # parameters added after run folders were written: the values of the code before them
-    legacy_values={"bodies.start_difficulty": 1.0},
+    legacy_values={"bodies.start_difficulty": 1.0,
+                   "bodies.noise_on.aim": True,
+                   **{f"bodies.noise_on.{n}": False for n in ("pixel", "slip", "wobble")}},
 ))
 
 if __name__ == "__main__":
