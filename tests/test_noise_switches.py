@@ -131,11 +131,6 @@ def _bits(key, n):
     return jax.random.bits(key, (n,), jnp.uint32)
 
 
-def _assert_same(a, b):
-    jax.tree.map(lambda x, y: np.testing.assert_array_equal(np.asarray(x), np.asarray(y)),
-                 a, b)
-
-
 def _assert_close(a, b, tol):
     """Equal up to the rounding of a compiled against an eager camera (a block of wrong
     words moves a value by about its noise std: metres or pixels)."""
@@ -195,6 +190,7 @@ def test_shoot_pass_blocks_are_the_whole_layouts_words(task):
     _assert_close(obs, env.get_obs(fresh, p, normal(w[21:])), 1e-4)
 
 
+@pytest.mark.slow  # two compiled 20-step programs of the two-robot env
 def test_a_source_switched_off_leaves_the_other_draws_unchanged():
     """Pixel noise off: the same states as with it on (tire slip, aim, wobble and the
     starts keep their words), and the observation is the exact one."""
@@ -212,7 +208,7 @@ def test_a_source_switched_off_leaves_the_other_draws_unchanged():
 
     st_p, obs_p = jax.jit(run)(p)
     st_q, obs_q = jax.jit(run)(q)
-    _assert_same(st_p, st_q)
+    _assert_close(st_p, st_q, 1e-6)  # two programs: equal up to rounding
     assert not np.array_equal(np.asarray(obs_p), np.asarray(obs_q))
 
 
