@@ -64,7 +64,7 @@ class Fig9Config:
                                   doc="shooting task (start difficulty 0.1, 150 primitives)")
     features: FeatureParams = section(FeatureParams, doc="feature normalisation")
     learner: sl.IncrementalParams = section(lambda: sl.IncrementalParams(
-        value_update="monte_carlo", alpha=0.02, temperature=0.01), doc="segmentation + Monte "
+        update="monte_carlo", learning_rate=0.02, temperature=0.01), doc="segmentation + Monte "
         "Carlo values (docs/findings/fig9_incremental.md: 0.63 against 0.12 for q_learning)")
     change: BallChangeParams = section(BallChangeParams, doc="ball-size changes")
     train: Fig9Train = section(Fig9Train, doc="run length and evaluation")
@@ -121,7 +121,7 @@ def make_program(cfg: Fig9Config) -> Program:
     return Program(init=init, step=step, num_chunks=tr.num_chunks, final=final)
 
 
-Q_LEARNING = {"learner.value_update": "q_learning", "learner.alpha": 0.25,
+Q_LEARNING = {"learner.update": "q_learning", "learner.learning_rate": 0.25,
               "learner.temperature": 0.02}
 EARLIER = {**Q_LEARNING, "learner.value_split_gain": 0.0}          # model-error splits only
 NO_CHANGE = {"change.change_trial_1": 100000, "change.change_trial_2": 100000}
@@ -149,6 +149,9 @@ EXPERIMENT = register(Experiment(
     renamed_metrics={"success_rate": "train_success"},
     legacy_values={"grid.train.eval_every": 1, "env.noise_on.pixel": False,  # not recorded
                    "env.noise_on.slip": False},  # by older folders
+    renamed_params={"learner.alpha": "learner.learning_rate", "learner.gamma": "learner.discount",
+                    "learner.mc_gamma": "learner.mc_discount",
+                    "learner.value_update": "learner.update"},
     # default-off options of the segmentation (docs/findings/pruned_variants.md)
     removed_params={"learner.return_output": False, "learner.return_weight": None,
                     "learner.return_gamma": None, "learner.exit_output": False,

@@ -214,7 +214,7 @@ def _held_option_update(held, x_before, gamma=0.9, alpha=0.5):
     ends an action held ``held`` primitives; boxes [0, 0.5) and [0.5, 1] along x0."""
 
     ep = ENV.default_params.replace(gain_right=1.0)
-    p = P.replace(gamma=gamma, alpha=alpha)
+    p = P.replace(discount=gamma, learning_rate=alpha)
     lr = init_learner(p, 2, 4)
     seg = lr.seg
     lr = lr.replace(seg=seg.replace(hi=seg.hi.at[0, 0].set(0.5).at[1].set(1.0),
@@ -254,7 +254,7 @@ def test_terminal_reward_of_a_held_action_is_not_discounted():
     from toy_worlds import ToyState
 
     ep = ENV.default_params.replace(gain_right=1.0)
-    p = P.replace(gamma=g, alpha=a)
+    p = P.replace(discount=g, learning_rate=a)
     lr = init_learner(p, 2, 4)
     lr = lr.replace(q=lr.q.at[0, 0].set(0.2))
     x = jnp.array([0.89, 0.95], jnp.float32)
@@ -395,7 +395,7 @@ def test_cross_fitted_greedy_value_by_hand():
 
 def _mc_learner():
     """Two boxes (x0 < 0.5 | x0 >= 0.5), Monte Carlo updates."""
-    p = P.replace(value_update="monte_carlo", mc_log=4, alpha=0.5, mc_gamma=0.5)
+    p = P.replace(update="monte_carlo", mc_log=4, learning_rate=0.5, mc_discount=0.5)
     lr = init_learner(p, 2, 4)
     seg = lr.seg.replace(lo=lr.seg.lo.at[1].set(jnp.array([0.5, 0.0], jnp.float32)),
                          hi=lr.seg.hi.at[0].set(jnp.array([0.5, 1.0], jnp.float32))
@@ -417,18 +417,18 @@ def test_monte_carlo_update_by_hand():
     assert int(log.n) == 3
     q0 = lr.q.at[1, 0].set(0.1)
     same, kept = monte_carlo_update(q0, lr.seg, log, jnp.asarray(False), jnp.asarray(False),
-                                    jnp.int32(6), p.alpha, p.mc_gamma)
+                                    jnp.int32(6), p.learning_rate, p.mc_discount)
     np.testing.assert_array_equal(np.asarray(same), np.asarray(q0))
     assert int(kept.n) == 3
     q, emptied = monte_carlo_update(q0, lr.seg, log, jnp.asarray(True), jnp.asarray(True),
-                                    jnp.int32(7), p.alpha, p.mc_gamma)
+                                    jnp.int32(7), p.learning_rate, p.mc_discount)
     want = np.asarray(q0).copy()
     want[0, 2] = 0.75 * (1 / 16 + 1 / 4) / 2
     want[1, 0] = 0.1 + 0.5 * (0.5 - 0.1)
     np.testing.assert_allclose(np.asarray(q), want, rtol=1e-6)
     assert int(emptied.n) == 0
     q_fail, _ = monte_carlo_update(q0, lr.seg, log, jnp.asarray(True), jnp.asarray(False),
-                                   jnp.int32(7), p.alpha, p.mc_gamma)
+                                   jnp.int32(7), p.learning_rate, p.mc_discount)
     assert float(q_fail[1, 0]) == pytest.approx(0.05) and float(q_fail[0, 2]) == 0.0
     for c in range(5):
         log = log_decision(log.replace(n=jnp.int32(0)) if c == 0 else log, jnp.asarray(True),
@@ -458,7 +458,7 @@ def test_monte_carlo_learner_step_learns_at_the_trial_end():
                                       ENV, ToyState(x, jnp.zeros((), jnp.int32)), x, ep, p,
                                       lambda o: o)
     assert bool(info["terminated"]) and bool(info["success"])
-    assert float(out.q[1, 0]) == pytest.approx(0.4 + p.alpha * (1.0 - 0.4))
+    assert float(out.q[1, 0]) == pytest.approx(0.4 + p.learning_rate * (1.0 - 0.4))
     assert int(out.log.n) == 0
 
 
@@ -478,6 +478,6 @@ def test_policy_success_follows_the_frozen_boltzmann_policy():
     assert float(run(bad, 1e-3).mean()) == 0.0
 
 
-def test_unknown_value_update_is_a_clear_error():
-    with pytest.raises(ParamError, match="value_update"):
-        validate(P.replace(value_update="sarsa"))
+def test_unknown_update_rule_is_a_clear_error():
+    with pytest.raises(ParamError, match="update"):
+        validate(P.replace(update="sarsa"))

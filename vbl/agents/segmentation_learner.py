@@ -8,17 +8,17 @@ One robot, one environment (an experiment vmaps over seeds):
    the local models and splits or merges one box (:func:`vbl.spaces.incremental.structure_update`).
 2. Boltzmann selection at ``temperature`` on the box's Q row; an *action* (option) holds
    its primitive until the box changes, the episode ends or ``max_repeat`` primitives pass.
-3. Values (``value_update``):
+3. Values (``update``):
 
    * ``"q_learning"``: when the action ends, one step of
      :func:`vbl.agents.qlearning.q_update` on the transition (box where the action began,
      primitive, reward of the action's last primitive, box after it, terminated):
      ``Q(s, a) += alpha (r + gamma max Q(s') - Q(s, a))``, target ``r`` when the episode
-     terminated, no update on a time-limit truncation (weight 0). ``gamma`` is per action
+     terminated, no update on a time-limit truncation (weight 0). ``discount`` is per action
      (not per primitive: ``num_primitives`` is not passed); the reward of the action's
      earlier primitives is not added (the shooting task rewards only its terminal
      primitive). One transition per update, so q_update's duplicate rules coincide.
-   * ``"monte_carlo"``: every decision of a trial moves towards ``mc_gamma^(primitives to
+   * ``"monte_carlo"``: every decision of a trial moves towards ``mc_discount^(primitives to
      the goal)`` if the trial scored, else 0, when the trial ends
      (:func:`vbl.agents.monte_carlo.mc_update`, one env; the decision's box is read when
      the trial ends, so a box split meanwhile teaches its current box).
@@ -82,17 +82,17 @@ VALUE_UPDATES = ("q_learning", "monte_carlo")
 class IncrementalParams(SegmentationParams):
     """The partition's thresholds (:class:`SegmentationParams`) and the learner on it."""
 
-    alpha: float = param(0.25, doc="learning rate of the value update", gt=0.0, le=1.0)
+    learning_rate: float = param(0.25, doc="learning rate of the value update", gt=0.0, le=1.0)
     temperature: float = param(0.02, doc="Boltzmann temperature", unit="Q units", gt=0.0)
     max_repeat: int = param(50, doc="most primitives one action holds in an unchanged box",
                             unit="steps", ge=1)
-    value_update: str = param("q_learning", doc="how Q learns: 'q_learning' (one-step target "
+    update: str = param("q_learning", doc="how Q learns: 'q_learning' (one-step target "
                               "r + gamma max Q(s') per action) or 'monte_carlo' (every "
-                              "decision of a trial moves towards mc_gamma^(primitives to the "
+                              "decision of a trial moves towards mc_discount^(primitives to the "
                               "goal) if the trial scored, else 0, when the trial ends; no "
                               "bootstrapping through aliased boxes)", static=True,
                               choices=VALUE_UPDATES)
-    mc_gamma: float = param(0.98, doc="monte_carlo: discount per primitive of a decision's "
+    mc_discount: float = param(0.98, doc="monte_carlo: discount per primitive of a decision's "
                             "return", gt=0.0, le=1.0)
     mc_log: int = param(256, doc="monte_carlo: most decisions of one trial remembered (later "
                         "ones are not learned from)", static=True, ge=1)
@@ -100,7 +100,7 @@ class IncrementalParams(SegmentationParams):
 
 @struct.dataclass
 class TrialLog:
-    """The decisions of the running trial (``value_update='monte_carlo'``): x (N, D)
+    """The decisions of the running trial (``update='monte_carlo'``): x (N, D)
     float32 features at the decision, a (N,) int32 primitive, clock (N,) int32 the
     learner's primitive count at the decision, n () int32 decisions logged. N = mc_log
     (1 with Q-learning, unused)."""
@@ -130,7 +130,7 @@ class Learner:
 def init_learner(p: IncrementalParams, dim: int, num_actions: int) -> Learner:
     """One box covering [0, 1]^dim, an empty buffer, Q = q_init."""
     z = jnp.zeros((), I32)
-    n_log = p.mc_log if p.value_update == "monte_carlo" else 1
+    n_log = p.mc_log if p.update == "monte_carlo" else 1
     log = TrialLog(x=jnp.zeros((n_log, dim), F32), a=jnp.zeros((n_log,), I32),
                    clock=jnp.zeros((n_log,), I32), n=z)
     return Learner(seg=init_segmentation(p, dim), buf=init_buffer(p, dim),
@@ -223,15 +223,15 @@ def learner_step(key: jax.Array, lr: Learner, opt: Option, env: Any, env_state: 
     learn = ~(trunc & ~term)                     # a time-limit truncation teaches nothing
     buf = record(lr.buf, x, a, y, learn, lr.clock, term)
     end = done | (s2 != s0) | (n >= p.max_repeat)
-    if p.value_update == "monte_carlo":
+    if p.update == "monte_carlo":
         log = log_decision(lr.log, ~opt.active, x, a, lr.clock)
         q, log = monte_carlo_update(lr.q, lr.seg, log, done, info["success"], lr.clock,
-                                    p.alpha, p.mc_gamma)
+                                    p.learning_rate, p.mc_discount)
         lr = lr.replace(log=log)
     else:
         one = lambda v: jnp.asarray(v)[None]  # noqa: E731  (one transition)
-        q, _ = q_update(lr.q, one(s0), one(a), one(r), one(s2), one(term), p.alpha, p.gamma,
-                        weight=one(end & learn))
+        q, _ = q_update(lr.q, one(s0), one(a), one(r), one(s2), one(term), p.learning_rate,
+                        p.discount, weight=one(end & learn))
     lr = lr.replace(buf=buf, q=q.astype(F32), clock=lr.clock + 1)
     opt = Option(s0=s0.astype(I32), a=a.astype(I32), n=n.astype(I32), active=~end)
     info = dict(info, reward=r, terminated=term, truncated=trunc)

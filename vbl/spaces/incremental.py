@@ -107,7 +107,7 @@ class SegmentationParams:
                             "q_init)")
     q_init: float = param(0.0, doc="initial Q-value of new boxes (inherit_q off, and at "
                           "start)")
-    gamma: float = param(0.95, doc="discount per action (state change): TD targets of the "
+    discount: float = param(0.95, doc="discount per action (state change): TD targets of the "
                          "value-driven splits and the one-step Q-learning update", ge=0.0, lt=1.0)
     split_candidates: int = param(8, doc="boxes (largest residual per transition) whose cuts "
                                   "are evaluated at each update", static=True, ge=1)
@@ -439,7 +439,7 @@ def structure_update(seg: Segmentation, buf: Buffer, q: jax.Array, p: Segmentati
     # summed per (box, primitive, axis, bin); a cut's gain is the greedy value per
     # transition of its two sides acted on separately minus that of the whole box
     v_on = jnp.asarray(p.value_split_gain) > 0
-    tgt = td_targets(seg, buf, q, p.gamma)
+    tgt = td_targets(seg, buf, q, p.discount)
     tsum, tcnt = _value_stats(seg, buf, tgt, n_act, nb)                       # (L, A, D, B)
     b_sum, b_cnt = tsum[:, :, 0].sum(axis=2), tcnt[:, :, 0].sum(axis=2)           # (L, A, 2)
     mc, xf = p.value_min_count, p.value_crossfit
