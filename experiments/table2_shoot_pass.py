@@ -19,6 +19,7 @@ from vbl.engine import Experiment, register
 from vbl.engine.cva_program import (
     POINT_KEYS,
     CVATrainParams,
+    absolute_lr_schedule_to_scale,
     default_learner,
     make_cva_program,
     state_label,
@@ -92,7 +93,7 @@ EXPERIMENT = register(Experiment(
            "learner.runner.num_envs": 16, "learner.quantizer.group_codes": (8, 4, 4),
            "learner.quantizer.kmeans_iters": 10,
            "learner.runner.agent.exploration.schedule.transition_steps": 3000.0,
-           "train.lr_schedule.transition_begin": 28.0, "train.lr_schedule.transition_steps": 4.0,
+           "train.lr_scale.transition_begin": 28.0, "train.lr_scale.transition_steps": 4.0,
            "learner.cva.lag_max": 2},
     seeds=16,
     quick_seeds=4,
@@ -102,8 +103,8 @@ EXPERIMENT = register(Experiment(
     report=report,
     paper_rows=paper_rows,
     presets={"monte_carlo": {"learner.runner.agent.update": "monte_carlo",
-                             "train.lr_schedule.init_value": 0.1,
-                             "train.lr_schedule.end_value": 0.01}},
+                             "learner.runner.agent.learning_rate": 0.1}},
+    migrate=absolute_lr_schedule_to_scale,
     # chunk_success: the episodes that finished in a chunk (training chunks: with exploration;
     # the last train.eval_chunks: greedy, no learning); folders written before read through this
     renamed_metrics={"success_rate": "chunk_success"},

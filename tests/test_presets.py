@@ -71,3 +71,23 @@ def test_removed_parameters_are_named_unless_they_ran_as_today():
     assert exp.removed_as_today("gone.x.y", 7) and not exp.removed_as_today("other", 0.0)
     with pytest.raises(ValueError, match="still exists"):
         dataclasses.replace(exp, removed_params={"agent.epsilon": 0.1})
+
+
+def test_table2_folders_with_the_absolute_lr_schedule_read_as_today():
+    """Table 2's step size was an absolute schedule (train.lr_schedule, overriding the
+    learning rate); today the learning rate times the factor train.lr_scale. A folder with
+    the old schedule rebuilds to the same step sizes."""
+    from vbl.engine import get
+    from vbl.engine.config import config_to_dict
+    from vbl.engine.report import run_command
+
+    exp = get("table2_shoot_pass")
+    rec = config_to_dict(exp.default_config)
+    for k in [k for k in rec if k.startswith("train.lr_scale.")]:
+        rec["train.lr_schedule." + k.rsplit(".", 1)[1]] = rec.pop(k)
+    rec.update({"train.lr_schedule.init_value": 0.1, "train.lr_schedule.end_value": 0.01,
+                "learner.runner.agent.learning_rate": 0.25,  # ignored by the old code
+                "learner.runner.agent.update": "monte_carlo"})
+    spec = {"experiment": exp.name, "config": rec, "sweep": dict(exp.sweep), "seeds": exp.seeds}
+    command, unrecorded = run_command(exp, spec)
+    assert command == "vbl run table2_shoot_pass --preset monte_carlo" and unrecorded == []

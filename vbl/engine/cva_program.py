@@ -36,8 +36,8 @@ from vbl.params import ParamError, param, section
 from vbl.spaces.quantize import QuantizerParams
 from vbl.sysid.params import CVAParams
 
-__all__ = ["default_learner", "default_lr_schedule", "CVATrainParams", "make_cva_program",
-           "task_label", "state_label", "POINT_KEYS"]
+__all__ = ["default_learner", "default_lr_scale", "CVATrainParams", "make_cva_program",
+           "task_label", "state_label", "POINT_KEYS", "absolute_lr_schedule_to_scale"]
 
 POINT_KEYS = ("task", "env.task_pass", "learner.use_cva", "learner.state")
 """Sweep paths that name a row's task and state vector (the others are extra settings)."""
@@ -77,15 +77,18 @@ def _runner(transition_steps: float):
     sch = r.agent.exploration.schedule.replace(transition_steps=transition_steps)
     # discount 0.95 per 0.1 s primitive: a goal 3-4 s after the start is still worth ~0.17
     # (0.8: ~4e-4); docs/cva_learning.md, "Choices and why"
-    return r.replace(agent=r.agent.replace(discount=0.95, exploration=r.agent.exploration.replace(
-        schedule=sch)))
+    # learning rate 0.5, scaled per chunk by train.lr_scale (default_lr_scale)
+    return r.replace(agent=r.agent.replace(
+        discount=0.95, learning_rate=0.5,
+        exploration=r.agent.exploration.replace(schedule=sch)))
 
 
-def default_lr_schedule() -> ScheduleParams:
-    """Learning rate per training chunk: 0.5 for the first 70 % of the default 400 chunks,
-    then linearly down to 0.05 over the next 10 % (a decreasing step size lets the tabular
-    Q estimates settle; docs/cva_learning.md, "Choices and why")."""
-    return ScheduleParams(kind="linear", init_value=0.5, end_value=0.05,
+def default_lr_scale() -> ScheduleParams:
+    """Factor on the learning rate per training chunk: 1 for the first 70 % of the default
+    400 chunks, then linearly down to 0.1 over the next 10 % (with the learning rate 0.5:
+    0.5 falling to 0.05; a decreasing step size lets the tabular Q estimates settle;
+    docs/cva_learning.md, "Choices and why")."""
+    return ScheduleParams(kind="linear", init_value=1.0, end_value=0.1,
                           transition_begin=280.0, transition_steps=40.0)
 
 
@@ -99,9 +102,26 @@ class CVATrainParams:
                              "fresh, no learning, no exploration; each env's first finished "
                              "episode counts (chunks x chunk_steps must be >= env.max_steps)",
                              static=True, ge=1)
-    lr_schedule: ScheduleParams = section(default_lr_schedule, doc="Q-learning rate of each "
-                                          "training chunk, count = training chunks done "
-                                          "(overrides learner.runner.agent.learning_rate)")
+    lr_scale: ScheduleParams = section(default_lr_scale, doc="factor on "
+                                       "learner.runner.agent.learning_rate per training "
+                                       "chunk, count = training chunks done (as the Q "
+                                       "programs' train.lr_scale)")
+
+
+def absolute_lr_schedule_to_scale(rec: dict) -> dict:
+    """A recorded config with the absolute step-size schedule ``train.lr_schedule`` (older
+    run folders) in today's terms: its start as ``learner.runner.agent.learning_rate``,
+    the schedule as the factor ``train.lr_scale`` (the same step sizes)."""
+    if "train.lr_schedule.init_value" not in rec:
+        return rec
+    rec = dict(rec)
+    init = rec.pop("train.lr_schedule.init_value")
+    for key in [k for k in rec if k.startswith("train.lr_schedule.")]:
+        name, value = key.rsplit(".", 1)[1], rec.pop(key)
+        rec[f"train.lr_scale.{name}"] = round(value / init, 9) if name == "end_value" else value
+    rec["train.lr_scale.init_value"] = 1.0
+    rec["learner.runner.agent.learning_rate"] = init
+    return rec
 
 
 @struct.dataclass
@@ -132,7 +152,7 @@ def make_cva_program(cfg) -> Program:
 
     def step(carry, c):
         rp = lrn.runner_params(c.learner)
-        lr = schedule_value(c.train.lr_schedule, carry.chunk)
+        lr = rp.agent.learning_rate * schedule_value(c.train.lr_scale, carry.chunk)
         rp = rp.replace(agent=rp.agent.replace(learning_rate=lr))
         rs = carry.runner
         # at the first evaluation chunk every env restarts fresh (counters reset), Q kept

@@ -180,6 +180,9 @@ class Experiment:
         ``--sweep`` of one of its paths replaces it.
       renamed_params: ``{old path: current path}`` of parameters the experiment moved: run
         folders that recorded the old path are read under the current one.
+      migrate: ``recorded config -> config`` (``{path: value}`` dicts) for run folders
+        whose parameters changed meaning (a value conversion, not only a new path); applied
+        before ``renamed_params``.
       removed_params: ``{path: value}`` of parameters the experiment no longer has, with the
         value under which a run equals today's code (``None``: any value; a path ending in
         ``.`` covers every parameter under it). ``vbl report`` names a folder that recorded
@@ -207,6 +210,7 @@ class Experiment:
     presets: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     renamed_params: Mapping[str, str] = field(default_factory=dict)
     removed_params: Mapping[str, Any] = field(default_factory=dict)
+    migrate: Callable[[dict[str, Any]], dict[str, Any]] | None = None
 
     def removed_as_today(self, path: str, value: Any) -> bool:
         """Whether a run that recorded ``path = value`` (a parameter the config no longer

@@ -387,6 +387,8 @@ def _recorded_values(exp: Experiment, spec: dict[str, Any]) -> dict[str, Any]:
     current = config_to_dict(exp.default_config)
     legacy = config_to_dict_values(exp.legacy_values)
     recorded = dict(spec["config"])
+    if exp.migrate is not None:
+        recorded = exp.migrate(recorded)
     for old, new in exp.renamed_params.items():
         if old in recorded and new not in recorded:
             recorded[new] = recorded.pop(old)
@@ -513,7 +515,8 @@ def results_table(folders: list[str | Path], link_base: str | Path | None = None
         from vbl.engine.config import config_to_dict
 
         current = config_to_dict(exp.default_config)
-        removed = {k: v for k, v in spec["config"].items() if k not in current
+        recorded = exp.migrate(dict(spec["config"])) if exp.migrate else spec["config"]
+        removed = {k: v for k, v in recorded.items() if k not in current
                    and k not in exp.renamed_params and not exp.removed_as_today(k, v)}
         if removed:
             notes.append(f"{Path(folder).name} ran with options vbl no longer has ("
