@@ -24,6 +24,7 @@ from flax import struct
 
 from vbl.params import validate
 from vbl.sysid.cva import CVAFit, fit_batch, n_identifiable
+from vbl.sysid.lag_rule import select_lag as _select_lag
 from vbl.sysid.linalg import x64_scope
 from vbl.sysid.model import CVAModel
 from vbl.sysid.params import CVAParams
@@ -68,22 +69,11 @@ def n_cap_for(params: CVAParams, m: int, q: int) -> int:
 
 
 def select_lag(logdet: np.ndarray, aic: np.ndarray, stop: float) -> tuple[np.ndarray, ...]:
-    """Lag rule on per-lag results ``(B, L)`` (column j is l = j + 1, nan = not computed).
-
-    Returns ``(index of the chosen lag (B,), decided (B,))``.
-    """
-    b, nl = logdet.shape
-    chosen = np.full(b, nl - 1)
-    decided = np.zeros(b, bool)
-    for j in range(nl):
-        if np.isnan(logdet[:, j]).all():
-            break
-        hit = ~decided & (logdet[:, j] < stop)
-        chosen[hit], decided[hit] = j, True
-        if j > 0:
-            worse = ~decided & (aic[:, j] >= aic[:, j - 1])
-            chosen[worse], decided[worse] = j - 1, True
-    return chosen, decided
+    """:func:`vbl.sysid.lag_rule.select_lag` on per-lag results ``(B, L)`` (column j is
+    l = j + 1, nan = not computed): ``(index of the chosen lag (B,), decided (B,))``."""
+    with x64_scope():  # float64 comparisons, as the results are
+        j, d = _select_lag(jnp.asarray(logdet), jnp.asarray(aic), stop)
+    return np.asarray(j), np.asarray(d)
 
 
 def _pad_u(umat: np.ndarray, lag: int, h: int, m: int, q: int) -> np.ndarray:
