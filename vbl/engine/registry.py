@@ -61,11 +61,17 @@ def source_folder(name: str) -> Path:
 
 
 def experiment_dirs() -> list[Path]:
-    """Folders searched for experiment scripts: ``$VBL_EXPERIMENTS_DIR``, else the folder
-    of the installed package ``vbl.experiments``."""
+    """Folders searched for experiment scripts: ``$VBL_EXPERIMENTS_DIR``, else the
+    ``experiments/`` folder of the source tree that ``vbl`` was imported from (a checkout),
+    else the folder of the installed package ``vbl.experiments`` (``pip install .``)."""
     env = os.environ.get("VBL_EXPERIMENTS_DIR")
     if env:
         return [Path(p) for p in env.split(os.pathsep) if p]
+    import vbl
+
+    beside = Path(vbl.__file__).resolve().parents[1] / "experiments"
+    if (beside / "__init__.py").is_file():
+        return [beside]
     spec = importlib.util.find_spec("vbl.experiments")
     return [Path(p) for p in spec.submodule_search_locations]
 
