@@ -5,9 +5,8 @@ quantile cells backwards from the goal and refines the map's policy in closed lo
 the chunks train the grid baseline (:mod:`vbl.engine.baselines`) on the same env; ``final``
 evaluates both at start difficulty ``grid.train.eval_difficulty``
 (:mod:`vbl.engine.action_map_program`). The report draws Figure 5 with the grid lines over
-it (:mod:`vbl.engine.map_figures`). Presets give the README's variants.
-
-Run: ``vbl run fig5_action_based --quick`` or ``python experiments/fig5_action_based.py``.
+it (:mod:`vbl.engine.map_figures`). Presets give the README's variants. Run: ``vbl run
+fig5_action_based --quick`` or ``python experiments/fig5_action_based.py``.
 """
 
 from __future__ import annotations
@@ -43,10 +42,9 @@ class Fig5Config:
     collect: ExperienceParams = section(experience_default, doc="experience collection")
     cells: CellMapParams = section(CellMapParams, doc="cell construction")
     refine: RefineParams = section(RefineParams, doc="closed-loop refinement of the cell map "
-                                   "(an extension of the paper: refine.iterations=0 turns it "
-                                   "off)")
-    grid: MapGridParams = section(MapGridParams, doc="grid baseline (vbl.engine.baselines' "
-                                  "preset; its chunks are this run's chunks)")
+                                   "(a vbl extension; refine.iterations=0: off)")
+    grid: MapGridParams = section(MapGridParams, doc="grid baseline (vbl.engine.baselines; "
+                                  "trained in this run's chunks)")
     eval: MapEvalParams = section(MapEvalParams, doc="evaluation of the map")
 
 
@@ -54,14 +52,12 @@ def report(res) -> ReportSection:
     cfg, out = res.config, Path(res.out_dir)
     fin = {k: np.asarray(v)[0] for k, v in res.final.items()}
     figs = (plot_fig5(fin, cfg.cells, cfg.features, cfg.grid.grid, out),)
-    refined = "refined_policy" in fin
-    if refined:
+    if refined := "refined_policy" in fin:
         figs += (plot_refined(fin, cfg.cells, cfg.refine.units, cfg.features, cfg.grid.grid,
                               out),)
     ms = lambda k, f=".3f": seeds_cell(fin[k], fmt=f)  # noqa: E731
     mean = lambda k: mean_ci95(fin[k])[0]  # noqa: E731
-    yes = lambda ok: "yes" if ok else "**no**"  # noqa: E731
-    gt = cfg.grid.train
+    yes, gt = (lambda ok: "yes" if ok else "**no**"), cfg.grid.train
     md = [f"Greedy policies on fresh starts at start difficulty {gt.eval_difficulty} (the grid "
           f"baseline's task difficulty; 1 = fully random), {len(fin['map_success'])} seeds, "
           f"mean ± 95% CI; the map's policy on {cfg.eval.episodes} starts per seed.", "",
@@ -134,14 +130,10 @@ EXPERIMENT = register(Experiment(
     quick={"collect.episodes_per_action": 300, "collect.horizon": 60, "cells.start_window": 30,
            "eval.episodes": 64, "eval.grid_baseline": False,
            "refine.iterations": 8, "refine.episodes": 128, "refine.horizon": 100},
-    seeds=4,
-    quick_seeds=2,
-    paper_result=True,
-    cost=119.0,  # s of a cold --quick run on 2 shared cores (compile-dominated; load ~2-3)
+    seeds=4, quick_seeds=2, paper_result=True, cost=119.0,  # s, cold --quick (load ~2-3)
     paper={"figure": "5", "claim": "states differ from the programmer's grid; F/B labels"},
-    report=report,
+    report=report, paper_rows=paper_rows,
     renamed_metrics={"success_rate": "grid_eval_success"},
-    paper_rows=paper_rows,
     # the README's runs: the grid's curve after every chunk; and the construction alone
     presets={"every_chunk": {"grid.train.eval_every": 1},
              "construction_only": {"refine.iterations": 0, "grid.train.eval_every": 1}},
@@ -149,8 +141,7 @@ EXPERIMENT = register(Experiment(
     legacy_values={"refine.iterations": 0, "grid.train.eval_every": 1,
                    "grid.agent.agent.update": "q_learning", "grid.agent.agent.mc_log": 128,
                    "env.noise_on.pixel": False, "env.noise_on.slip": False},
-    # the ellipsoid construction (docs/findings/pruned_variants.md)
-    removed_params={"construction": "cells", "build.": None},
+    removed_params={"construction": "cells", "build.": None},  # the ellipsoid construction
 ))
 
 if __name__ == "__main__":

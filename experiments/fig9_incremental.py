@@ -8,24 +8,20 @@ the grid baseline at equal experience. ``vbl run fig9_incremental [--quick] [--p
 
 from __future__ import annotations
 
-import jax
-import jax.numpy as jnp
 from flax import struct
 
 from vbl.agents import segmentation_learner as sl
 from vbl.agents.qlearning import QRunnerParams
-from vbl.engine import Experiment, Program, register
+from vbl.engine import Experiment, register
 from vbl.engine import segmentation_figures as figs
-from vbl.engine.baselines import GridBaseline, grid_agent, grid_program, grid_space, grid_train
-from vbl.engine.nested import run_program
+from vbl.engine.baselines import grid_agent, grid_space, grid_train
 from vbl.engine.q_program import QTrainParams
-from vbl.envs.schedules import BallChangeParams, ball_radius_params
-from vbl.envs.shooting import ShootingEnv, ShootingParams
+from vbl.engine.segmentation_program import make_segmentation_program
+from vbl.envs.schedules import BallChangeParams
+from vbl.envs.shooting import ShootingParams
 from vbl.params import param, section
-from vbl.spaces.action_based import FeatureParams, sec2_features
+from vbl.spaces.action_based import FeatureParams
 from vbl.spaces.grid import GridParams
-
-F32, ENV = jnp.float32, ShootingEnv()
 
 
 @struct.dataclass
@@ -71,56 +67,6 @@ class Fig9Config:
     grid: Fig9Grid = section(Fig9Grid, doc="grid baseline at equal experience")
 
 
-def make_program(cfg: Fig9Config) -> Program:
-    n_tr, dim, tr = cfg.train.num_trials, cfg.features.dim, cfg.train
-    feat = lambda c: lambda o: sec2_features(o, c.features)  # noqa: E731
-    env_at = lambda c, t: ball_radius_params(c.env, t, c.change)  # noqa: E731
-    grid_cfg = lambda c, ep: GridBaseline(  # noqa: E731
-        env=ep, grid=c.grid.grid, agent=c.grid.agent, train=c.grid.train.replace(eval_curve=False))
-    gprog = grid_program(grid_cfg(cfg, cfg.env)) if tr.grid_baseline else None
-
-    def init(key, c):
-        zero = jnp.zeros((n_tr,), F32)
-        return sl.init_run(key, ENV, env_at(c, jnp.zeros((), jnp.int32)), c.learner, dim,
-                           ENV.num_actions), zero, zero
-
-    def step(carry, c):
-        run, ts, st = carry
-        t0 = run.trials
-        run, out = sl.run_updates(run, ENV, lambda t: env_at(c, t), c.learner, feat(c),
-                                  tr.updates_per_chunk)
-        ts, st = sl.per_trial(out, ts, st)
-        n_ep = (run.trials - t0).astype(F32)
-        return (run, ts, st), {k: jnp.asarray(v, F32) for k, v in dict(
-            episodes=n_ep,
-            train_success=jnp.sum(out["success"].astype(F32)) / jnp.maximum(n_ep, 1.0),
-            states=out["states"][-1], trials=run.trials, splits=run.lr.splits,
-            merges=run.lr.merges, value_splits=run.lr.value_splits).items()}
-
-    def final(carry, c, key):
-        (run, ts, st), lr = carry, carry[0].lr
-        ep = env_at(c, run.trials).replace(start_difficulty=jnp.asarray(
-            c.grid.train.eval_difficulty, F32))
-        k_eval, k_grid, k_gfin = jax.random.split(key, 3)
-        ok = sl.evaluate_policies(k_eval, lr, ENV, ep, c.learner, feat(c), tr.eval_episodes,
-                                  cfg.env.max_steps, c.train.steer_band if tr.steer_reference
-                                  else None)
-        out = {f"{k}_success": jnp.mean(v.astype(F32)) for k, v in ok.items()}
-        out.update({k: jnp.asarray(v, F32) for k, v in dict(
-            states=jnp.sum(lr.seg.active), splits=lr.splits, value_splits=lr.value_splits,
-            trials_done=run.trials, primitives_done=lr.clock, trial_success=ts,
-            trial_states=st, box_lo=lr.seg.lo, box_hi=lr.seg.hi, box_active=lr.seg.active,
-            box_action=jnp.argmax(lr.q, axis=-1)).items()})
-        if gprog is not None:        # the grid learner from scratch on the final ball
-            gfin, tot = run_program(gprog, grid_cfg(c, ep), k_grid, k_gfin, lambda m: {
-                "grid_trials": m["episodes"],
-                "grid_primitives": m["episodes"] * m["mean_primitives"]})
-            out.update(tot, grid_success=gfin["greedy_success"])
-        return out
-
-    return Program(init=init, step=step, num_chunks=tr.num_chunks, final=final)
-
-
 Q_LEARNING = {"learner.update": "q_learning", "learner.learning_rate": 0.25,
               "learner.temperature": 0.02}
 EARLIER = {**Q_LEARNING, "learner.value_split_gain": 0.0}          # model-error splits only
@@ -129,7 +75,7 @@ EXPERIMENT = register(Experiment(
     name="fig9_incremental",
     description="Figs 8-9: on-line incremental state segmentation, ball size changed twice",
     default_config=Fig9Config(),
-    make_program=make_program,
+    make_program=make_segmentation_program,
     # --quick: a smoke run (120 trials are too few to learn much; the windows shrink to fit)
     quick={"train.num_trials": 120, "change.change_trial_1": 40, "change.change_trial_2": 80,
            "train.num_chunks": 3, "train.updates_per_chunk": 60, "train.eval_episodes": 64,

@@ -132,19 +132,12 @@ EXPERIMENT = register(Experiment(
     description="Table 3 in simulation: identification with image noise, ball eccentricity "
                 "and tire slip, from the shooter and the passer, and the model-swap test",
     default_config=Table3Config(),
-    run=run,
-    quick={},
-    seeds=64,
-    quick_seeds=16,
+    run=run, seeds=64, quick_seeds=16,
     cost=70.0,  # s of a cold --quick run on 2 cores (compile-dominated)
     group="identification",  # Tables 1 and 3 share the collection and CVA programs
-    paper_result=True,
-    paper={"table3": TABLE3},
-    report=report,
-    paper_rows=paper_rows,
+    paper_result=True, paper={"table3": TABLE3}, report=report, paper_rows=paper_rows,
     # parameters added after run folders were written: the values of the code before them
-    legacy_values={"bodies.start_difficulty": 1.0,
-                   "bodies.noise_on.aim": True,
+    legacy_values={"bodies.start_difficulty": 1.0, "bodies.noise_on.aim": True,
                    **{f"bodies.noise_on.{n}": False for n in ("pixel", "slip", "wobble")}},
 ))
 
