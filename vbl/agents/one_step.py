@@ -25,13 +25,29 @@ import jax.numpy as jnp
 
 from vbl.params import ParamError
 
-__all__ = ["init_q", "q_update"]
+__all__ = ["init_q", "q_update", "transition_arrays"]
 
 
 def init_q(p: Any) -> jax.Array:
     """A fresh table (S, A) float32 filled with ``p.q_init`` (``p``: QLearningParams)."""
     return jnp.full((p.num_states, p.num_actions), jnp.asarray(p.q_init, jnp.float32),
                     jnp.float32)
+
+
+def transition_arrays(q, learning_rate, discount, s, a, s_next, weight, num_primitives):
+    """The update rules' common inputs as arrays: (q float32, learning rate, per-transition
+    discount ``discount ** num_primitives`` (or ``discount``), s, a, s_next int32, weight
+    (N,) float32 (1 where ``weight`` is None))."""
+    q = q.astype(jnp.float32)
+    lr = jnp.asarray(learning_rate, jnp.float32)
+    gamma = jnp.asarray(discount, jnp.float32)
+    s = jnp.asarray(s, jnp.int32)
+    a = jnp.asarray(a, jnp.int32)
+    s_next = jnp.asarray(s_next, jnp.int32)
+    w = (jnp.ones(s.shape, jnp.float32) if weight is None
+         else jnp.asarray(weight).astype(jnp.float32))
+    g = gamma if num_primitives is None else gamma ** jnp.asarray(num_primitives, jnp.float32)
+    return q, lr, g, s, a, s_next, w
 
 
 def q_update(q: jax.Array, s: jax.Array, a: jax.Array, r: jax.Array, s_next: jax.Array,
@@ -54,15 +70,8 @@ def q_update(q: jax.Array, s: jax.Array, a: jax.Array, r: jax.Array, s_next: jax
       (new table (S, A) float32, TD errors (N,) float32 (0 where weight is 0)).
     """
     n_states, n_actions = q.shape
-    q = q.astype(jnp.float32)
-    lr = jnp.asarray(learning_rate, jnp.float32)
-    gamma = jnp.asarray(discount, jnp.float32)
-    s = jnp.asarray(s, jnp.int32)
-    a = jnp.asarray(a, jnp.int32)
-    s_next = jnp.asarray(s_next, jnp.int32)
-    w = (jnp.ones(s.shape, jnp.float32) if weight is None
-         else jnp.asarray(weight).astype(jnp.float32))
-    g = gamma if num_primitives is None else gamma ** jnp.asarray(num_primitives, jnp.float32)
+    q, lr, g, s, a, s_next, w = transition_arrays(q, learning_rate, discount, s, a, s_next,
+                                                  weight, num_primitives)
     boot = jnp.where(jnp.asarray(terminal, bool), 0.0, g * jnp.max(q[s_next], axis=-1))
     target = jnp.asarray(r, jnp.float32) + boot
     delta = (target - q[s, a]) * w

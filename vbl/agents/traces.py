@@ -57,6 +57,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from vbl.agents.one_step import transition_arrays
 from vbl.params import ParamError, param
 
 __all__ = ["TRACE_KINDS", "TraceParams", "TraceState", "trace_init", "trace_update"]
@@ -144,17 +145,10 @@ def trace_update(q: jax.Array, tr: TraceState, s: jax.Array, a: jax.Array, r: ja
         raise ParamError("trace kind 'sarsa' needs a_boot (the next action)")
     _check_lambda(lam)
     n_states, n_actions = q.shape
-    q = q.astype(jnp.float32)
-    lr = jnp.asarray(learning_rate, jnp.float32)
-    gamma = jnp.asarray(discount, jnp.float32)
-    s = jnp.asarray(s, jnp.int32)
-    a = jnp.asarray(a, jnp.int32)
-    s_boot = jnp.asarray(s_boot, jnp.int32)
-    mask = (jnp.ones(s.shape, jnp.float32) if weight is None
-            else jnp.asarray(weight).astype(jnp.float32))
+    q, lr, g, s, a, s_boot, mask = transition_arrays(q, learning_rate, discount, s, a, s_boot,
+                                                     weight, num_primitives)
     if advance is not None:
         mask = mask * jnp.asarray(advance).astype(jnp.float32)
-    g = gamma if num_primitives is None else gamma ** jnp.asarray(num_primitives, jnp.float32)
     v_s = jnp.max(q[s], axis=-1)
     q_sa = q[s, a]
     if kind == "sarsa":
