@@ -148,8 +148,7 @@ def _run(experiment, args) -> int:
             raise ParamError(f"--sweep {path} is given twice; give all its values in one "
                              f"--sweep {path}=V1,V2,...")
         sweep[path] = values
-    preset = {k: v for k, v in experiment.preset(args.preset).items() if k not in sweep}
-    sets = {**preset, **sets}
+    sets = {**experiment.preset(args.preset, sweep), **sets}
     import jax
 
     primary = jax.process_index() == 0

@@ -220,9 +220,10 @@ class Experiment:
                 return v is None or v == value
         return False
 
-    def preset(self, name: str | None) -> dict[str, Any]:
-        """The ``{path: value}`` overrides of preset ``name`` ({} for None); an unknown name
-        is a ParamError that lists the valid ones."""
+    def preset(self, name: str | None, swept: Any = ()) -> dict[str, Any]:
+        """The ``{path: value}`` overrides of preset ``name`` ({} for None) but the paths in
+        ``swept`` (a sweep replaces a preset's value); an unknown name is a ParamError that
+        lists the valid ones."""
         from vbl.params import ParamError
 
         if name is None:
@@ -230,7 +231,7 @@ class Experiment:
         if name not in self.presets:
             valid = ", ".join(sorted(self.presets)) or "(none)"
             raise ParamError(f"unknown preset {name!r} for {self.name}; valid: {valid}")
-        return dict(self.presets[name])
+        return {k: v for k, v in self.presets[name].items() if k not in swept}
 
     def __post_init__(self) -> None:
         import re

@@ -13,7 +13,7 @@ import traceback
 from pathlib import Path
 from typing import Any
 
-from vbl.engine.config import EngineError
+from vbl.engine.config import EngineError, config_to_dict
 from vbl.engine.experiment import Experiment, ReportSection, RunResult
 from vbl.engine.registry import all_experiments, discover, import_errors
 from vbl.engine.runfolder import record_files
@@ -367,7 +367,7 @@ def load_run(folder: str | Path) -> tuple[Experiment, RunResult, dict[str, Any]]
 
 
 def _recorded_config(exp: Experiment, spec: dict[str, Any], folder: Path) -> Any:
-    from vbl.engine.config import apply_overrides, config_to_dict
+    from vbl.engine.config import apply_overrides
     from vbl.params import ParamError
 
     defaults = config_to_dict(exp.default_config)
@@ -379,19 +379,24 @@ def _recorded_config(exp: Experiment, spec: dict[str, Any], folder: Path) -> Any
         raise EngineError(f"{folder}: its config no longer validates: {e}") from e
 
 
-def _recorded_values(exp: Experiment, spec: dict[str, Any]) -> dict[str, Any]:
-    """The folder's parameter values that the experiment still has, with
-    :attr:`Experiment.legacy_values` for parameters it does not record."""
-    from vbl.engine.config import config_to_dict
-
-    current = config_to_dict(exp.default_config)
-    legacy = config_to_dict_values(exp.legacy_values)
+def _in_todays_terms(exp: Experiment, spec: dict[str, Any]) -> dict[str, Any]:
+    """The folder's recorded ``{path: value}`` after :attr:`Experiment.migrate` and
+    :attr:`Experiment.renamed_params` (paths the experiment no longer has stay)."""
     recorded = dict(spec["config"])
     if exp.migrate is not None:
         recorded = exp.migrate(recorded)
     for old, new in exp.renamed_params.items():
         if old in recorded and new not in recorded:
             recorded[new] = recorded.pop(old)
+    return recorded
+
+
+def _recorded_values(exp: Experiment, spec: dict[str, Any]) -> dict[str, Any]:
+    """The folder's parameter values that the experiment still has, with
+    :attr:`Experiment.legacy_values` for parameters it does not record."""
+    current = config_to_dict(exp.default_config)
+    legacy = config_to_dict_values(exp.legacy_values)
+    recorded = _in_todays_terms(exp, spec)
     rec = {k: v for k, v in recorded.items() if k in current}
     return {**{k: v for k, v in legacy.items() if k not in recorded}, **rec}
 
@@ -436,7 +441,7 @@ def run_command(exp: Experiment, spec: dict[str, Any]) -> tuple[str, list[str]]:
     Returns ``(command, unrecorded)``: the parameters the folder does not record (and
     :attr:`Experiment.legacy_values` does not give), for which the command takes today's
     default. The command is checked: resolving it gives the folder's recorded values."""
-    from vbl.engine.config import config_to_dict, parse_assignment, parse_sweep
+    from vbl.engine.config import parse_assignment, parse_sweep
     from vbl.engine.runner import resolve
 
     rec = _recorded_values(exp, spec)
@@ -470,7 +475,7 @@ def run_command(exp: Experiment, spec: dict[str, Any]) -> tuple[str, list[str]]:
         args += ["--set", t]
     # check: the command resolves to the folder's recorded values
     cfg = exp.default_config
-    sets = {k: v for k, v in exp.preset(preset).items() if k not in sweep}
+    sets = exp.preset(preset, sweep)
     sets.update(parse_assignment(t, cfg) for t in texts_set)
     sw = dict(parse_sweep(t, cfg) for t in texts_sweep)
     _, full_sweep, got_seeds, got = resolve(exp, sets, sw, seeds if "--seeds" in args else None,
@@ -512,11 +517,8 @@ def results_table(folders: list[str | Path], link_base: str | Path | None = None
         if unrecorded:
             notes.append(f"{Path(folder).name} does not record {', '.join(unrecorded)}: its "
                          f"command takes today's default for these.")
-        from vbl.engine.config import config_to_dict
-
         current = config_to_dict(exp.default_config)
-        recorded = exp.migrate(dict(spec["config"])) if exp.migrate else spec["config"]
-        removed = {k: v for k, v in recorded.items() if k not in current
+        removed = {k: v for k, v in _in_todays_terms(exp, spec).items() if k not in current
                    and k not in exp.renamed_params and not exp.removed_as_today(k, v)}
         if removed:
             notes.append(f"{Path(folder).name} ran with options vbl no longer has ("

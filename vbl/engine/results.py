@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from vbl.engine.config import EngineError
-from vbl.stats import mean_ci95, t_quantile_975  # noqa: F401  (experiments being moved to vbl.stats)
+from vbl.stats import mean_ci95
 
 __all__ = ["MetricsLog", "seed_stats", "read_metrics",
            "write_json", "read_json"]
