@@ -19,10 +19,11 @@ from flax import struct
 from vbl.engine import Experiment, ReportSection, register
 from vbl.engine.action_map_program import (
     MapEvalParams,
-    MapGridParams,
     experience_default,
+    grid_learner_default,
     make_action_map_program,
 )
+from vbl.engine.baselines import GridLearner
 from vbl.engine.experiment import PaperRow
 from vbl.engine.map_figures import plot_fig5, plot_refined
 from vbl.engine.report import seeds_cell
@@ -43,8 +44,7 @@ class Fig5Config:
     cells: CellMapParams = section(CellMapParams, doc="cell construction")
     refine: RefineParams = section(RefineParams, doc="closed-loop refinement of the cell map "
                                    "(a vbl extension; refine.iterations=0: off)")
-    grid: MapGridParams = section(MapGridParams, doc="grid baseline (vbl.engine.baselines; "
-                                  "trained in this run's chunks)")
+    grid: GridLearner = section(grid_learner_default, doc="grid baseline, trained in the chunks")
     eval: MapEvalParams = section(MapEvalParams, doc="evaluation of the map")
 
 

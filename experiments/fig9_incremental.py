@@ -11,17 +11,14 @@ from __future__ import annotations
 from flax import struct
 
 from vbl.agents import segmentation_learner as sl
-from vbl.agents.qlearning import QRunnerParams
 from vbl.engine import Experiment, register
 from vbl.engine import segmentation_figures as figs
-from vbl.engine.baselines import grid_agent, grid_space, grid_train
-from vbl.engine.q_program import QTrainParams
+from vbl.engine.baselines import GridLearner, grid_agent, grid_train
 from vbl.engine.segmentation_program import make_segmentation_program
 from vbl.envs.schedules import BallChangeParams
 from vbl.envs.shooting import ShootingParams
 from vbl.params import param, section
 from vbl.spaces.action_based import FeatureParams
-from vbl.spaces.grid import GridParams
 
 
 @struct.dataclass
@@ -42,16 +39,12 @@ class Fig9Train:
                               "the side where the ball left the image", unit="px", gt=0.0)
 
 
-@struct.dataclass
-class Fig9Grid:
+def _grid() -> GridLearner:
     """vbl.engine.baselines' grid learner on Figure 9's env and final ball, 1 robot x 390 chunks:
-    the on-line learner's experience (180,672 primitives per seed against its 180,000)."""
-
-    grid: GridParams = section(grid_space, doc="grid boundaries (319 states)")
-    agent: QRunnerParams = section(lambda: grid_agent().replace(num_envs=1), doc="Q-learning")
-    train: QTrainParams = section(lambda: grid_train().replace(
-        eval_difficulty=0.1, num_chunks=390, eval_every=1), doc="run length; eval_difficulty "
-        "is every evaluation's start difficulty (Figure 9's training one)")
+    the on-line learner's experience (180,672 primitives per seed against its 180,000);
+    evaluations at Figure 9's training start difficulty."""
+    return GridLearner(agent=grid_agent().replace(num_envs=1), train=grid_train().replace(
+        eval_difficulty=0.1, num_chunks=390, eval_every=1))
 
 
 @struct.dataclass
@@ -64,7 +57,7 @@ class Fig9Config:
         "Carlo values (docs/findings/fig9_incremental.md: 0.63 against 0.12 for q_learning)")
     change: BallChangeParams = section(BallChangeParams, doc="ball-size changes")
     train: Fig9Train = section(Fig9Train, doc="run length and evaluation")
-    grid: Fig9Grid = section(Fig9Grid, doc="grid baseline at equal experience")
+    grid: GridLearner = section(_grid, doc="grid baseline at equal experience")
 
 
 Q_LEARNING = {"learner.update": "q_learning", "learner.learning_rate": 0.25,

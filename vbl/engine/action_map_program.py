@@ -12,7 +12,8 @@ the grid's own final evaluation (greedy and random policy) at the same difficult
 A config for :func:`make_action_map_program` has the sections ``env``
 (:class:`~vbl.envs.shooting.ShootingParams`), ``features``, ``collect``
 (:class:`~vbl.spaces.action_based.ExperienceParams`), ``cells``, ``refine``, ``grid``
-(:class:`MapGridParams`) and ``eval`` (:class:`MapEvalParams`).
+(:class:`~vbl.engine.baselines.GridLearner`: :func:`grid_learner_default`) and ``eval``
+(:class:`MapEvalParams`).
 """
 
 from __future__ import annotations
@@ -23,13 +24,11 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from vbl.agents.qlearning import QRunnerParams
-from vbl.engine.baselines import GridBaseline, grid_agent, grid_program, grid_space, grid_train
+from vbl.engine.baselines import GridLearner, grid_program, grid_train
 from vbl.engine.experiment import Program
 from vbl.engine.map_figures import map_arrays
-from vbl.engine.q_program import QTrainParams
-from vbl.envs.shooting import ShootingEnv, ShootingParams
-from vbl.params import ParamError, param, section, validate
+from vbl.envs.shooting import ShootingEnv
+from vbl.params import ParamError, param, validate
 from vbl.spaces.action_based import (
     ExperienceParams,
     collect_experience,
@@ -50,9 +49,8 @@ from vbl.spaces.cell_refine import (
     refine_cell_map,
     refined_policy_action,
 )
-from vbl.spaces.grid import GridParams
 
-__all__ = ["ENV", "EVAL_DIFFICULTY", "experience_default", "MapGridParams", "MapEvalParams",
+__all__ = ["ENV", "EVAL_DIFFICULTY", "experience_default", "grid_learner_default", "MapEvalParams",
            "make_action_map_program"]
 
 F32 = jnp.float32
@@ -72,22 +70,10 @@ def experience_default() -> ExperienceParams:
     return ExperienceParams(difficulty_hi=0.3)
 
 
-def _grid_train() -> QTrainParams:
-    return grid_train().replace(eval_difficulty=EVAL_DIFFICULTY)
-
-
-@struct.dataclass
-class MapGridParams:
-    """The grid baseline of :mod:`vbl.engine.baselines` without its env section: it runs
-    on the map's env (``env``); its evaluation is pinned to ``EVAL_DIFFICULTY``."""
-
-    grid: GridParams = section(grid_space, doc="grid boundaries (the baseline preset's)")
-    agent: QRunnerParams = section(grid_agent, doc="Q-learning, macro actions, LEM (the "
-                                   "baseline preset's)")
-    train: QTrainParams = section(_grid_train, doc="run length and evaluation (the baseline "
-                                  "preset's, evaluation pinned to start difficulty 0.1); "
-                                  "train.eval_difficulty is the start difficulty of every "
-                                  "comparison")
+def grid_learner_default() -> GridLearner:
+    """The grid baseline preset on the map's env, its evaluation (the start difficulty of
+    every comparison, ``grid.train.eval_difficulty``) pinned to ``EVAL_DIFFICULTY``."""
+    return GridLearner(train=grid_train().replace(eval_difficulty=EVAL_DIFFICULTY))
 
 
 @struct.dataclass
@@ -97,10 +83,6 @@ class MapEvalParams:
     grid_baseline: bool = param(True, doc="train and evaluate the grid baseline in this run "
                                 "(off: one empty chunk, the map only; --quick, to keep its "
                                 "compile time short)", static=True)
-
-
-def _grid_config(env: ShootingParams, g: MapGridParams) -> GridBaseline:
-    return GridBaseline(env=env, grid=g.grid, agent=g.agent, train=g.train)
 
 
 @struct.dataclass
@@ -121,7 +103,7 @@ def make_action_map_program(cfg: Any) -> Program:
         raise ParamError(f"cells.categorical_dims={cat}: only the lost-side features are "
                          "categorical (2 with features.lost_sides, else 0)")
     check_cells(cfg.cells, cfg.features.dim, cfg.collect.horizon)
-    gprog = (grid_program(_grid_config(cfg.env, cfg.grid)) if cfg.eval.grid_baseline
+    gprog = (grid_program(cfg.grid.on(cfg.env)) if cfg.eval.grid_baseline
              else None)
     refine = cfg.refine.iterations > 0
     validate(cfg.refine, "refine.")
@@ -134,7 +116,7 @@ def make_action_map_program(cfg: Any) -> Program:
         smap = build_cell_map(exp, c.cells)
         refined = (refine_cell_map(ENV, c.env, k_ref, feat, smap, c.refine) if refine
                    else None)
-        grid = None if gprog is None else gprog.init(k_grid, _grid_config(c.env, c.grid))
+        grid = None if gprog is None else gprog.init(k_grid, c.grid.on(c.env))
         return Carry(smap=smap, grid=grid, refined=refined,
                      collect_primitives=jnp.sum(exp.valid[..., :-1]).astype(F32),
                      grid_primitives=jnp.zeros((), F32))
@@ -143,7 +125,7 @@ def make_action_map_program(cfg: Any) -> Program:
         states = num_cell_states(carry.smap).astype(F32)
         if gprog is None:
             return carry, {"map_states": states}
-        g, m = gprog.step(carry.grid, _grid_config(c.env, c.grid))
+        g, m = gprog.step(carry.grid, c.grid.on(c.env))
         prims = carry.grid_primitives + m["episodes"] * m["mean_primitives"]
         curve = "eval_success" if "eval_success" in m else "train_success"  # grid.train.eval_curve
         return carry.replace(grid=g, grid_primitives=prims.astype(F32)), {
@@ -176,7 +158,7 @@ def make_action_map_program(cfg: Any) -> Program:
                        refined_policy=rm.policy.astype(F32),
                        refined_transitions=rm.transitions.astype(F32))
         if gprog is not None:
-            g = gprog.final(carry.grid, _grid_config(c.env, c.grid), k_grid)
+            g = gprog.final(carry.grid, c.grid.on(c.env), k_grid)
             out.update(grid_success=g["greedy_success"], random_success=g["random_success"],
                        grid_primitives=carry.grid_primitives)
         return out

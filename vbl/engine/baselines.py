@@ -20,7 +20,7 @@ from vbl.envs.shooting import ShootingEnv, ShootingParams
 from vbl.params import section
 from vbl.spaces.grid import NUM_GRID_STATES, GridParams, grid_state
 
-__all__ = ["GridBaseline", "grid_program", "grid_env", "grid_space", "grid_agent",
+__all__ = ["GridBaseline", "GridLearner", "grid_program", "grid_env", "grid_space", "grid_agent",
            "grid_train", "TASK_DIFFICULTY"]
 
 TASK_DIFFICULTY = 1.0
@@ -129,6 +129,21 @@ class GridBaseline:
     grid: GridParams = section(grid_space, doc="grid boundaries (319 states)")
     agent: QRunnerParams = section(grid_agent, doc="Q-learning, macro actions, LEM")
     train: QTrainParams = section(grid_train, doc="run length and evaluation")
+
+
+@struct.dataclass
+class GridLearner:
+    """The grid baseline's learner sections without an env: an experiment that compares
+    with the grid on its own env holds these as one section (``grid.grid``, ``grid.agent``,
+    ``grid.train``) and runs :func:`grid_program` on :meth:`on` its env."""
+
+    grid: GridParams = section(grid_space, doc="grid boundaries (319 states)")
+    agent: QRunnerParams = section(grid_agent, doc="Q-learning, macro actions, LEM")
+    train: QTrainParams = section(grid_train, doc="run length and evaluation")
+
+    def on(self, env: ShootingParams) -> GridBaseline:
+        """The full baseline config on ``env``."""
+        return GridBaseline(env=env, grid=self.grid, agent=self.agent, train=self.train)
 
 
 def grid_program(cfg: Any):

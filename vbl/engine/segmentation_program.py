@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 
 from vbl.agents import segmentation_learner as sl
-from vbl.engine.baselines import GridBaseline, grid_program
+from vbl.engine.baselines import grid_program
 from vbl.engine.experiment import Program
 from vbl.engine.nested import run_program
 from vbl.envs.schedules import ball_radius_params
@@ -37,8 +37,8 @@ def make_segmentation_program(cfg) -> Program:
     n_tr, dim, tr = cfg.train.num_trials, cfg.features.dim, cfg.train
     feat = lambda c: lambda o: sec2_features(o, c.features)  # noqa: E731
     env_at = lambda c, t: ball_radius_params(c.env, t, c.change)  # noqa: E731
-    grid_cfg = lambda c, ep: GridBaseline(  # noqa: E731
-        env=ep, grid=c.grid.grid, agent=c.grid.agent, train=c.grid.train.replace(eval_curve=False))
+    grid_cfg = lambda c, ep: c.grid.replace(  # noqa: E731
+        train=c.grid.train.replace(eval_curve=False)).on(ep)
     gprog = grid_program(grid_cfg(cfg, cfg.env)) if tr.grid_baseline else None
 
     def init(key, c):
