@@ -67,3 +67,40 @@ def test_progress_shows_the_success_metric_by_its_name(capsys):
         p.close()
         err = capsys.readouterr().err
         assert shown in err and "episodes/s=20" in err
+
+
+def test_every_success_plot_keeps_its_bands_in_the_unit_interval(tmp_path, monkeypatch):
+    """The experiment figures (grid LEM curves, PPO curves) as well as the engine's own:
+    two seeds at 0 and 1 give a t interval of 0.5 +- 6.4, drawn clipped to [0, 1]."""
+    import types
+
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.axes
+
+    from vbl.engine import curves, ppo_report
+
+    drawn = []
+    real = matplotlib.axes.Axes.fill_between
+
+    def record(ax, x, lo, hi, *a, **k):
+        drawn.append(np.concatenate([np.ravel(lo), np.ravel(hi)]))
+        return real(ax, x, lo, hi, *a, **k)
+
+    monkeypatch.setattr(matplotlib.axes.Axes, "fill_between", record)
+    spread = np.tile([0.0, 1.0], (2, 3, 1))  # (points, chunks, seeds)
+    steps = np.cumsum(np.ones_like(spread), axis=1)
+    plot_curves({"success_rate": spread}, [{"a": 1}, {"a": 2}], tmp_path)
+    res = types.SimpleNamespace(
+        curves={"train_success": spread, "episodes": np.ones_like(spread)},
+        points=[{"a": 1}, {"a": 2}], final={}, seeds=2,
+        config=types.SimpleNamespace(train=types.SimpleNamespace(curve_epsilon=0.0)))
+    curves.plot_success_vs_trials(res, 0.5, tmp_path / "lem.png", "grid")
+    ppo = {"env_steps": steps, "success_rate": spread}
+    ppo_report.plot_success_vs_steps(ppo, ["a", "b"], tmp_path / "ppo.png", "ppo")
+    ppo_report.plot_two_robot_curves(ppo, [("shoot", "current", False), ("pass", "cva", True)],
+                                     tmp_path / "two.png", "two")
+    assert len(drawn) == 2 + 2 + 2 + 2
+    for bounds in drawn:
+        assert bounds.min() == 0.0 and bounds.max() == 1.0

@@ -10,9 +10,10 @@ import numpy as np
 from flax import struct
 
 from vbl.engine.experiment import RunResult
+from vbl.engine.plots import LINESTYLES, band
 from vbl.engine.q_program import curve_metric
 from vbl.params import ParamError, param
-from vbl.stats import first_crossing, mean_ci95
+from vbl.stats import first_crossing
 
 __all__ = ["CurveReportParams", "lem_label", "trials_to_levels", "lem_verdict",
            "plot_success_vs_trials", "curve_description"]
@@ -96,13 +97,15 @@ def plot_success_vs_trials(res: RunResult, level: float, path: Path, title: str)
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
-    s_all, e_all = res.curves[curve_metric(res.curves)], res.curves["episodes"]
+    metric = curve_metric(res.curves)
+    s_all, e_all = res.curves[metric], res.curves["episodes"]
     for p, values in enumerate(res.points):
-        m, h = mean_ci95(s_all[p], axis=1)
+        m, lo, hi = band(metric, s_all[p])
         x = np.cumsum(e_all[p].mean(axis=1))
-        (line,) = ax.plot(x, m, label=lem_label(values, res.config))
+        (line,) = ax.plot(x, m, label=lem_label(values, res.config),
+                        ls=LINESTYLES[p % len(LINESTYLES)])
         if s_all[p].shape[1] > 1:
-            ax.fill_between(x, m - h, m + h, color=line.get_color(), alpha=0.2, lw=0)
+            ax.fill_between(x, lo, hi, color=line.get_color(), alpha=0.2, lw=0)
     if "random_success" in res.final:
         ax.axhline(float(np.mean(res.final["random_success"])), color="k", ls=":",
                    label="random policy")

@@ -23,6 +23,7 @@ import numpy as np
 
 from vbl.agents.ppo_inputs import INPUTS
 from vbl.engine.experiment import ReportSection, RunResult
+from vbl.engine.plots import band
 from vbl.engine.report import seeds_cell
 from vbl.stats import mean_ci95, welch_ci95
 
@@ -195,10 +196,10 @@ def _axes(n: int):
 def _line(ax, steps: np.ndarray, sr: np.ndarray, **kw) -> None:
     """Mean over seeds of ``sr`` (chunks, seeds) against ``steps`` with its 95 % band."""
     x = steps.mean(axis=1)  # env steps at the end of each chunk
-    m, h = mean_ci95(sr, axis=1)
+    m, lo, hi = band("success_rate", sr)
     (line,) = ax.plot(x, m, **kw)
     if sr.shape[1] > 1:
-        ax.fill_between(x, m - h, m + h, color=line.get_color(), alpha=0.15, lw=0)
+        ax.fill_between(x, lo, hi, color=line.get_color(), alpha=0.15, lw=0)
 
 
 def _finish(plt, fig, axes, path: Path) -> Path:
