@@ -82,3 +82,17 @@ def test_vbl_ppo_on_shoot_and_pass_with_curriculum_drives_the_env():
                                                       (2, p.num_envs)))
         for k in ("success_rate", "level_success_rate", "loss", "entropy"):
             assert np.all(np.isfinite(m[k])), k
+
+
+def test_init_under_the_engines_64_bit_scope_warns_nothing():
+    """The engine runs programs with 64-bit types on; brax's network and statistics
+    initialisers then ask for float64, which JAX would report on every run."""
+    import warnings
+
+    p = PPOParams(net=PPONetParams(policy_hidden=(8,), value_hidden=(8,)), num_envs=8,
+                  unroll_length=10, batch_size=8, num_minibatches=2)
+    lrn, params = _two_robot_learner(p)
+    with jax.enable_x64(True), warnings.catch_warnings():
+        warnings.simplefilter("error")
+        jax.eval_shape(lambda k: lrn.init(k, jax.tree.map(lambda x: x[0], params), p),
+                       jax.random.PRNGKey(0))

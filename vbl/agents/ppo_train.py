@@ -185,10 +185,10 @@ def make_ppo_learner(make_env: Callable[[Any, jax.Array], Any], obs_size: int,
                        task_d)
         env, _ = train_env(env_params, d0)
         env_state = env.reset(jax.random.split(k_env, p.num_envs))
-        params = ppo_losses.PPONetworkParams(policy=nets.policy_network.init(k_pol),
-                                             value=nets.value_network.init(k_val))
-        with warnings.catch_warnings():  # brax asks float64 when x64 is on globally
+        with warnings.catch_warnings():  # brax's dummy inputs and statistics ask float64
             warnings.filterwarnings("ignore", "Explicitly requested dtype float64")
+            params = ppo_losses.PPONetworkParams(policy=nets.policy_network.init(k_pol),
+                                                 value=nets.value_network.init(k_val))
             normalizer = running_statistics.init_state(specs.Array((obs_size,), jnp.dtype(F32)))
         return PPOCarry(params, _optimizer(pp).init(params), normalizer, env_state, env_params,
                         d0, k_run, jnp.zeros((), F32))
