@@ -84,15 +84,27 @@ def test_vbl_ppo_on_shoot_and_pass_with_curriculum_drives_the_env():
             assert np.all(np.isfinite(m[k])), k
 
 
-def test_init_under_the_engines_64_bit_scope_warns_nothing():
-    """The engine runs programs with 64-bit types on; brax's network and statistics
-    initialisers then ask for float64, which JAX would report on every run."""
-    import warnings
 
-    p = PPOParams(net=PPONetParams(policy_hidden=(8,), value_hidden=(8,)), num_envs=8,
-                  unroll_length=10, batch_size=8, num_minibatches=2)
-    lrn, params = _two_robot_learner(p)
-    with jax.enable_x64(True), warnings.catch_warnings():
-        warnings.simplefilter("error")
-        jax.eval_shape(lambda k: lrn.init(k, jax.tree.map(lambda x: x[0], params), p),
-                       jax.random.PRNGKey(0))
+
+def test_init_under_the_engines_64_bit_scope_warns_nothing():
+    """The engine traces programs with 64-bit types on; brax's network and statistics
+    initialisers then ask for float64, which JAX reported on every run. A fresh process:
+    JAX caches dtype results, so a warning shows only the first time."""
+    import subprocess
+    import sys
+
+    code = """
+import jax
+from vbl.engine.config import stack_traced
+from vbl.engine.jax_setup import engine_precision
+from vbl.engine.ppo_program import make_shooting_program
+from vbl.engine.registry import get
+cfg = get("ppo_shooting").default_config
+with engine_precision():
+    prog = make_shooting_program(cfg)
+    c = jax.tree.map(lambda x: x[0], stack_traced([cfg]))
+    jax.eval_shape(lambda k: prog.init(k, c), jax.random.PRNGKey(0))
+"""
+    run = subprocess.run([sys.executable, "-W", "error::UserWarning", "-c", code],
+                         capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr[-2000:]
