@@ -13,8 +13,9 @@ import numpy as np
 import pytest
 from toy_worlds import LineWorld, assert_line_world_swap_map, line_world_collector
 
+from vbl.envs.rollout import rollout, stateless
 from vbl.params import ParamError
-from vbl.spaces.action_based import Experience, ExperienceParams, rollout_success
+from vbl.spaces.action_based import Experience, ExperienceParams
 from vbl.spaces.action_cells import (
     CellMapParams,
     build_cell_map,
@@ -64,8 +65,9 @@ def test_line_world_with_swap_gives_hand_derived_states(flipped):
 def test_policy_from_cell_map_reaches_goal(flipped):
     _, cm = flipped
     ep = ENV.default_params.replace(flip_below=0.5)
-    ok, n = jax.jit(lambda k: rollout_success(
-        ENV, ep, k, lambda o, _: cell_policy_action(cm, o), 256, 60))(jax.random.PRNGKey(5))
+    ok, n = jax.jit(lambda k: rollout(
+        ENV, ep, k, stateless(lambda o, _: cell_policy_action(cm, o)), 256, 60))(
+        jax.random.PRNGKey(5))
     # only a start inside the one cell that straddles p = 0.5 (width ~0.05) may fail
     assert float(ok.mean()) >= 0.95
 

@@ -80,11 +80,11 @@ def test_unit_next_to_the_goal_scores_in_one_decision(corrupted, refined):
 
 
 def test_policy_reaches_goal_from_everywhere(corrupted, refined):
-    from vbl.spaces.action_based import rollout_success
+    from vbl.envs.rollout import rollout, stateless
 
-    ok, _ = jax.jit(lambda k: rollout_success(
-        ENV, EP, k, lambda o, _: refined_policy_action(corrupted, refined, o), 256, 60))(
-        jax.random.PRNGKey(9))
+    ok, _ = jax.jit(lambda k: rollout(
+        ENV, EP, k, stateless(lambda o, _: refined_policy_action(corrupted, refined, o)),
+        256, 60))(jax.random.PRNGKey(9))
     assert float(ok.mean()) >= 0.95   # only starts in the cell straddling p = 0.5 may fail
 
 

@@ -16,16 +16,17 @@ from vbl.agents.segmentation_learner import (
     IncrementalParams,
     Option,
     greedy_action,
+    held_boltzmann_policy,
     init_learner,
     init_option,
     init_run,
     learner_step,
     log_decision,
     monte_carlo_update,
-    policy_success,
     run_updates,
     update_structure,
 )
+from vbl.envs.rollout import rollout
 from vbl.params import ParamError, validate
 from vbl.spaces.incremental import (
     Buffer,
@@ -462,7 +463,7 @@ def test_monte_carlo_learner_step_learns_at_the_trial_end():
     assert int(out.log.n) == 0
 
 
-def test_policy_success_follows_the_frozen_boltzmann_policy():
+def test_held_boltzmann_policy_follows_the_frozen_learner():
     """Box 0 (x0 < 0.5) prefers +x0; box 1 has +x0 and +x1 tied (gain +1 everywhere), so
     at a low temperature the robot, re-deciding every 5 held primitives, mixes the two and
     every start reaches the goal corner; with the preferences towards the walls (-x0, -x1)
@@ -471,8 +472,12 @@ def test_policy_success_follows_the_frozen_boltzmann_policy():
     p = p.replace(max_repeat=5)
     ep = ENV.default_params.replace(gain_right=1.0, max_steps=1000)
     good = lr.q.at[0, 0].set(1.0).at[1, 0].set(1.0).at[1, 2].set(1.0)
-    run = jax.jit(lambda q, t: policy_success(jax.random.PRNGKey(3), lr.replace(q=q), ENV, ep,
-                                              p, lambda o: o, 64, 1000, t))
+
+    @jax.jit
+    def run(q, t):
+        pol, held = held_boltzmann_policy(lr.replace(q=q), p, lambda o: o, t)
+        return rollout(ENV, ep, jax.random.PRNGKey(3), pol, 64, 1000, held)[0]
+
     assert float(run(good, 1e-3).mean()) == 1.0
     bad = lr.q.at[0, 1].set(1.0).at[1, 3].set(1.0)
     assert float(run(bad, 1e-3).mean()) == 0.0

@@ -49,7 +49,8 @@ def main(argv: list[str] | None = None) -> int:
     from vbl.engine.action_map_program import ENV as env
     from vbl.engine.jax_setup import engine_precision
     from vbl.engine.registry import get
-    from vbl.spaces.action_based import collect_experience, rollout_success, sec2_features
+    from vbl.envs.rollout import fresh_starts, rollout, stateless
+    from vbl.spaces.action_based import collect_experience, sec2_features
     from vbl.spaces.action_cells import build_cell_map, cell_policy_action, num_cell_states
     from vbl.spaces.cell_refine import refine_cell_map, refined_policy_action
 
@@ -73,8 +74,7 @@ def main(argv: list[str] | None = None) -> int:
             policies["same map, refined"] = (
                 lambda o, _: refined_policy_action(cm, rm, feat(o)))
 
-        keys = jax.random.split(k_eval, args.starts)
-        obs0 = np.asarray(jax.vmap(lambda k: env.reset(jax.random.split(k)[0], ep)[0])(keys))
+        obs0 = np.asarray(fresh_starts(env, ep, k_eval, args.starts)[0])
         kind = start_kind(obs0)
         names = ("ball left", "ball centred", "ball right", "ball lost left",
                  "ball lost right")
@@ -86,8 +86,8 @@ def main(argv: list[str] | None = None) -> int:
         counts = " | ".join(str(int((kind == i).sum())) for i in range(len(names)))
         print(f"| starts | {args.starts} | {counts} |")
         for name, pol in policies.items():
-            ok, _ = jax.jit(lambda k, pol=pol: rollout_success(
-                env, ep, k, pol, args.starts, int(c.env.max_steps)))(k_eval)
+            ok, _ = jax.jit(lambda k, pol=pol: rollout(
+                env, ep, k, stateless(pol), args.starts, int(c.env.max_steps)))(k_eval)
             ok = np.asarray(ok, float)
             cols = " | ".join(f"{ok[kind == i].mean():.2f}" if (kind == i).any() else "-"
                               for i in range(len(names)))

@@ -17,7 +17,7 @@ environments. One learner step is: select (:func:`_select`), act (:func:`_act_sy
 every env's whole action, :func:`_act_async` one primitive of every env's running
 action), truncation rule (:func:`_truncation`), update (the rule), bookkeeping and LEM
 (:func:`_record`). ``evaluate`` is the greedy policy through the same step without
-learning (:func:`vbl.agents.evaluation.first_episodes`).
+learning (:func:`vbl.envs.rollout.first_episodes`).
 """
 
 from __future__ import annotations
@@ -31,12 +31,12 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from vbl.agents.evaluation import first_episodes
 from vbl.agents.exploration import ExplorationParams, schedule_value, select_action
 from vbl.agents.lem import LEMParams, LEMState, lem_init, lem_update
 from vbl.agents.one_step import init_q, q_update
 from vbl.agents.traces import TraceParams
 from vbl.agents.updates import RULES, Transition, UpdateRule, make_rule
+from vbl.envs.rollout import first_episodes
 from vbl.params import ParamError, param, section, validate
 from vbl.spaces.macro_action import (
     MacroActionParams,
@@ -424,7 +424,7 @@ def _evaluate(sp: _Spec, key, q, params: QRunnerParams, env_params, num_steps: i
               epsilon: Any = 0.0):
     """Greedy policy from fresh starts (``env_params`` as given: set the env's start
     difficulty yourself) for at most ``num_steps`` learner steps (static); each env's first
-    finished episode counts (:func:`~vbl.agents.evaluation.first_episodes`). ``epsilon`` >
+    finished episode counts (:func:`~vbl.envs.rollout.first_episodes`). ``epsilon`` >
     0 (may be traced) evaluates the near-greedy policy instead: a uniform action with that
     probability (the standard remedy for a deterministic policy cycling between aliased
     states)."""

@@ -37,8 +37,8 @@ from vbl.agents.exploration import boltzmann_action
 from vbl.agents.monte_carlo import MCLog, log_append, mc_update
 from vbl.agents.qlearning import q_update
 from vbl.agents.steering import steer_action
+from vbl.envs.rollout import rollout, stateless
 from vbl.params import param
-from vbl.spaces.action_based import rollout_success
 from vbl.spaces.incremental import (
     Buffer,
     Segmentation,
@@ -65,7 +65,7 @@ __all__ = [
     "update_structure",
     "greedy_action",
     "learner_step",
-    "policy_success",
+    "held_boltzmann_policy",
     "evaluate_policies",
     "init_run",
     "run_updates",
@@ -238,35 +238,23 @@ def learner_step(key: jax.Array, lr: Learner, opt: Option, env: Any, env_state: 
     return lr, opt, env_state2, obs2, info
 
 
-def policy_success(key: jax.Array, lr: Learner, env: Any, env_params: Any,
-                   p: IncrementalParams, feature_fn: Callable[[jax.Array], jax.Array],
-                   num_episodes: int, max_steps: int, temperature: Any) -> jax.Array:
-    """The learner's own behaviour, frozen (no learning, no structure change): Boltzmann
-    selection at ``temperature`` whenever the box changes, an episode starts or
-    ``max_repeat`` primitives pass, the primitive held in between (as in training).
-    Returns success (num_episodes,) bool: the first episode from a fresh start scored
-    within ``max_steps`` primitives."""
-    def one(k):
-        k0, k1 = jax.random.split(k)
-        obs, st = env.reset(k0, env_params)
+def held_boltzmann_policy(lr: Learner, p: IncrementalParams,
+                          feature_fn: Callable[[jax.Array], jax.Array], temperature: Any
+                          ) -> tuple[Callable, tuple[jax.Array, jax.Array, jax.Array]]:
+    """The learner's own behaviour, frozen (no learning, no structure change), as a
+    :func:`vbl.envs.rollout.rollout` policy: Boltzmann selection at ``temperature`` whenever
+    the box changes, an episode starts or ``max_repeat`` primitives pass, the primitive held
+    in between (as in training). Returns (policy, its initial state (box -1, primitive 0,
+    held 0), each () int32)."""
+    def policy(obs, held, key):
+        s0, a, n = held
+        s = leaf_of(lr.seg, feature_fn(obs))
+        decide = (s != s0) | (n >= p.max_repeat)
+        a = jnp.where(decide, boltzmann_action(key, lr.q[s], temperature), a).astype(I32)
+        n = jnp.where(decide, 1, n + 1).astype(I32)
+        return a, (s, a, n)
 
-        def body(carry, kt):
-            obs, st, alive, ok, s0, a, n = carry
-            k_a, k_e = jax.random.split(kt)
-            s = leaf_of(lr.seg, feature_fn(obs))
-            decide = (s != s0) | (n >= p.max_repeat)
-            a = jnp.where(decide, boltzmann_action(k_a, lr.q[s], temperature), a).astype(I32)
-            n = jnp.where(decide, 1, n + 1).astype(I32)
-            obs2, st2, _, term, trunc, info = env.step(k_e, st, a, env_params)
-            ok = ok | (alive & info["success"])
-            return (obs2, st2, alive & ~(term | trunc), ok, s, a, n), None
-
-        init = (obs, st, jnp.ones((), bool), jnp.zeros((), bool), jnp.full((), -1, I32),
-                jnp.zeros((), I32), jnp.zeros((), I32))
-        (_, _, _, ok, _, _, _), _ = jax.lax.scan(body, init, jax.random.split(k1, max_steps))
-        return ok
-
-    return jax.vmap(one)(jax.random.split(key, num_episodes))
+    return policy, (jnp.full((), -1, I32), jnp.zeros((), I32), jnp.zeros((), I32))
 
 
 def evaluate_policies(key: jax.Array, lr: Learner, env: Any, env_params: Any,
@@ -275,11 +263,12 @@ def evaluate_policies(key: jax.Array, lr: Learner, env: Any, env_params: Any,
                       steer_band: Any = None) -> dict[str, jax.Array]:
     """Success (num_episodes,) bool of the frozen learner's policies on the same fresh
     starts (one ``key``): ``greedy`` (ties broken at random), ``boltzmann``
-    (:func:`policy_success` at ``p.temperature``), ``random`` (uniform primitives) and,
-    with ``steer_band`` (px), ``steer`` (:func:`vbl.agents.steering.steer_action`)."""
+    (:func:`held_boltzmann_policy` at ``p.temperature``), ``random`` (uniform primitives)
+    and, with ``steer_band`` (px), ``steer`` (:func:`vbl.agents.steering.steer_action`); the
+    first episode of each start counts (:func:`vbl.envs.rollout.rollout`)."""
     n_act = lr.q.shape[1]
 
-    def rollout(k, which):       # 0 greedy, 1 uniform random, 2 steering
+    def run(k, which):           # 0 greedy, 1 uniform random, 2 steering
         def pol(o, ka):
             kr, kg = jax.random.split(ka)
             r = jax.random.randint(kr, (), 0, n_act, I32)
@@ -287,12 +276,13 @@ def evaluate_policies(key: jax.Array, lr: Learner, env: Any, env_params: Any,
             steer = (r if steer_band is None
                      else steer_action(o, steer_band, env.action_labels))
             return jnp.select([which == 0, which == 1], [g, r], steer)
-        return rollout_success(env, env_params, k, pol, num_episodes, max_steps)[0]
+        return rollout(env, env_params, k, stateless(pol), num_episodes, max_steps)[0]
 
-    ok = jax.vmap(rollout, in_axes=(None, 0))(key, jnp.arange(2 if steer_band is None else 3))
+    ok = jax.vmap(run, in_axes=(None, 0))(key, jnp.arange(2 if steer_band is None else 3))
+    held, held0 = held_boltzmann_policy(lr, p, feature_fn, p.temperature)
     out = dict(greedy=ok[0],
-               boltzmann=policy_success(key, lr, env, env_params, p, feature_fn,
-                                        num_episodes, max_steps, p.temperature),
+               boltzmann=rollout(env, env_params, key, held, num_episodes, max_steps,
+                                 held0)[0],
                random=ok[1])
     if steer_band is not None:
         out["steer"] = ok[2]

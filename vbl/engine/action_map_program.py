@@ -27,12 +27,12 @@ from flax import struct
 from vbl.engine.baselines import GridLearner, grid_program, grid_train
 from vbl.engine.experiment import Program
 from vbl.engine.map_figures import map_arrays
+from vbl.envs.rollout import rollout, stateless
 from vbl.envs.shooting import ShootingEnv
 from vbl.params import ParamError, param, validate
 from vbl.spaces.action_based import (
     ExperienceParams,
     collect_experience,
-    rollout_success,
     sec2_features,
 )
 from vbl.spaces.action_cells import (
@@ -139,8 +139,8 @@ def make_action_map_program(cfg: Any) -> Program:
         sm = carry.smap
 
         def success(k, policy):
-            ok, _ = rollout_success(ENV, ep, k, lambda o, _: policy(feat(o)),
-                                    cfg.eval.episodes, cfg.env.max_steps)
+            ok, _ = rollout(ENV, ep, k, stateless(lambda o, _: policy(feat(o))),
+                            cfg.eval.episodes, cfg.env.max_steps)
             return jnp.mean(ok.astype(F32))
 
         out = {"map_success": success(k_map, lambda x: cell_policy_action(sm, x)),

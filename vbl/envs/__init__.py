@@ -1,4 +1,5 @@
-"""vbl.envs: tasks as gymnax-1.0-style functional environments, and a brax adapter.
+"""vbl.envs: tasks as gymnax-1.0-style functional environments, wrappers, a brax adapter,
+and the first-episode rollout and evaluation loops every learner uses (:mod:`vbl.envs.rollout`).
 
 Submodules are imported on use (``from vbl.envs.shooting import ShootingEnv``) so that
 ``import vbl.envs`` stays light.

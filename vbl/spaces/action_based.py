@@ -14,7 +14,8 @@ construction and its evaluation share:
   ends); start situations are the env's random starts, optionally with a per-episode
   start difficulty drawn uniformly in ``[difficulty_lo, difficulty_hi]``
   (:class:`ExperienceParams`). Returns an :class:`Experience`.
-* :func:`rollout_success`: a policy's success on fresh starts.
+
+A policy on these features is evaluated on fresh starts by :func:`vbl.envs.rollout.rollout`.
 """
 
 from __future__ import annotations
@@ -37,7 +38,6 @@ __all__ = [
     "pattern_of",
     "collect_experience",
     "reset_at_random_difficulty",
-    "rollout_success",
 ]
 
 F32 = jnp.float32
@@ -163,30 +163,3 @@ def collect_experience(env: Any, env_params: Any, key: jax.Array,
     x, valid, goal = jax.vmap(jax.vmap(episode))(keys, acts)
     return Experience(x=x, valid=valid, goal=goal)
 
-
-def rollout_success(env: Any, env_params: Any, key: jax.Array,
-                    policy: Callable[[jax.Array, jax.Array], jax.Array], num_episodes: int,
-                    max_steps: int) -> tuple[jax.Array, jax.Array]:
-    """Run ``num_episodes`` fresh episodes (parallel) with ``policy(obs, key) -> action``.
-
-    Returns (success (num_episodes,) bool: the first episode scored within max_steps,
-    length (num_episodes,) int32 steps taken).
-    """
-    def one(k):
-        k0, k1 = jax.random.split(k)
-        obs, st = env.reset(k0, env_params)
-
-        def body(carry, kt):
-            obs, st, alive, ok, n = carry
-            ka, ks = jax.random.split(kt)
-            a = policy(obs, ka)
-            obs2, st2, _, term, trunc, info = env.step(ks, st, a, env_params)
-            ok = ok | (alive & info["success"])
-            n = n + alive.astype(jnp.int32)
-            return (obs2, st2, alive & ~(term | trunc), ok, n), None
-
-        init = (obs, st, jnp.ones((), bool), jnp.zeros((), bool), jnp.zeros((), jnp.int32))
-        (_, _, _, ok, n), _ = jax.lax.scan(body, init, jax.random.split(k1, max_steps))
-        return ok, n
-
-    return jax.vmap(one)(jax.random.split(key, num_episodes))

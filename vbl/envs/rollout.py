@@ -1,0 +1,107 @@
+"""First-episode rollouts and evaluation: how every learner and experiment scores a policy.
+
+An evaluation counts, per env, only its **first** episode: whether it scored and how many
+steps it took. Two loops serve every caller:
+
+* :func:`rollout`: ``num_episodes`` fresh starts in parallel (``vmap``), each run for
+  ``max_steps`` steps (``lax.scan``) by ``policy(obs, policy_state, key) -> (action,
+  policy_state)``; the policy state (e.g. the action being held) starts at
+  ``policy_state`` in every episode. :func:`stateless` adapts ``policy(obs, key) ->
+  action``; :func:`fresh_starts` gives the starts the episodes begin from.
+* :func:`first_episodes`: a ``lax.while_loop`` over any batched, auto-resetting step
+  (e.g. a learner's own step with learning off) that stops once every env finished one
+  episode.
+
+Key stream of :func:`rollout` (callers' results depend on it): episode ``i`` takes
+``k = split(key, num_episodes)[i]``, ``k_reset, k_run = split(k)``; step ``t`` takes
+``k_t = split(k_run, max_steps)[t]``, ``k_policy, k_env = split(k_t)``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+__all__ = ["stateless", "fresh_starts", "rollout", "first_episodes"]
+
+Policy = Callable[[jax.Array, Any, jax.Array], tuple[jax.Array, Any]]
+
+
+def stateless(policy: Callable[[jax.Array, jax.Array], jax.Array]) -> Policy:
+    """``policy(obs, key) -> action`` as a :func:`rollout` policy with an empty state."""
+    return lambda obs, ps, key: (policy(obs, key), ps)
+
+
+def fresh_starts(env: Any, env_params: Any, key: jax.Array,
+                 num_episodes: int) -> tuple[jax.Array, Any]:
+    """The (obs (num_episodes, ...), state) the episodes of :func:`rollout` with the same
+    ``key`` start from."""
+    return jax.vmap(lambda k: env.reset(jax.random.split(k)[0], env_params))(
+        jax.random.split(key, num_episodes))
+
+
+def rollout(env: Any, env_params: Any, key: jax.Array, policy: Policy, num_episodes: int,
+            max_steps: int, policy_state: Any = ()) -> tuple[jax.Array, jax.Array]:
+    """Run ``num_episodes`` episodes from fresh starts (parallel) with ``policy``.
+
+    ``env`` follows the gymnax-style API (``reset``, auto-resetting ``step`` with
+    ``info["success"]``); steps after the first episode ended do not count.
+    Returns (success (num_episodes,) bool: the first episode scored within ``max_steps``,
+    length (num_episodes,) int32: its steps, ``max_steps`` if it did not end).
+    """
+    def one(k):
+        k0, k1 = jax.random.split(k)
+        obs, st = env.reset(k0, env_params)
+
+        def body(carry, kt):
+            obs, st, ps, alive, ok, n = carry
+            ka, ks = jax.random.split(kt)
+            a, ps = policy(obs, ps, ka)
+            obs2, st2, _, term, trunc, info = env.step(ks, st, a, env_params)
+            ok = ok | (alive & info["success"])
+            n = n + alive.astype(jnp.int32)
+            return (obs2, st2, ps, alive & ~(term | trunc), ok, n), None
+
+        init = (obs, st, policy_state, jnp.ones((), bool), jnp.zeros((), bool),
+                jnp.zeros((), jnp.int32))
+        (*_, ok, n), _ = jax.lax.scan(body, init, jax.random.split(k1, max_steps))
+        return ok, n
+
+    return jax.vmap(one)(jax.random.split(key, num_episodes))
+
+
+def first_episodes(step: Callable, carry: Any, num_envs: int,
+                   num_steps: int) -> dict[str, jax.Array]:
+    """Evaluate ``step(carry) -> (carry, done, success, length)`` (each (E,): the episode
+    ended at this step, it scored, its length so far incl. this step) from ``carry`` until
+    each of the E = ``num_envs`` envs finished one episode or ``num_steps`` steps passed.
+
+    Returns scalars: ``success_rate`` (fraction of the E envs whose first episode scored;
+    an env that finished none counts as a failure), ``finished`` (fraction that finished
+    one) and ``mean_primitives`` (mean length of the finished first episodes, 0 if none).
+    """
+    first = dict(finished=jnp.zeros((num_envs,), bool), success=jnp.zeros((num_envs,), bool),
+                 primitives=jnp.zeros((num_envs,), jnp.int32))
+
+    def body(state):
+        i, c, f = state
+        c, done, success, length = step(c)
+        new_first = done & ~f["finished"]
+        f = dict(finished=f["finished"] | done,
+                 success=jnp.where(new_first, success, f["success"]),
+                 primitives=jnp.where(new_first, length, f["primitives"]))
+        return i + 1, c, f
+
+    def cond(state):
+        i, _, f = state
+        return (i < num_steps) & ~jnp.all(f["finished"])
+
+    _, _, f = jax.lax.while_loop(cond, body, (jnp.int32(0), carry, first))
+    fin = f["finished"].astype(jnp.float32)
+    n_fin = jnp.sum(fin)
+    return dict(success_rate=jnp.sum(f["success"].astype(jnp.float32)) / num_envs,
+                finished=n_fin / num_envs,
+                mean_primitives=jnp.sum(f["primitives"] * fin) / jnp.maximum(n_fin, 1.0))
