@@ -20,10 +20,11 @@ EPISODES, MAX_STEPS, HOLD = 16, 30, 3
 
 
 def _random_or_forward(obs, key):
-    """F, but a uniform primitive with probability 0.4."""
+    """F (B below p = 0.15), but a uniform primitive with probability 0.4."""
     k_coin, k_a = jax.random.split(key)
     rand = jax.random.randint(k_a, (), 0, 2, jnp.int32)
-    return jnp.where(jax.random.bernoulli(k_coin, 0.4), rand, 0).astype(jnp.int32)
+    own = jnp.where(obs[0] < 0.15, 1, 0)
+    return jnp.where(jax.random.bernoulli(k_coin, 0.4), rand, own).astype(jnp.int32)
 
 
 def _hold(obs, held, key):
@@ -38,11 +39,14 @@ def _hold(obs, held, key):
 HOLD_INIT = (jnp.zeros((), jnp.int32), jnp.full((), HOLD, jnp.int32))
 
 
+_draw = jax.jit(lambda key: jax.random.randint(key, (), 0, 2, jnp.int32))
+
+
 def _hold_np(obs, held, key):
     """:func:`_hold` in plain Python ints."""
     a, n = held
     if n >= HOLD:
-        a, n = int(jax.random.randint(key, (), 0, 2, jnp.int32)), 0
+        a, n = int(_draw(key)), 0
     return a, (a, n + 1)
 
 
@@ -76,7 +80,8 @@ def test_rollout_matches_a_numpy_loop(kind, env_limit):
     key = jax.random.PRNGKey(11)
     if kind == "stateless":
         policy, state0 = stateless(_random_or_forward), ()
-        decide_np = lambda o, s, k: (int(_random_or_forward(o, k)), s)  # noqa: E731
+        act = jax.jit(_random_or_forward)
+        decide_np = lambda o, s, k: (int(act(o, k)), s)  # noqa: E731
     else:
         policy, state0, decide_np = _hold, HOLD_INIT, _hold_np
     ok, length = jax.jit(lambda k: rollout(ENV, params, k, policy, EPISODES, MAX_STEPS,
