@@ -2,12 +2,14 @@
 
 A learner moves with random (view-keeping) actions while it observes (a) the goal,
 (b) a rolling ball (kicked now and then by a third party), (c) another robot doing a
-random walk, (d) another robot that moves to the ball (``vbl.envs.collect``). Every row
-collects ``seeds`` data sets in one compiled computation and identifies them all at once
-with the batched CVA + AIC + lag rule of ``vbl.sysid.identify`` (outputs in units of
-``y_unit`` px, areas as sqrt(area), see ``docs/two_robot_task.md``). The table gives
-l, n, log det R and AIC, mean +- std over seeds, beside the paper's Table 1, and checks
-the qualitative claims.
+random walk, (d) another robot that moves to the ball (``vbl.envs.collect``). Each learner
+(one seed) collects one data set per row and identifies it with the CVA + AIC + lag rule of
+``vbl.sysid.identify`` inside its program (:mod:`vbl.engine.identification`; outputs in
+units of ``y_unit`` px, areas as sqrt(area), see ``docs/two_robot_task.md``); the engine
+vmaps the learners over seeds and sweep points. The report gives l, n, log det R and AIC,
+mean +- std over seeds, beside the paper's Table 1, and checks the qualitative claims.
+The paper's plain CVA recipe beside the projected one: ``--sweep
+ident.method=projected,paper``.
 
 Run: ``vbl run table1_identification [--quick]`` or
 ``python experiments/table1_identification.py``.
@@ -15,25 +17,26 @@ Run: ``vbl run table1_identification [--quick]`` or
 
 from __future__ import annotations
 
-import jax
 from flax import struct
 
-from vbl.engine import Experiment, RunContext, RunResult, register
+from vbl.engine import Experiment, RunResult, register
 from vbl.engine.experiment import PaperRow
 from vbl.engine.identification import (
     OBJECT,
     TABLE1_ROWS,
     RowSetup,
+    check_scenarios,
     claims_markdown,
-    drop_per_seed,
     identification_cells,
-    identify_rows,
-    report,
+    identification_program,
+    point_report,
     row_markdown,
+    row_stats,
+    slug,
     table1_scenarios,
 )
 from vbl.engine.paper import TABLE1
-from vbl.envs.collect import CollectParams, collect_many
+from vbl.envs.collect import CollectParams
 from vbl.params import param, section
 from vbl.sysid.params import CVAParams
 
@@ -49,8 +52,17 @@ class Table1Config:
                                    "the lag rule would always stop at l = 1)")
     y_unit: float = param(4.0, doc="unit of the identification outputs: log det R < 0 "
                           "means a geometric-mean residual below y_unit px", unit="px", gt=0.0)
-    paper_method_too: bool = param(False, doc="also identify with the paper's plain recipe "
-                                   "(method='paper') and report it", static=True)
+
+    def check(self) -> None:
+        check_scenarios(scenarios(self), {slug(k): v for k, v in OBJECT.items()}, self.ident)
+
+
+def scenarios(c: Table1Config) -> dict[str, CollectParams]:
+    return {slug(k): v for k, v in table1_scenarios(c.collect, c.rows).items()}
+
+
+def make_program(cfg: Table1Config):
+    return identification_program(cfg, scenarios, {slug(k): v for k, v in OBJECT.items()})
 
 
 def checks(t: dict) -> dict:
@@ -67,63 +79,42 @@ def checks(t: dict) -> dict:
     }
 
 
-def markdown(tables: dict, seeds: int, cfg: Table1Config) -> str:
-    lines = [f"Table 1: l, n, log det R, AIC (mean +- std over {seeds} data sets of "
-             f"N = {cfg.collect.num_steps}; l and n also as the mode; outputs in "
-             f"{cfg.y_unit:g} px units)", ""]
-    for method, t in tables.items():
-        lines += [f"**method = {method}**", "",
-                  "| agent | l (ours) | n (ours) | log det R (ours) | AIC (ours) | "
-                  "l / n / log det R / AIC (paper) |", "|---|---|---|---|---|---|"]
-        lines += [row_markdown([k], t[k], TABLE1[k], mode=True) for k in TABLE1_ROWS]
-        lines += claims_markdown(checks(t))
-        lines.append("")
-    return "\n".join(lines)
-
-
-def run(ctx: RunContext) -> dict:
-    cfg: Table1Config = ctx.config
-    sc = table1_scenarios(cfg.collect, cfg.rows)
-    datas = collect_many(jax.random.PRNGKey(ctx.base_seed), list(sc.values()), ctx.seeds)
-    data = dict(zip(sc, datas, strict=True))
-    methods = ["projected", "paper"] if cfg.paper_method_too else [cfg.ident.method]
-    tables = {m: identify_rows(data, OBJECT, cfg.ident.replace(method=m), cfg.y_unit)
-              for m in methods}
-    md = markdown(tables, ctx.seeds, cfg)
-    (ctx.out_dir / "table1.md").write_text(md + "\n")
-    if not ctx.quiet:
-        print(md)
-    for i, (m, t) in enumerate(tables.items()):
-        ctx.log(i, {f"{m}/{k}/{q}": t[k][q]["mean"] for k in TABLE1_ROWS
-                    for q in ("l", "n", "logdet_R", "aic")})
-    tables = {m: {k: drop_per_seed(s) for k, s in t.items()} for m, t in tables.items()}
-    return {"tables": tables, "checks": {m: checks(t) for m, t in tables.items()},
-            "markdown": md}
+def table(res: RunResult, i: int) -> str:
+    t = {k: row_stats(res.final, i, k) for k in TABLE1_ROWS}
+    cfg = res.config
+    lines = [f"Table 1: l, n, log det R, AIC (mean +- std over {res.seeds} seeds, one data "
+             f"set of N = {cfg.collect.num_steps} per row and seed; l and n also as the mode; "
+             f"outputs in {cfg.y_unit:g} px units)", "",
+             "| agent | l (ours) | n (ours) | log det R (ours) | AIC (ours) | "
+             "l / n / log det R / AIC (paper) |", "|---|---|---|---|---|---|"]
+    lines += [row_markdown([k], t[k], TABLE1[k], mode=True) for k in TABLE1_ROWS]
+    return "\n".join(lines + claims_markdown(checks(t)))
 
 
 def paper_rows(res: RunResult) -> list[PaperRow]:
-    t = (res.extra or res.summary.get("result", {}))["tables"]
-    t = t.get("projected", next(iter(t.values())))
-    return [PaperRow(f"Table 1, {k}: l / n / log det R / AIC",
-                     " / ".join(str(x) for x in TABLE1[k]), identification_cells(t[k], res.seeds))
-            for k in TABLE1_ROWS]
+    return [PaperRow(f"Table 1, {k}: l / n / log det R / AIC" + (
+                f" ({', '.join(f'{p}={v}' for p, v in pt.items())})" if pt else ""),
+                     " / ".join(str(x) for x in TABLE1[k]), identification_cells(res.final, i, k))
+            for i, pt in enumerate(res.points) for k in TABLE1_ROWS]
 
 
 EXPERIMENT = register(Experiment(
     name="table1_identification",
     description="Table 1: CVA/AIC/lag-rule identification of goal, ball, random walker, "
-                "move-to-ball robot (many seeds at once)",
+                "move-to-ball robot (one data set per row and seed)",
     default_config=Table1Config(),
-    run=run,
+    make_program=make_program,
     quick={},
     seeds=64,
     quick_seeds=16,
-    cost=70.0,  # s of a cold --quick run on 2 cores (compile-dominated)
-    group="identification",  # Tables 1 and 3 share the collection and CVA programs
+    cost=160.0,  # CPU-s of a cold --quick run (compile-dominated)
     paper_result=True,
     paper={"table1": TABLE1},
-    report=report,
+    report=point_report(table),
     paper_rows=paper_rows,
+    headline=tuple(f"l_{slug(k)}" for k in TABLE1_ROWS),
+    # the paper's plain recipe is a sweep point now: --sweep ident.method=projected,paper
+    removed_params={"paper_method_too": False},
 ))
 
 if __name__ == "__main__":

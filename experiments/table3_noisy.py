@@ -6,39 +6,49 @@ is tilted -20 deg instead of -26 deg, its motor is slower and its steering angle
 Each observer collects data as in Table 1 while the other robot moves to the ball, with
 image noise, ball-centroid eccentricity and tire slip on (``vbl.envs.noise.NOISE_ON``); the
 same scenarios without noise from the shooter are the reference
-(:func:`vbl.engine.identification.table3_scenarios`). Model swap: each observer's ball
-model predicts its own and the other's held-out data
-(:func:`vbl.engine.identification.swap_test`).
+(:func:`vbl.engine.identification.table3_scenarios`). Each learner (one seed) collects one
+data set per row and identifies it in its program (:mod:`vbl.engine.identification`).
+Model swap: each learner also collects a held-out ball data set per observer; each
+observer's ball model (identified on its row's data set) predicts both held-out sets.
 
 Run: ``vbl run table3_noisy [--quick]`` or ``python experiments/table3_noisy.py``.
 """
 
 from __future__ import annotations
 
-import jax
 from flax import struct
 
-from vbl.engine import Experiment, RunContext, RunResult, register
+from vbl.engine import Experiment, RunResult, register
 from vbl.engine.experiment import PaperRow
 from vbl.engine.identification import (
     RowSetup,
+    check_scenarios,
     claims_markdown,
-    drop_per_seed,
     identification_cells,
-    identify_rows,
-    report,
+    identification_program,
+    point_report,
     row_markdown,
+    row_stats,
     swap_markdown,
-    swap_test,
     table3_scenarios,
 )
 from vbl.engine.paper import TABLE3
-from vbl.engine.report import stat_cell
-from vbl.envs.collect import CollectParams, collect_many
+from vbl.engine.report import seeds_cell
+from vbl.envs.collect import CollectParams
 from vbl.envs.noise import NOISE_ON, NoiseParams
 from vbl.envs.shoot_pass import ShootPassParams
 from vbl.params import param, section
 from vbl.sysid.params import CVAParams
+
+ROWS = {"shooter_ball": ("from the shooter", "ball"), "shooter_goal": ("from the shooter", "goal"),
+        "shooter_other": ("from the shooter", "passer"),
+        "passer_ball": ("from the passer", "ball"), "passer_other": ("from the passer", "shooter"),
+        "noise_free_goal": ("noise-free (shooter)", "goal"),
+        "noise_free_ball": ("noise-free (shooter)", "ball"),
+        "noise_free_other": ("noise-free (shooter)", "move-to-ball robot")}
+OBJECTS = {k: k.rsplit("_", 1)[1] for k in ROWS}
+SWAP = {"shooter": ("shooter_ball", "shooter_ball_test"),
+        "passer": ("passer_ball", "passer_ball_test")}
 
 
 @struct.dataclass
@@ -53,77 +63,63 @@ class Table3Config:
                                doc="CVA/AIC/lag rule (as Table 1)")
     y_unit: float = param(4.0, doc="unit of the identification outputs", unit="px", gt=0.0)
 
-
-def checks(t: dict, swap: dict) -> dict:
-    ld = swap
-    return {
-        "l grows for the ball vs noise-free": bool(
-            t[("shooter", "ball")]["l"]["mean"] > t[("noise-free", "ball")]["l"]["mean"]
-            and t[("passer", "ball")]["l"]["mean"] > t[("noise-free", "ball")]["l"]["mean"]),
-        "l grows for the other robot vs noise-free": bool(
-            t[("shooter", "other")]["l"]["mean"] > t[("noise-free", "other")]["l"]["mean"]
-            and t[("passer", "other")]["l"]["mean"] > t[("noise-free", "other")]["l"]["mean"]),
-        "swapping the ball models raises both prediction errors": bool(
-            ld["shooter data, passer model"]["mean"] > ld["shooter data, shooter model"]["mean"]
-            and ld["passer data, shooter model"]["mean"]
-            > ld["passer data, passer model"]["mean"]),
-    }
+    def check(self) -> None:
+        check_scenarios(scenarios(self), OBJECTS, self.ident)
 
 
-NAMES = {("shooter", "ball"): ("from the shooter", "ball"),
-         ("shooter", "goal"): ("from the shooter", "goal"),
-         ("shooter", "other"): ("from the shooter", "passer"),
-         ("passer", "ball"): ("from the passer", "ball"),
-         ("passer", "other"): ("from the passer", "shooter")}
+def scenarios(c: Table3Config) -> dict[str, CollectParams]:
+    """The rows, then each observer's held-out ball data set (its row's scenario again)."""
+    sc = table3_scenarios(c.collect, c.rows, c.bodies, c.noise)
+    return sc | {test: sc[train] for train, test in SWAP.values()}
 
 
-def markdown(t: dict, swap: dict, seeds: int, cfg: Table3Config) -> str:
+def make_program(cfg: Table3Config):
+    return identification_program(cfg, scenarios, OBJECTS, SWAP)
+
+
+def checks(t: dict, sw: dict) -> dict:
+    def grows(obj):
+        return bool(t[f"shooter_{obj}"]["l"]["mean"] > t[f"noise_free_{obj}"]["l"]["mean"]
+                    and t[f"passer_{obj}"]["l"]["mean"] > t[f"noise_free_{obj}"]["l"]["mean"])
+
+    return {"l grows for the ball vs noise-free": grows("ball"),
+            "l grows for the other robot vs noise-free": grows("other"),
+            "swapping the ball models raises both prediction errors": bool(
+                sw["shooter", "passer"] > sw["shooter", "shooter"]
+                and sw["passer", "shooter"] > sw["passer", "passer"])}
+
+
+def table(res: RunResult, i: int) -> str:
+    cfg, f = res.config, res.final
+    t = {k: row_stats(f, i, k) for k in ROWS}
+    sw = {(a, b): f[f"swap_{a}_data_{b}_model"][i].mean() for a in SWAP for b in SWAP}
     lines = [f"Table 3 (simulation, noise model on: image {cfg.noise.image_std:g} px, centroid "
              f"eccentricity {cfg.noise.ecc_centroid:g}, rolling wobble "
              f"{cfg.noise.ecc_turn_std:g} rad, tire slip {cfg.noise.slip_std:g}); mean +- std "
-             f"over {seeds} data sets of N = {cfg.collect.num_steps}, outputs in "
-             f"{cfg.y_unit:g} px units", "",
+             f"over {res.seeds} seeds (one data set of N = {cfg.collect.num_steps} per row and "
+             f"seed), outputs in {cfg.y_unit:g} px units", "",
              "| view | object | l (ours) | n (ours) | log det R (ours) | AIC (ours) | "
              "l / n / log det R / AIC (paper, real robots) |", "|---|---|---|---|---|---|---|"]
-
-    for key, (view, obj) in NAMES.items():
-        lines.append(row_markdown([view, obj], t[key], TABLE3[view][obj]))
-    for k, obj in (("goal", "goal"), ("ball", "ball"), ("other", "move-to-ball robot")):
-        lines.append(row_markdown(["noise-free (shooter)", obj], t[("noise-free", k)], None))
-    lines += swap_markdown(swap) + claims_markdown(checks(t, swap))
-    return "\n".join(lines) + "\n"
-
-
-def run(ctx: RunContext) -> dict:
-    cfg: Table3Config = ctx.config
-    sc = table3_scenarios(cfg.collect, cfg.rows, cfg.bodies, cfg.noise)
-    datas = dict(zip(sc, collect_many(jax.random.PRNGKey(ctx.base_seed), list(sc.values()),
-                                      ctx.seeds), strict=True))
-    t = identify_rows(datas, {k: k[1] for k in datas}, cfg.ident, cfg.y_unit)
-    swap = swap_test(datas[("shooter", "ball")], datas[("passer", "ball")],
-                     ("shooter", "passer"), cfg.ident, cfg.y_unit)
-    md = markdown(t, swap, ctx.seeds, cfg)
-    (ctx.out_dir / "table3.md").write_text(md)
-    if not ctx.quiet:
-        print(md)
-    return {"tables": {f"{a}/{b}": drop_per_seed(s) for (a, b), s in t.items()}, "swap": swap,
-            "checks": checks(t, swap), "markdown": md}
+    for key, (view, obj) in ROWS.items():
+        lines.append(row_markdown([view, obj], t[key], TABLE3.get(view, {}).get(obj)))
+    lines += swap_markdown(f, i, tuple(SWAP)) + claims_markdown(checks(t, sw))
+    return "\n".join(lines)
 
 
 def paper_rows(res: RunResult) -> list[PaperRow]:
-    r = res.extra or res.summary.get("result", {})
-    t, swap = r["tables"], r["swap"]
-    rows = [PaperRow(f"Table 3, {view}, {obj}: l / n / log det R / AIC",
-                     " / ".join(str(x) for x in TABLE3[view][obj]),
-                     identification_cells(t[f"{a}/{b}"], res.seeds))
-            for (a, b), (view, obj) in NAMES.items()]
-    half = res.seeds // 2  # the swap test predicts the held-out half of the data sets
-    for data, other in (("shooter", "passer"), ("passer", "shooter")):
-        own, swapped = swap[f"{data} data, {data} model"], swap[f"{data} data, {other} model"]
-        rows.append(PaperRow(f"Table 3, {data}'s ball data: log det, own / {other}'s model",
-                             "swapped: large errors (no number)",
-                             f"{stat_cell(own, fmt='.2f', n=half)} / "
-                             f"{stat_cell(swapped, fmt='.2f', n=half)}"))
+    rows = []
+    for i, pt in enumerate(res.points):
+        at = f" ({', '.join(f'{p}={v}' for p, v in pt.items())})" if pt else ""
+        rows += [PaperRow(f"Table 3, {view}, {obj}: l / n / log det R / AIC{at}",
+                          " / ".join(str(x) for x in TABLE3[view][obj]),
+                          identification_cells(res.final, i, key))
+                 for key, (view, obj) in ROWS.items() if view in TABLE3]
+        for data, other in (("shooter", "passer"), ("passer", "shooter")):
+            own, swapped = (res.final[f"swap_{data}_data_{m}_model"][i] for m in (data, other))
+            rows.append(PaperRow(
+                f"Table 3, {data}'s ball data: log det, own / {other}'s model{at}",
+                "swapped: large errors (no number)",
+                f"{seeds_cell(own, fmt='.2f')} / {seeds_cell(swapped, fmt='.2f')}"))
     return rows
 
 
@@ -132,10 +128,11 @@ EXPERIMENT = register(Experiment(
     description="Table 3 in simulation: identification with image noise, ball eccentricity "
                 "and tire slip, from the shooter and the passer, and the model-swap test",
     default_config=Table3Config(),
-    run=run, seeds=64, quick_seeds=16,
-    cost=70.0,  # s of a cold --quick run on 2 cores (compile-dominated)
-    group="identification",  # Tables 1 and 3 share the collection and CVA programs
-    paper_result=True, paper={"table3": TABLE3}, report=report, paper_rows=paper_rows,
+    make_program=make_program, seeds=64, quick_seeds=16,
+    cost=190.0,  # CPU-s of a cold --quick run (compile-dominated)
+    paper_result=True, paper={"table3": TABLE3}, report=point_report(table),
+    paper_rows=paper_rows,
+    headline=("l_shooter_ball", "l_passer_ball", "l_shooter_other", "l_noise_free_ball"),
     # parameters added after run folders were written: the values of the code before them
     legacy_values={"bodies.start_difficulty": 1.0, "bodies.noise_on.aim": True,
                    **{f"bodies.noise_on.{n}": False for n in ("pixel", "slip", "wobble")}},

@@ -11,7 +11,10 @@ from vbl.envs.collect import (
     CollectParams,
     collect,
     collect_many,
+    collect_one,
+    collect_scenarios,
     id_outputs,
+    object_outputs,
     observer_action,
 )
 from vbl.params import ParamError
@@ -92,6 +95,28 @@ def test_id_outputs():
         id_outputs(d, "referee", 1.0)
     with pytest.raises(ValueError, match="y_unit"):
         id_outputs(d, "other", 0.0)
+
+
+def test_object_outputs_in_jax_equal_numpy():
+    """The jittable outputs (inside programs) equal id_outputs' NumPy ones."""
+    y = np.random.default_rng(0).uniform(-50.0, 400.0, (3, 7, 11))
+    want = id_outputs(CollectData(u=None, ball=None, goal=y, other=None, visible=None),
+                      "goal", 4.0)
+    with jax.enable_x64(True):
+        got = jax.jit(lambda a, unit: object_outputs(a, "goal", unit))(jnp.asarray(y), 4.0)
+        np.testing.assert_allclose(np.asarray(got), want, rtol=1e-15)
+
+
+@pytest.mark.slow  # compiles the collection scan twice more
+def test_collect_scenarios_is_collect_one_per_scenario(scen):
+    """One learner's data sets: scenario s is collect_one(fold_in(key, s), scenario s), with
+    the scenarios' own (static) behaviour and focus."""
+    key = jax.random.PRNGKey(7)
+    got = jax.jit(lambda k: collect_scenarios(k, scen))(key)
+    for s, sc in enumerate(scen):
+        want = collect_one(jax.random.fold_in(key, s), sc)
+        np.testing.assert_array_equal(got.u[s], want.u)
+        np.testing.assert_array_equal(got.other[s], want.other)
 
 
 def test_bad_inputs(scen):

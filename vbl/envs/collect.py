@@ -52,7 +52,8 @@ from vbl.world.physics import WorldState, world_step, wrap_angle
 from vbl.world.robots import FOUR_WHEEL_U
 
 __all__ = ["FOCUS", "OTHER_BEHAVIOURS", "CollectParams", "CollectData", "collect_one",
-           "collect", "collect_many", "observer_action", "id_outputs", "AREA_COLUMN"]
+           "collect_scenarios", "collect", "collect_many", "observer_action", "id_outputs",
+           "object_outputs", "AREA_COLUMN"]
 
 F32 = jnp.float32
 I32 = jnp.int32
@@ -280,6 +281,46 @@ def _collect_jit(keys, params, behaviour_ids, focus_ids):
     return jax.vmap(per_set, in_axes=(0, 0, 0, 0))(keys, params, behaviour_ids, focus_ids)
 
 
+def _canonical(scenarios, check: bool) -> list[CollectParams]:
+    """``scenarios`` with other_behaviour/focus set to one value (they travel as traced ids),
+    so that they stack; ``check``: validate each (concrete values only). ParamError when a
+    scenario is not CollectParams or differs from the first in another static field."""
+    canon = []
+    for i, sc in enumerate(scenarios):
+        if not isinstance(sc, CollectParams):
+            raise ParamError(f"scenarios[{i}] must be CollectParams, got {type(sc).__name__}")
+        if check:
+            validate(sc)
+        canon.append(sc.replace(other_behaviour="random_walk", focus="goal"))
+    struct0 = jax.tree_util.tree_structure(canon[0])
+    for i, c in enumerate(canon[1:], 1):
+        if jax.tree_util.tree_structure(c) != struct0:
+            raise ParamError(f"scenarios[{i}] differs from scenarios[0] in a static field "
+                             "other than other_behaviour/focus (e.g. num_steps); collect them "
+                             "separately")
+    return canon
+
+
+def collect_scenarios(key: jax.Array, scenarios: list[CollectParams]) -> CollectData:
+    """One data set per scenario (leading (S,) axis): scenario ``s`` is
+    ``collect_one(fold_in(key, s), scenarios[s])`` (pure; jit/vmap-able: one learner's data
+    sets inside an engine program, :mod:`vbl.engine.identification`).
+
+    The scenarios may hold traced values and differ in any of them and in
+    ``other_behaviour`` / ``focus`` (traced ids: one trace of :func:`collect_one` serves
+    every scenario); other static fields must be equal (ParamError). Not validated here
+    (values may be traced): validate concrete scenarios first.
+    """
+    if not scenarios:
+        raise ValueError("scenarios must be a non-empty list of CollectParams")
+    canon = _canonical(scenarios, check=False)
+    stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]),
+                                     *canon)
+    ids = jnp.asarray([_ids(sc) for sc in scenarios], I32)            # (S, 2)
+    keys = jax.vmap(lambda s: jax.random.fold_in(key, s))(jnp.arange(len(canon)))
+    return jax.vmap(collect_one)(keys, stacked, ids[:, 0], ids[:, 1])
+
+
 def _check_batch(batch) -> int:
     if not isinstance(batch, int | np.integer) or isinstance(batch, bool) or batch < 1:
         raise ValueError(f"batch must be an int >= 1, got {batch!r}")
@@ -300,7 +341,8 @@ def collect_many(key: jax.Array, scenarios: list[CollectParams], batch: int,
     ``split(fold_in(key, s), batch)`` whatever the grouping, so the data do not depend on
     ``group``. A fixed group size (the last group padded with copies of its last scenario)
     lets callers with different S share one compiled program (and the persistent
-    compilation cache): Table 1 (4 scenarios) and Table 3 (8) compile it once. Returns one
+    compilation cache). The data sets of one learner inside a program are
+    :func:`collect_scenarios`'s (other keys). Returns one
     :class:`CollectData` (leading (B,) axis) per scenario. Validates every scenario
     (ParamError).
     """
@@ -309,18 +351,7 @@ def collect_many(key: jax.Array, scenarios: list[CollectParams], batch: int,
         raise ValueError(f"group must be an int >= 1, got {group!r}")
     if not scenarios:
         raise ValueError("scenarios must be a non-empty list of CollectParams")
-    canon = []
-    for i, sc in enumerate(scenarios):
-        if not isinstance(sc, CollectParams):
-            raise ParamError(f"scenarios[{i}] must be CollectParams, got {type(sc).__name__}")
-        validate(sc)
-        canon.append(sc.replace(other_behaviour="random_walk", focus="goal"))
-    struct0 = jax.tree_util.tree_structure(canon[0])
-    for i, c in enumerate(canon[1:], 1):
-        if jax.tree_util.tree_structure(c) != struct0:
-            raise ParamError(f"scenarios[{i}] differs from scenarios[0] in a static field "
-                             "other than other_behaviour/focus (e.g. num_steps); collect them "
-                             "separately")
+    canon = _canonical(scenarios, check=True)
     n = len(scenarios)
     ids = [_ids(sc) for sc in scenarios]
     keys = [jax.random.split(jax.random.fold_in(key, s), batch) for s in range(n)]
@@ -360,8 +391,16 @@ def id_outputs(data: CollectData, obj: str, y_unit: float) -> np.ndarray:
     """
     if not y_unit > 0:
         raise ValueError(f"y_unit={y_unit!r} must be > 0 (px)")
-    y = np.asarray(data.y(obj), np.float64).copy()
+    return object_outputs(np.asarray(data.y(obj), np.float64), obj, float(y_unit))
+
+
+def object_outputs(y, obj: str, y_unit):
+    """:func:`id_outputs` of the features ``y (..., q)`` of ``obj`` (no checks): the area
+    column as ``sqrt(area)``, every channel divided by ``y_unit`` (px). NumPy in, NumPy out;
+    a JAX array in, a JAX array out (pure, jit/vmap-able; ``y_unit`` may be traced)."""
+    xp = np if isinstance(y, np.ndarray) else jnp
     col = AREA_COLUMN[obj]
     if col is not None:
-        y[..., col] = np.sqrt(np.maximum(y[..., col], 0.0))
-    return y / float(y_unit)
+        side = xp.sqrt(xp.maximum(y[..., col:col + 1], 0.0))
+        y = xp.concatenate([y[..., :col], side, y[..., col + 1:]], axis=-1)
+    return y / y_unit
