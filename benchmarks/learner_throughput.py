@@ -74,9 +74,8 @@ SPECS = {
     # async macro actions: every runner step is one primitive of every env
     "table2_shoot_pass": Spec(
         env=lambda c: (ShootPassEnv("shoot"), c.env),
-        envs_per_learner=lambda c: c.learner.runner.num_envs,
-        primitives=lambda c, m: (c.learner.runner.chunk_steps * c.learner.runner.num_envs
-                                 * m["learners"])),
+        envs_per_learner=lambda c: c.q.num_envs,
+        primitives=lambda c, m: c.q.chunk_steps * c.q.num_envs * m["learners"]),
     # sync macro actions: the primitives of the training episodes finished in the chunk
     "grid_shooting": Spec(
         env=lambda c: (ShootingEnv(), c.env),

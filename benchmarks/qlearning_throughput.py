@@ -41,9 +41,7 @@ from tests.reference.qlearning_np import (  # noqa: E402
 )
 from vbl.agents import (  # noqa: E402
     ExplorationParams,
-    QLearningParams,
     QRunnerParams,
-    ScheduleParams,
     learner_keys,
     make_qlearning_runner,
     q_update,
@@ -215,9 +213,8 @@ def bench_updates(n_l: int, repeats: int) -> dict:
 
 def bench_episodes(n_l: int, chunk: int, repeats: int, np_steps: int) -> dict:
     params = QRunnerParams(
-        agent=QLearningParams(num_states=S, num_actions=A, learning_rate=LR, discount=GAMMA,
-                              exploration=ExplorationParams(schedule=ScheduleParams(
-                                  kind="constant", init_value=EPS))),
+        num_states=S, num_actions=A, learning_rate=LR, discount=GAMMA,
+        exploration=ExplorationParams(schedule="constant", init_value=EPS),
         macro=MacroActionParams(enabled=False), lem=LEMParams(enabled=False),
         num_envs=E, chunk_steps=chunk)
     env = SyntheticMDP()

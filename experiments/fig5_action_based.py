@@ -3,7 +3,7 @@
 Each learner collects experience (each episode holds one primitive), grows its map of
 quantile cells backwards from the goal and refines the map's policy in closed loop, while
 the chunks train the grid baseline (:mod:`vbl.engine.baselines`) on the same env; ``final``
-evaluates both at start difficulty ``grid.train.eval_difficulty``
+evaluates both at start difficulty ``baseline.train.eval_difficulty``
 (:mod:`vbl.engine.action_map_program`). The report draws Figure 5 with the grid lines over
 it (:mod:`vbl.engine.map_figures`). Presets give the README's variants. Run: ``vbl run
 fig5_action_based --quick`` or ``python experiments/fig5_action_based.py``.
@@ -23,7 +23,7 @@ from vbl.engine.action_map_program import (
     grid_learner_default,
     make_action_map_program,
 )
-from vbl.engine.baselines import GridLearner
+from vbl.engine.baselines import GridLearner, grid_migration, grid_renames
 from vbl.engine.experiment import PaperRow
 from vbl.engine.map_figures import plot_fig5, plot_refined
 from vbl.engine.report import seeds_cell
@@ -44,20 +44,20 @@ class Fig5Config:
     cells: CellMapParams = section(CellMapParams, doc="cell construction")
     refine: RefineParams = section(RefineParams, doc="closed-loop refinement of the cell map "
                                    "(a vbl extension; refine.iterations=0: off)")
-    grid: GridLearner = section(grid_learner_default, doc="grid baseline, trained in the chunks")
+    baseline: GridLearner = section(grid_learner_default, doc="grid baseline, trained in chunks")
     eval: MapEvalParams = section(MapEvalParams, doc="evaluation of the map")
 
 
 def report(res) -> ReportSection:
     cfg, out = res.config, Path(res.out_dir)
     fin = {k: np.asarray(v)[0] for k, v in res.final.items()}
-    figs = (plot_fig5(fin, cfg.cells, cfg.features, cfg.grid.grid, out),)
+    figs = (plot_fig5(fin, cfg.cells, cfg.features, cfg.baseline.grid, out),)
     if refined := "refined_policy" in fin:
-        figs += (plot_refined(fin, cfg.cells, cfg.refine.units, cfg.features, cfg.grid.grid,
+        figs += (plot_refined(fin, cfg.cells, cfg.refine.units, cfg.features, cfg.baseline.grid,
                               out),)
     ms = lambda k, f=".3f": seeds_cell(fin[k], fmt=f)  # noqa: E731
     mean = lambda k: mean_ci95(fin[k])[0]  # noqa: E731
-    yes, gt = (lambda ok: "yes" if ok else "**no**"), cfg.grid.train
+    yes, gt = (lambda ok: "yes" if ok else "**no**"), cfg.baseline.train
     md = [f"Greedy policies on fresh starts at start difficulty {gt.eval_difficulty} (the grid "
           f"baseline's task difficulty; 1 = fully random), {len(fin['map_success'])} seeds, "
           f"mean ± 95% CI; the map's policy on {cfg.eval.episodes} starts per seed.", "",
@@ -132,16 +132,16 @@ EXPERIMENT = register(Experiment(
            "refine.iterations": 8, "refine.episodes": 128, "refine.horizon": 100},
     seeds=4, quick_seeds=2, paper_result=True, cost=119.0,  # s, cold --quick (load ~2-3)
     paper={"figure": "5", "claim": "states differ from the programmer's grid; F/B labels"},
-    report=report, paper_rows=paper_rows,
-    renamed_metrics={"success_rate": "grid_eval_success"},
+    report=report, paper_rows=paper_rows, renamed_metrics={"success_rate": "grid_eval_success"},
     # the README's runs: the grid's curve after every chunk; and the construction alone
-    presets={"every_chunk": {"grid.train.eval_every": 1},
-             "construction_only": {"refine.iterations": 0, "grid.train.eval_every": 1}},
+    presets={"every_chunk": {"baseline.train.eval_every": 1},
+             "construction_only": {"refine.iterations": 0, "baseline.train.eval_every": 1}},
     # parameters added after run folders were written: the values of the code before them
-    legacy_values={"refine.iterations": 0, "grid.train.eval_every": 1,
-                   "grid.agent.agent.update": "q_learning", "grid.agent.agent.mc_log": 128,
+    legacy_values={"refine.iterations": 0, "baseline.train.eval_every": 1,
+                   "baseline.agent.update": "q_learning", "baseline.agent.mc_log": 128,
                    "env.noise_on.pixel": False, "env.noise_on.slip": False},
     removed_params={"construction": "cells", "build.": None},  # the ellipsoid construction
+    renamed_params=grid_renames("grid.", "baseline."), migrate=grid_migration("grid."),
 ))
 
 if __name__ == "__main__":

@@ -28,7 +28,9 @@ from vbl.engine.baselines import (
     TASK_DIFFICULTY,
     grid_agent,
     grid_env,
+    grid_migration,
     grid_program,
+    grid_renames,
     grid_space,
     grid_train,
 )
@@ -137,9 +139,9 @@ EXPERIMENT = register(Experiment(
     paper_rows=paper_rows,
     presets={"every_chunk": {"train.eval_every": 1, "report.smooth_chunks": 3}},
     # parameters added after run folders were written: the values of the code before them
-    legacy_values={"train.eval_every": 1, "agent.agent.update": "q_learning",
-                   "agent.agent.mc_log": 128, "env.noise_on.pixel": False,
-                   "env.noise_on.slip": False},
+    legacy_values={"train.eval_every": 1, "agent.update": "q_learning", "agent.mc_log": 128,
+                   "env.noise_on.pixel": False, "env.noise_on.slip": False},
+    renamed_params=grid_renames(), migrate=grid_migration(),
 ))
 
 if __name__ == "__main__":

@@ -26,7 +26,7 @@ from flax import struct
 from vbl.agents.cva_state import CVAStateParams
 from vbl.agents.ppo_train import PPOParams
 from vbl.engine import Experiment, register
-from vbl.engine.cva_program import default_learner
+from vbl.engine.cva_program import default_cva
 from vbl.engine.paper import TABLE2
 from vbl.engine.ppo_program import (
     InputChoice,
@@ -54,9 +54,9 @@ QUICK_PPO = {"ppo.num_envs": 16, "ppo.batch_size": 16, "ppo.num_minibatches": 2,
 class ShootPassConfig:
     env: ShootPassParams = section(ShootPassParams, doc="the two-robot task (Table 2's)")
     inputs: InputChoice = section(InputChoice, doc="what PPO sees")
-    cva: CVAStateParams = section(default_learner, doc="the tabular learner's CVA "
-                                  "pipeline (collection, identification; its quantiser and "
-                                  "runner are unused)")
+    cva: CVAStateParams = section(default_cva, doc="the tabular learner's CVA "
+                                  "pipeline (collection, identification; its quantiser is "
+                                  "unused)")
     ppo: PPOParams = section(PPOParams, doc="brax PPO")
     run: PPORunParams = section(PPORunParams, doc="50 chunks x 51,200 = 2.56 M primitives")
 
@@ -74,13 +74,14 @@ EXPERIMENT = register(Experiment(
     name="ppo_comparator",
     description="brax PPO on the two-robot task: current features vs frame stack vs CVA state",
     default_config=ShootPassConfig(), make_program=make_shoot_pass_program,
-    quick={**QUICK_PPO, "cva.collect_steps": 1000, "cva.cva.lag_max": 2},
+    quick={**QUICK_PPO, "cva.collect_steps": 1000, "cva.ident.lag_max": 2},
     seeds=8, quick_seeds=2, paper_result=True, paper=TABLE2,
     report=partial(shoot_pass_section, tabular=TABULAR, paper=TABLE2),
     sweep={"env.task_pass": [False, True], "inputs.index": [0, 1, 2],
            "ppo.curriculum.enabled": [False, True]},
     # short: the reported run (docs/findings/ppo_comparator.md), 18 chunks = 921,600 primitives
-    presets={"short": {"run.num_chunks": 18}}, removed_params={"cva.cancor_weight": False},
+    presets={"short": {"run.num_chunks": 18}}, renamed_params={"cva.cva.": "cva.ident."},
+    removed_params={"cva.cancor_weight": False, "cva.runner.": None},
     cost=300.0))  # s, cold --quick on 2 cores (compile-dominated; 1,389 s at load average 12)
 
 SHOOTING = register(Experiment(

@@ -15,13 +15,16 @@ import numpy as np
 from flax import struct
 
 from vbl.agents.cva_state import CVAStateParams
+from vbl.agents.qlearning import QRunnerParams
 from vbl.engine import Experiment, register
 from vbl.engine.cva_program import (
     POINT_KEYS,
+    RENAMED_PARAMS,
     CVATrainParams,
-    absolute_lr_schedule_to_scale,
-    default_learner,
+    default_cva,
+    default_table2_q,
     make_cva_program,
+    migrate,
     state_label,
     task_label,
 )
@@ -37,7 +40,8 @@ class Table2Config:
     task: str = param("select", doc="learner role: shooter, passer, or 'select': the traced "
                       "env.task_pass picks the role per learner (one compilation for both "
                       "tasks)", static=True, choices=ENV_TASKS)
-    learner: CVAStateParams = section(default_learner, doc="the Figure 11 pipeline")
+    cva: CVAStateParams = section(default_cva, doc="the Figure 11 state: CVA, filter, quantiser")
+    q: QRunnerParams = section(default_table2_q, doc="the tabular Q-learner on that state")
     env: ShootPassParams = section(ShootPassParams, doc="the two-robot task")
     train: CVATrainParams = section(CVATrainParams, doc="run length and evaluation")
 
@@ -59,7 +63,7 @@ def report(res) -> ReportSection:
         train = seeds_cell(res.curves["chunk_success"][i][-1 - n_ev], 100.0, ".1f")
         ident = " / ".join(
             f"{np.median(res.final[f'lag_{o}'][i]):.0f}, {np.median(res.final[f'n_{o}'][i]):.0f}"
-            for o in res.config.learner.objects if f"lag_{o}" in res.final)
+            for o in res.config.cva.objects if f"lag_{o}" in res.final)
         label = f"{task} ({more})" if more else task
         rows.append(f"| {label} | {state} | {greedy} | {train} | {TABLE2[task][state]} | "
                     f"{ident if state == 'cva' else '-'} |")
@@ -70,7 +74,7 @@ def report(res) -> ReportSection:
 
 
 def paper_rows(res) -> list[PaperRow]:
-    update = res.config.learner.runner.agent.update
+    update = res.config.q.update
     values = {"q_learning": "", "monte_carlo": ", Monte Carlo values"}.get(update,
                                                                            f", {update}")
     rows = []
@@ -89,12 +93,11 @@ EXPERIMENT = register(Experiment(
     description="Table 2: shoot/pass success, current features vs CVA state vectors",
     default_config=Table2Config(),
     make_program=make_cva_program,
-    quick={"train.num_chunks": 40, "learner.collect_steps": 1000,
-           "learner.runner.num_envs": 16, "learner.quantizer.group_codes": (8, 4, 4),
-           "learner.quantizer.kmeans_iters": 10,
-           "learner.runner.agent.exploration.schedule.transition_steps": 3000.0,
+    quick={"train.num_chunks": 40, "cva.collect_steps": 1000, "q.num_envs": 16,
+           "cva.quantizer.group_codes": (8, 4, 4), "cva.quantizer.kmeans_iters": 10,
+           "q.exploration.transition_steps": 3000.0,
            "train.lr_scale.transition_begin": 28.0, "train.lr_scale.transition_steps": 4.0,
-           "learner.cva.lag_max": 2},
+           "cva.ident.lag_max": 2},
     seeds=16,
     quick_seeds=4,
     paper_result=True,
@@ -102,21 +105,19 @@ EXPERIMENT = register(Experiment(
     paper=TABLE2,
     report=report,
     paper_rows=paper_rows,
-    presets={"monte_carlo": {"learner.runner.agent.update": "monte_carlo",
-                             "learner.runner.agent.learning_rate": 0.1}},
-    migrate=absolute_lr_schedule_to_scale,
+    presets={"monte_carlo": {"q.update": "monte_carlo", "q.learning_rate": 0.1}},
+    migrate=migrate, renamed_params=RENAMED_PARAMS,
     # chunk_success: the episodes that finished in a chunk (training chunks: with exploration;
     # the last train.eval_chunks: greedy, no learning); folders written before read through this
     renamed_metrics={"success_rate": "chunk_success"},
     # parameters added after run folders were written: the values of the code before them
-    legacy_values={"learner.keep_beyond_order": False,
-                   "learner.cva.lag_rule": "paper", "learner.cva.collinear_tol": 1e-8,
-                   "learner.runner.agent.update": "q_learning",
-                   "learner.runner.agent.mc_log": 128, "env.start_difficulty": 1.0,
+    legacy_values={"cva.keep_beyond_order": False,
+                   "cva.ident.lag_rule": "paper", "cva.ident.collinear_tol": 1e-8,
+                   "q.update": "q_learning", "q.mc_log": 128, "env.start_difficulty": 1.0,
                    "env.noise_on.aim": True,
                    **{f"env.noise_on.{n}": False for n in ("pixel", "slip", "wobble")}},
-    sweep={"env.task_pass": [False, True], "learner.use_cva": [False, True]},
-    removed_params={"learner.cancor_weight": False},  # docs/findings/pruned_variants.md
+    sweep={"env.task_pass": [False, True], "cva.use_cva": [False, True]},
+    removed_params={"cva.cancor_weight": False},  # docs/findings/pruned_variants.md
 ))
 
 if __name__ == "__main__":

@@ -47,7 +47,7 @@ def test_fig5_and_fig9_compare_with_grid_shootings_own_config():
 
     gs = get("grid_shooting").default_config
     for name in ("fig5_action_based", "fig9_incremental"):
-        g = get(name).default_config.grid
+        g = get(name).default_config.baseline
         budget = dict(num_envs=gs.agent.num_envs), dict(num_chunks=gs.train.num_chunks)
         if name == "fig9_incremental":
             assert g.train.eval_every == 1
@@ -57,10 +57,10 @@ def test_fig5_and_fig9_compare_with_grid_shootings_own_config():
             gs.train, name
         assert g.train.eval_difficulty == pytest.approx(0.1), name
     f5 = get("fig5_action_based").default_config
-    assert (f5.grid.agent.num_envs, f5.grid.train.num_chunks) == (gs.agent.num_envs,
+    assert (f5.baseline.agent.num_envs, f5.baseline.train.num_chunks) == (gs.agent.num_envs,
                                                                   gs.train.num_chunks)
     f9 = get("fig9_incremental").default_config
-    assert f9.env.start_difficulty == pytest.approx(f9.grid.train.eval_difficulty)
+    assert f9.env.start_difficulty == pytest.approx(f9.baseline.train.eval_difficulty)
 
 
 def test_pattern_of_reads_categorical_digits():

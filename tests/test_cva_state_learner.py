@@ -17,7 +17,7 @@ import vbl  # noqa: F401
 from vbl.agents.cva_state import (
     CVAStateParams,
     collect,
-    default_runner,
+    default_q,
     history_wrapper,
     identify_object,
     make_cva_learner,
@@ -34,21 +34,22 @@ SEEDS = 4
 CHUNKS = 30
 
 
+Q = default_q().replace(num_actions=2, num_envs=32, chunk_steps=200)
+Q = Q.replace(exploration=Q.exploration.replace(init_value=0.5, transition_steps=3000.0))
+
+
 def params(state: str) -> CVAStateParams:
-    r = default_runner()
-    r = r.replace(agent=r.agent.replace(num_actions=2, exploration=r.agent.exploration.replace(
-        schedule=r.agent.exploration.schedule.replace(init_value=0.5, transition_steps=3000.0))),
-        num_envs=32, chunk_steps=200)
     bins = 12 if state == "cva" else 24
     return CVAStateParams(state=state, objects=("target",), n_used=2, collect_steps=800,
-                          cva=CVAParams(lag=0, lag_max=2, lag_rule="paper", logdet_stop=-100.0),
-                          quantizer=QuantizerParams(method="bins", bins=bins), runner=r)
+                          ident=CVAParams(lag=0, lag_max=2, lag_rule="paper",
+                                          logdet_stop=-100.0),
+                          quantizer=QuantizerParams(method="bins", bins=bins))
 
 
 def train_and_evaluate(env, p):
     """One jit: prepare (collect, CVA, quantiser), CHUNKS chunks of Q-learning, greedy eval."""
-    lrn = make_cva_learner(env, p)
-    rp = lrn.runner_params(p)
+    lrn = make_cva_learner(env, p, Q)
+    rp = lrn.runner_params(Q)
 
     def one(key):
         k1, k2, k3 = jax.random.split(key, 3)
@@ -130,18 +131,18 @@ def test_keep_beyond_order_keeps_the_fits_components():
 def test_bad_inputs():
     env = MovingTargetEnv()
     with pytest.raises(ParamError, match="obs_slices"):
-        make_cva_learner(env, params("cva").replace(objects=("ball",)))
+        make_cva_learner(env, params("cva").replace(objects=("ball",)), Q)
     with pytest.raises(ParamError, match="collect_steps"):
-        make_cva_learner(env, params("cva").replace(collect_steps=10))
+        make_cva_learner(env, params("cva").replace(collect_steps=10), Q)
     with pytest.raises(ParamError, match="state"):
-        make_cva_learner(env, params("cva").replace(state="history"))
+        make_cva_learner(env, params("cva").replace(state="history"), Q)
     with pytest.raises(ParamError, match="max_states"):
         make_cva_learner(env, params("current").replace(
-            quantizer=QuantizerParams(method="bins", bins=10, max_states=5)))
+            quantizer=QuantizerParams(method="bins", bins=10, max_states=5)), Q)
     with pytest.raises(ParamError, match="one entry per object"):
-        make_cva_learner(env, params("cva").replace(n_used_objects=(2, 2)))
+        make_cva_learner(env, params("cva").replace(n_used_objects=(2, 2)), Q)
     with pytest.raises(ParamError, match="integers >= 1"):
-        make_cva_learner(env, params("cva").replace(n_used_objects=(0,)))
+        make_cva_learner(env, params("cva").replace(n_used_objects=(0,)), Q)
 
 
 def test_n_used_per_object_sets_state_dim():
@@ -168,7 +169,7 @@ def test_select_state_and_first_episode_counters():
     env = MovingTargetEnv()
     vq = QuantizerParams(method="vq", num_codes=4, kmeans_iters=2)
     p = params("cva").replace(state="select", quantizer=vq, collect_steps=200)
-    lrn = make_cva_learner(env, p)
+    lrn = make_cva_learner(env, p, Q)
     fp = lrn.prepare(jax.random.PRNGKey(1), p, env.default_params)
     fenv, hist, models = lrn.env, history_wrapper(env, p, 1), fp.inner.filters
     obs, st = fenv.reset(jax.random.PRNGKey(2), fp)
@@ -189,13 +190,13 @@ def test_select_state_and_first_episode_counters():
     assert int(st.episodes) == 3 and bool(st.first_success) == succ[0]
     stats = first_episode_stats(jax.tree.map(lambda a: a[None], st))
     assert float(stats["finished"]) == 1.0 and float(stats["success_rate"]) == float(succ[0])
-    g = greedy_params(lrn.runner_params(p), jnp.bool_(True))
-    assert float(g.agent.learning_rate) == 0.0
-    assert float(g.agent.exploration.schedule.init_value) == 0.0
-    g = greedy_params(lrn.runner_params(p), jnp.bool_(False))
-    assert float(g.agent.learning_rate) == p.runner.agent.learning_rate
+    g = greedy_params(lrn.runner_params(Q), jnp.bool_(True))
+    assert float(g.learning_rate) == 0.0
+    assert float(g.exploration.init_value) == 0.0
+    g = greedy_params(lrn.runner_params(Q), jnp.bool_(False))
+    assert float(g.learning_rate) == Q.learning_rate
     with pytest.raises(ParamError, match="select"):
-        make_cva_learner(env, params("cva").replace(state="select"))
+        make_cva_learner(env, params("cva").replace(state="select"), Q)
 
 
 def test_select_pads_each_object_block_for_a_per_object_quantiser():
@@ -208,7 +209,7 @@ def test_select_pads_each_object_block_for_a_per_object_quantiser():
     pq = QuantizerParams(method="product_vq", group_codes=(4, 2, 2))
     p = CVAStateParams(state="select", objects=("ball", "goal", "other"),
                        n_used_objects=(4, 2, 1), quantizer=pq,
-                       cva=CVAParams(lag=0, lag_max=2, lag_rule="paper"))
+                       ident=CVAParams(lag=0, lag_max=2, lag_rule="paper"))
     fenv = history_wrapper(env, p, 2)
     assert fenv.block_dims() == (4, 11, 5) and state_dim(env, p) == 20
     rng = np.random.default_rng(0)
@@ -234,4 +235,4 @@ def test_select_pads_each_object_block_for_a_per_object_quantiser():
     np.testing.assert_array_equal(x_cva[16:20], 0.0)
     np.testing.assert_array_equal(x_cur, np.asarray(obs[:20]))
     with pytest.raises(ParamError, match="group_codes"):
-        make_cva_learner(env, p.replace(quantizer=pq.replace(group_codes=(4, 2))))
+        make_cva_learner(env, p.replace(quantizer=pq.replace(group_codes=(4, 2))), Q)

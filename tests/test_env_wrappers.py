@@ -151,7 +151,7 @@ def test_ppo_cva_input_follows_the_same_history_rule():
     from vbl.sysid.params import CVAParams
 
     p = CVAStateParams(objects=("a", "b"), n_used_objects=OUT,
-                       cva=CVAParams(lag=0, lag_max=LAG, lag_rule="paper"))
+                       ident=CVAParams(lag=0, lag_max=LAG, lag_rule="paper"))
     ienv = InputEnv(ToyEnv(), "cva", cva=p, m=M)
     filters = toy_filters(4)
     params = InputParams(None, filters)

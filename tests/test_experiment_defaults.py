@@ -25,3 +25,18 @@ def test_experiment_plans_at_its_defaults(name, quick):
             return
         plan = make_plan(exp, config, sweep, seeds)
     assert plan.groups and all(g.num_learners >= 1 for g in plan.groups)
+
+
+MAX_DEPTH = 4  #: names per parameter path at most (e.g. env.world.field.length)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_parameter_paths_are_shallow_and_do_not_stutter(name):
+    """A user types these paths in --set and --sweep: at most MAX_DEPTH names, and no name
+    right after itself (as in a former agent.agent.learning_rate)."""
+    from vbl.engine.config import config_to_dict
+
+    for path in config_to_dict(registry.get(name).default_config):
+        names = path.split(".")
+        assert len(names) <= MAX_DEPTH, path
+        assert all(a != b for a, b in zip(names, names[1:], strict=False)), path

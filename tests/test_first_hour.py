@@ -147,8 +147,8 @@ def grid_shooting():
 
 
 @pytest.mark.parametrize("sets, sweep, points", [
-    ({}, {"agent.agent.learning_rate": [0.1, 0.25, 0.5]}, 6),  # the default sweep stays
-    ({"agent.lem.initial_difficulty": 0.0}, {"agent.agent.learning_rate": [0.1, 0.25, 0.5]},
+    ({}, {"agent.learning_rate": [0.1, 0.25, 0.5]}, 6),  # the default sweep stays
+    ({"agent.lem.initial_difficulty": 0.0}, {"agent.learning_rate": [0.1, 0.25, 0.5]},
      3),  # --set fixes the default sweep's path
     ({}, {"agent.lem.initial_difficulty": [0.0, 0.5, 1.0]}, 3),  # --sweep replaces it
     ({}, {}, 2),
@@ -172,8 +172,8 @@ def test_set_and_sweep_of_one_path_is_an_error(grid_shooting):
     from vbl.params import ParamError
 
     with pytest.raises(ParamError, match="both set and swept"):
-        resolve(grid_shooting, {"agent.agent.learning_rate": 0.1},
-                {"agent.agent.learning_rate": [0.1, 0.2]}, 2)
+        resolve(grid_shooting, {"agent.learning_rate": 0.1},
+                {"agent.learning_rate": [0.1, 0.2]}, 2)
 
 
 def _tree_digest(d: Path) -> dict[str, str]:

@@ -81,10 +81,9 @@ class ReportP:
 
 def _agent() -> QRunnerParams:
     a = QRunnerParams()
-    sched = a.agent.exploration.schedule.replace(transition_steps=40.0)
-    agent = a.agent.replace(num_states=N, num_actions=2, discount=0.9,
-                            exploration=a.agent.exploration.replace(schedule=sched))
-    return a.replace(agent=agent, macro=a.macro.replace(enabled=False),
+    return a.replace(num_states=N, num_actions=2, discount=0.9,
+                     exploration=a.exploration.replace(transition_steps=40.0),
+                     macro=a.macro.replace(enabled=False),
                      lem=a.lem.replace(statistic="mean", window=10, threshold=1e-3, step=0.5),
                      num_envs=8, chunk_steps=30)
 
@@ -213,14 +212,14 @@ def test_lr_scale_schedule_sets_the_step_size_per_chunk():
         _, carry, ms = run_chain_program(_train().replace(lr_scale=scale), chunks)
         return carry.q, [float(m["learning_rate"]) for m in ms]
 
-    lin = ScheduleParams(kind="linear", init_value=1.0, end_value=0.2, transition_begin=1.0,
+    lin = ScheduleParams(schedule="linear", init_value=1.0, end_value=0.2, transition_begin=1.0,
                          transition_steps=2.0)
     _, lrs = run(lin, 4)
-    base = ChainConfig().agent.agent.learning_rate                  # 0.25
+    base = ChainConfig().agent.learning_rate                        # 0.25
     np.testing.assert_allclose(lrs, [base, base, 0.6 * base, 0.2 * base], rtol=1e-6)
-    q0, lrs0 = run(ScheduleParams(kind="constant", init_value=0.0), 2)
+    q0, lrs0 = run(ScheduleParams(schedule="constant", init_value=0.0), 2)
     assert lrs0 == [0.0, 0.0] and np.all(np.asarray(q0) == 0.0)
-    q1, _ = run(ScheduleParams(kind="constant", init_value=1.0), 2)
+    q1, _ = run(ScheduleParams(schedule="constant", init_value=1.0), 2)
     assert np.any(np.asarray(q1) != 0.0)
 
 
@@ -288,7 +287,7 @@ def test_bad_config_errors():
 TINY = {"agent.num_envs": 32, "agent.chunk_steps": 40, "train.num_chunks": 3,
         "train.eval_envs": 32, "train.eval_steps": 60, "train.final_eval_rounds": 2,
         "env.max_steps": 60, "train.eval_difficulty": 0.0,
-        "agent.agent.exploration.schedule.transition_steps": 60.0, "agent.lem.window": 1000}
+        "agent.exploration.transition_steps": 60.0, "agent.lem.window": 1000}
 
 
 @pytest.mark.slow

@@ -11,7 +11,6 @@ from flax import struct
 
 import vbl  # noqa: F401  (x64 on, as in every vbl program)
 from vbl.agents import (
-    QLearningParams,
     QRunnerParams,
     learner_keys,
     make_qlearning_runner,
@@ -128,15 +127,16 @@ def test_macro_params_validation():
 
 def train_counter(mode: str, transition_steps: float, chunk_steps: int, trace=None):
     """One chunk of Q-learning on the blocks (state = counter // 3) with macro actions
-    (``mode`` 'sync' or 'async'), 2 learners x 8 envs; returns (carry, metrics)."""
-    from vbl.agents import ExplorationParams, ScheduleParams
+    (``mode`` 'sync' or 'async', ``trace`` a trace rule or None for one-step updates),
+    2 learners x 8 envs; returns (carry, metrics)."""
+    from vbl.agents import ExplorationParams
+    from vbl.agents.traces import TraceParams
 
     params = QRunnerParams(
-        agent=QLearningParams(num_states=GOAL // BLOCK + 1, num_actions=3, discount=0.9,
-                              exploration=ExplorationParams(schedule=ScheduleParams(
-                                  kind="linear", init_value=1.0, end_value=0.0,
-                                  transition_steps=transition_steps)),
-                              **({} if trace is None else {"trace": trace})),
+        num_states=GOAL // BLOCK + 1, num_actions=3, discount=0.9,
+        exploration=ExplorationParams(schedule="linear", init_value=1.0, end_value=0.0,
+                                      transition_steps=transition_steps),
+        update=trace or "q_learning", trace=TraceParams(lam=0.9, length=4),
         macro=MacroActionParams(enabled=True, max_repeats=5, mode=mode),
         lem=LEMParams(enabled=False), num_envs=8, chunk_steps=chunk_steps)
     runner = make_qlearning_runner(ENV, block_of, params)
@@ -242,10 +242,7 @@ def test_runner_with_async_macro_actions_learns_the_counter(trace):
     """The same learning with async macro actions (runner steps = primitives), with
     one-step updates and with multi-step returns (each env's window advances only when
     its action ends)."""
-    from vbl.agents.traces import TraceParams
-
-    tp = None if trace is None else TraceParams(enabled=True, kind=trace, lam=0.9, length=4)
-    carry, m = train_counter("async", 200.0, 300, tp)
+    carry, m = train_counter("async", 200.0, 300, trace)
     prim, act = np.asarray(m["primitives"]), np.asarray(m["actions"])
     assert np.all(prim >= act) and prim.sum() > act.sum()
     np.testing.assert_array_equal(np.argmax(np.asarray(carry.q)[:, :GOAL // BLOCK], -1), 0)

@@ -19,16 +19,13 @@ from tests.test_qlearning import ChainParams
 from tests.test_qlearning import chain_state_fn as state_fn
 from vbl.agents import (
     ExplorationParams,
-    QLearningParams,
     QRunnerParams,
-    ScheduleParams,
     learner_keys,
     make_qlearning_runner,
     stack_for_learners,
 )
 from vbl.agents.lem import LEMParams
 from vbl.agents.monte_carlo import mc_init, mc_log, mc_update
-from vbl.agents.traces import TraceParams
 from vbl.params import ParamError
 from vbl.spaces.macro_action import MacroActionParams
 
@@ -80,10 +77,10 @@ def test_mc_update_by_hand():
 
 
 def _params(update="monte_carlo", lr=0.01, macro=False, **agent):
-    expl = ExplorationParams(schedule=ScheduleParams(kind="constant", init_value=1.0))
+    expl = ExplorationParams(schedule="constant", init_value=1.0)
     return QRunnerParams(
-        agent=QLearningParams(num_states=N, num_actions=2, exploration=expl, update=update,
-                              learning_rate=lr, discount=0.8, **agent),
+        num_states=N, num_actions=2, exploration=expl, update=update, learning_rate=lr,
+        discount=0.8, **agent,
         macro=MacroActionParams(enabled=macro, mode="async"), lem=LEMParams(enabled=False),
         num_envs=16, chunk_steps=200)
 
@@ -116,9 +113,7 @@ def test_async_macro_monte_carlo_learns_the_greedy_path():
 
 
 def test_q_learning_default_unchanged_and_bad_combinations_are_clear_errors():
-    assert QLearningParams().update == "q_learning"
-    with pytest.raises(ParamError, match="trace"):
-        make_qlearning_runner(Chain(), state_fn, _params(trace=TraceParams(enabled=True)))
+    assert QRunnerParams().update == "q_learning"
     with pytest.raises(ParamError, match="truncation"):
         make_qlearning_runner(Chain(), state_fn, _params(truncation="bootstrap"))
     with pytest.raises(ParamError, match="update"):

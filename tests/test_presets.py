@@ -59,6 +59,57 @@ def test_renamed_parameters_of_older_folders_read_under_the_current_path():
     assert command == "vbl run toy_bandit --set agent.epsilon=0.25" and unrecorded == []
 
 
+def test_a_renamed_section_moves_every_path_under_it_and_names_old_paths():
+    """A key ending in '.' renames a section; the longest key wins, an exact one first; an
+    old path given to --set is an error that names today's path."""
+    from vbl.engine import get
+    from vbl.engine.runner import resolve
+    from vbl.params import ParamError
+
+    exp = dataclasses.replace(get("toy_bandit"), renamed_params={
+        "old.": "agent.", "old.inner.": "agent.", "old.inner.e": "agent.epsilon"})
+    assert exp.renamed("old.epsilon") == "agent.epsilon"
+    assert exp.renamed("old.inner.epsilon") == "agent.epsilon"
+    assert exp.renamed("old.inner.e") == "agent.epsilon" and exp.renamed("x.y") == "x.y"
+    with pytest.raises(ParamError, match="old.epsilon is now called agent.epsilon"):
+        resolve(exp, {"old.epsilon": 0.1})
+    with pytest.raises(ValueError, match="renamed_params"):
+        dataclasses.replace(exp, renamed_params={"old.": "nowhere."})
+
+
+def test_grid_shooting_folders_of_the_nested_layout_rebuild_to_the_defaults():
+    """The grid learner's former layout (table parameters at agent.agent, the exploration
+    schedule a section with its formula as ``kind``, the rule as the alias trace.enabled +
+    trace.kind) reads as today's defaults: the rebuilt command has no --set."""
+    from vbl.engine import get
+    from vbl.engine.config import config_to_dict
+    from vbl.engine.report import run_command
+
+    exp = get("grid_shooting")
+    old = {}
+    for path, value in config_to_dict(exp.default_config).items():
+        section, _, rest = path.partition(".")
+        if path == "agent.update":
+            old.update({"agent.agent.update": "q_learning", "agent.agent.trace.enabled": True,
+                        "agent.agent.trace.kind": value})
+        elif path == "agent.exploration.policy":
+            old["agent.agent.exploration.kind"] = value
+        elif path == "agent.exploration.schedule":
+            old["agent.agent.exploration.schedule.kind"] = value
+        elif path.startswith("agent.exploration."):
+            old["agent.agent.exploration.schedule." + path.rsplit(".", 1)[1]] = value
+        elif section == "agent" and rest.split(".")[0] not in ("macro", "lem", "num_envs",
+                                                                 "chunk_steps"):
+            old["agent.agent." + rest] = value
+        elif path == "train.lr_scale.schedule":
+            old["train.lr_scale.kind"] = value
+        else:
+            old[path] = value
+    assert old["agent.agent.trace.kind"] == "peng" and "agent.agent.learning_rate" in old
+    spec = {"experiment": exp.name, "config": old, "sweep": dict(exp.sweep), "seeds": exp.seeds}
+    assert run_command(exp, spec) == ("vbl run grid_shooting", [])
+
+
 def test_removed_parameters_are_named_unless_they_ran_as_today():
     """A folder that recorded a parameter the experiment no longer has: silent when its
     value is the one under which the run equals today's code, named otherwise (the note
@@ -86,8 +137,8 @@ def test_table2_folders_with_the_absolute_lr_schedule_read_as_today():
     for k in [k for k in rec if k.startswith("train.lr_scale.")]:
         rec["train.lr_schedule." + k.rsplit(".", 1)[1]] = rec.pop(k)
     rec.update({"train.lr_schedule.init_value": 0.1, "train.lr_schedule.end_value": 0.01,
-                "learner.runner.agent.learning_rate": 0.25,  # ignored by the old code
-                "learner.runner.agent.update": "monte_carlo"})
+                "q.learning_rate": 0.25,  # ignored by the old code
+                "q.update": "monte_carlo"})
     spec = {"experiment": exp.name, "config": rec, "sweep": dict(exp.sweep), "seeds": exp.seeds}
     command, unrecorded = run_command(exp, spec)
     assert command == "vbl run table2_shoot_pass --preset monte_carlo" and unrecorded == []

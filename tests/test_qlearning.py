@@ -20,11 +20,10 @@ import vbl  # noqa: F401  (x64 on, as in every vbl program)
 from tests import toy_worlds
 from vbl.agents import (
     ExplorationParams,
-    QLearningParams,
     QRunnerParams,
     ScheduleParams,
+    init_q,
     learner_keys,
-    make_qlearning,
     make_qlearning_runner,
     q_update,
     schedule_value,
@@ -96,9 +95,9 @@ def test_synchronous_sweeps_converge_to_value_iteration():
 
 @pytest.fixture(scope="module")
 def chain_runner():
-    expl = ExplorationParams(schedule=ScheduleParams(kind="constant", init_value=1.0))
+    expl = ExplorationParams(schedule="constant", init_value=1.0)
     params = QRunnerParams(
-        agent=QLearningParams(num_states=N_CHAIN, num_actions=2, exploration=expl),
+        num_states=N_CHAIN, num_actions=2, exploration=expl,
         macro=MacroActionParams(enabled=False), lem=LEMParams(enabled=False),
         num_envs=16, chunk_steps=200)
     return make_qlearning_runner(ChainEnv(), chain_state_fn, params), params
@@ -109,7 +108,7 @@ def test_runner_converges_to_value_iteration(chain_runner):
     runner, params = chain_runner
     gammas = np.array([0.8, 0.5, 0.9], np.float32)
     bp = stack_for_learners(params, 3)
-    bp = bp.replace(agent=bp.agent.replace(discount=jnp.asarray(gammas)))
+    bp = bp.replace(discount=jnp.asarray(gammas))
     ep = stack_for_learners(ChainEnv.default_params, 3)
     carry = runner.init_batch(learner_keys(0, 3), bp, ep)
     for _ in range(3):
@@ -195,16 +194,15 @@ def test_duplicate_rule_analytic():
         np.testing.assert_array_equal(np.delete(np.asarray(qq).ravel(), 1), np.float32(0.2))
 
 
-def test_make_qlearning_update_reads_traced_params():
-    p = QLearningParams(num_states=3, num_actions=2)
-    init, update = make_qlearning(p)
-    q = init(p)
+def test_q_update_reads_traced_params():
+    p = QRunnerParams(num_states=3, num_actions=2)
+    q = init_q(p)
     assert q.shape == (3, 2) and q.dtype == jnp.float32
     sweep = stack_for_learners(p, 2).replace(learning_rate=jnp.array([0.5, 1.0]),
                                              discount=jnp.array([0.0, 0.5]))
-    f = jax.vmap(lambda pp: update(q.at[2].set(1.0), jnp.array([0]), jnp.array([1]),
-                                   jnp.array([0.0]), jnp.array([2]), jnp.array([False]),
-                                   pp)[0])
+    f = jax.vmap(lambda pp: q_update(q.at[2].set(1.0), jnp.array([0]), jnp.array([1]),
+                                     jnp.array([0.0]), jnp.array([2]), jnp.array([False]),
+                                     pp.learning_rate, pp.discount)[0])
     out = f(sweep)
     np.testing.assert_allclose(out[:, 0, 1], [0.0, 0.5])
 
@@ -217,7 +215,7 @@ def test_make_qlearning_update_reads_traced_params():
     ("exponential", dict(decay_rate=0.3, transition_begin=5.0)),
     ("exponential", dict(decay_rate=0.3, staircase=True)), ("cosine", {})])
 def test_schedules_match_optax(kind, extra):
-    p = ScheduleParams(kind=kind, init_value=0.9, end_value=0.05, transition_steps=100.0,
+    p = ScheduleParams(schedule=kind, init_value=0.9, end_value=0.05, transition_steps=100.0,
                        **extra)
     counts = np.array([0, 1, 5, 10, 50, 99, 100, 101, 150, 400])
     want = np.array([float(to_optax(p)(int(c))) for c in counts])
@@ -227,7 +225,7 @@ def test_schedules_match_optax(kind, extra):
 
 
 def test_schedule_numbers_are_traced_and_sweepable():
-    p = ScheduleParams(kind="linear", init_value=1.0, end_value=0.0)
+    p = ScheduleParams(schedule="linear", init_value=1.0, end_value=0.0)
     sweep = stack_for_learners(p, 2).replace(transition_steps=jnp.array([10.0, 20.0]))
     vals = jax.jit(jax.vmap(schedule_value, in_axes=(0, None)))(sweep, 5)
     np.testing.assert_allclose(vals, [0.5, 0.75])
@@ -275,12 +273,9 @@ def test_epsilon_greedy_and_boltzmann_frequencies():
     ("discount", 1.0, "discount"), ("discount", -0.1, "discount"),
     ("num_states", 0, "num_states"), ("num_actions", 0, "num_actions")])
 def test_bad_agent_params(field, value, match):
-    p = QLearningParams().replace(**{field: value})
+    p = QRunnerParams(lem=LEMParams(enabled=False)).replace(**{field: value})
     with pytest.raises(ParamError, match=match):
-        make_qlearning(p)
-    with pytest.raises(ParamError, match=match):
-        make_qlearning_runner(ChainEnv(), chain_state_fn, QRunnerParams(
-            agent=p, lem=LEMParams(enabled=False)))
+        make_qlearning_runner(ChainEnv(), chain_state_fn, p)
 
 
 def test_bad_learner_counts_and_exploration():
@@ -290,9 +285,9 @@ def test_bad_learner_counts_and_exploration():
         with pytest.raises(ParamError, match="num_learners"):
             stack_for_learners(QRunnerParams(), n)
     with pytest.raises(ParamError, match="epsilon"):
-        validate(ExplorationParams(schedule=ScheduleParams(init_value=1.5)))
+        validate(ExplorationParams(init_value=1.5))
     with pytest.raises(ParamError, match="temperature"):
-        validate(ExplorationParams(kind="boltzmann", schedule=ScheduleParams(end_value=0.0)))
+        validate(ExplorationParams(policy="boltzmann", end_value=0.0))
     with pytest.raises(ParamError, match="transition_steps"):
         validate(ScheduleParams(transition_steps=0.0))
     with pytest.raises(ParamError, match="num_envs"):
@@ -302,9 +297,7 @@ def test_bad_learner_counts_and_exploration():
 def test_runner_checks_env_compatibility():
     with pytest.raises(ParamError, match="start_difficulty"):  # LEM needs the env's knob
         make_qlearning_runner(ChainEnv(), chain_state_fn, QRunnerParams(
-            agent=QLearningParams(num_states=N_CHAIN, num_actions=2),
-            lem=LEMParams(enabled=True)))
+            num_states=N_CHAIN, num_actions=2, lem=LEMParams(enabled=True)))
     with pytest.raises(ParamError, match="num_actions"):
         make_qlearning_runner(ChainEnv(), chain_state_fn, QRunnerParams(
-            agent=QLearningParams(num_states=N_CHAIN, num_actions=3),
-            lem=LEMParams(enabled=False)))
+            num_states=N_CHAIN, num_actions=3, lem=LEMParams(enabled=False)))

@@ -112,8 +112,8 @@ def test_report_commands_rebuild_the_recorded_config(tmp_path):
 
 
 @pytest.mark.parametrize("folder, command, unrecorded", [
-    ("table2_full", "vbl run table2_shoot_pass --set learner.keep_beyond_order=false --set "
-     "learner.n_used_objects=4,4,4 --set learner.quantizer.group_codes=16,8,8", False),
+    ("table2_full", "vbl run table2_shoot_pass --set cva.keep_beyond_order=false --set "
+     "cva.n_used_objects=4,4,4 --set cva.quantizer.group_codes=16,8,8", False),
     ("fig5_cells", "vbl run fig5_action_based --preset construction_only", True),
     ("table1_quick", "vbl run table1_identification --quick", False),
 ])

@@ -14,9 +14,7 @@ import vbl  # noqa: F401
 from tests.test_qlearning import N_CHAIN, ChainEnv, chain_state_fn, chain_tables
 from vbl.agents import (
     ExplorationParams,
-    QLearningParams,
     QRunnerParams,
-    ScheduleParams,
     learner_keys,
     make_qlearning_runner,
     q_update,
@@ -128,22 +126,23 @@ def test_lambda_zero_is_the_one_step_update_exactly(kind, rule):
         np.testing.assert_array_equal(np.asarray(got[t]), np.asarray(q))
 
 
-def chain_params(trace: TraceParams, expl: ExplorationParams, steps=200) -> QRunnerParams:
+def chain_params(update: str, trace: TraceParams, expl: ExplorationParams,
+                 steps=200) -> QRunnerParams:
     return QRunnerParams(
-        agent=QLearningParams(num_states=N_CHAIN, num_actions=2, exploration=expl,
-                              trace=trace),
+        num_states=N_CHAIN, num_actions=2, update=update, exploration=expl, trace=trace,
         macro=MacroActionParams(enabled=False), lem=LEMParams(enabled=False),
         num_envs=16, chunk_steps=steps)
 
 
-RANDOM = ExplorationParams(schedule=ScheduleParams(kind="constant", init_value=1.0))
+RANDOM = ExplorationParams(schedule="constant", init_value=1.0)
 
 
 def test_runner_with_lambda_zero_equals_runner_without_traces():
     ep = ChainEnv.default_params
     qs = []
-    for trace in (TraceParams(), TraceParams(enabled=True, kind="peng", lam=0.0, length=4)):
-        p = chain_params(trace, ExplorationParams(), steps=100)
+    for update, trace in (("q_learning", TraceParams()),
+                          ("peng", TraceParams(lam=0.0, length=4))):
+        p = chain_params(update, trace, ExplorationParams(), steps=100)
         runner = make_qlearning_runner(ChainEnv(), chain_state_fn, p)
         carry = jax.jit(runner.init)(jax.random.PRNGKey(0), p, ep)
         carry, m = jax.jit(runner.run_chunk)(carry, p, ep)
@@ -161,15 +160,14 @@ def test_runner_converges_to_value_iteration_with_traces():
     vi = value_iteration(nxt, rew, term, gamma)[:N_CHAIN - 1]
     ep = stack_for_learners(ChainEnv.default_params, 3)
     lams = jnp.asarray([0.3, 0.7, 1.0], jnp.float32)
-    glie = ExplorationParams(schedule=ScheduleParams(kind="linear", init_value=1.0,
-                                                     end_value=0.0, transition_steps=300))
+    glie = ExplorationParams(schedule="linear", init_value=1.0, end_value=0.0,
+                             transition_steps=300)
     for kind, expl, full in (("watkins", RANDOM, True), ("peng", glie, False),
                              ("sarsa", glie, False)):
-        p = chain_params(TraceParams(enabled=True, kind=kind, length=6), expl)
-        p = p.replace(agent=p.agent.replace(discount=gamma))
+        p = chain_params(kind, TraceParams(length=6), expl).replace(discount=gamma)
         runner = make_qlearning_runner(ChainEnv(), chain_state_fn, p)
         bp = stack_for_learners(p, 3)
-        bp = bp.replace(agent=bp.agent.replace(trace=bp.agent.trace.replace(lam=lams)))
+        bp = bp.replace(trace=bp.trace.replace(lam=lams))
         carry = runner.init_batch(learner_keys(0, 3), bp, ep)
         for _ in range(3):
             carry, _ = runner.run_chunk_batch(carry, bp, ep)
@@ -232,16 +230,15 @@ def test_multi_step_returns_solve_an_aliased_fork(kind):
     """lambda = 0: the start actions' values agree (no preference, greedy success about
     1/2); lambda 0.9 and 1: the right room's action is worth about discount * 1 more, and the
     greedy policy always scores."""
-    expl = ExplorationParams(schedule=ScheduleParams(kind="constant", init_value=0.5))
+    expl = ExplorationParams(schedule="constant", init_value=0.5)
     p = QRunnerParams(
-        agent=QLearningParams(num_states=2, num_actions=2, discount=0.9, exploration=expl,
-                              trace=TraceParams(enabled=True, kind=kind, length=2)),
+        num_states=2, num_actions=2, discount=0.9, exploration=expl, update=kind,
+        trace=TraceParams(length=2),
         macro=MacroActionParams(enabled=False), lem=LEMParams(enabled=False),
         num_envs=16, chunk_steps=300)
     runner = make_qlearning_runner(AliasedFork(), fork_state, p)
     bp = stack_for_learners(p, 3)
-    bp = bp.replace(agent=bp.agent.replace(trace=bp.agent.trace.replace(
-        lam=jnp.asarray([0.0, 0.9, 1.0], jnp.float32))))
+    bp = bp.replace(trace=bp.trace.replace(lam=jnp.asarray([0.0, 0.9, 1.0], jnp.float32)))
     ep = stack_for_learners(AliasedFork.default_params, 3)
     carry, _ = runner.run_chunk_batch(runner.init_batch(learner_keys(0, 3), bp, ep), bp, ep)
     gap = np.asarray(carry.q[:, 0, 1] - carry.q[:, 0, 0])
@@ -254,9 +251,9 @@ def test_multi_step_returns_solve_an_aliased_fork(kind):
 def test_traces_error_for_bad_parameters():
     for bad in (dict(lam=-0.1), dict(lam=1.5), dict(length=0)):
         with pytest.raises(ParamError):
-            validate(QLearningParams(trace=TraceParams(enabled=True, **bad)))
+            validate(QRunnerParams(update="peng", trace=TraceParams(**bad)))
     with pytest.raises(ParamError):
-        validate(QLearningParams(trace=TraceParams(kind="tree_backup")))
+        validate(QRunnerParams(update="tree_backup"))
     with pytest.raises(ParamError):
         trace_init(4, 0)
     q = jnp.zeros((3, 2), jnp.float32)

@@ -15,15 +15,13 @@ import vbl  # noqa: F401  (x64 on, as in every vbl program)
 from tests.test_qlearning import N_CHAIN, ChainEnv, chain_state_fn
 from vbl.agents import (
     ExplorationParams,
-    QLearningParams,
     QRunnerParams,
-    ScheduleParams,
     learner_keys,
     make_qlearning_runner,
     stack_for_learners,
 )
 from vbl.agents.lem import LEMParams
-from vbl.agents.qlearning import rule_name, rule_of
+from vbl.agents.qlearning import rule_of
 from vbl.agents.traces import TraceParams
 from vbl.agents.updates import RULES
 from vbl.params import ParamError, validate
@@ -114,18 +112,17 @@ def q_epsilon_greedy(eps: float, iters: int = 2000):
     return q
 
 
-def with_rule(agent: QLearningParams, rule: str) -> QLearningParams:
-    """``agent`` learning with update rule ``rule`` (traces: lambda 0.9 over 8 decisions)."""
-    return agent.replace(update=rule, trace=TraceParams(lam=0.9, length=8))
+def with_rule(rule: str, **params) -> QRunnerParams:
+    """A learner with update rule ``rule`` (traces: lambda 0.9 over 8 decisions)."""
+    return QRunnerParams(update=rule, trace=TraceParams(lam=0.9, length=8),
+                         lem=LEMParams(enabled=False), **params)
 
 
 def block_runner(rule: str, eps: float, envs: int = 32, steps: int = 250):
-    agent = with_rule(QLearningParams(
-        num_states=K, num_actions=2, discount=GAMMA, learning_rate=0.2,
-        exploration=ExplorationParams(schedule=ScheduleParams(kind="constant",
-                                                              init_value=eps))), rule)
-    params = QRunnerParams(agent=agent, macro=MacroActionParams(
-        enabled=True, mode="async", max_repeats=M), lem=LEMParams(enabled=False),
+    params = with_rule(
+        rule, num_states=K, num_actions=2, discount=GAMMA, learning_rate=0.2,
+        exploration=ExplorationParams(schedule="constant", init_value=eps),
+        macro=MacroActionParams(enabled=True, mode="async", max_repeats=M),
         num_envs=envs, chunk_steps=steps)
     return make_qlearning_runner(BlockChain(), block_of, params), params
 
@@ -138,7 +135,7 @@ def train_blocks(rule: str, eps: float, lrs, learners: int = 2):
     carry = runner.init_batch(learner_keys(0, learners), bp, ep)
     prims = acts = 0
     for lr in lrs:
-        p = bp.replace(agent=bp.agent.replace(learning_rate=jnp.full((learners,), lr, F32)))
+        p = bp.replace(learning_rate=jnp.full((learners,), lr, F32))
         carry, m = runner.run_chunk_batch(carry, p, ep)
         prims += int(np.sum(m["primitives"]))
         acts += int(np.sum(m["actions"]))
@@ -177,12 +174,10 @@ def test_on_policy_rules_with_async_macros_learn_the_epsilon_greedy_values(rule)
 
 
 def chain_runner(rule: str, macro: MacroActionParams):
-    expl = ExplorationParams(schedule=ScheduleParams(kind="linear", init_value=1.0,
-                                                     end_value=0.1, transition_steps=100.0))
-    agent = with_rule(QLearningParams(num_states=N_CHAIN, num_actions=2, discount=0.9,
-                                      exploration=expl), rule)
-    params = QRunnerParams(agent=agent, macro=macro, lem=LEMParams(enabled=False),
-                           num_envs=8, chunk_steps=120)
+    expl = ExplorationParams(schedule="linear", init_value=1.0, end_value=0.1,
+                             transition_steps=100.0)
+    params = with_rule(rule, num_states=N_CHAIN, num_actions=2, discount=0.9,
+                       exploration=expl, macro=macro, num_envs=8, chunk_steps=120)
     return make_qlearning_runner(ChainEnv(), chain_state_fn, params), params
 
 
@@ -207,22 +202,15 @@ def test_async_macros_of_one_primitive_equal_no_macros(rule):
 
 
 def test_one_field_chooses_the_rule():
-    """``agent.update`` names the rule; ``trace.enabled`` + ``trace.kind`` is its alias."""
+    """``update`` names the rule."""
     for rule in RULES:
-        assert rule_name(QLearningParams(update=rule)) == rule
-        assert rule_of(QLearningParams(update=rule)).name == rule
-    for kind in ("peng", "naive", "watkins", "sarsa"):
-        alias = QLearningParams(trace=TraceParams(enabled=True, kind=kind))
-        assert rule_name(alias) == kind
-    with pytest.raises(ParamError, match="two rules"):
-        validate(QLearningParams(update="watkins", trace=TraceParams(enabled=True)))
+        assert rule_of(QRunnerParams(update=rule)).name == rule
     with pytest.raises(ParamError):
-        validate(QLearningParams(update="tree_backup"))
+        validate(QRunnerParams(update="tree_backup"))
 
 
 def test_monte_carlo_rejects_bootstrapped_truncation():
-    runner_params = QRunnerParams(agent=QLearningParams(
-        num_states=N_CHAIN, num_actions=2, update="monte_carlo", truncation="bootstrap"),
-        lem=LEMParams(enabled=False))
+    runner_params = QRunnerParams(num_states=N_CHAIN, num_actions=2, update="monte_carlo",
+                                  truncation="bootstrap", lem=LEMParams(enabled=False))
     with pytest.raises(ParamError, match="bootstrap"):
         make_qlearning_runner(ChainEnv(), chain_state_fn, runner_params)

@@ -55,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
     from vbl.spaces.cell_refine import refine_cell_map, refined_policy_action
 
     c = get("fig5_action_based").default_config
-    ep = c.env.replace(start_difficulty=float(c.grid.train.eval_difficulty))
+    ep = c.env.replace(start_difficulty=float(c.baseline.train.eval_difficulty))
     feat = lambda o: sec2_features(o, c.features)  # noqa: E731
     k_col, k_build, k_eval = jax.random.split(jax.random.PRNGKey(args.seed), 3)
 

@@ -67,7 +67,7 @@ def main(argv: list[str] | None = None) -> int:
 
     gs = load_script(ROOT / "experiments" / "grid_shooting.py")
     cfg = gs.EXPERIMENT.default_config
-    agent = cfg.agent.replace(agent=cfg.agent.agent.replace(num_states=NUM_GRID_STATES))
+    agent = cfg.agent.replace(num_states=NUM_GRID_STATES)
     env_params = cfg.env.replace(start_difficulty=float(gs.TASK_DIFFICULTY))
     if args.max_steps is not None:
         env_params = env_params.replace(max_steps=args.max_steps)

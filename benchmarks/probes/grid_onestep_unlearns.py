@@ -50,13 +50,12 @@ def main(argv: list[str] | None = None) -> int:
     env_params = cfg.env.replace(start_difficulty=d)
     q0 = jnp.asarray(hand.hand_table(TWO_MOTOR_LABELS))
     a = cfg.agent
-    sched = a.agent.exploration.schedule.replace(kind="constant", init_value=0.1)
     base = a.replace(
-        agent=a.agent.replace(num_states=NUM_GRID_STATES, learning_rate=0.05,
-                              exploration=a.agent.exploration.replace(schedule=sched)),
+        num_states=NUM_GRID_STATES, learning_rate=0.05,
+        exploration=a.exploration.replace(schedule="constant", init_value=0.1),
         lem=a.lem.replace(initial_difficulty=d, max_difficulty=d))
-    variants = {"one-step Q-learning": base.agent.trace.replace(enabled=False),
-                "Peng's Q(lambda 0.9), 32 actions": base.agent.trace}
+    variants = {"one-step Q-learning": "q_learning",
+                "Peng's Q(lambda 0.9), 32 actions": base.update}
     n_envs = base.num_envs
     rounds = max(1, args.starts // n_envs)
     print(f"grid_shooting task from the hand-written table: difficulty {d}, "
@@ -65,8 +64,8 @@ def main(argv: list[str] | None = None) -> int:
           f"{base.chunk_steps} learner steps")
     k_train, k_eval = jax.random.split(jax.random.PRNGKey(args.seed))
     with engine_precision():
-        for name, trace in variants.items():
-            p = base.replace(agent=base.agent.replace(trace=trace))
+        for name, update in variants.items():
+            p = base.replace(update=update)
             runner = make_qlearning_runner(gs.ENV, lambda o: grid_state(o, cfg.grid), p)
             ev = jax.jit(runner.evaluate, static_argnums=(4,))
             run = jax.jit(runner.run_chunk)

@@ -8,13 +8,11 @@ from vbl.agents.exploration import (
 )
 from vbl.agents.lem import LEMParams, LEMState, lem_init, lem_update
 from vbl.agents.qlearning import (
-    QLearningParams,
     QLearningRunner,
     QRunnerParams,
     QRunnerState,
     init_q,
     learner_keys,
-    make_qlearning,
     make_qlearning_runner,
     q_update,
     stack_for_learners,
@@ -30,13 +28,11 @@ __all__ = [
     "LEMState",
     "lem_init",
     "lem_update",
-    "QLearningParams",
     "QLearningRunner",
     "QRunnerParams",
     "QRunnerState",
     "init_q",
     "learner_keys",
-    "make_qlearning",
     "make_qlearning_runner",
     "q_update",
     "stack_for_learners",

@@ -42,9 +42,9 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from vbl.agents.exploration import ExplorationParams, ScheduleParams
+from vbl.agents.exploration import ExplorationParams
 from vbl.agents.lem import LEMParams
-from vbl.agents.qlearning import QLearningParams, QRunnerParams, make_qlearning_runner
+from vbl.agents.qlearning import QRunnerParams, make_qlearning_runner
 from vbl.envs.wrappers import (
     KINDS,
     EpisodeCounts,
@@ -80,6 +80,7 @@ __all__ = [
     "filtered_params",
     "state_dim",
     "make_cva_learner",
+    "default_q",
     "greedy_params",
     "first_episode_stats",
 ]
@@ -90,21 +91,23 @@ __all__ = [
 STATE_KINDS = KINDS
 
 
-def default_runner() -> QRunnerParams:
-    """Runner defaults of this pipeline: primitive actions (no macro actions), no LEM,
-    epsilon-greedy with epsilon 1.0 -> 0.05 over 2000 learner steps (agent.num_states is
-    set from the quantiser)."""
+def default_q() -> QRunnerParams:
+    """Q-learner defaults of this pipeline: primitive actions (no macro actions), no LEM,
+    epsilon-greedy with epsilon 1.0 -> 0.05 over 2000 learner steps (num_states is set from
+    the quantiser by :attr:`CVALearner.runner_params`)."""
     return QRunnerParams(
-        agent=QLearningParams(num_states=1, num_actions=7, exploration=ExplorationParams(
-            schedule=ScheduleParams(kind="linear", init_value=1.0, end_value=0.05,
-                                    transition_steps=2000.0))),
+        num_states=1, num_actions=7,
+        exploration=ExplorationParams(schedule="linear", init_value=1.0, end_value=0.05,
+                                      transition_steps=2000.0),
         macro=MacroActionParams(enabled=False), lem=LEMParams(enabled=False),
         num_envs=64, chunk_steps=100)
 
 
 @struct.dataclass
 class CVAStateParams:
-    """The Figure 11 pipeline of one learner (data collection, CVA, quantiser, Q-learning)."""
+    """The state of the Figure 11 pipeline for one learner: data collection, CVA per object,
+    the history filter and the quantiser (the Q-learner's params are a
+    :class:`~vbl.agents.qlearning.QRunnerParams` of their own)."""
 
     state: str = param("cva", doc="'cva': CVA state vectors [mu_obj...]; 'current': the "
                        "current features y(t) of the same objects (Table 2 baseline); "
@@ -132,12 +135,10 @@ class CVAStateParams:
     collect_steps: int = param(2000, doc="random-action steps collected per learner for the "
                                "identification and the quantiser fit", unit="step",
                                static=True, ge=10)
-    cva: CVAParams = section(lambda: CVAParams(lag_rule="paper"), doc="CVA identification "
-                             "(order by AIC; with lag 0 the lag by the paper's log det rule, "
-                             "Section 3.1.2)")
+    ident: CVAParams = section(lambda: CVAParams(lag_rule="paper"), doc="CVA identification "
+                               "(order by AIC; with lag 0 the lag by the paper's log det rule, "
+                               "Section 3.1.2)")
     quantizer: QuantizerParams = section(QuantizerParams, doc="state vector -> Q-table index")
-    runner: QRunnerParams = section(default_runner, doc="batched Q-learning runner "
-                                    "(agent.num_states is overridden by the quantiser's size)")
 
     def check(self) -> None:
         if not self.objects:
@@ -150,12 +151,12 @@ class CVAStateParams:
                        for k in self.n_used_objects):
                 raise ParamError(f"n_used_objects={self.n_used_objects!r} must hold integers "
                                  ">= 1")
-        if self.cva.lag == 0 and self.cva.lag_max < 1:
-            raise ParamError("cva.lag_max must be >= 1")
-        if self.cva.lag == 0 and self.cva.lag_rule != "paper":
-            raise ParamError(f"cva.lag_rule={self.cva.lag_rule!r}: the learner selects the "
-                             "lag by the paper's rule (cva.lag_rule='paper'), or give a "
-                             "fixed cva.lag >= 1")
+        if self.ident.lag == 0 and self.ident.lag_max < 1:
+            raise ParamError("ident.lag_max must be >= 1")
+        if self.ident.lag == 0 and self.ident.lag_rule != "paper":
+            raise ParamError(f"ident.lag_rule={self.ident.lag_rule!r}: the learner selects the "
+                             "lag by the paper's rule (ident.lag_rule='paper'), or give a "
+                             "fixed ident.lag >= 1")
         if self.state == "select" and self.quantizer.method == "bins":
             raise ParamError("state='select' zero-pads the shorter state vector; it needs "
                              "quantizer.method 'vq' or 'product_vq', got 'bins'")
@@ -264,9 +265,9 @@ def identify_object(u: jax.Array, y: jax.Array, cva: CVAParams, n_used: int,
 
 
 def history_wrapper(env: Any, p: CVAStateParams, m: int) -> HistoryFilterWrapper:
-    """The history filter of ``p``: objects, lag ``max(p.cva.lags())``, ``n_used`` per
+    """The history filter of ``p``: objects, lag ``max(p.ident.lags())``, ``n_used`` per
     object, state kind and extra slices (its filters are the :class:`ObjectModel` s)."""
-    return HistoryFilterWrapper(env, tuple(p.objects), max(p.cva.lags()), m,
+    return HistoryFilterWrapper(env, tuple(p.objects), max(p.ident.lags()), m,
                                 p.n_used_per_object(), p.state, tuple(p.extra))
 
 
@@ -296,11 +297,13 @@ class CVALearner(struct.PyTreeNode):
     runner: Any = struct.field(pytree_node=False)   # QLearningRunner on the filtered env
     env: Any = struct.field(pytree_node=False)      # the filtered env (filtered_env)
     num_states: int = struct.field(pytree_node=False)
-    runner_params: Any = struct.field(pytree_node=False)  # p -> QRunnerParams with S set
+    runner_params: Any = struct.field(pytree_node=False)  # q -> q with num_states set
 
 
-def make_cva_learner(env: Any, p: CVAStateParams, m: int | None = None) -> CVALearner:
-    """Validate ``p`` and build the learner's pure functions for ``env``.
+def make_cva_learner(env: Any, p: CVAStateParams, q: QRunnerParams,
+                     m: int | None = None) -> CVALearner:
+    """Validate ``p`` and build the learner's pure functions for ``env`` (the Q-learner's
+    static fields from ``q``).
 
     ``env`` needs ``num_actions``, ``obs_slices``, ``reset``/``step`` (gymnax style, auto-reset,
     ``info["u"]`` the motor command (m,), ``info["success"]``). ``m`` is the input dimension
@@ -308,8 +311,8 @@ def make_cva_learner(env: Any, p: CVAStateParams, m: int | None = None) -> CVALe
 
     ``prepare(key, p, env_params)``: collect, identify, fit the quantiser; returns the
     params of the filtered env (:func:`filtered_params`) for the runner. The runner's
-    ``agent.num_states`` must equal the quantiser's number of states: use
-    ``learner.runner_params(p)`` (sets it).
+    ``num_states`` must equal the quantiser's number of states: use
+    ``learner.runner_params(q)`` (sets it).
     """
     validate(p)
     if m is None:
@@ -324,20 +327,20 @@ def make_cva_learner(env: Any, p: CVAStateParams, m: int | None = None) -> CVALe
     d = int(sum(groups))
     make_quantizer(p.quantizer, d, groups)
     s = num_states(p.quantizer, d)
-    lags = p.cva.lags()
+    lags = p.ident.lags()
     q_max = max(sl.stop - sl.start for sl in hist.slices)
-    need = p.cva.min_samples_factor * 2 * max(lags) * (m + q_max) + 2 * max(lags)
+    need = p.ident.min_samples_factor * 2 * max(lags) * (m + q_max) + 2 * max(lags)
     if p.state != "current" and p.collect_steps < need:
         raise ParamError(f"collect_steps={p.collect_steps} is too few for CVA up to lag "
                          f"{max(lags)}; use >= {int(need)}")
-    runner = make_qlearning_runner(fenv, lambda o: o["index"], runner_params(p, s))
+    runner = make_qlearning_runner(fenv, lambda o: o["index"], runner_params(q, s))
 
     def prepare(key, pp: CVAStateParams, env_params) -> QuantizeParams:
         k_col, k_q = jax.random.split(key)
         data = collect(env, k_col, env_params, p.collect_steps)
         models = ()
         if p.state != "current":
-            models = tuple(identify_object(data["u"], data["obs"][:, sl], pp.cva, k,
+            models = tuple(identify_object(data["u"], data["obs"][:, sl], pp.ident, k,
                                            pp.keep_beyond_order)
                            for sl, k in zip(hist.slices, p.n_used_per_object(), strict=True))
         use_cva = jnp.asarray(pp.use_cva, bool)
@@ -347,12 +350,12 @@ def make_cva_learner(env: Any, p: CVAStateParams, m: int | None = None) -> CVALe
         return filtered_params(env_params, models, qz, use_cva)
 
     return CVALearner(prepare=prepare, runner=runner, env=fenv, num_states=s,
-                      runner_params=lambda pp: runner_params(pp, s))
+                      runner_params=lambda qq: runner_params(qq, s))
 
 
-def runner_params(p: CVAStateParams, s: int) -> QRunnerParams:
-    """``p.runner`` with ``agent.num_states = s`` (the quantiser's number of states)."""
-    return p.runner.replace(agent=p.runner.agent.replace(num_states=int(s)))
+def runner_params(q: QRunnerParams, s: int) -> QRunnerParams:
+    """``q`` with ``num_states = s`` (the quantiser's number of states)."""
+    return q.replace(num_states=int(s))
 
 
 def greedy_params(rp: QRunnerParams, greedy: jax.Array) -> QRunnerParams:
@@ -360,13 +363,11 @@ def greedy_params(rp: QRunnerParams, greedy: jax.Array) -> QRunnerParams:
     traced bool ``greedy`` is set: a greedy evaluation runs through the same compiled
     ``run_chunk`` as training (no separate compilation of the env loop)."""
     g = jnp.asarray(greedy, bool)
-    sch = rp.agent.exploration.schedule
-    sch = sch.replace(init_value=jnp.where(g, 0.0, sch.init_value).astype(jnp.float32),
-                      end_value=jnp.where(g, 0.0, sch.end_value).astype(jnp.float32))
-    agent = rp.agent.replace(
-        learning_rate=jnp.where(g, 0.0, rp.agent.learning_rate).astype(jnp.float32),
-        exploration=rp.agent.exploration.replace(schedule=sch))
-    return rp.replace(agent=agent)
+    ex = rp.exploration
+    ex = ex.replace(init_value=jnp.where(g, 0.0, ex.init_value).astype(jnp.float32),
+                    end_value=jnp.where(g, 0.0, ex.end_value).astype(jnp.float32))
+    return rp.replace(learning_rate=jnp.where(g, 0.0, rp.learning_rate).astype(jnp.float32),
+                      exploration=ex)
 
 
 def first_episode_stats(env_state: EpisodeCounts) -> dict[str, jax.Array]:

@@ -2,8 +2,9 @@
 
 The exploration rate (epsilon) or temperature follows a schedule of the optax
 family (``optax.constant_schedule``, ``optax.linear_schedule``,
-``optax.exponential_decay``, ``optax.cosine_decay_schedule``). The schedule
-*kind* is static (it picks the formula); its *numbers* are traced pytree leaves,
+``optax.exponential_decay``, ``optax.cosine_decay_schedule``): :class:`ExplorationParams`
+is a :class:`ScheduleParams` with the selection rule added. The schedule's formula
+(``schedule``) is static (it picks the formula); its *numbers* are traced pytree leaves,
 so a sweep can ``vmap`` over e.g. the final epsilon. optax's constructors run
 Python checks on their numbers (``if transition_steps <= 0``), which a traced
 value cannot pass, so :func:`schedule_value` evaluates the same formulas with
@@ -23,11 +24,11 @@ import numpy as np
 import optax
 from flax import struct
 
-from vbl.params import ParamError, param, section
+from vbl.params import ParamError, param
 
 __all__ = [
     "SCHEDULE_KINDS",
-    "EXPLORATION_KINDS",
+    "EXPLORATION_POLICIES",
     "ScheduleParams",
     "ExplorationParams",
     "schedule_value",
@@ -42,7 +43,7 @@ __all__ = [
 #: Schedule formulas (static choice); each equals the optax schedule of that name.
 SCHEDULE_KINDS = ("constant", "linear", "exponential", "cosine")
 #: Action-selection rules (static choice).
-EXPLORATION_KINDS = ("epsilon_greedy", "boltzmann")
+EXPLORATION_POLICIES = ("epsilon_greedy", "boltzmann")
 
 
 @struct.dataclass
@@ -60,7 +61,8 @@ class ScheduleParams:
       (init_value - end_value) * (1 + cos(pi * min(count, T) / T)) / 2.
     """
 
-    kind: str = param("linear", doc="schedule formula", static=True, choices=SCHEDULE_KINDS)
+    schedule: str = param("linear", doc="schedule formula", static=True,
+                          choices=SCHEDULE_KINDS)
     init_value: float = param(1.0, doc="value at count 0", ge=0.0)
     end_value: float = param(0.1, doc="final value (exponential: lower bound)", ge=0.0)
     transition_steps: float = param(2000.0, doc="length T of the transition, in counts",
@@ -74,27 +76,26 @@ class ScheduleParams:
 
 
 @struct.dataclass
-class ExplorationParams:
-    """How a learner picks actions from its Q-table row."""
+class ExplorationParams(ScheduleParams):
+    """How a learner picks actions from its Q-table row: ``policy`` at the rate (epsilon or
+    temperature) of the schedule this class extends."""
 
-    kind: str = param("epsilon_greedy", doc="epsilon-greedy (rate = epsilon) or Boltzmann "
-                      "(rate = temperature, in Q units)", static=True,
-                      choices=EXPLORATION_KINDS)
+    policy: str = param("epsilon_greedy", doc="epsilon-greedy (rate = epsilon) or Boltzmann "
+                        "(rate = temperature, in Q units)", static=True,
+                        choices=EXPLORATION_POLICIES)
     count_unit: str = param("steps", doc="what the schedule counts: learner steps (one step "
                             "= one action in each of the E environments) or finished "
                             "episodes (trials) of the learner", static=True,
                             choices=("steps", "episodes"))
-    schedule: ScheduleParams = section(ScheduleParams, doc="epsilon or temperature schedule")
 
     def check(self) -> None:
-        s = self.schedule
-        vals = {"init_value": s.init_value, "end_value": s.end_value}
-        for name, v in vals.items():
+        for name in ("init_value", "end_value"):
+            v = getattr(self, name)
             arr = np.asarray(v)
-            if self.kind == "epsilon_greedy" and bool(np.any((arr < 0) | (arr > 1))):
-                raise ParamError(f"exploration.schedule.{name}={v!r}: epsilon must be in [0, 1]")
-            if self.kind == "boltzmann" and bool(np.any(arr <= 0)):
-                raise ParamError(f"exploration.schedule.{name}={v!r}: a Boltzmann temperature "
+            if self.policy == "epsilon_greedy" and bool(np.any((arr < 0) | (arr > 1))):
+                raise ParamError(f"exploration.{name}={v!r}: epsilon must be in [0, 1]")
+            if self.policy == "boltzmann" and bool(np.any(arr <= 0)):
+                raise ParamError(f"exploration.{name}={v!r}: a Boltzmann temperature "
                                  "must be > 0 (use epsilon_greedy with epsilon 0 for greedy)")
 
 
@@ -105,12 +106,12 @@ def schedule_value(p: ScheduleParams, count: Any) -> jax.Array:
     end = jnp.asarray(p.end_value, jnp.float32)
     steps = jnp.asarray(p.transition_steps, jnp.float32)
     begin = jnp.asarray(p.transition_begin, jnp.float32)
-    if p.kind == "constant":
+    if p.schedule == "constant":
         return jnp.broadcast_to(init, c.shape)
-    if p.kind == "linear":
+    if p.schedule == "linear":
         frac = 1.0 - jnp.clip(c - begin, 0.0, steps) / steps
         return (init - end) * frac + end
-    if p.kind == "exponential":
+    if p.schedule == "exponential":
         d = c - begin
         e = d / steps
         if p.staircase:
@@ -118,25 +119,25 @@ def schedule_value(p: ScheduleParams, count: Any) -> jax.Array:
         rate = jnp.asarray(p.decay_rate, jnp.float32)
         v = jnp.where(d <= 0, init, init * jnp.power(rate, e))
         return jnp.maximum(v, end)
-    if p.kind == "cosine":
+    if p.schedule == "cosine":
         cos = 0.5 * (1.0 + jnp.cos(jnp.pi * jnp.minimum(c, steps) / steps))
         return (init - end) * cos + end
-    raise ParamError(f"schedule kind {p.kind!r} unknown; choose one of {list(SCHEDULE_KINDS)}")
+    raise ParamError(f"schedule {p.schedule!r} unknown; choose one of {list(SCHEDULE_KINDS)}")
 
 
 def to_optax(p: ScheduleParams) -> optax.Schedule:
     """The equivalent optax schedule (needs concrete Python numbers, not traced ones)."""
     init, end = float(p.init_value), float(p.end_value)
     steps, begin = float(p.transition_steps), float(p.transition_begin)
-    if p.kind == "constant":
+    if p.schedule == "constant":
         return optax.constant_schedule(init)
-    if p.kind == "linear":
+    if p.schedule == "linear":
         return optax.linear_schedule(init, end, steps, begin)
-    if p.kind == "exponential":
+    if p.schedule == "exponential":
         return optax.exponential_decay(init, steps, float(p.decay_rate), begin, p.staircase, end)
-    if p.kind == "cosine":
+    if p.schedule == "cosine":
         return optax.cosine_decay_schedule(init, steps, alpha=end / init if init else 0.0)
-    raise ParamError(f"schedule kind {p.kind!r} unknown; choose one of {list(SCHEDULE_KINDS)}")
+    raise ParamError(f"schedule {p.schedule!r} unknown; choose one of {list(SCHEDULE_KINDS)}")
 
 
 def _greedy_from_uniform(u: jax.Array, q_rows: jax.Array) -> jax.Array:
@@ -180,10 +181,11 @@ def boltzmann_action(key: jax.Array, q_rows: jax.Array, temperature: Any) -> jax
     return jax.random.categorical(key, logits, axis=-1).astype(jnp.int32)
 
 
-def select_action(key: jax.Array, q_rows: jax.Array, rate: Any, kind: str) -> jax.Array:
-    """Pick actions for Q rows (..., A) with ``kind`` (static) at ``rate`` (epsilon or T)."""
-    if kind == "epsilon_greedy":
+def select_action(key: jax.Array, q_rows: jax.Array, rate: Any, policy: str) -> jax.Array:
+    """Pick actions for Q rows (..., A) with ``policy`` (static) at ``rate`` (epsilon or T)."""
+    if policy == "epsilon_greedy":
         return epsilon_greedy_action(key, q_rows, rate)
-    if kind == "boltzmann":
+    if policy == "boltzmann":
         return boltzmann_action(key, q_rows, rate)
-    raise ParamError(f"exploration kind {kind!r} unknown; choose one of {list(EXPLORATION_KINDS)}")
+    raise ParamError(f"exploration policy {policy!r} unknown; choose one of "
+                     f"{list(EXPLORATION_POLICIES)}")

@@ -29,7 +29,7 @@ __all__ = ["init_q", "q_update", "transition_arrays"]
 
 
 def init_q(p: Any) -> jax.Array:
-    """A fresh table (S, A) float32 filled with ``p.q_init`` (``p``: QLearningParams)."""
+    """A fresh table (S, A) float32 filled with ``p.q_init`` (``p``: QRunnerParams)."""
     return jnp.full((p.num_states, p.num_actions), jnp.asarray(p.q_init, jnp.float32),
                     jnp.float32)
 

@@ -160,5 +160,5 @@ def prepare_models(env: Any, key: jax.Array, cva: CVAStateParams, env_params: An
     steps, one model per object (:func:`vbl.agents.cva_state.identify_object`)."""
     data = collect(env, key, env_params, cva.collect_steps)
     slices = [env.obs_slices[o] for o in cva.objects]
-    return tuple(identify_object(data["u"], data["obs"][:, sl], cva.cva, k, cva.keep_beyond_order)
+    return tuple(identify_object(data["u"], data["obs"][:, sl], cva.ident, k, cva.keep_beyond_order)
                  for sl, k in zip(slices, cva.n_used_per_object(), strict=True))

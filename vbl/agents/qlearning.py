@@ -9,7 +9,7 @@ traced, so a sweep vmaps over them.
 How the table learns is one strategy (:mod:`vbl.agents.updates`): one-step Q-learning
 (:func:`q_update`, "mean" duplicate rule by default), eligibility traces of each kind
 (:mod:`vbl.agents.traces`) or Monte Carlo (:mod:`vbl.agents.monte_carlo`), chosen by
-the one field ``agent.update`` (:func:`rule_name`).
+the one field ``update`` (:func:`rule_of`).
 
 :func:`make_qlearning_runner` is the reusable training building block: pure ``init`` /
 ``run_chunk`` / ``evaluate`` functions that ``lax.scan`` over learner steps of E parallel
@@ -47,14 +47,11 @@ from vbl.spaces.macro_action import (
 )
 
 __all__ = [
-    "QLearningParams",
     "QRunnerParams",
     "QRunnerState",
     "QLearningRunner",
     "init_q",
     "q_update",
-    "rule_name",
-    "make_qlearning",
     "make_qlearning_runner",
     "learner_keys",
     "stack_for_learners",
@@ -62,8 +59,9 @@ __all__ = [
 
 
 @struct.dataclass
-class QLearningParams:
-    """Tabular Q-learning of one learner (one (S, A) table)."""
+class QRunnerParams:
+    """One tabular Q-learner (one float32 (S, A) table) and how it runs: its update rule,
+    exploration, macro actions, curriculum and E parallel environments."""
 
     num_states: int = param(319, doc="number of discrete states S (319: the grid space)",
                             static=True, ge=1)
@@ -90,16 +88,6 @@ class QLearningParams:
     exploration: ExplorationParams = section(ExplorationParams, doc="action selection")
     trace: TraceParams = section(TraceParams, doc="eligibility traces (lambda, window) of "
                                  "the trace rules")
-
-    def check(self) -> None:
-        rule_name(self)
-
-
-@struct.dataclass
-class QRunnerParams:
-    """Everything a Q-learning run needs besides the env's own params."""
-
-    agent: QLearningParams = section(QLearningParams, doc="Q-learning")
     macro: MacroActionParams = section(MacroActionParams, doc="one action = repeat a primitive")
     lem: LEMParams = section(LEMParams, doc="Learning from Easy Missions curriculum")
     num_envs: int = param(64, doc="parallel environments E per learner (all update one table)",
@@ -108,34 +96,9 @@ class QRunnerParams:
                              static=True, ge=1)
 
 
-def make_qlearning(p: QLearningParams) -> tuple[Callable, Callable]:
-    """Validated ``(init_q, update)`` pair for one learner; ``update(q, s, a, r, s_next,
-    terminal, params, weight=None, num_primitives=None)`` reads lr / discount from params."""
-    validate(p, "agent.")
-    duplicates = p.duplicates
-
-    def update(q, s, a, r, s_next, terminal, params: QLearningParams, weight=None,
-               num_primitives=None):
-        return q_update(q, s, a, r, s_next, terminal, params.learning_rate, params.discount,
-                        duplicates=duplicates, weight=weight, num_primitives=num_primitives)
-
-    return (lambda params: init_q(params)), update
-
-
-def rule_name(p: QLearningParams) -> str:
-    """The update rule of agent params ``p`` (a name in :data:`vbl.agents.updates.RULES`):
-    ``p.update``; ``trace.enabled`` with ``trace.kind`` K is an alias of ``update = K``."""
-    if not p.trace.enabled:
-        return p.update
-    if p.update not in ("q_learning", p.trace.kind):
-        raise ParamError(f"agent.update={p.update!r} and agent.trace.enabled (kind "
-                         f"{p.trace.kind!r}) name two rules; set agent.update only")
-    return p.trace.kind
-
-
-def rule_of(p: QLearningParams) -> UpdateRule:
-    """The :class:`~vbl.agents.updates.UpdateRule` of agent params ``p`` (static fields)."""
-    return make_rule(rule_name(p), duplicates=p.duplicates, trace_length=p.trace.length,
+def rule_of(p: QRunnerParams) -> UpdateRule:
+    """The :class:`~vbl.agents.updates.UpdateRule` of ``p`` (its static fields)."""
+    return make_rule(p.update, duplicates=p.duplicates, trace_length=p.trace.length,
                      mc_length=p.mc_log, truncation=p.truncation)
 
 
@@ -245,12 +208,11 @@ class _Moved(NamedTuple):
 
 
 def _check(env: Any, params: QRunnerParams, env_params: Any) -> None:
-    ap, lp = params.agent, params.lem
     n_actions = getattr(env, "num_actions", None)
-    if n_actions is not None and int(n_actions) != ap.num_actions:
-        raise ParamError(f"agent.num_actions={ap.num_actions} but the env has {n_actions} "
+    if n_actions is not None and int(n_actions) != params.num_actions:
+        raise ParamError(f"num_actions={params.num_actions} but the env has {n_actions} "
                          "actions")
-    if lp.enabled:
+    if params.lem.enabled:
         ep = env.default_params if env_params is None else env_params
         if not hasattr(ep, "start_difficulty"):
             raise ParamError("lem.enabled=True needs env params with a 'start_difficulty' "
@@ -269,7 +231,7 @@ def _env_params_at(sp: _Spec, env_params: Any, difficulty: jax.Array) -> Any:
 
 def _init(sp: _Spec, key, params: QRunnerParams, env_params) -> QRunnerState:
     k_reset, key = jax.random.split(key)
-    q = init_q(params.agent)
+    q = init_q(params)
     lem = lem_init(params.lem, q)
     ep = _env_params_at(sp, env_params, lem.difficulty)
     obs, env_state = jax.vmap(sp.env.reset, in_axes=(0, None))(
@@ -283,7 +245,7 @@ def _init(sp: _Spec, key, params: QRunnerParams, env_params) -> QRunnerState:
 
 def _count(sp: _Spec, steps: jax.Array, episodes: jax.Array) -> jax.Array:
     """The exploration schedule's count (learner steps or finished episodes)."""
-    return steps if sp.params.agent.exploration.count_unit == "steps" else episodes
+    return steps if sp.params.exploration.count_unit == "steps" else episodes
 
 
 def _select(sp: _Spec, k_act, c: QRunnerState, params: QRunnerParams, learn: bool,
@@ -292,9 +254,9 @@ def _select(sp: _Spec, k_act, c: QRunnerState, params: QRunnerParams, learn: boo
     if not learn:
         rate = jnp.asarray(eval_epsilon, jnp.float32)
         return rate, select_action(k_act, c.q[c.s], rate, "epsilon_greedy")
-    rate = schedule_value(params.agent.exploration.schedule,
+    rate = schedule_value(params.exploration,
                           _count(sp, c.steps, c.episodes))
-    action = select_action(k_act, c.q[c.s], rate, sp.params.agent.exploration.kind)
+    action = select_action(k_act, c.q[c.s], rate, sp.params.exploration.policy)
     return rate, sp.rule.act(c.rule, action)
 
 
@@ -308,7 +270,7 @@ def _act_sync(sp: _Spec, key, c: QRunnerState, action, params: QRunnerParams,
         out = jax.vmap(partial(macro_step, stop_on=mp.stop_on),
                        in_axes=(None, None, 0, 0, 0, 0, None, None, None, None))(
             sp.env.step, sp.state_fn, keys, c.env_state, c.s, action, ep,
-            params.macro.max_repeats, params.agent.discount, params.macro.min_repeats)
+            params.macro.max_repeats, params.discount, params.macro.min_repeats)
         obs, st, r, term, trunc, info = (out.obs, out.env_state, out.reward, out.terminated,
                                          out.truncated, out.info)
         n, s_next = out.num_primitives, out.next_state
@@ -333,7 +295,7 @@ def _act_async(sp: _Spec, key, c: QRunnerState, action, params: QRunnerParams,
         return (*out, _states(sp, out[0]))
 
     out, ended, (s_from, action, r, n, decided), macro = async_macro_advance(
-        c.macro, c.s, action, step_out, params.macro.max_repeats, params.agent.discount,
+        c.macro, c.s, action, step_out, params.macro.max_repeats, params.discount,
         params.macro.min_repeats, sp.params.macro.stop_on)
     obs, st, _, term, trunc, info, s_next = out
     return _Moved(obs, st, r, jnp.asarray(term, bool), jnp.asarray(trunc, bool), info, n,
@@ -341,15 +303,15 @@ def _act_async(sp: _Spec, key, c: QRunnerState, action, params: QRunnerParams,
 
 
 def _truncation(sp: _Spec, m: _Moved) -> tuple[Any, Any, Any]:
-    """(terminal, weight, s_boot) of the transitions under ``agent.truncation``."""
-    mode = sp.params.agent.truncation
+    """(terminal, weight, s_boot) of the transitions under ``truncation``."""
+    mode = sp.params.truncation
     cut = m.trunc & ~m.term
     if mode == "skip":
         return m.term, ~cut, m.s_next
     if mode == "terminal":
         return m.term | m.trunc, None, m.s_next
     if "final_obs" not in m.info:
-        raise ParamError("agent.truncation='bootstrap' needs info['final_obs'] from the env")
+        raise ParamError("truncation='bootstrap' needs info['final_obs'] from the env")
     return m.term, None, jnp.where(cut, _states(sp, m.info["final_obs"]), m.s_next)
 
 
@@ -357,10 +319,10 @@ def _next_action(sp: _Spec, k_act, c: QRunnerState, m: _Moved,
                  params: QRunnerParams) -> jax.Array:
     """Sarsa: the action each env takes next in ``s_next`` (pre-update table, next rate)."""
     n_done = jnp.sum(m.term | m.trunc, dtype=jnp.int32)
-    rate = schedule_value(params.agent.exploration.schedule,
+    rate = schedule_value(params.exploration,
                           _count(sp, c.steps + 1, c.episodes + n_done))
     return select_action(jax.random.fold_in(k_act, 1), c.q[m.s_next], rate,
-                         sp.params.agent.exploration.kind)
+                         sp.params.exploration.policy)
 
 
 def _transition(sp: _Spec, k_act, c: QRunnerState, m: _Moved,
@@ -407,7 +369,7 @@ def _step(sp: _Spec, c: QRunnerState, params: QRunnerParams, env_params, learn: 
     q, rule_state, lem, td_abs = c.q, c.rule, c.lem, jnp.float32(0.0)
     if learn:
         t = _transition(sp, k_act, c, m, params)
-        q, rule_state, td_abs = sp.rule.update(c.q, c.rule, t, params.agent)
+        q, rule_state, td_abs = sp.rule.update(c.q, c.rule, t, params)
         lem = lem_update(c.lem, q, params.lem, jnp.sum(t.done), jnp.sum(t.scored))
     return _record(c, m, key, q, rule_state, lem, rate, td_abs)
 
@@ -465,7 +427,7 @@ def make_qlearning_runner(env: Any, state_fn: Callable, params: QRunnerParams,
     """
     validate(params)
     _check(env, params, env_params)
-    sp = _Spec(env=env, state_fn=state_fn, params=params, rule=rule_of(params.agent))
+    sp = _Spec(env=env, state_fn=state_fn, params=params, rule=rule_of(params))
     init, run_chunk, evaluate = (partial(_init, sp), partial(_run_chunk, sp),
                                  partial(_evaluate, sp))
     init_batch = jax.jit(jax.vmap(init, in_axes=(0, 0, 0)))

@@ -14,7 +14,7 @@ pairs in one scatter into the table, with eligibility
 action). The buffer is cleared when an episode ends. ``lambda`` is traced (a sweep vmaps
 over it); the kind and L are static.
 
-TD errors (``TraceParams.kind``; ``V(s) = max_b Q(s, b)``; all from the table before the
+TD errors (the trace rule of ``update``; ``V(s) = max_b Q(s, b)``; all from the table before the
 step, as in :func:`vbl.agents.qlearning.q_update`)::
 
     target_t = r_t + discount**n_t * (1 - terminal_t) * B_t
@@ -33,7 +33,7 @@ step, as in :func:`vbl.agents.qlearning.q_update`)::
 With lambda = 0 every older eligibility is 0 and peng / naive / watkins equal the one-step
 update exactly.
 
-**Duplicate rule with weights** (``QLearningParams.duplicates``). Let the contributions on
+**Duplicate rule with weights** (``QRunnerParams.duplicates``). Let the contributions on
 one entry (s, a) in one step be the pairs (env i, slot k) with eligibility e_ik and TD error
 d_ik (0-weight transitions, e.g. skipped truncations, drop out):
 
@@ -69,13 +69,8 @@ TRACE_KINDS = ("peng", "naive", "watkins", "sarsa")
 @struct.dataclass
 class TraceParams:
     """Eligibility traces truncated to the last ``length`` actions of each environment (the
-    trace rules of ``agent.update``: peng, naive, watkins, sarsa)."""
+    trace rules of ``update``: peng, naive, watkins, sarsa)."""
 
-    enabled: bool = param(False, doc="alias of agent.update = kind (configs and run folders "
-                          "that set it run the same); prefer agent.update", static=True)
-    kind: str = param("peng", doc="the trace rule of the alias `enabled` (Peng's, naive, "
-                      "Watkins' Q(lambda) or Sarsa(lambda)); prefer agent.update",
-                      static=True, choices=TRACE_KINDS)
     lam: float = param(0.0, doc="trace decay lambda per action (0: one-step; 1: returns "
                        "over the whole window)", ge=0.0, le=1.0)
     length: int = param(16, doc="window L: (state, action) pairs kept per environment",

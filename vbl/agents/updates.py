@@ -126,7 +126,7 @@ def _traces(kind: str, duplicates: str, length: int, truncation: str) -> UpdateR
 def _monte_carlo(length: int, truncation: str) -> UpdateRule:
     if truncation == "bootstrap":
         raise ParamError("the monte_carlo rule does not bootstrap; use "
-                         "agent.truncation='skip' or 'terminal'")
+                         "truncation='skip' or 'terminal'")
 
     def update(q, log, t: Transition, hp):
         log = mc_log(log, t.decided, t.s, t.a, t.clock)

@@ -6,12 +6,12 @@ its cell map backwards from the goal (:mod:`vbl.spaces.action_cells`) and refine
 map's policy in closed loop (:mod:`vbl.spaces.cell_refine`), all in ``init``. The chunks
 train the grid baseline of :mod:`vbl.engine.baselines` (its preset: Q-learning on the
 319-state grid, macro actions, LEM) on the same env. ``final`` evaluates the map's
-policy (and the refined one) on fresh starts at ``grid.train.eval_difficulty`` and takes
+policy (and the refined one) on fresh starts at ``baseline.train.eval_difficulty`` and takes
 the grid's own final evaluation (greedy and random policy) at the same difficulty.
 
 A config for :func:`make_action_map_program` has the sections ``env``
 (:class:`~vbl.envs.shooting.ShootingParams`), ``features``, ``collect``
-(:class:`~vbl.spaces.action_based.ExperienceParams`), ``cells``, ``refine``, ``grid``
+(:class:`~vbl.spaces.action_based.ExperienceParams`), ``cells``, ``refine``, ``baseline``
 (:class:`~vbl.engine.baselines.GridLearner`: :func:`grid_learner_default`) and ``eval``
 (:class:`MapEvalParams`).
 """
@@ -72,14 +72,14 @@ def experience_default() -> ExperienceParams:
 
 def grid_learner_default() -> GridLearner:
     """The grid baseline preset on the map's env, its evaluation (the start difficulty of
-    every comparison, ``grid.train.eval_difficulty``) pinned to ``EVAL_DIFFICULTY``."""
+    every comparison, ``baseline.train.eval_difficulty``) pinned to ``EVAL_DIFFICULTY``."""
     return GridLearner(train=grid_train().replace(eval_difficulty=EVAL_DIFFICULTY))
 
 
 @struct.dataclass
 class MapEvalParams:
     episodes: int = param(256, doc="evaluation episodes (fresh starts) of the map's policy, at "
-                          "grid.train.eval_difficulty", static=True, ge=1)
+                          "baseline.train.eval_difficulty", static=True, ge=1)
     grid_baseline: bool = param(True, doc="train and evaluate the grid baseline in this run "
                                 "(off: one empty chunk, the map only; --quick, to keep its "
                                 "compile time short)", static=True)
@@ -103,7 +103,7 @@ def make_action_map_program(cfg: Any) -> Program:
         raise ParamError(f"cells.categorical_dims={cat}: only the lost-side features are "
                          "categorical (2 with features.lost_sides, else 0)")
     check_cells(cfg.cells, cfg.features.dim, cfg.collect.horizon)
-    gprog = (grid_program(cfg.grid.on(cfg.env)) if cfg.eval.grid_baseline
+    gprog = (grid_program(cfg.baseline.on(cfg.env)) if cfg.eval.grid_baseline
              else None)
     refine = cfg.refine.iterations > 0
     validate(cfg.refine, "refine.")
@@ -116,7 +116,7 @@ def make_action_map_program(cfg: Any) -> Program:
         smap = build_cell_map(exp, c.cells)
         refined = (refine_cell_map(ENV, c.env, k_ref, feat, smap, c.refine) if refine
                    else None)
-        grid = None if gprog is None else gprog.init(k_grid, c.grid.on(c.env))
+        grid = None if gprog is None else gprog.init(k_grid, c.baseline.on(c.env))
         return Carry(smap=smap, grid=grid, refined=refined,
                      collect_primitives=jnp.sum(exp.valid[..., :-1]).astype(F32),
                      grid_primitives=jnp.zeros((), F32))
@@ -125,7 +125,7 @@ def make_action_map_program(cfg: Any) -> Program:
         states = num_cell_states(carry.smap).astype(F32)
         if gprog is None:
             return carry, {"map_states": states}
-        g, m = gprog.step(carry.grid, c.grid.on(c.env))
+        g, m = gprog.step(carry.grid, c.baseline.on(c.env))
         prims = carry.grid_primitives + m["episodes"] * m["mean_primitives"]
         curve = "eval_success" if "eval_success" in m else "train_success"  # grid.train.eval_curve
         return carry.replace(grid=g, grid_primitives=prims.astype(F32)), {
@@ -134,7 +134,7 @@ def make_action_map_program(cfg: Any) -> Program:
 
     def final(carry, c, key):
         k_map, k_grid = jax.random.split(key)
-        ep = c.env.replace(start_difficulty=jnp.asarray(c.grid.train.eval_difficulty, F32))
+        ep = c.env.replace(start_difficulty=jnp.asarray(c.baseline.train.eval_difficulty, F32))
         feat = lambda o: sec2_features(o, c.features)  # noqa: E731
         sm = carry.smap
 
@@ -158,7 +158,7 @@ def make_action_map_program(cfg: Any) -> Program:
                        refined_policy=rm.policy.astype(F32),
                        refined_transitions=rm.transitions.astype(F32))
         if gprog is not None:
-            g = gprog.final(carry.grid, c.grid.on(c.env), k_grid)
+            g = gprog.final(carry.grid, c.baseline.on(c.env), k_grid)
             out.update(grid_success=g["greedy_success"], random_success=g["random_success"],
                        grid_primitives=carry.grid_primitives)
         return out

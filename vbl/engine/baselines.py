@@ -15,13 +15,13 @@ from flax import struct
 from vbl.agents.exploration import ScheduleParams
 from vbl.agents.qlearning import QRunnerParams
 from vbl.agents.traces import TraceParams
-from vbl.engine.q_program import QTrainParams, make_q_program
+from vbl.engine.q_program import QTrainParams, make_q_program, q_renames, trace_alias_to_update
 from vbl.envs.shooting import ShootingEnv, ShootingParams
 from vbl.params import section
 from vbl.spaces.grid import NUM_GRID_STATES, GridParams, grid_state
 
 __all__ = ["GridBaseline", "GridLearner", "grid_program", "grid_env", "grid_space", "grid_agent",
-           "grid_train", "TASK_DIFFICULTY"]
+           "grid_train", "grid_renames", "grid_migration", "TASK_DIFFICULTY"]
 
 TASK_DIFFICULTY = 1.0
 """Start difficulty of the grid's task (evaluation, and the cap of the curriculum): fully
@@ -36,10 +36,11 @@ MAX_STEPS = 1000
 fully random starts 30 s is too short even for a hand-written table on the 319 grid states
 (0.102); with 100 s it scores 0.707, and the random policy 0.000 on the same starts."""
 
-TRACE = TraceParams(enabled=True, kind="peng", lam=0.9, length=32)
-"""Multi-step returns (Peng's Q(lambda), lambda 0.9 per action, window 32 actions): the
-remedy for the grid's state aliasing, under which one-step Q-learning unlearned even a good
-hand-written table."""
+UPDATE = "peng"
+TRACE = TraceParams(lam=0.9, length=32)
+"""Multi-step returns (``UPDATE``: Peng's Q(lambda), lambda 0.9 per action, window 32
+actions): the remedy for the grid's state aliasing, under which one-step Q-learning
+unlearned even a good hand-written table."""
 
 EVAL_STEPS = 400
 """Cap on (macro) actions per evaluation episode: above ``MAX_STEPS / MIN_REPEATS`` (100), so
@@ -69,7 +70,7 @@ starts took 56 % of a chunk's time when it ran after every chunk; after every fo
 (25 curve points over 100 chunks; a crossing is read from the mean of 2 points, 64 starts)
 three quarters of that work goes, and training and the final evaluation stay the same."""
 
-LR_SCALE = ScheduleParams(kind="linear", init_value=1.0, end_value=0.2,
+LR_SCALE = ScheduleParams(schedule="linear", init_value=1.0, end_value=0.2,
                           transition_begin=60.0, transition_steps=20.0)
 """Step size over training (factor on the learning rate, per chunk): 0.1 for 60 chunks,
 then linearly down to 0.02 by chunk 80 (a decreasing step size lets the tabular estimates
@@ -102,13 +103,12 @@ def grid_agent() -> QRunnerParams:
     (``lem.backoff_level``: without it the near-greedy success fell once the difficulty
     reached 0.8-0.9). LEM off = ``initial_difficulty = max_difficulty``."""
     a = QRunnerParams()
-    sched = a.agent.exploration.schedule.replace(transition_steps=EXPLORATION_STEPS)
-    agent = a.agent.replace(discount=0.98, learning_rate=0.1, trace=TRACE,
-                            exploration=a.agent.exploration.replace(schedule=sched))
-    macro = a.macro.replace(min_repeats=MIN_REPEATS)
     lem = a.lem.replace(statistic="none", window=100, step=0.1, success_level=0.9,
                         backoff_level=0.5, max_difficulty=TASK_DIFFICULTY)
-    return a.replace(agent=agent, macro=macro, lem=lem, num_envs=64, chunk_steps=100)
+    return a.replace(discount=0.98, learning_rate=0.1, update=UPDATE, trace=TRACE,
+                     exploration=a.exploration.replace(transition_steps=EXPLORATION_STEPS),
+                     macro=a.macro.replace(min_repeats=MIN_REPEATS), lem=lem, num_envs=64,
+                     chunk_steps=100)
 
 
 def grid_train() -> QTrainParams:
@@ -134,8 +134,8 @@ class GridBaseline:
 @struct.dataclass
 class GridLearner:
     """The grid baseline's learner sections without an env: an experiment that compares
-    with the grid on its own env holds these as one section (``grid.grid``, ``grid.agent``,
-    ``grid.train``) and runs :func:`grid_program` on :meth:`on` its env."""
+    with the grid on its own env holds these as one section (``baseline.grid``,
+    ``baseline.agent``, ``baseline.train``) and runs :func:`grid_program` on :meth:`on` its env."""
 
     grid: GridParams = section(grid_space, doc="grid boundaries (319 states)")
     agent: QRunnerParams = section(grid_agent, doc="Q-learning, macro actions, LEM")
@@ -151,3 +151,20 @@ def grid_program(cfg: Any):
     :class:`GridBaseline` (``env``, ``grid``, ``agent``, ``train``)."""
     return make_q_program(ShootingEnv(), lambda obs, c: grid_state(obs, c.grid), cfg,
                           num_states=NUM_GRID_STATES)
+
+
+def grid_renames(old: str = "", new: str = "") -> dict[str, str]:
+    """``Experiment.renamed_params`` of the grid learner's sections (``grid``, ``agent``,
+    ``train``) recorded under prefix ``old`` in the earlier layout (``agent.agent.*``,
+    ``exploration.schedule.*``, ``lr_scale.kind``), now under ``new``."""
+    renames = {**q_renames(old + "agent.", new + "agent."),
+               old + "train.lr_scale.kind": new + "train.lr_scale.schedule"}
+    if old != new:
+        renames.update({old + "grid.": new + "grid.", old + "train.": new + "train."})
+    return renames
+
+
+def grid_migration(old: str = ""):
+    """``Experiment.migrate`` of the grid learner's sections recorded under ``old``: the
+    former trace alias (:func:`~vbl.engine.q_program.trace_alias_to_update`)."""
+    return trace_alias_to_update(old + "agent.agent.")

@@ -6,13 +6,14 @@ Each learner (one seed) runs :mod:`vbl.agents.cva_state` in
 :class:`vbl.envs.shoot_pass.ShootPassEnv`: random-action data collection, one CVA model per
 observed object (ball, goal, other robot), filtering inside the env loop, vector
 quantisation of the state vector, tabular Q-learning; then ``train.eval_chunks`` greedy
-chunks from fresh starts (each env's first episode counts). ``learner.use_cva=False``
-quantises the current features of the same objects instead; with ``learner.state="select"``
+chunks from fresh starts (each env's first episode counts). ``cva.use_cva=False``
+quantises the current features of the same objects instead; with ``cva.state="select"``
 both state vectors share one compilation per task, and the env's ``task="select"`` lets the
 traced ``env.task_pass`` pick the role, so task x state vector is one compilation.
 
 A config for :func:`make_cva_program` has ``task`` (static: "shoot", "pass" or "select"),
-``learner`` (:class:`~vbl.agents.cva_state.CVAStateParams`), ``env``
+``cva`` (:class:`~vbl.agents.cva_state.CVAStateParams`), ``q``
+(:class:`~vbl.agents.qlearning.QRunnerParams`), ``env``
 (:class:`~vbl.envs.shoot_pass.ShootPassParams`) and ``train`` (:class:`CVATrainParams`).
 """
 
@@ -24,27 +25,31 @@ from flax import struct
 
 from vbl.agents.cva_state import (
     CVAStateParams,
-    default_runner,
+    default_q,
     first_episode_stats,
     greedy_params,
     make_cva_learner,
 )
 from vbl.agents.exploration import ScheduleParams, schedule_value
+from vbl.agents.qlearning import QRunnerParams
 from vbl.engine.experiment import Program
+from vbl.engine.q_program import q_renames, trace_alias_to_update
 from vbl.envs.shoot_pass import ShootPassEnv
 from vbl.params import ParamError, param, section
 from vbl.spaces.quantize import QuantizerParams
 from vbl.sysid.params import CVAParams
 
-__all__ = ["default_learner", "default_lr_scale", "CVATrainParams", "make_cva_program",
-           "task_label", "state_label", "POINT_KEYS", "absolute_lr_schedule_to_scale"]
+__all__ = ["default_cva", "default_table2_q", "default_lr_scale", "CVATrainParams",
+           "make_cva_program", "task_label", "state_label", "POINT_KEYS",
+           "absolute_lr_schedule_to_scale", "RENAMED_PARAMS", "migrate"]
 
-POINT_KEYS = ("task", "env.task_pass", "learner.use_cva", "learner.state")
+POINT_KEYS = ("task", "env.task_pass", "cva.use_cva", "cva.state")
 """Sweep paths that name a row's task and state vector (the others are extra settings)."""
 
 
-def default_learner() -> CVAStateParams:
-    """Pipeline defaults for the two-robot task (docs/cva_learning.md, "Choices and why")."""
+def default_cva() -> CVAStateParams:
+    """State-construction defaults for the two-robot task (docs/cva_learning.md, "Choices
+    and why")."""
     # The ball's 8 leading canonical components (keep_beyond_order: its AIC order is 4,
     # and components 5-8 carry its approach velocity, R^2 0.45 against 0.08 with 4;
     # docs/findings/table2_shoot_pass.md, "What the CVA state carries (probe)"), the
@@ -58,29 +63,27 @@ def default_learner() -> CVAStateParams:
     return CVAStateParams(
         state="select", objects=("ball", "goal", "other"), n_used=4,
         n_used_objects=(8, 4, 4), keep_beyond_order=True, extra=(), collect_steps=3000,
-        cva=CVAParams(lag=0, lag_max=3, lag_rule="paper", logdet_stop=-100.0),
+        ident=CVAParams(lag=0, lag_max=3, lag_rule="paper", logdet_stop=-100.0),
         quantizer=QuantizerParams(method="product_vq", group_codes=(64, 8, 8),
-                                  kmeans_iters=20),
-        runner=_runner(transition_steps=30000.0))
+                                  kmeans_iters=20))
 
 
-def _runner(transition_steps: float):
-    """Runner defaults with discount 0.95 and epsilon 1.0 -> 0.05 over ``transition_steps``
-    learner steps (primitives, about 75 % of a run: num_chunks x chunk_steps)."""
-    r = default_runner()
+def default_table2_q(transition_steps: float = 30000.0) -> QRunnerParams:
+    """Q-learner defaults with discount 0.95 and epsilon 1.0 -> 0.05 over
+    ``transition_steps`` learner steps (primitives, about 75 % of a run: num_chunks x
+    chunk_steps)."""
+    r = default_q()
     # macro actions: repeat a primitive until the quantised state changes (a deviation:
     # docs/findings/table2_shoot_pass.md, "Deviations")
     # (async: every runner step is one primitive of every env; an env decides when its
     # action ends; an action lasts a few primitives on average against a cap of 20, and a
     # synchronous loop runs as long as the longest action of the batch)
     r = r.replace(macro=r.macro.replace(enabled=True, mode="async"))
-    sch = r.agent.exploration.schedule.replace(transition_steps=transition_steps)
     # discount 0.95 per 0.1 s primitive: a goal 3-4 s after the start is still worth ~0.17
     # (0.8: ~4e-4); docs/cva_learning.md, "Choices and why"
     # learning rate 0.5, scaled per chunk by train.lr_scale (default_lr_scale)
-    return r.replace(agent=r.agent.replace(
-        discount=0.95, learning_rate=0.5,
-        exploration=r.agent.exploration.replace(schedule=sch)))
+    return r.replace(discount=0.95, learning_rate=0.5, exploration=r.exploration.replace(
+        transition_steps=transition_steps))
 
 
 def default_lr_scale() -> ScheduleParams:
@@ -88,7 +91,7 @@ def default_lr_scale() -> ScheduleParams:
     400 chunks, then linearly down to 0.1 over the next 10 % (with the learning rate 0.5:
     0.5 falling to 0.05; a decreasing step size lets the tabular Q estimates settle;
     docs/cva_learning.md, "Choices and why")."""
-    return ScheduleParams(kind="linear", init_value=1.0, end_value=0.1,
+    return ScheduleParams(schedule="linear", init_value=1.0, end_value=0.1,
                           transition_begin=280.0, transition_steps=40.0)
 
 
@@ -96,21 +99,20 @@ def default_lr_scale() -> ScheduleParams:
 class CVATrainParams:
     """Run length, greedy evaluation and step-size schedule of :func:`make_cva_program`."""
 
-    num_chunks: int = param(400, doc="training chunks per run (each learner.runner.chunk_steps "
+    num_chunks: int = param(400, doc="training chunks per run (each q.chunk_steps "
                             "learner steps)", static=True, ge=1)
     eval_chunks: int = param(1, doc="greedy evaluation chunks after training: all envs restart "
                              "fresh, no learning, no exploration; each env's first finished "
                              "episode counts (chunks x chunk_steps must be >= env.max_steps)",
                              static=True, ge=1)
-    lr_scale: ScheduleParams = section(default_lr_scale, doc="factor on "
-                                       "learner.runner.agent.learning_rate per training "
-                                       "chunk, count = training chunks done (as the Q "
-                                       "programs' train.lr_scale)")
+    lr_scale: ScheduleParams = section(default_lr_scale, doc="factor on q.learning_rate "
+                                       "per training chunk, count = training chunks done "
+                                       "(as the Q programs' train.lr_scale)")
 
 
 def absolute_lr_schedule_to_scale(rec: dict) -> dict:
     """A recorded config with the absolute step-size schedule ``train.lr_schedule`` (older
-    run folders) in today's terms: its start as ``learner.runner.agent.learning_rate``,
+    run folders) in today's terms: its start as ``q.learning_rate``,
     the schedule as the factor ``train.lr_scale`` (the same step sizes)."""
     if "train.lr_schedule.init_value" not in rec:
         return rec
@@ -120,8 +122,23 @@ def absolute_lr_schedule_to_scale(rec: dict) -> dict:
         name, value = key.rsplit(".", 1)[1], rec.pop(key)
         rec[f"train.lr_scale.{name}"] = round(value / init, 9) if name == "end_value" else value
     rec["train.lr_scale.init_value"] = 1.0
-    rec["learner.runner.agent.learning_rate"] = init
+    rec.pop("learner.runner.agent.learning_rate", None)  # the schedule overrode it
+    rec["q.learning_rate"] = init
     return rec
+
+
+RENAMED_PARAMS = {**q_renames("learner.runner.", "q."), "learner.cva.": "cva.ident.",
+                  "learner.": "cva.", "train.lr_scale.kind": "train.lr_scale.schedule"}
+"""``Experiment.renamed_params`` of this program's config: the Q-learner was
+``learner.runner`` (its table's parameters ``learner.runner.agent``), the state
+construction ``learner`` with the identification at ``learner.cva``."""
+
+
+def migrate(rec: dict) -> dict:
+    """``Experiment.migrate`` of this program's config: the absolute step-size schedule
+    (:func:`absolute_lr_schedule_to_scale`) and the former trace alias
+    (:func:`~vbl.engine.q_program.trace_alias_to_update`)."""
+    return absolute_lr_schedule_to_scale(trace_alias_to_update("learner.runner.agent.")(rec))
 
 
 @struct.dataclass
@@ -137,23 +154,23 @@ class Carry:
 def make_cva_program(cfg) -> Program:
     """Training chunks, then ``eval_chunks`` greedy chunks through the same compiled step."""
     env = ShootPassEnv(cfg.task)
-    lrn = make_cva_learner(env, cfg.learner, m=2)
+    lrn = make_cva_learner(env, cfg.cva, cfg.q, m=2)
     n_train, n_eval = cfg.train.num_chunks, cfg.train.eval_chunks
-    if n_eval * cfg.learner.runner.chunk_steps < cfg.env.max_steps:
-        raise ParamError(f"train.eval_chunks={n_eval} x learner.runner.chunk_steps="
-                         f"{cfg.learner.runner.chunk_steps} must be >= env.max_steps="
+    if n_eval * cfg.q.chunk_steps < cfg.env.max_steps:
+        raise ParamError(f"train.eval_chunks={n_eval} x q.chunk_steps="
+                         f"{cfg.q.chunk_steps} must be >= env.max_steps="
                          f"{cfg.env.max_steps} (every evaluation episode must finish)")
 
     def init(key, c):
         k_prep, k_run, k_eval = jax.random.split(key, 3)
-        fp = lrn.prepare(k_prep, c.learner, c.env)
-        rs = lrn.runner.init(k_run, lrn.runner_params(c.learner), fp)
+        fp = lrn.prepare(k_prep, c.cva, c.env)
+        rs = lrn.runner.init(k_run, lrn.runner_params(c.q), fp)
         return Carry(rs, fp, jnp.int32(0), k_eval)
 
     def step(carry, c):
-        rp = lrn.runner_params(c.learner)
-        lr = rp.agent.learning_rate * schedule_value(c.train.lr_scale, carry.chunk)
-        rp = rp.replace(agent=rp.agent.replace(learning_rate=lr))
+        rp = lrn.runner_params(c.q)
+        rp = rp.replace(learning_rate=rp.learning_rate * schedule_value(c.train.lr_scale,
+                                                                        carry.chunk))
         rs = carry.runner
         # at the first evaluation chunk every env restarts fresh (counters reset), Q kept
         fresh = lrn.runner.init(carry.eval_key, rp, carry.fparams).replace(
@@ -169,7 +186,7 @@ def make_cva_program(cfg) -> Program:
     def final(carry, c, key):
         ev = first_episode_stats(carry.runner.env_state)
         out = {"greedy_success_rate": ev["success_rate"], "greedy_finished": ev["finished"]}
-        for name, mod in zip(cfg.learner.objects, carry.fparams.inner.filters, strict=False):
+        for name, mod in zip(cfg.cva.objects, carry.fparams.inner.filters, strict=False):
             out[f"lag_{name}"] = mod.lag.astype(jnp.float32)
             out[f"n_{name}"] = mod.n.astype(jnp.float32)
         return out
@@ -187,7 +204,7 @@ def task_label(pt: dict, config) -> str:
 
 
 def state_label(pt: dict, config) -> str:
-    """"cva" or "current" (or the static ``learner.state``) of sweep point ``pt``."""
-    if "learner.use_cva" in pt or config.learner.state == "select":
-        return "cva" if pt.get("learner.use_cva", config.learner.use_cva) else "current"
-    return pt.get("learner.state", config.learner.state)
+    """"cva" or "current" (or the static ``cva.state``) of sweep point ``pt``."""
+    if "cva.use_cva" in pt or config.cva.state == "select":
+        return "cva" if pt.get("cva.use_cva", config.cva.use_cva) else "current"
+    return pt.get("cva.state", config.cva.state)

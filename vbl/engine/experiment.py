@@ -178,8 +178,10 @@ class Experiment:
       presets: ``{name: {path: value}}``: named variants (``vbl run NAME --preset P``), e.g.
         every variant the README reports; ``--set`` overrides a preset's values and
         ``--sweep`` of one of its paths replaces it.
-      renamed_params: ``{old path: current path}`` of parameters the experiment moved: run
-        folders that recorded the old path are read under the current one.
+      renamed_params: ``{old path: current path}`` of parameters the experiment moved (a
+        key ending in ``.`` moves every path under it; the longest matching key wins, an
+        exact path before any prefix): run folders that recorded the old path are read
+        under the current one, and ``--set`` / ``--sweep`` of an old path name the new one.
       migrate: ``recorded config -> config`` (``{path: value}`` dicts) for run folders
         whose parameters changed meaning (a value conversion, not only a new path); applied
         before ``renamed_params``.
@@ -220,6 +222,17 @@ class Experiment:
                 return v is None or v == value
         return False
 
+    def renamed(self, path: str) -> str:
+        """Today's name of a parameter path that a run folder or a user may give under an
+        older name (:attr:`renamed_params`); other paths are returned unchanged."""
+        if path in self.renamed_params:
+            return self.renamed_params[path]
+        prefixes = [p for p in self.renamed_params if p.endswith(".") and path.startswith(p)]
+        if not prefixes:
+            return path
+        old = max(prefixes, key=len)
+        return self.renamed_params[old] + path[len(old):]
+
     def preset(self, name: str | None, swept: Any = ()) -> dict[str, Any]:
         """The ``{path: value}`` overrides of preset ``name`` ({} for None) but the paths in
         ``swept`` (a sweep replaces a preset's value); an unknown name is a ParamError that
@@ -249,7 +262,7 @@ class Experiment:
         from vbl.params import ParamError, get_path
 
         checked = [("legacy_values", p) for p in self.legacy_values]
-        checked += [("renamed_params", p) for p in self.renamed_params.values()]
+        checked += [("renamed_params", p.rstrip(".")) for p in self.renamed_params.values()]
         checked += [(f"presets[{n!r}]", p) for n, v in self.presets.items() for p in v]
         for what, path in checked:
             try:

@@ -53,7 +53,7 @@ class InputChoice:
                        "observations stacked, 2 the tabular learner's CVA state vector "
                        "(traced; all three zero-padded to one length)", ge=0, le=2)
     frames: int = param(3, doc="observations stacked for input 1 (3 = the CVA filter's "
-                        "longest history, cva.cva.lag_max)", static=True, ge=1)
+                        "longest history, cva.ident.lag_max)", static=True, ge=1)
 
 
 def _program(lrn, init_env, num_chunks: int, final_envs: int):

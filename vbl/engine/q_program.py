@@ -30,7 +30,7 @@ Per engine chunk (``train.eval_every`` training chunks; metrics per learner, sca
   with LEM off the env's own ``start_difficulty``); ``lem_raises``: raises so
   far; ``epsilon``: exploration rate (epsilon or temperature) at the end of the chunk;
   ``td_abs``: mean absolute TD error (mean over the training chunks); ``learning_rate``:
-  the step size of the last training chunk (``agent.agent.learning_rate`` times
+  the step size of the last training chunk (``agent.learning_rate`` times
   ``train.lr_scale`` at the training chunks done).
 
 ``final`` (once, independent key): ``greedy_success``, ``near_greedy_success`` and
@@ -60,8 +60,8 @@ from vbl.agents.qlearning import QRunnerState, make_qlearning_runner
 from vbl.engine.experiment import Program
 from vbl.params import ParamError, param, section, validate
 
-__all__ = ["QTrainParams", "make_q_program", "curve_metric",
-           "RENAMED_METRICS", "EVAL_STREAM"]
+__all__ = ["QTrainParams", "make_q_program", "curve_metric", "q_renames",
+           "trace_alias_to_update", "RENAMED_METRICS", "EVAL_STREAM"]
 
 F32 = jnp.float32
 EVAL_STREAM = 0x5EED  #: fold_in tag of the evaluation keys (kept off the training stream)
@@ -69,6 +69,33 @@ EVAL_STREAM = 0x5EED  #: fold_in tag of the evaluation keys (kept off the traini
 RENAMED_METRICS = {"success_rate": "eval_success", "train_success_rate": "train_success"}
 """Earlier names of the per-chunk metrics (``Experiment.renamed_metrics``): run folders
 written under them are read under the current ones."""
+
+
+def q_renames(old: str, new: str) -> dict[str, str]:
+    """``Experiment.renamed_params`` of a Q-learner section recorded at ``old`` (e.g.
+    ``"agent."``) in the earlier layout, where ``old + "agent."`` held the table's
+    parameters, the exploration schedule was a section of its own and the selection rule
+    was ``exploration.kind``; the section is now at ``new``."""
+    a = old + "agent."
+    renames = {a + "exploration.kind": new + "exploration.policy",
+               a + "exploration.schedule.kind": new + "exploration.schedule",
+               a + "exploration.schedule.": new + "exploration.", a: new}
+    return {**renames, old: new} if old != new else renames
+
+
+def trace_alias_to_update(prefix: str) -> Callable[[dict], dict]:
+    """``Experiment.migrate`` for run folders that recorded the former alias of an update
+    rule, ``PREFIX.trace.enabled`` with ``PREFIX.trace.kind`` K: today's ``update = K``
+    (``prefix`` as recorded, e.g. ``"agent.agent."``)."""
+    def migrate(rec: dict) -> dict:
+        rec = dict(rec)
+        enabled = rec.pop(prefix + "trace.enabled", False)
+        kind = rec.pop(prefix + "trace.kind", None)
+        if enabled:
+            rec[prefix + "update"] = kind
+        return rec
+
+    return migrate
 
 
 def curve_metric(curves: dict) -> str:
@@ -109,8 +136,8 @@ class QTrainParams:
                                    "for the greedy and for the random policy", static=True,
                                    ge=1)
     lr_scale: ScheduleParams = section(
-        lambda: ScheduleParams(kind="constant", init_value=1.0),
-        doc="factor on agent.agent.learning_rate in each training chunk, count = chunks done "
+        lambda: ScheduleParams(schedule="constant", init_value=1.0),
+        doc="factor on agent.learning_rate in each training chunk, count = chunks done "
         "(default constant 1: the agent's step size throughout)")
 
     def check(self) -> None:
@@ -137,7 +164,7 @@ def make_q_program(env: Any, state_fn: Callable[[jax.Array, Any], jax.Array], cf
         observation, reading one learner's (traced) config.
       cfg: the experiment's resolved config (sections ``env``, ``agent``, ``train``); only
         its static fields shape the program.
-      num_states: if given, must equal ``cfg.agent.agent.num_states`` (a clear error
+      num_states: if given, must equal ``cfg.agent.num_states`` (a clear error
         otherwise).
 
     Returns ``Program(init, step, num_chunks=cfg.train.num_chunks, final)``; metrics in the
@@ -146,8 +173,8 @@ def make_q_program(env: Any, state_fn: Callable[[jax.Array, Any], jax.Array], cf
     _require(cfg, ("env", "agent", "train"))
     validate(cfg.agent)
     train = validate(cfg.train, "train.")
-    if num_states is not None and int(num_states) != cfg.agent.agent.num_states:
-        raise ParamError(f"agent.agent.num_states={cfg.agent.agent.num_states} but the state "
+    if num_states is not None and int(num_states) != cfg.agent.num_states:
+        raise ParamError(f"agent.num_states={cfg.agent.num_states} but the state "
                          f"function has {num_states} states")
     if not hasattr(cfg.env, "start_difficulty"):
         raise ParamError(f"the evaluation sets env.start_difficulty; {type(cfg.env).__name__} "
@@ -170,8 +197,8 @@ def make_q_program(env: Any, state_fn: Callable[[jax.Array, Any], jax.Array], cf
         """One training chunk: (carry, totals of the chunk)."""
         run, _ = runners(c)
         chunk = carry.steps // cfg.agent.chunk_steps
-        lr = c.agent.agent.learning_rate * schedule_value(c.train.lr_scale, chunk)
-        agent = c.agent.replace(agent=c.agent.agent.replace(learning_rate=lr))
+        lr = c.agent.learning_rate * schedule_value(c.train.lr_scale, chunk)
+        agent = c.agent.replace(learning_rate=lr)
         carry, m = run.run_chunk(carry, agent, c.env)
         return carry, dict(episodes=jnp.sum(m["episodes"]).astype(F32),
                            successes=jnp.sum(m["successes"]).astype(F32),
@@ -216,13 +243,13 @@ def make_q_program(env: Any, state_fn: Callable[[jax.Array, Any], jax.Array], cf
                                jnp.zeros((rounds,), F32)])
         res = jax.vmap(lambda k, q, e: ev.evaluate(k, q, c.agent, eval_env(c), train.eval_steps,
                                                    e))(keys, qs, eps)
-        moved = jnp.any(carry.q != jnp.asarray(c.agent.agent.q_init, F32), axis=1)
+        moved = jnp.any(carry.q != jnp.asarray(c.agent.q_init, F32), axis=1)
         return dict(greedy_success=jnp.mean(res["success_rate"][:rounds]).astype(F32),
                     near_greedy_success=jnp.mean(
                         res["success_rate"][rounds:2 * rounds]).astype(F32),
                     random_success=jnp.mean(res["success_rate"][2 * rounds:]).astype(F32),
                     greedy_primitives=jnp.mean(res["mean_primitives"][:rounds]).astype(F32),
-                    num_states=jnp.asarray(cfg.agent.agent.num_states, F32),
+                    num_states=jnp.asarray(cfg.agent.num_states, F32),
                     states_with_value=jnp.sum(moved).astype(F32))
 
     return Program(init=init, step=step, num_chunks=train.num_chunks // train.eval_every,

@@ -359,11 +359,17 @@ def load_run(folder: str | Path) -> tuple[Experiment, RunResult, dict[str, Any]]
             if isinstance(st, dict) and "per_seed" in st:
                 final.setdefault(renamed.get(k, k), [None] * len(points))[i] = st["per_seed"]
     final = {k: v for k, v in final.items() if all(x is not None for x in v)}
-    result = RunResult(exp.name, folder, config, dict(spec.get("sweep", {})),
-                       [e.get("values", {}) for e in points] or [{}],
+    result = RunResult(exp.name, folder, config, _renamed_keys(exp, spec.get("sweep", {})),
+                       [_renamed_keys(exp, e.get("values", {})) for e in points] or [{}],
                        int(spec.get("seeds", 1)), {}, final, summary,
                        sorted(folder.glob("*.png")), dict(summary.get("result") or {}))
     return exp, result, spec
+
+
+def _renamed_keys(exp: Experiment, values: dict[str, Any]) -> dict[str, Any]:
+    """``{path: value}`` of a run folder (its sweep, a point's values) under today's paths
+    (:meth:`Experiment.renamed`)."""
+    return {exp.renamed(k): v for k, v in dict(values).items()}
 
 
 def _recorded_config(exp: Experiment, spec: dict[str, Any], folder: Path) -> Any:
@@ -385,10 +391,12 @@ def _in_todays_terms(exp: Experiment, spec: dict[str, Any]) -> dict[str, Any]:
     recorded = dict(spec["config"])
     if exp.migrate is not None:
         recorded = exp.migrate(recorded)
-    for old, new in exp.renamed_params.items():
-        if old in recorded and new not in recorded:
-            recorded[new] = recorded.pop(old)
-    return recorded
+    out = {}
+    for path, value in recorded.items():
+        new = exp.renamed(path)
+        if new == path or new not in recorded:  # a recorded current path wins
+            out[new] = value
+    return out
 
 
 def _recorded_values(exp: Experiment, spec: dict[str, Any]) -> dict[str, Any]:
@@ -446,7 +454,7 @@ def run_command(exp: Experiment, spec: dict[str, Any]) -> tuple[str, list[str]]:
 
     rec = _recorded_values(exp, spec)
     seeds, base_seed = int(spec.get("seeds", exp.seeds)), int(spec.get("base_seed", 0))
-    sweep = {k: list(v) for k, v in dict(spec.get("sweep", {})).items()}
+    sweep = {k: list(v) for k, v in _renamed_keys(exp, spec.get("sweep", {})).items()}
     quick_vals = config_to_dict_values(exp.quick)
     quick_seeds = exp.quick_seeds or exp.seeds
     # --quick: every quick override recorded (without any, the quick number of seeds)

@@ -56,6 +56,10 @@ def resolve(experiment: Experiment, sets: Mapping[str, Any] | None = None,
     a path of the default sweep that ``sets`` fixes leaves the sweep (one value). A path
     both in ``sets`` and in ``sweep`` is an error.
     """
+    for path in [*(sets or {}), *(sweep or {})]:
+        if experiment.renamed(path) != path:
+            raise ParamError(f"{path} is now called {experiment.renamed(path)} "
+                             f"(`vbl params {experiment.name}` lists every parameter)")
     config = experiment.default_config
     if quick:
         config = apply_overrides(config, experiment.quick)

@@ -181,7 +181,7 @@ def report(res: Any) -> Any:
     md += change_report(fin["trial_success"], fin["trial_states"], changes, w) + [""]
     gs = fin["greedy_success"]
     line = (f"Greedy policy on {tr.eval_episodes} fresh starts per seed (start difficulty "
-            f"{cfg.grid.train.eval_difficulty}, final ball, {cfg.env.max_steps}-primitive "
+            f"{cfg.baseline.train.eval_difficulty}, final ball, {cfg.env.max_steps}-primitive "
             f"limit): {cell('greedy_success')} with {seeds_cell(fin['states'], fmt='.1f')} "
             f"states ({fin['value_splits'].mean():.1f} of {fin['splits'].mean():.1f} splits "
             "per seed by the value criterion); the learner's own Boltzmann behaviour, frozen, "
@@ -192,7 +192,7 @@ def report(res: Any) -> Any:
                  f"with this ball) {cell('steer_success')}")
     if "grid_success" in fin:
         yes = gs.mean() >= fin["grid_success"].mean() and fin["states"].mean() < NUM_GRID_STATES
-        g = cfg.grid
+        g = cfg.baseline
         line += (f"; the grid baseline (grid_shooting's learner, {NUM_GRID_STATES} states, "
                  f"trained on the final ball, same start difficulty and limit) "
                  f"{cell('grid_success')}. At least the grid's success with fewer states: "

@@ -10,7 +10,7 @@ The config of :func:`make_segmentation_program` has the sections ``env``
 (:class:`~vbl.agents.segmentation_learner.IncrementalParams`), ``change``
 (:class:`~vbl.envs.schedules.BallChangeParams`), ``train`` (``num_trials``, ``num_chunks``,
 ``updates_per_chunk``, ``eval_episodes``, ``grid_baseline``, ``steer_reference``,
-``steer_band``) and ``grid`` (``grid``, ``agent``, ``train`` of the grid baseline).
+``steer_band``) and ``baseline`` (``grid``, ``agent``, ``train`` of the grid baseline).
 """
 
 from __future__ import annotations
@@ -37,8 +37,8 @@ def make_segmentation_program(cfg) -> Program:
     n_tr, dim, tr = cfg.train.num_trials, cfg.features.dim, cfg.train
     feat = lambda c: lambda o: sec2_features(o, c.features)  # noqa: E731
     env_at = lambda c, t: ball_radius_params(c.env, t, c.change)  # noqa: E731
-    grid_cfg = lambda c, ep: c.grid.replace(  # noqa: E731
-        train=c.grid.train.replace(eval_curve=False)).on(ep)
+    grid_cfg = lambda c, ep: c.baseline.replace(  # noqa: E731
+        train=c.baseline.train.replace(eval_curve=False)).on(ep)
     gprog = grid_program(grid_cfg(cfg, cfg.env)) if tr.grid_baseline else None
 
     def init(key, c):
@@ -62,7 +62,7 @@ def make_segmentation_program(cfg) -> Program:
     def final(carry, c, key):
         (run, ts, st), lr = carry, carry[0].lr
         ep = env_at(c, run.trials).replace(start_difficulty=jnp.asarray(
-            c.grid.train.eval_difficulty, F32))
+            c.baseline.train.eval_difficulty, F32))
         k_eval, k_grid, k_gfin = jax.random.split(key, 3)
         ok = sl.evaluate_policies(k_eval, lr, ENV, ep, c.learner, feat(c), tr.eval_episodes,
                                   cfg.env.max_steps, c.train.steer_band if tr.steer_reference
