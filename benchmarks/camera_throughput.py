@@ -18,17 +18,23 @@ Usage::
 
     python benchmarks/camera_throughput.py            # batch 4096
     python benchmarks/camera_throughput.py --quick    # batch 1024, fewer calls
-Writes benchmarks/results/camera_throughput.{json,md} (``--out`` elsewhere).
+    python benchmarks/camera_throughput.py --trace    # where the Section 3 camera's time goes
+Writes benchmarks/results/camera_throughput.{json,md} (``--out`` elsewhere); ``--trace``
+writes nothing: it prints the time of the current Section 3 camera per part of its compiled
+program (:func:`trace_breakdown`).
 """
 
 from __future__ import annotations
 
 import argparse
+import collections
+import gzip
 import json
 import os
 import pathlib
 import subprocess
 import sys
+import tempfile
 import time
 import types
 
@@ -54,6 +60,11 @@ OLD_REV = "9681a38"
 #: Heading change per call inside the timed scan, rad (defeats loop-invariant hoisting).
 TURN_PER_CALL = 1e-4
 F32 = jnp.float32
+#: The Section 3 camera's ``lax.scan``s by trip count (docs/vision.md, "Evaluation").
+SCANS = {4: "goal segments: near clip, projection, image clip (4 steps)",
+         5: "goal boundary in 4 boxes: Green sums (5 steps)",
+         9: "robot boundary in 2 boxes: Green sums (9 steps)",
+         12: "robot box edges: near clip, projection (12 steps)"}
 
 
 def load_old(rev: str) -> types.ModuleType:
@@ -163,6 +174,42 @@ def markdown(result, cmd) -> str:
     return "\n".join(lines)
 
 
+def trace_breakdown(s: dict, calls: int) -> dict[str, float]:
+    """Thread time (us per call per env) of each part of the current Section 3 camera.
+
+    One warmed-up run of the timed program under ``jax.profiler.trace``; the XLA CPU
+    runtime records every executed kernel (thunk). A kernel that runs ``calls`` times is
+    the camera's straight-line code; one that runs ``calls * k`` times belongs to the scan
+    of ``k`` steps (:data:`SCANS`); host-side spans (dispatch, buffers) are left out.
+    Durations are wall time on the executing thread, so a
+    loaded machine inflates all parts alike: read the shares.
+    """
+    batch = s["pose"].shape[0]
+    args = (s["pose"], s["ball"], s["other"])
+    run = make_runner(camera_fn(new_features, 3, s), calls)
+    jax.block_until_ready(run(*args))
+    with tempfile.TemporaryDirectory() as tmp:
+        with jax.profiler.trace(tmp, create_perfetto_trace=True):
+            jax.block_until_ready(run(*args))
+        path = next(pathlib.Path(tmp).rglob("perfetto_trace.json.gz"))
+        events = json.loads(gzip.decompress(path.read_bytes()))["traceEvents"]
+    dur, count = collections.Counter(), collections.Counter()
+    for e in events:
+        name = e.get("name", "")
+        if e.get("ph") == "X" and not name.startswith(("$", "Thunk", "while")):
+            dur[name] += e.get("dur", 0.0)
+            count[name] += 1
+    parts = collections.Counter()
+    for name, us in dur.items():
+        k, rest = divmod(count[name], calls)
+        if rest or not k:   # host-side runtime spans of the one timed call, not kernels
+            continue
+        part = "straight-line code (one pass per call)" if k == 1 else SCANS.get(
+            k, "other kernels")
+        parts[part] += us / (calls * batch)
+    return dict(parts.most_common())
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="batch 1024, fewer calls")
@@ -171,9 +218,19 @@ def main(argv=None):
     ap.add_argument("--reps", type=int, default=5)
     ap.add_argument("--old-rev", default=OLD_REV)
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "camera_throughput"))
+    ap.add_argument("--trace", action="store_true", help="print where the current Section 3 "
+                    "camera's time goes (profiler trace) and exit")
     args = ap.parse_args(argv)
     batch = args.batch or (1024 if args.quick else 4096)
     calls = args.calls or (20 if args.quick else 50)
+    if args.trace:
+        parts = trace_breakdown(scenes(batch)["section3"], calls)
+        print(f"Section 3 camera, batch {batch}, thread us per call per env (load average "
+              f"{os.getloadavg()[0]:.1f}):")
+        for part, us in parts.items():
+            print(f"  {us:6.3f}  {part}")
+        print(f"  {sum(parts.values()):6.3f}  total")
+        return
     old = load_old(args.old_rev)
     sc = scenes(batch)
     result = dict(benchmark="camera_throughput", quick=args.quick, hardware=hardware_info(),
