@@ -61,7 +61,7 @@ def test_hankel_gram_equals_window_product():
     """The Toeplitz-plus-edges Gram matrix equals Z^T Z of the explicit window matrix."""
     import jax
 
-    from vbl.sysid.sweep import hankel_gram
+    from vbl.sysid.gram import hankel_gram
 
     x = np.random.default_rng(3).standard_normal((40, 3))
     w = 6
@@ -69,6 +69,36 @@ def test_hankel_gram_equals_window_product():
     with jax.enable_x64(True):
         g = np.asarray(hankel_gram(jax.numpy.asarray(x), w))
     np.testing.assert_allclose(g, z.T @ z, atol=1e-12)
+
+
+@pytest.mark.parametrize("n,d,w,block", [(40, 3, 6, 1), (40, 3, 6, 4), (30, 2, 8, 6),
+                                         (25, 1, 7, 3), (61, 4, 13, 9)])
+def test_lag_products_equal_shifted_sums(n, d, w, block):
+    """Every blocking of the record gives the lag products sum_t x(t+s) x(t)^T."""
+    import jax
+
+    from vbl.sysid.gram import lag_products
+
+    x = np.random.default_rng(n + w).standard_normal((n, d))
+    ne = n - w + 1
+    with jax.enable_x64(True):
+        f = np.asarray(lag_products(jax.numpy.asarray(x), w, block))
+    np.testing.assert_allclose(f, [x[s:s + ne].T @ x[:ne] for s in range(w)], atol=1e-12)
+
+
+def test_logdet_spd_equals_numpy():
+    """log det by Gaussian elimination equals NumPy's slogdet; not positive definite: NaN."""
+    import jax
+
+    from vbl.sysid.sweep import logdet_spd
+
+    a = np.random.default_rng(4).standard_normal((7, 5, 4, 9))
+    spd = a @ np.swapaxes(a, -1, -2)
+    with jax.enable_x64(True):
+        got = np.asarray(logdet_spd(jax.numpy.asarray(spd)))
+        bad = float(logdet_spd(jax.numpy.asarray(np.diag([1.0, -1.0, 2.0]))))
+    np.testing.assert_allclose(got, np.linalg.slogdet(spd)[1], rtol=1e-12)
+    assert np.isnan(bad)
 
 
 def test_chunked_sweep_equals_one_batch(data):

@@ -39,10 +39,11 @@ import functools
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.scipy.linalg import cho_solve, solve_triangular
+from jax.scipy.linalg import solve_triangular
 
 from vbl.sysid.aic import aic as aic_fn
 from vbl.sysid.cva import CVAFit, _normalise, _ridge, first_argmin
+from vbl.sysid.gram import hankel_gram
 from vbl.sysid.linalg import eigh_desc, svd_thin, x64_scope
 from vbl.sysid.params import CVAParams
 
@@ -70,30 +71,19 @@ def _cumsum0(a: jnp.ndarray) -> jnp.ndarray:
     return (tri @ a.reshape(k, -1)).reshape(a.shape)
 
 
-def hankel_gram(x: jnp.ndarray, w: int) -> jnp.ndarray:
-    """Gram matrix ``Z^T Z`` (not divided by the count) of the window
-    ``Z[t] = [x(t); x(t+1); ...; x(t+w-1)]``, ``t = 0 .. N-w``, of ``x (N, d)``; time-major
-    layout (row ``a d + i`` is channel i at offset a).
-
-    Block ``(b+s, b) = sum_{r=b}^{b+ne-1} x(r+s) x(r)^T`` (``ne = N-w+1``) is block
-    ``(s, 0)`` plus ``sum_{j<b} [x(ne+j+s) x(ne+j)^T - x(j+s) x(j)^T]``.
-    """
-    n_samp, d = x.shape
-    ne = n_samp - w + 1
-    first = jnp.stack([x[s:s + ne].T @ x[:ne] for s in range(w)])         # (w, d, d) F[s]
-    j = np.arange(w - 1)[:, None]
-    s = np.arange(w)[None, :]
-    xp = jnp.concatenate([x, jnp.zeros((w, d), x.dtype)])                 # unused tail: 0
-    head = xp[:2 * w]
-    tail = xp[ne:ne + 2 * w]
-    diff = (tail[j + s][..., :, None] * tail[j[:, 0]][:, None, None, :]
-            - head[j + s][..., :, None] * head[j[:, 0]][:, None, None, :])  # (w-1, w, d, d)
-    cum = jnp.concatenate([jnp.zeros((1, w, d, d), x.dtype), _cumsum0(diff)])
-    a, b = np.meshgrid(np.arange(w), np.arange(w), indexing="ij")
-    lo, sep = np.minimum(a, b), np.abs(a - b)
-    blk = first[sep] + cum[lo, sep]                                        # (w, w, d, d)
-    blk = jnp.where((a < b)[:, :, None, None], jnp.swapaxes(blk, -1, -2), blk)
-    return blk.transpose(0, 2, 1, 3).reshape(w * d, w * d)
+def logdet_spd(a: jnp.ndarray) -> jnp.ndarray:
+    """log det of symmetric positive definite ``a (..., q, q)`` as the sum of the log pivots
+    of Gaussian elimination (an unrolled loop over the q pivots in elementwise operations:
+    for the many q x q matrices of the order sweep, much cheaper than a LAPACK call each).
+    NaN (or -inf) when ``a`` is not positive definite, as with a Cholesky factor."""
+    q = a.shape[-1]
+    out = jnp.zeros(a.shape[:-2], a.dtype)
+    for k in range(q):
+        piv = a[..., 0, 0]
+        out = out + jnp.log(piv)
+        if k < q - 1:
+            a = a[..., 1:, 1:] - a[..., 1:, :1] * a[..., :1, 1:] / piv[..., None, None]
+    return out
 
 
 def _fit_lag(g4, params, floor, *, big_l, lag, horizon, m, q, ne, n_cap, means) -> CVAFit:
@@ -148,17 +138,16 @@ def _fit_lag(g4, params, floor, *, big_l, lag, horizon, m, q, ne, n_cap, means) 
     s_mm, s_mm1, s_mx = ug[:, :dp] @ umat.T, ug[:, d:] @ umat.T, ug[:, dp:]
     s_xm1 = blk(hi, hi + 1, al, lo + 1, hi + 1, al) @ umat.T             # (d, c)
     s_x0 = g4[hi, :, hi, :]
-    # regressors [u(t); mu(t)], output y(t), targets [mu(t+1); y(t)]
+    # regressors [u(t); mu(t)], targets [mu(t+1); y(t)] (the last q columns: output y(t))
     sxx = jnp.block([[s_x0[:m, :m], s_mx[:, :m].T], [s_mx[:, :m], s_mm]])
-    sxy = jnp.concatenate([s_x0[:m, m:], s_mx[:, m:]])
     sxt = jnp.block([[s_xm1[:m], s_x0[:m, m:]], [s_mm1, s_mx[:, m:]]])
     syy = s_x0[m:, m:]
     lx = jnp.linalg.cholesky(_ridge(sxx, floor))
-    wy = solve_triangular(lx, sxy, lower=True)                           # (m+c, q)
+    z = solve_triangular(lx, sxt, lower=True)                            # (m+c, c+q)
+    wy = z[:, c:]                                                        # L^-1 S_xy
     red = _cumsum0(wy[:, :, None] * wy[:, None, :])[m - 1:]    # n = 0..c
     rs = jax.vmap(lambda r: _ridge(syy - r, floor))(red)
-    logdet = 2.0 * jnp.sum(jnp.log(jnp.diagonal(jnp.linalg.cholesky(rs), axis1=-2,
-                                                axis2=-1)), axis=-1)
+    logdet = logdet_spd(rs)
     # orders beyond c add zero states: the residual stays that of order c
     logdet = jnp.concatenate([logdet, jnp.broadcast_to(logdet[-1], (n_cap - c,))])
     rs = jnp.concatenate([rs, jnp.broadcast_to(rs[-1], (n_cap - c, q, q))])
@@ -168,11 +157,11 @@ def _fit_lag(g4, params, floor, *, big_l, lag, horizon, m, q, ne, n_cap, means) 
     a = jnp.where(valid, a, jnp.inf)
     n_star = first_argmin(a)
 
-    # Theta of Eq. (2) at n*: [mu(t+1); y(t)] = Theta [mu(t); u(t)], states beyond n* masked.
+    # Theta of Eq. (2) at n*: [mu(t+1); y(t)] = Theta [mu(t); u(t)] regressed on the prefix
+    # [u(t); mu_1..mu_n*] of the regressors, whose Cholesky factor is the leading block of
+    # lx: L^-T (rows of L^-1 S_xt beyond the prefix zeroed) is zero beyond it.
     wmask = jnp.concatenate([jnp.ones(m, dt), (jnp.arange(c) < n_star).astype(dt)])
-    sm = sxx * jnp.outer(wmask, wmask) + jnp.diag(1.0 - wmask)
-    theta = cho_solve((jnp.linalg.cholesky(_ridge(sm, floor)), True),
-                      sxt * wmask[:, None]).T               # (c+q, m+c)
+    theta = solve_triangular(lx, z * wmask[:, None], lower=True, trans="T").T  # (c+q, m+c)
     keep = jnp.concatenate([(jnp.arange(c) < n_star).astype(dt), jnp.ones(q, dt)])
     theta = theta * keep[:, None]
     pad = n_cap - c

@@ -9,11 +9,22 @@ import numpy as np
 from vbl.sysid.params import CVAParams
 
 __all__ = ["check_data", "min_length", "prepare_scale", "warn_collinear", "safe_range",
-           "CollinearWarning"]
+           "CollinearWarning", "channel_major"]
 
 
 class CollinearWarning(UserWarning):
     """Duplicated or collinear channels of u or y (identification regularises them)."""
+
+
+def channel_major(x: np.ndarray) -> np.ndarray:
+    """``x (B, N, c)`` as a contiguous ``(B, c, N)`` copy: NumPy reduces over a contiguous
+    last axis about 10x faster than over the time axis of ``(B, N, c)`` with few channels."""
+    return np.ascontiguousarray(np.swapaxes(x, 1, 2))
+
+
+def _abs_max(xt: np.ndarray) -> np.ndarray:
+    """max |x| per data set and channel ``(B, c)`` of channel-major ``xt (B, c, N)``."""
+    return np.maximum(xt.max(axis=-1), -xt.min(axis=-1))
 
 
 def min_length(lag: int, horizon: int, m: int, q: int, factor: float) -> int:
@@ -46,9 +57,11 @@ def check_data(u, y, params: CVAParams) -> tuple[np.ndarray, np.ndarray, bool]:
     if b == 0 or m == 0 or q == 0:
         raise ValueError(f"need at least one data set, input and output; got B={b}, m={m}, "
                          f"q={q}")
-    u = u.astype(np.float64)
-    y = y.astype(np.float64)
+    u = np.asarray(u, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
     for name, a in (("u", u), ("y", y)):
+        if np.isfinite(a.sum()):        # one pass; an inf sum of finite values checks below
+            continue
         bad = ~np.isfinite(a)
         if bad.any():
             ds, t, ch = np.argwhere(bad)[0]
@@ -64,8 +77,9 @@ def check_data(u, y, params: CVAParams) -> tuple[np.ndarray, np.ndarray, bool]:
             f"m={m}, q={q} need N >= {need} (N-k-l+1 >= {params.min_samples_factor} x "
             f"(l+k)(m+q)); give longer records or lower lag/lag_max/horizon")
     for name, a in (("u", u), ("y", y)):
-        std = a.std(axis=1)
-        const = std <= params.const_tol * np.abs(a).max(axis=1)
+        at = channel_major(a)
+        std = at.std(axis=-1)
+        const = std <= params.const_tol * _abs_max(at)
         if const.any():
             ds, ch = np.argwhere(const)[0]
             raise ValueError(f"{name} channel {ch} of data set {ds} is constant "
@@ -98,7 +112,7 @@ def prepare_scale(u: np.ndarray, y: np.ndarray, params: CVAParams):
         if params.dtype == "float32" and params.demean:
             off = x.mean(axis=1)
             x = x - off[:, None, :]
-        mag = np.abs(x).max(axis=1)
+        mag = _abs_max(channel_major(x))
         bad = (mag > hi) | (mag < lo)
         mul = np.ones_like(mag)
         if bad.any() and not params.standardize:
@@ -118,9 +132,11 @@ def prepare_scale(u: np.ndarray, y: np.ndarray, params: CVAParams):
 
 def _collinear(x: np.ndarray, tol: float):
     """Per data set: duplicate channel pairs (|corr| >= 1 - tol) and collinearity flags."""
-    xc = x - x.mean(axis=1, keepdims=True)
-    xc = xc / np.maximum(np.linalg.norm(xc, axis=1, keepdims=True), np.finfo(float).tiny)
-    corr = np.einsum("btc,btd->bcd", xc, xc)
+    xc = channel_major(x)
+    xc = xc - xc.mean(axis=-1, keepdims=True)
+    xc = xc / np.maximum(_abs_max(xc), np.finfo(float).tiny)[..., None]   # no overflow below
+    xc = xc / np.maximum(np.linalg.norm(xc, axis=-1, keepdims=True), np.finfo(float).tiny)
+    corr = np.matmul(xc, np.swapaxes(xc, 1, 2))
     ch = corr.shape[-1]
     iu = np.triu_indices(ch, 1)
     dup = np.abs(corr[:, iu[0], iu[1]]) >= 1.0 - tol           # (B, pairs)
