@@ -48,7 +48,7 @@ from vbl.agents import (  # noqa: E402
     stack_for_learners,
 )
 from vbl.agents.lem import LEMParams  # noqa: E402
-from vbl.spaces.macro_action import MacroActionParams  # noqa: E402
+from vbl.envs.macro import MacroActionParams  # noqa: E402
 
 S, A, E = 319, 9, 64          # grid-sized table, 9 primitives, 64 envs per learner
 GOAL, HORIZON, SLIP = 0, 50, 0.2  # goal state, time limit (steps), prob. of a random move

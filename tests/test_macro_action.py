@@ -1,5 +1,6 @@
-"""Macro actions on a toy counter env: repeat until the discrete state changes, cap, episode
-end inside the repeat, discounted reward, vmap over environments, use inside the runner."""
+"""Macro actions (vbl.envs.macro.MacroWrapper) on a toy counter env: repeat until the
+discrete state changes, cap, episode end inside the repeat, discounted reward, vmap over
+environments, the async mode, stop rules, use inside the runner."""
 
 from __future__ import annotations
 
@@ -17,8 +18,16 @@ from vbl.agents import (
     stack_for_learners,
 )
 from vbl.agents.lem import LEMParams
+from vbl.envs.macro import (
+    STOP_RULE_NAMES,
+    MacroActionParams,
+    MacroEnvParams,
+    MacroState,
+    MacroWrapper,
+    RunningAction,
+)
 from vbl.params import ParamError, validate
-from vbl.spaces.macro_action import MacroActionParams, make_macro_step
+from vbl.spaces.macro_action import STOP_RULES, grid_search_key, stop_key
 
 GOAL = 10   # the counter reaching 10 ends the episode with success
 BLOCK = 3   # discrete state = counter // 3
@@ -65,18 +74,56 @@ def block_of(obs):
 
 
 ENV = CounterEnv()
-MACRO = jax.jit(jax.vmap(make_macro_step(ENV.step, block_of),
-                         in_axes=(0, 0, 0, 0, None, None, None, None)))
 
 
-def run(counters, actions, max_repeats=20, gamma=0.5, t=0, min_repeats=1):
+class Outcome(struct.PyTreeNode):
+    """One sync step of the wrapper, named (each (n,))."""
+
+    obs: jax.Array
+    state: MacroState
+    reward: jax.Array
+    terminated: jax.Array
+    truncated: jax.Array
+    info: dict
+
+    @property
+    def num_primitives(self):
+        return self.info["macro"]["num_primitives"]
+
+    @property
+    def next_state(self):
+        return self.info["macro"]["next_state"]
+
+
+def start_states(counters, t=0) -> MacroState:
+    """Wrapper states (n,) at the given counters (no running action)."""
     counters = np.asarray(counters)
     n = len(counters)
     st = CounterState(c=jnp.asarray(counters, jnp.int32), t=jnp.full((n,), t, jnp.int32))
-    s0 = jnp.asarray(counters // BLOCK, jnp.int32)
+    return MacroState(inner=st, index=jnp.asarray(counters // BLOCK, jnp.int32),
+                      running=RunningAction.none((n,)))
+
+
+def wrapper_params(max_repeats=20, gamma=0.5, min_repeats=1) -> MacroEnvParams:
+    return MacroEnvParams(inner=ENV.default_params, max_repeats=max_repeats,
+                          min_repeats=min_repeats, discount=gamma)
+
+
+def stepper(mode="sync", stop_on="state"):
+    """jit(vmap(step)) of the counter env under the wrapper."""
+    w = MacroWrapper(ENV, block_of, MacroActionParams(mode=mode, stop_on=stop_on),
+                     stop_key(stop_on))
+    return jax.jit(jax.vmap(w.step, in_axes=(0, 0, 0, None)))
+
+
+SYNC = stepper()
+
+
+def run(counters, actions, max_repeats=20, gamma=0.5, t=0, min_repeats=1):
+    n = len(counters)
     keys = jax.random.split(jax.random.PRNGKey(0), n)
-    return MACRO(keys, st, s0, jnp.asarray(actions, jnp.int32), ENV.default_params,
-                 max_repeats, gamma, min_repeats)
+    return Outcome(*SYNC(keys, start_states(counters, t), jnp.asarray(actions, jnp.int32),
+                         wrapper_params(max_repeats, gamma, min_repeats)))
 
 
 def test_repeat_until_state_changes_cap_and_episode_end():
@@ -87,12 +134,17 @@ def test_repeat_until_state_changes_cap_and_episode_end():
     assert out.num_primitives.dtype == jnp.int32 and out.reward.dtype == jnp.float32
     want_r = [sum(0.5 ** i for i in range(n)) for n in (3, 2, 3, 7, 1)]
     np.testing.assert_allclose(out.reward, want_r, rtol=1e-6)
-    np.testing.assert_array_equal(out.env_state.c, [3, 3, 2, 4, 0])  # last: auto-reset
+    np.testing.assert_array_equal(out.state.inner.c, [3, 3, 2, 4, 0])  # last: auto-reset
     np.testing.assert_array_equal(out.next_state, [1, 1, 0, 1, 0])
     np.testing.assert_array_equal(out.terminated, [False, False, False, False, True])
     np.testing.assert_array_equal(out.info["success"], [False, False, False, False, True])
     np.testing.assert_array_equal(out.info["counter"], [3, 3, 2, 4, 10])  # pre-reset facts
-    np.testing.assert_array_equal(out.env_state.t, [3, 2, 3, 7, 0])
+    np.testing.assert_array_equal(out.state.inner.t, [3, 2, 3, 7, 0])
+    np.testing.assert_array_equal(out.state.index, out.next_state)
+    np.testing.assert_array_equal(out.info["macro"]["start"], [0, 0, 1, 1, 3])
+    np.testing.assert_array_equal(out.info["macro"]["action"], [0, 0, 2, 1, 0])
+    np.testing.assert_allclose(out.info["macro"]["reward"], want_r, rtol=1e-6)
+    assert np.all(out.info["macro"]["decided"]) and np.all(out.info["macro"]["ended"])
 
 
 def test_truncation_inside_the_repeat_and_traced_cap():
@@ -118,11 +170,30 @@ def test_min_repeats():
                                   [3])
 
 
+def test_one_primitive_when_disabled():
+    """macro.enabled=False: one step = one primitive (key as given), in either mode."""
+    for mode in ("sync", "async"):
+        w = MacroWrapper(ENV, block_of, MacroActionParams(enabled=False, mode=mode))
+        out = Outcome(*jax.vmap(w.step, in_axes=(0, 0, 0, None))(
+            jax.random.split(jax.random.PRNGKey(0), 3), start_states([0, 4, 9]),
+            jnp.array([0, 1, 0], jnp.int32), wrapper_params(gamma=0.5)))
+        np.testing.assert_array_equal(out.num_primitives, [1, 1, 1])
+        np.testing.assert_array_equal(out.state.inner.c, [1, 4, 0])
+        np.testing.assert_array_equal(out.next_state, [0, 1, 0])
+        np.testing.assert_array_equal(out.terminated, [False, False, True])
+        np.testing.assert_allclose(out.reward, [1.0, 1.0, 1.0])
+
+
 def test_macro_params_validation():
     with pytest.raises(ParamError, match="max_repeats"):
         validate(MacroActionParams(max_repeats=0))
     with pytest.raises(ParamError, match="min_repeats"):
         validate(MacroActionParams(min_repeats=0))
+    with pytest.raises(ParamError, match="stop_key"):
+        MacroWrapper(ENV, block_of, MacroActionParams(stop_on="grid_search"))
+    with pytest.raises(ParamError, match="stop_on"):
+        stop_key("nope")
+    assert tuple(STOP_RULES) == STOP_RULE_NAMES  # every name the params allow has a rule
 
 
 def train_counter(mode: str, transition_steps: float, chunk_steps: int, trace=None):
@@ -160,7 +231,6 @@ def test_runner_with_macro_actions_learns_the_counter():
 
 def test_grid_search_key_hand_built_states():
     from vbl.spaces.grid import NUM_GOAL_STATES as G
-    from vbl.spaces.macro_action import grid_search_key
 
     def idx(ball, goal):
         return G * ball + goal
@@ -182,55 +252,45 @@ def test_grid_search_key_hand_built_states():
     assert grid_search_key(idx(9, 3)) != grid_search_key(idx(2, 3))
 
 
-def test_stop_on_grid_search_in_macro_step():
-    from vbl.spaces.macro_action import macro_step
-
+def test_stop_on_grid_search_in_the_wrapper():
     # counter blocks 0, 1, 2 read as goal states 0, 1, 2 (one goal cell, orientations
     # left/front/right) of ball state 0: equal grid_search keys; block 3 is another cell.
-    st = CounterState(c=jnp.int32(0), t=jnp.int32(0))
-    out = {rule: macro_step(ENV.step, block_of, jax.random.PRNGKey(0), st, jnp.int32(0),
-                            jnp.int32(0), ENV.default_params, 20, 1.0, stop_on=rule)
+    keys = jax.random.split(jax.random.PRNGKey(0), 1)
+    out = {rule: Outcome(*stepper("sync", rule)(keys, start_states([0]), jnp.int32([0]),
+                                                wrapper_params(20, 1.0)))
            for rule in ("state", "grid_search")}
-    assert int(out["state"].num_primitives) == 3     # 0 -> 3: block 1
-    assert int(out["grid_search"].num_primitives) == 9   # 0 -> 9: block 3
-    assert int(out["grid_search"].next_state) == 3
-    with pytest.raises(ValueError, match="stop_on"):
-        macro_step(ENV.step, block_of, jax.random.PRNGKey(0), st, jnp.int32(0), jnp.int32(0),
-                   ENV.default_params, 20, 1.0, stop_on="nope")
+    assert int(out["state"].num_primitives[0]) == 3     # 0 -> 3: block 1
+    assert int(out["grid_search"].num_primitives[0]) == 9   # 0 -> 9: block 3
+    assert int(out["grid_search"].next_state[0]) == 3
 
 
-def test_async_macro_gives_the_same_transitions_as_macro_step():
-    """Async mode (one primitive per call, the env keeps its running action) ends each action
-    where macro_step ends it, with the same start state, reward, length and next state."""
-    from vbl.spaces.macro_action import async_macro_advance, macro_carry_init
-
+def test_async_gives_the_same_transitions_as_sync():
+    """Async mode (one primitive per step, the env keeps its running action) ends each
+    action where sync mode ends it, with the same start state, reward, length and next
+    state."""
     counters = np.array([0, 4, 8, 2, 9, 5])
     actions = np.array([0, 1, 0, 2, 0, 0])
     cap, gamma = 5, 0.5
     ref = run(counters, actions, max_repeats=cap, gamma=gamma, t=0)
     n = len(counters)
-    st = CounterState(c=jnp.asarray(counters, jnp.int32), t=jnp.zeros((n,), jnp.int32))
-    s = jnp.asarray(counters // BLOCK, jnp.int32)
-    carry = macro_carry_init(n)
-    step = jax.vmap(ENV.step, in_axes=(None, 0, 0, None))
+    step, p = stepper("async"), wrapper_params(cap, gamma)
+    st = start_states(counters)
     got = {k: np.full(n, -1.0) for k in ("start", "reward", "n", "next")}
     for i in range(cap):
-        def step_out(a, st=st, i=i):
-            obs, st2, r, term, trunc, info = step(jax.random.PRNGKey(i), st, a,
-                                                  ENV.default_params)
-            return obs, st2, r, term, trunc, info, block_of(obs)
-        # the policy would choose something else: only the first call's choice may count
+        # the policy would choose something else: only the first step's choice may count
         chosen = jnp.asarray(actions if i == 0 else (actions + 1) % 3, jnp.int32)
-        out, ended, (start, act, rew, cnt, decided), carry = async_macro_advance(
-            carry, s, chosen, step_out, cap, gamma)
-        assert np.all(np.asarray(decided) == (i == 0))
-        np.testing.assert_array_equal(np.asarray(act), actions)
-        first = np.asarray(ended) & (got["n"] < 0)
-        for k, v in (("start", start), ("reward", rew), ("n", cnt), ("next", out[6])):
+        _, st, _, _, _, info = step(jnp.stack([jax.random.PRNGKey(i)] * n), st, chosen, p)
+        mi = info["macro"]
+        assert np.all(np.asarray(mi["decided"]) == (i == 0))
+        np.testing.assert_array_equal(np.asarray(mi["action"]), actions)
+        first = np.asarray(mi["ended"]) & (got["n"] < 0)
+        for k, v in (("start", mi["start"]), ("reward", mi["reward"]),
+                     ("n", mi["num_primitives"]), ("next", mi["next_state"])):
             got[k] = np.where(first, np.asarray(v, float), got[k])
-        st, s = out[1], out[6]
         # an ended env would decide again: keep it frozen for this comparison
-        carry = carry.replace(count=jnp.where(jnp.asarray(got["n"] >= 0), 99, carry.count))
+        frozen = jnp.asarray(got["n"] >= 0)
+        st = st.replace(running=st.running.replace(
+            count=jnp.where(frozen, 99, st.running.count)))
     np.testing.assert_array_equal(got["start"], counters // BLOCK)
     np.testing.assert_array_equal(got["n"], np.asarray(ref.num_primitives))
     np.testing.assert_allclose(got["reward"], np.asarray(ref.reward), rtol=1e-6)

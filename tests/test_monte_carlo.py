@@ -26,8 +26,8 @@ from vbl.agents import (
 )
 from vbl.agents.lem import LEMParams
 from vbl.agents.monte_carlo import mc_init, mc_log, mc_update
+from vbl.envs.macro import MacroActionParams
 from vbl.params import ParamError
-from vbl.spaces.macro_action import MacroActionParams
 
 LONG = ChainParams(max_steps=2000)   # truncation practically never happens
 

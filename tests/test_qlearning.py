@@ -32,8 +32,8 @@ from vbl.agents import (
 )
 from vbl.agents.exploration import boltzmann_probs, greedy_action, to_optax
 from vbl.agents.lem import LEMParams
+from vbl.envs.macro import MacroActionParams
 from vbl.params import ParamError, validate
-from vbl.spaces.macro_action import MacroActionParams
 
 # ------------------------------------------------------------------ a tiny chain MDP
 N_CHAIN = 5  # states 0..4; moving right from 3 into 4 scores and ends the episode

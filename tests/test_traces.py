@@ -22,8 +22,8 @@ from vbl.agents import (
 )
 from vbl.agents.lem import LEMParams
 from vbl.agents.traces import TRACE_KINDS, TraceParams, trace_init, trace_update
+from vbl.envs.macro import MacroActionParams
 from vbl.params import ParamError, validate
-from vbl.spaces.macro_action import MacroActionParams
 
 S, A, E, T = 6, 3, 5, 40
 

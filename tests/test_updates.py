@@ -24,8 +24,8 @@ from vbl.agents.lem import LEMParams
 from vbl.agents.qlearning import rule_of
 from vbl.agents.traces import TraceParams
 from vbl.agents.updates import RULES
+from vbl.envs.macro import MacroActionParams
 from vbl.params import ParamError, validate
-from vbl.spaces.macro_action import MacroActionParams
 
 F32 = jnp.float32
 

@@ -45,6 +45,7 @@ from flax import struct
 from vbl.agents.exploration import ExplorationParams
 from vbl.agents.lem import LEMParams
 from vbl.agents.qlearning import QRunnerParams, make_qlearning_runner
+from vbl.envs.macro import MacroActionParams
 from vbl.envs.wrappers import (
     KINDS,
     EpisodeCounts,
@@ -56,7 +57,6 @@ from vbl.envs.wrappers import (
     QuantizeWrapper,
 )
 from vbl.params import ParamError, param, section, validate
-from vbl.spaces.macro_action import MacroActionParams
 from vbl.spaces.quantize import (
     Quantizer,
     QuantizerParams,

@@ -13,11 +13,11 @@ the one field ``update`` (:func:`rule_of`).
 
 :func:`make_qlearning_runner` is the reusable training building block: pure ``init`` /
 ``run_chunk`` / ``evaluate`` functions that ``lax.scan`` over learner steps of E parallel
-environments. One learner step is: select (:func:`_select`), act (:func:`_act_sync` runs
-every env's whole action, :func:`_act_async` one primitive of every env's running
-action), truncation rule (:func:`_truncation`), update (the rule), bookkeeping and LEM
-(:func:`_record`). ``evaluate`` is the greedy policy through the same step without
-learning (:func:`vbl.envs.rollout.first_episodes`).
+environments. One learner step is: select (:func:`_select`), act (:func:`_act`: the env
+under :class:`~vbl.envs.macro.MacroWrapper` runs every env's whole action, or in async
+mode one primitive of every env's running action), truncation rule (:func:`_truncation`),
+update (the rule), bookkeeping and LEM (:func:`_record`). ``evaluate`` is the greedy
+policy through the same step without learning (:func:`vbl.envs.rollout.first_episodes`).
 """
 
 from __future__ import annotations
@@ -36,15 +36,16 @@ from vbl.agents.lem import LEMParams, LEMState, lem_init, lem_update
 from vbl.agents.one_step import init_q, q_update
 from vbl.agents.traces import TraceParams
 from vbl.agents.updates import RULES, Transition, UpdateRule, make_rule
+from vbl.envs.macro import (
+    MacroActionParams,
+    MacroState,
+    MacroWrapper,
+    RunningAction,
+    macro_env_params,
+)
 from vbl.envs.rollout import first_episodes
 from vbl.params import ParamError, param, section, validate
-from vbl.spaces.macro_action import (
-    MacroActionParams,
-    MacroCarry,
-    async_macro_advance,
-    macro_carry_init,
-    macro_step,
-)
+from vbl.spaces.macro_action import stop_key
 
 __all__ = [
     "QRunnerParams",
@@ -120,7 +121,7 @@ class QRunnerState:
     ep_actions: jax.Array     #: (E,) int32 (macro) actions in the running episodes
     lem: LEMState
     rule: Any                 #: the update rule's state (trace window, Monte Carlo log; E)
-    macro: MacroCarry         #: per-env running macro actions (E,) (macro.mode 'async')
+    macro: RunningAction      #: per-env running macro actions (E,) (macro.mode 'async')
 
 
 class QLearningRunner(NamedTuple):
@@ -173,7 +174,7 @@ def stack_for_learners(tree: Any, num_learners: int) -> Any:
 class _Spec(NamedTuple):
     """The static parts of a runner (fixed at make time)."""
 
-    env: Any
+    env: MacroWrapper  #: the learner's env under the macro-action wrapper
     state_fn: Callable
     params: QRunnerParams
     rule: UpdateRule
@@ -182,29 +183,19 @@ class _Spec(NamedTuple):
     def n_envs(self) -> int:
         return self.params.num_envs
 
-    @property
-    def async_macro(self) -> bool:
-        return self.params.macro.enabled and self.params.macro.mode == "async"
-
 
 class _Moved(NamedTuple):
-    """What one learner step's env (macro) steps gave, each (E,) unless noted."""
+    """What one learner step's (macro) env steps gave, each (E,) unless noted."""
 
     obs: Any
-    env_state: Any
-    r: jax.Array
+    state: MacroState   #: the wrapper's state after the step
     term: jax.Array
     trunc: jax.Array
     info: Any
-    n: jax.Array        #: primitives of the transition (valid where ``advance``)
-    s_next: jax.Array
-    s_from: jax.Array   #: state where the transition's action started
-    action: jax.Array   #: the action in force
-    decided: jax.Array  #: bool, the env chose its action at this step
+    macro: dict         #: ``info["macro"]``: the (ended) action's start, action, reward, n
     advance: Any        #: async: bool, the action ended here; sync: None
     prims: Any          #: primitives run at this step (sync: n; async: 1)
     acts: Any           #: decisions at this step (sync: 1; async: decided)
-    macro: MacroCarry
 
 
 def _check(env: Any, params: QRunnerParams, env_params: Any) -> None:
@@ -229,18 +220,23 @@ def _env_params_at(sp: _Spec, env_params: Any, difficulty: jax.Array) -> Any:
     return env_params
 
 
+def _wrapper_params(sp: _Spec, params: QRunnerParams, env_params, difficulty):
+    return macro_env_params(_env_params_at(sp, env_params, difficulty), params.macro,
+                            params.discount)
+
+
 def _init(sp: _Spec, key, params: QRunnerParams, env_params) -> QRunnerState:
     k_reset, key = jax.random.split(key)
     q = init_q(params)
     lem = lem_init(params.lem, q)
-    ep = _env_params_at(sp, env_params, lem.difficulty)
-    obs, env_state = jax.vmap(sp.env.reset, in_axes=(0, None))(
-        jax.random.split(k_reset, sp.n_envs), ep)
+    obs, st = jax.vmap(sp.env.reset, in_axes=(0, None))(
+        jax.random.split(k_reset, sp.n_envs), _wrapper_params(sp, params, env_params,
+                                                              lem.difficulty))
     zeros = jnp.zeros((sp.n_envs,), jnp.int32)
-    return QRunnerState(key=key, q=q, env_state=env_state, obs=obs, s=_states(sp, obs),
+    return QRunnerState(key=key, q=q, env_state=st.inner, obs=obs, s=st.index,
                         steps=jnp.int32(0), episodes=jnp.int32(0), ep_primitives=zeros,
                         ep_actions=zeros, lem=lem, rule=sp.rule.init(sp.n_envs),
-                        macro=macro_carry_init(sp.n_envs))
+                        macro=st.running)
 
 
 def _count(sp: _Spec, steps: jax.Array, episodes: jax.Array) -> jax.Array:
@@ -260,59 +256,33 @@ def _select(sp: _Spec, k_act, c: QRunnerState, params: QRunnerParams, learn: boo
     return rate, sp.rule.act(c.rule, action)
 
 
-def _act_sync(sp: _Spec, key, c: QRunnerState, action, params: QRunnerParams,
-              env_params) -> _Moved:
-    """Every env runs its whole action (a macro loop, or one primitive)."""
-    ep = _env_params_at(sp, env_params, c.lem.difficulty)
+def _act(sp: _Spec, key, c: QRunnerState, action, params: QRunnerParams,
+         env_params) -> _Moved:
+    """Every env steps under the macro wrapper: its whole action (sync, or one primitive
+    when macro actions are off), or one primitive of its running action (async)."""
     keys = jax.random.split(key, sp.n_envs)
-    mp = sp.params.macro
-    if mp.enabled:
-        out = jax.vmap(partial(macro_step, stop_on=mp.stop_on),
-                       in_axes=(None, None, 0, 0, 0, 0, None, None, None, None))(
-            sp.env.step, sp.state_fn, keys, c.env_state, c.s, action, ep,
-            params.macro.max_repeats, params.discount, params.macro.min_repeats)
-        obs, st, r, term, trunc, info = (out.obs, out.env_state, out.reward, out.terminated,
-                                         out.truncated, out.info)
-        n, s_next = out.num_primitives, out.next_state
-    else:
-        obs, st, r, term, trunc, info = jax.vmap(sp.env.step, in_axes=(0, 0, 0, None))(
-            keys, c.env_state, action, ep)
-        r, term, trunc = (jnp.asarray(r, jnp.float32), jnp.asarray(term, bool),
-                          jnp.asarray(trunc, bool))
-        n, s_next = jnp.ones((sp.n_envs,), jnp.int32), _states(sp, obs)
-    return _Moved(obs, st, r, term, trunc, info, n, s_next, c.s, action,
-                  jnp.ones((sp.n_envs,), bool), None, n, 1, c.macro)
-
-
-def _act_async(sp: _Spec, key, c: QRunnerState, action, params: QRunnerParams,
-               env_params) -> _Moved:
-    """One primitive of every env; an env whose action runs on keeps it."""
-    keys = jax.random.split(key, sp.n_envs)
-    ep = _env_params_at(sp, env_params, c.lem.difficulty)
-
-    def step_out(a):
-        out = jax.vmap(sp.env.step, in_axes=(0, 0, 0, None))(keys, c.env_state, a, ep)
-        return (*out, _states(sp, out[0]))
-
-    out, ended, (s_from, action, r, n, decided), macro = async_macro_advance(
-        c.macro, c.s, action, step_out, params.macro.max_repeats, params.discount,
-        params.macro.min_repeats, sp.params.macro.stop_on)
-    obs, st, _, term, trunc, info, s_next = out
-    return _Moved(obs, st, r, jnp.asarray(term, bool), jnp.asarray(trunc, bool), info, n,
-                  s_next, s_from, action, decided, ended, 1, decided.astype(jnp.int32), macro)
+    wp = _wrapper_params(sp, params, env_params, c.lem.difficulty)
+    state = MacroState(inner=c.env_state, index=c.s, running=c.macro)
+    obs, state, _, term, trunc, info = jax.vmap(sp.env.step, in_axes=(0, 0, 0, None))(
+        keys, state, action, wp)
+    mi = info["macro"]
+    if sp.env.is_async:
+        return _Moved(obs, state, term, trunc, info, mi, mi["ended"], 1,
+                      mi["decided"].astype(jnp.int32))
+    return _Moved(obs, state, term, trunc, info, mi, None, mi["num_primitives"], 1)
 
 
 def _truncation(sp: _Spec, m: _Moved) -> tuple[Any, Any, Any]:
     """(terminal, weight, s_boot) of the transitions under ``truncation``."""
     mode = sp.params.truncation
-    cut = m.trunc & ~m.term
+    cut, s_next = m.trunc & ~m.term, m.state.index
     if mode == "skip":
-        return m.term, ~cut, m.s_next
+        return m.term, ~cut, s_next
     if mode == "terminal":
-        return m.term | m.trunc, None, m.s_next
+        return m.term | m.trunc, None, s_next
     if "final_obs" not in m.info:
         raise ParamError("truncation='bootstrap' needs info['final_obs'] from the env")
-    return m.term, None, jnp.where(cut, _states(sp, m.info["final_obs"]), m.s_next)
+    return m.term, None, jnp.where(cut, _states(sp, m.info["final_obs"]), s_next)
 
 
 def _next_action(sp: _Spec, k_act, c: QRunnerState, m: _Moved,
@@ -321,7 +291,7 @@ def _next_action(sp: _Spec, k_act, c: QRunnerState, m: _Moved,
     n_done = jnp.sum(m.term | m.trunc, dtype=jnp.int32)
     rate = schedule_value(params.exploration,
                           _count(sp, c.steps + 1, c.episodes + n_done))
-    return select_action(jax.random.fold_in(k_act, 1), c.q[m.s_next], rate,
+    return select_action(jax.random.fold_in(k_act, 1), c.q[m.state.index], rate,
                          sp.params.exploration.policy)
 
 
@@ -331,9 +301,10 @@ def _transition(sp: _Spec, k_act, c: QRunnerState, m: _Moved,
     terminal, weight, s_boot = _truncation(sp, m)
     done = m.term | m.trunc
     a_next = _next_action(sp, k_act, c, m, params) if sp.rule.next_action else None
-    return Transition(s=m.s_from, a=m.action, r=m.r, n=m.n, s_boot=s_boot, terminal=terminal,
-                      done=done, truncated=m.trunc & ~m.term, weight=weight, advance=m.advance,
-                      decided=m.decided, clock=c.ep_primitives,
+    return Transition(s=m.macro["start"], a=m.macro["action"], r=m.macro["reward"],
+                      n=m.macro["num_primitives"], s_boot=s_boot, terminal=terminal, done=done,
+                      truncated=m.trunc & ~m.term, weight=weight, advance=m.advance,
+                      decided=m.macro["decided"], clock=c.ep_primitives,
                       last_clock=c.ep_primitives + m.prims - 1,
                       scored=jnp.asarray(m.info["success"]).astype(bool) & done, a_next=a_next)
 
@@ -351,11 +322,11 @@ def _record(c: QRunnerState, m: _Moved, key, q, rule_state, lem, rate, td_abs):
         actions=jnp.sum(jnp.where(done, ep_act, 0), dtype=jnp.int32),
         td_abs=td_abs, rate=jnp.asarray(rate, jnp.float32),
         difficulty=c.lem.difficulty, lem_raises=lem.raises)
-    new = QRunnerState(key=key, q=q, env_state=m.env_state, obs=m.obs, s=m.s_next,
+    new = QRunnerState(key=key, q=q, env_state=m.state.inner, obs=m.obs, s=m.state.index,
                        steps=c.steps + 1, episodes=c.episodes + metrics["episodes"],
                        ep_primitives=jnp.where(done, 0, ep_prim),
                        ep_actions=jnp.where(done, 0, ep_act), lem=lem, rule=rule_state,
-                       macro=m.macro)
+                       macro=m.state.running)
     return new, metrics, done, success, ep_prim
 
 
@@ -364,8 +335,7 @@ def _step(sp: _Spec, c: QRunnerState, params: QRunnerParams, env_params, learn: 
     """One learner step: select, act, update (if ``learn``), record."""
     key, k_act, k_env = jax.random.split(c.key, 3)
     rate, action = _select(sp, k_act, c, params, learn, eval_epsilon)
-    act = _act_async if sp.async_macro else _act_sync
-    m = act(sp, k_env, c, action, params, env_params)
+    m = _act(sp, k_env, c, action, params, env_params)
     q, rule_state, lem, td_abs = c.q, c.rule, c.lem, jnp.float32(0.0)
     if learn:
         t = _transition(sp, k_act, c, m, params)
@@ -427,7 +397,9 @@ def make_qlearning_runner(env: Any, state_fn: Callable, params: QRunnerParams,
     """
     validate(params)
     _check(env, params, env_params)
-    sp = _Spec(env=env, state_fn=state_fn, params=params, rule=rule_of(params))
+    mp = params.macro
+    sp = _Spec(env=MacroWrapper(env, state_fn, mp, stop_key(mp.stop_on)), state_fn=state_fn,
+               params=params, rule=rule_of(params))
     init, run_chunk, evaluate = (partial(_init, sp), partial(_run_chunk, sp),
                                  partial(_evaluate, sp))
     init_batch = jax.jit(jax.vmap(init, in_axes=(0, 0, 0)))

@@ -1,14 +1,13 @@
-"""vbl.spaces: state-space builders (the hand-designed grid) and macro actions."""
+"""vbl.spaces: state-space builders (the hand-designed grid) and the grid's macro-action
+stop rules (the macro-action wrapper itself is :mod:`vbl.envs.macro`)."""
 
 from vbl.spaces.grid import NUM_GRID_STATES, GridParams, grid_state
-from vbl.spaces.macro_action import MacroActionParams, MacroOutcome, macro_step, make_macro_step
+from vbl.spaces.macro_action import STOP_RULES, grid_search_key
 
 __all__ = [
     "NUM_GRID_STATES",
     "GridParams",
     "grid_state",
-    "MacroActionParams",
-    "MacroOutcome",
-    "macro_step",
-    "make_macro_step",
+    "STOP_RULES",
+    "grid_search_key",
 ]
