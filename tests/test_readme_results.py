@@ -115,7 +115,7 @@ def test_report_commands_rebuild_the_recorded_config(tmp_path):
     ("table2_full", "vbl run table2_shoot_pass --set cva.keep_beyond_order=false --set "
      "cva.n_used_objects=4,4,4 --set cva.quantizer.group_codes=16,8,8", False),
     ("fig5_cells", "vbl run fig5_action_based --preset construction_only", True),
-    ("table1_quick", "vbl run table1_identification --quick", False),
+    ("table1", "vbl run table1_identification", False),
 ])
 def test_commands_of_older_folders_use_the_legacy_values(folder, command, unrecorded):
     """Parameters added after a folder was written take the experiment's legacy_values

@@ -161,8 +161,8 @@ class Experiment:
         --jobs N`` starts the costliest experiments first so the workers finish together.
       group: experiments with the same group run one after the other in one worker of
         ``vbl reproduce --jobs N`` (in registry order), so the later ones find the programs
-        the first one compiled in the persistent compilation cache (e.g. Tables 1 and 3
-        share the collection and CVA programs).
+        the first one compiled in the persistent compilation cache (experiments that
+        build the same programs).
       headline: metric names ``vbl run`` prints per sweep point after a run (mean and 95 %
         interval; a ``final`` metric, else the last chunk's); default: the scalar ``final``
         metrics, then the last chunk's, as many as fit 100 columns. Every metric stays in
