@@ -16,17 +16,18 @@ CVA is exactly the CVA of lag ``l`` on that window. Then
 
 Cost (the kernel is the whole of ``identify``'s time at large batches):
 
-* ``G`` is a block-Toeplitz matrix up to edge terms: block ``(b+s, b)`` is
-  ``sum_{r=b}^{b+N_e-1} x(r+s) x(r)^T`` = the first block column's block ``s`` plus the
-  ``b`` outer products entering at the end minus the ``b`` leaving at the start
-  (:func:`hankel_gram`), about ``2(L+K)`` times fewer operations than ``Z^T Z``.
+* ``G`` is a block-Toeplitz matrix up to edge terms (:func:`vbl.sysid.gram.hankel_gram`):
+  the lag products ``sum_t x(t+s) x(t)^T`` as one blocked matrix product, expanded to the
+  Toeplitz part by a reshape, plus the edge terms as one more product.
 * Each lag runs at its own sizes (a loop over lags unrolled in the one program), not padded
   to the largest lag, and takes its stacks as slices of ``G`` seen as ``(w, m+q, w, m+q)``
   (past = consecutive offsets, future = the u or y channels of consecutive offsets), not as
   index gathers, which XLA's CPU backend runs element by element; the order sweep's
   covariances come from the ``(l+1)(m+q)`` rows of ``G`` that
   ``[mu(t); mu(t+1); u(t); y(t)]`` depend on, with all orders from one Cholesky factor
-  (nested regressions).
+  (nested regressions): the q x q residual covariances' log dets by elimination in
+  elementwise operations (:func:`logdet_spd`), Theta at n* by two triangular solves with
+  that factor.
 * :func:`fit_select_batch` runs chunks of ``CHUNK`` data sets (one compiled ``vmap`` per
   chunk), so a chunk's intermediate arrays stay in the cache at any batch size and one
   compiled program serves every batch size.
@@ -48,7 +49,7 @@ from vbl.sysid.linalg import eigh_desc, svd_thin, x64_scope
 from vbl.sysid.params import CVAParams
 
 __all__ = ["fit_select_one", "fit_select_batch", "predictor_criterion", "hankel_gram",
-           "chunk_sizes", "CHUNK"]
+           "logdet_spd", "chunk_sizes", "CHUNK"]
 
 #: Data sets per chunk of :func:`fit_select_batch` (a ``vmap`` inside a chunk, chunks in
 #: sequence): small enough for a chunk's working set to stay in the cache (the cost per
