@@ -505,6 +505,13 @@ def _green_init(n_box):
     return tuple((zero, zero, zero) for _ in range(n_box)), (big, big, -big, -big)
 
 
+def _stored(x, one):
+    """``x / one`` with ``one`` == 1 not known to the compiler: exactly ``x``, but XLA does
+    not copy a division into each of its consumers, so ``x`` is computed once and stored
+    (otherwise every consumer recomputes ``x`` and all it is made of)."""
+    return x / one
+
+
 def _green_step(carry, seg, boxes, orig):
     """Add one directed segment ``(x0, y0, x1, y1, w)`` (scalars, px) to the sums.
 
@@ -513,7 +520,9 @@ def _green_step(carry, seg, boxes, orig):
     about the box's origin, adds ``∫ x dy``, ``∫ x^2 dy`` and ``∫ x y dy`` (closed form
     for a straight piece), times the weight ``w``. The box-0 bounding box grows by the
     u-range of the part inside its row band and the v-range of the part inside its
-    column band (segments of weight 0 are not boundary and add nothing).
+    column band (segments of weight 0 are not boundary and add nothing). The pieces'
+    parameters and clamped ends are stored once per box (:func:`_stored`) and read by the
+    three sums, which XLA would otherwise each recompute them for.
     """
     sums, (u_lo, v_lo, u_hi, v_hi) = carry
     x0, y0, x1, y1, ws = seg
@@ -521,6 +530,7 @@ def _green_step(carry, seg, boxes, orig):
     ix, iy = _safe_div(1.0, dx), _safe_div(1.0, dy)
     big = jnp.asarray(_BIG, F32)
     zero = jnp.zeros((), F32)
+    one = ws * 0.0 + 1.0    # exactly 1 (weights are finite), unknown to the compiler
     new = []
     for j, ((lu, lv, hu, hv), (ou, ov)) in enumerate(zip(boxes, orig, strict=True)):
         r0, r1 = (lv - y0) * iy, (hv - y0) * iy
@@ -540,9 +550,9 @@ def _green_step(carry, seg, boxes, orig):
             v_lo = jnp.minimum(v_lo, jnp.where(vok, jnp.minimum(va, vb), big))
             v_hi = jnp.maximum(v_hi, jnp.where(vok, jnp.maximum(va, vb), -big))
         tb = jnp.maximum(tb, ta)
-        ts = (ta, jnp.clip(cmin, ta, tb), jnp.clip(cmax, ta, tb), tb)
-        xs = [jnp.clip(x0 + t * dx, lu, hu) - ou for t in ts]
-        ys = [jnp.clip(y0 + t * dy, lv, hv) - ov for t in ts]
+        ts = [_stored(t, one) for t in (ta, jnp.clip(cmin, ta, tb), jnp.clip(cmax, ta, tb), tb)]
+        xs = [_stored(jnp.clip(x0 + t * dx, lu, hu) - ou, one) for t in ts]
+        ys = [_stored(jnp.clip(y0 + t * dy, lv, hv) - ov, one) for t in ts]
         a = m = n = zero
         for k in range(3):
             xa, xb, ya, yb = xs[k], xs[k + 1], ys[k], ys[k + 1]
