@@ -60,7 +60,7 @@ OLD_REV = "9681a38"
 #: Heading change per call inside the timed scan, rad (defeats loop-invariant hoisting).
 TURN_PER_CALL = 1e-4
 F32 = jnp.float32
-#: The Section 3 camera's ``lax.scan``s by trip count (docs/vision.md, "Evaluation").
+#: The Section 3 camera's ``lax.scan``s by trip count (docs/vision.md, "Exactness and cost").
 SCANS = {4: "goal segments: near clip, projection, image clip (4 steps)",
          5: "goal boundary in 4 boxes: Green sums (5 steps)",
          9: "robot boundary in 2 boxes: Green sums (9 steps)",
