@@ -22,6 +22,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 import vbl  # noqa: F401
 from vbl.engine.config import apply_overrides, stack_traced
@@ -143,6 +144,7 @@ class RecordingEnv:
         return self._env.step(key, state, action, params)
 
 
+@pytest.mark.slow  # compile-bound: about 65 s on 2 quiet cores
 def test_final_evaluation_draws_from_its_own_stream(monkeypatch):
     """The grid_shooting program (``vbl.engine.baselines.grid_program``) with the engine's
     per-seed training and final keys: the final evaluation's env keys are disjoint from
