@@ -38,7 +38,7 @@ from vbl.envs.noise import NoiseParams
 from vbl.envs.shoot_pass import OBS_SLICES, ShootPassParams
 from vbl.params import ParamError, param, validate
 from vbl.sysid import CVAModel, fit_one, min_length
-from vbl.sysid.lag import n_cap_for
+from vbl.sysid.lag import n_cap_for, pad_to_history
 from vbl.sysid.lag_rule import select_lag
 from vbl.sysid.params import CVAParams
 from vbl.sysid.sweep import fit_select_one
@@ -128,13 +128,6 @@ def check_scenarios(scenarios: Mapping[str, CollectParams], objects: Mapping[str
                              f"identify {name} ({obj}, q={q}) up to lag {lag}: need >= {need}")
 
 
-def _history_layout(umat, lag: int, h: int, m: int, q: int):
-    """State-map columns of lag ``lag`` ``[u lags; y lags]`` in the layout of history ``h``."""
-    c = umat.shape[0]
-    zu, zy = jnp.zeros((c, (h - lag) * m), umat.dtype), jnp.zeros((c, (h - lag) * q), umat.dtype)
-    return jnp.concatenate([umat[:, :lag * m], zu, umat[:, lag * m:], zy], axis=1)
-
-
 def identify_one(u, y, ident: CVAParams) -> tuple[dict[str, jax.Array], CVAModel]:
     """CVA, AIC order and lag on one data set ``u (N, m)``, ``y (N, q)`` (pure; jit/vmap-able).
 
@@ -155,7 +148,7 @@ def identify_one(u, y, ident: CVAParams) -> tuple[dict[str, jax.Array], CVAModel
         logdet = jnp.stack([f.logdet[f.n] for f in fits])
         aic = jnp.stack([f.aic[f.n] for f in fits])
         j = select_lag(logdet, aic, ident.logdet_stop)[0]
-        fits = [f.replace(U=_history_layout(f.U, lg, h, m, q)) for f, lg in zip(fits, lags,
+        fits = [f.replace(U=pad_to_history(f.U, lg, h, m, q)) for f, lg in zip(fits, lags,
                                                                                  strict=True)]
         fit = jax.tree.map(lambda *a: jnp.stack(a)[j], *fits)
     lag, n = jnp.asarray(lags, jnp.int32)[j], fit.n.astype(jnp.int32)

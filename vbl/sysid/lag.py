@@ -31,7 +31,8 @@ from vbl.sysid.params import CVAParams
 from vbl.sysid.sweep import fit_select_batch
 from vbl.sysid.validate import check_data, prepare_scale, warn_collinear
 
-__all__ = ["Identification", "identify", "select_lag", "n_cap_for", "OrderCapWarning"]
+__all__ = ["Identification", "identify", "select_lag", "n_cap_for", "pad_to_history",
+           "OrderCapWarning"]
 
 
 class OrderCapWarning(UserWarning):
@@ -76,12 +77,17 @@ def select_lag(logdet: np.ndarray, aic: np.ndarray, stop: float) -> tuple[np.nda
     return np.asarray(j), np.asarray(d)
 
 
-def _pad_u(umat: np.ndarray, lag: int, h: int, m: int, q: int) -> np.ndarray:
-    """Map U columns for lag l into the history layout of length h (zeros beyond l)."""
-    out = np.zeros(umat.shape[:-1] + (h * (m + q),), umat.dtype)
-    out[..., :lag * m] = umat[..., :lag * m]
-    out[..., h * m:h * m + lag * q] = umat[..., lag * m:]
-    return out
+def pad_to_history(umat, lag: int, h: int, m: int, q: int):
+    """State-map columns ``[u lags; y lags]`` (..., lag (m+q)) of lag ``lag`` in the layout
+    of history length ``h`` (..., h (m+q)), zeros beyond ``lag``; NumPy in, NumPy out, else
+    jnp (jit-able)."""
+    xp = np if isinstance(umat, np.ndarray) else jnp
+
+    def zeros(k: int):
+        return xp.zeros(umat.shape[:-1] + (k,), umat.dtype)
+
+    return xp.concatenate([umat[..., :lag * m], zeros((h - lag) * m), umat[..., lag * m:],
+                           zeros((h - lag) * q)], axis=-1)
 
 
 def identify(u, y, params: CVAParams | None = None, *, model_dtype=jnp.float32
@@ -226,7 +232,7 @@ def _by_lag(u, y, params: CVAParams) -> dict:
                n_samples=(n_samp - hor - lag_arr + 1).astype(np.int32),
                logdet_R=ld[np.arange(b), chosen], aic=ai[np.arange(b), chosen],
                lag_aic=ai, lag_logdet=ld, lag_n=ln, lag_criterion=np.full(ld.shape, np.nan),
-               U=pick(lambda j, f: _pad_u(np.asarray(f.U), lags[j], h, m, q)))
+               U=pick(lambda j, f: pad_to_history(np.asarray(f.U), lags[j], h, m, q)))
     for k in ("aic_curve", "logdet_curve", "cancor", "A", "B", "C", "D", "R", "u_mean",
               "u_scale", "y_mean", "y_scale"):
         key = {"aic_curve": "aic", "logdet_curve": "logdet"}.get(k, k)
