@@ -250,8 +250,7 @@ def _select(sp: _Spec, k_act, c: QRunnerState, params: QRunnerParams, learn: boo
     if not learn:
         rate = jnp.asarray(eval_epsilon, jnp.float32)
         return rate, select_action(k_act, c.q[c.s], rate, "epsilon_greedy")
-    rate = schedule_value(params.exploration,
-                          _count(sp, c.steps, c.episodes))
+    rate = schedule_value(params.exploration, _count(sp, c.steps, c.episodes))
     action = select_action(k_act, c.q[c.s], rate, sp.params.exploration.policy)
     return rate, sp.rule.act(c.rule, action)
 
@@ -289,8 +288,7 @@ def _next_action(sp: _Spec, k_act, c: QRunnerState, m: _Moved,
                  params: QRunnerParams) -> jax.Array:
     """Sarsa: the action each env takes next in ``s_next`` (pre-update table, next rate)."""
     n_done = jnp.sum(m.term | m.trunc, dtype=jnp.int32)
-    rate = schedule_value(params.exploration,
-                          _count(sp, c.steps + 1, c.episodes + n_done))
+    rate = schedule_value(params.exploration, _count(sp, c.steps + 1, c.episodes + n_done))
     return select_action(jax.random.fold_in(k_act, 1), c.q[m.state.index], rate,
                          sp.params.exploration.policy)
 

@@ -301,6 +301,11 @@ def _canonical(scenarios, check: bool) -> list[CollectParams]:
     return canon
 
 
+def _stack(canon: list[CollectParams]) -> CollectParams:
+    """Canonical scenarios (:func:`_canonical`) as one params tree with a leading (S,) axis."""
+    return jax.tree_util.tree_map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *canon)
+
+
 def collect_scenarios(key: jax.Array, scenarios: list[CollectParams]) -> CollectData:
     """One data set per scenario (leading (S,) axis): scenario ``s`` is
     ``collect_one(fold_in(key, s), scenarios[s])`` (pure; jit/vmap-able: one learner's data
@@ -314,8 +319,7 @@ def collect_scenarios(key: jax.Array, scenarios: list[CollectParams]) -> Collect
     if not scenarios:
         raise ValueError("scenarios must be a non-empty list of CollectParams")
     canon = _canonical(scenarios, check=False)
-    stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]),
-                                     *canon)
+    stacked = _stack(canon)
     ids = jnp.asarray([_ids(sc) for sc in scenarios], I32)            # (S, 2)
     keys = jax.vmap(lambda s: jax.random.fold_in(key, s))(jnp.arange(len(canon)))
     return jax.vmap(collect_one)(keys, stacked, ids[:, 0], ids[:, 1])
@@ -361,9 +365,7 @@ def collect_many(key: jax.Array, scenarios: list[CollectParams], batch: int,
     result = []
     for g0 in range(0, n + pad, size):
         sl = slice(g0, g0 + size)
-        stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]),
-                                         *canon[sl])
-        out = _collect_jit(jnp.stack(keys[sl]), stacked,
+        out = _collect_jit(jnp.stack(keys[sl]), _stack(canon[sl]),
                            jnp.stack([i[0] for i in ids[sl]]), jnp.stack([i[1] for i in ids[sl]]))
         result += [jax.tree_util.tree_map(lambda x, s=s: x[s], out) for s in range(size)]
     return result[:n]
