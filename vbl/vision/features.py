@@ -786,7 +786,10 @@ def section3_features(robot_pose, ball_xy, ball_radius, goal_corners, other_pose
       ``lost_side`` (ball, goal, other). Lost objects have all-zero features.
     """
     fu, fv = focal_lengths(cam)
-    frame = camera_frame(robot_pose, cam)
+    pose = jnp.asarray(robot_pose, F32)
+    one = pose[0] * 0.0 + 1.0   # exactly 1 (poses are finite), unknown to the compiler
+    frame = camera_frame(pose, cam)
+    frame = frame.replace(c=_stored(frame.c, one), rot=_stored(frame.rot, one))
     hw = jnp.asarray(cam.image_width, F32) / 2
     hh = jnp.asarray(cam.image_height, F32) / 2
     img_lo, img_hi = jnp.stack([-hw, -hh]), jnp.stack([hw, hh])
@@ -795,19 +798,22 @@ def section3_features(robot_pose, ball_xy, ball_radius, goal_corners, other_pose
     r = jnp.asarray(ball_radius, F32)
     bxy = jnp.asarray(ball_xy, F32)
     ball_w = jnp.stack([bxy[0], bxy[1], r])
-    ball_c = to_camera(ball_w, frame)
+    ball_c = _stored(to_camera(ball_w, frame), one)
     bi = ball_image(ball_c, r, cam)
+    box = _stored(jnp.stack([bi.u_lo, bi.u_hi, bi.v_lo, bi.v_hi]), one)
+    bi = bi.replace(u_lo=box[0], u_hi=box[1], v_lo=box[2], v_hi=box[3])
     b_lo = jnp.stack([bi.u_lo, bi.v_lo])
     b_hi = jnp.stack([bi.u_hi, bi.v_hi])
     # goal
     corners = jnp.asarray(goal_corners, F32)
-    pc = to_camera(corners, frame)
+    pc = _stored(to_camera(corners, frame), one)
     gseg = _goal_segments(pc, cam, fu, fv)
     ends = _goal_ends(gseg, cam)
+    ends = ends.replace(bot=_stored(ends.bot, one), top=_stored(ends.top, one))
     # other robot: the box in its own frame (local axes along its heading)
     opose = jnp.asarray(other_pose, F32)
     osize = jnp.asarray(other_size, F32)
-    c, s = jnp.cos(opose[2]), jnp.sin(opose[2])
+    c, s = _stored(jnp.cos(opose[2]), one), _stored(jnp.sin(opose[2]), one)
     half = jnp.stack([osize[0] / 2, osize[1] / 2, osize[2] / 2])
     ocen = jnp.stack([opose[0], opose[1], half[2]])
 
@@ -815,15 +821,15 @@ def section3_features(robot_pose, ball_xy, ball_radius, goal_corners, other_pose
         rel = p - ocen
         return jnp.stack([c * rel[0] + s * rel[1], -s * rel[0] + c * rel[1], rel[2]])
 
-    locc = local(frame.c)
+    locc = _stored(local(frame.c), one)
     front = jnp.stack([locc[0] > half[0], locc[0] < -half[0], locc[1] > half[1],
                        locc[1] < -half[1], locc[2] > half[2], locc[2] < -half[2]])
     zero = jnp.zeros((), F32)
     axes_w = jnp.stack([jnp.stack([c * half[0], s * half[0], zero]),
                         jnp.stack([-s * half[1], c * half[1], zero]),
                         jnp.stack([zero, zero, osize[2]])])
-    axes_c = jnp.sum(axes_w[:, None, :] * frame.rot[None, :, :], axis=-1)
-    base_c = to_camera(jnp.stack([opose[0], opose[1], zero]), frame)
+    axes_c = _stored(jnp.sum(axes_w[:, None, :] * frame.rot[None, :, :], axis=-1), one)
+    base_c = _stored(to_camera(jnp.stack([opose[0], opose[1], zero]), frame), one)
     # depth order
     goal_cam_side = _plane_side(corners, frame.c)
     ball_before_goal = (_plane_side(corners, ball_w) * goal_cam_side > 0) & bi.valid
@@ -837,7 +843,7 @@ def section3_features(robot_pose, ball_xy, ball_radius, goal_corners, other_pose
     occ_b = ball_before_robot & bi.visible
     ob_lo, ob_hi = _rect_inter(img_lo, img_hi, b_lo, b_hi)
     ob_lo, ob_hi = jnp.where(occ_b, ob_lo, e_lo), jnp.where(occ_b, ob_hi, e_hi)
-    ocen_c = to_camera(ocen, frame)
+    ocen_c = _stored(to_camera(ocen, frame), one)
     o_origin = _proj(ocen_c, fu, fv, jnp.asarray(cam.near_plane, F32))
     oreg = _box_region(base_c, axes_c, front, cam, fu, fv, jnp.stack([img_lo, ob_lo]),
                        jnp.stack([img_hi, ob_hi]), o_origin)
