@@ -75,13 +75,16 @@ class CameraFrame:
     rot: jnp.ndarray
 
 
-def camera_frame(robot_pose: jnp.ndarray, cam: CameraParams) -> CameraFrame:
-    """Camera centre and axes (rows right, up, forward) for a robot pose ``(x, y, theta)``."""
+def camera_frame(robot_pose: jnp.ndarray, cam: CameraParams, trig=None) -> CameraFrame:
+    """Camera centre and axes (rows right, up, forward) for a robot pose ``(x, y, theta)``.
+
+    ``trig``: optional ``(cos theta, sin theta)`` of the pose, when the caller has them.
+    """
     pose = jnp.asarray(robot_pose, F32)
     x, y, th = pose[0], pose[1], pose[2]
     tau = jnp.deg2rad(jnp.asarray(cam.tilt_deg, F32))
     off = jnp.asarray(cam.forward_offset, F32)
-    ct, st = jnp.cos(th), jnp.sin(th)
+    ct, st = (jnp.cos(th), jnp.sin(th)) if trig is None else trig
     ca, sa = jnp.cos(tau), jnp.sin(tau)
     c = jnp.stack([x + off * ct, y + off * st, jnp.asarray(cam.height, F32)])
     zero = jnp.zeros((), F32)
@@ -94,7 +97,10 @@ def camera_frame(robot_pose: jnp.ndarray, cam: CameraParams) -> CameraFrame:
 def to_camera(points: jnp.ndarray, frame: CameraFrame) -> jnp.ndarray:
     """World points (..., 3) -> camera coordinates (..., 3) = (X right, Y up, Z depth)."""
     d = jnp.asarray(points, F32) - frame.c
-    return jnp.einsum("ij,...j->...i", frame.rot, d)
+    # multiply-adds, not a matrix product: XLA on CPU runs a batch of 3x3 products as a
+    # library call that fuses with nothing
+    return jnp.stack([d[..., 0] * frame.rot[i, 0] + d[..., 1] * frame.rot[i, 1]
+                      + d[..., 2] * frame.rot[i, 2] for i in range(3)], axis=-1)
 
 
 def project_points(points: jnp.ndarray, robot_pose: jnp.ndarray,

@@ -788,8 +788,8 @@ def section3_features(robot_pose, ball_xy, ball_radius, goal_corners, other_pose
     fu, fv = focal_lengths(cam)
     pose = jnp.asarray(robot_pose, F32)
     one = pose[0] * 0.0 + 1.0   # exactly 1 (poses are finite), unknown to the compiler
-    frame = camera_frame(pose, cam)
-    frame = frame.replace(c=_stored(frame.c, one), rot=_stored(frame.rot, one))
+    frame = camera_frame(pose, cam, trig=(_stored(jnp.cos(pose[2]), one),
+                                          _stored(jnp.sin(pose[2]), one)))
     hw = jnp.asarray(cam.image_width, F32) / 2
     hh = jnp.asarray(cam.image_height, F32) / 2
     img_lo, img_hi = jnp.stack([-hw, -hh]), jnp.stack([hw, hh])
