@@ -28,33 +28,40 @@ def _standardised(x):
 
 
 def test_predictor_rule_matches_oracle_on_common_window(data):
-    """Every lag is the oracle's CVA on the common window t = L .. N-K; l* = argmin of
-    AIC(n*(l)) + 2 n*(l) l (m+q); the result is the oracle's fit at l*."""
+    """Every lag l = lag_min .. L is the oracle's CVA on the common window t = L .. N-K; n*
+    minimises sum_l [N_e log det R_l(n) + 3 lambda(n)] over the n every lag can give; l*
+    minimises AIC_l(n*) + 2 n* l (m+q); the result is the oracle's fit at l*."""
     u, y = map(_standardised, data)
     p = CVAParams(lag_max=LAG_MAX)
     res = identify(u, y, p)
     m = q = 2
     big_k = 2 * LAG_MAX
+    lags = np.arange(p.lag_min, LAG_MAX + 1)
+    ne = u.shape[1] - big_k - LAG_MAX + 1
+    cap = min(lg * (m + q) for lg in lags)          # n the shortest lag can give (k = 2l)
+    lam = np.asarray(param_count(np.arange(cap + 1), m, q))
     for i in range(len(u)):
         refs = []
-        for lag in range(1, LAG_MAX + 1):
+        for lag in lags:
             sl = slice(LAG_MAX - lag, u.shape[1] - (big_k - 2 * lag))
             refs.append(cva_reference(u[i, sl], y[i, sl], lag, 2 * lag, demean=False,
                                       standardize=False, n_max=12))
-        n_ref = np.array([r["n"] for r in refs])
-        aic_ref = np.array([r["aic"][r["n"]] for r in refs])
-        pe = aic_ref + 2 * n_ref * np.arange(1, LAG_MAX + 1) * (m + q)
-        np.testing.assert_array_equal(np.asarray(res.lag_n[i]), n_ref)
-        np.testing.assert_allclose(np.asarray(res.lag_aic[i]), aic_ref, atol=1e-4)
+        ld = np.array([r["logdet"][:cap + 1] for r in refs])
+        pooled = (ne * ld + 3.0 * lam).sum(0)
+        n = 1 + int(np.argmin(pooled[1:]))
+        aic_n = np.array([r["aic"][n] for r in refs])
+        pe = aic_n + 2 * n * lags * (m + q)
+        np.testing.assert_array_equal(np.asarray(res.lag_n[i]), [r["n"] for r in refs])
+        np.testing.assert_allclose(np.asarray(res.lag_aic[i]), aic_n, atol=1e-4)
         np.testing.assert_allclose(np.asarray(res.lag_criterion[i]), pe, atol=1e-4)
         best = int(np.argmin(pe))
-        assert int(res.lag[i]) == best + 1 and int(res.n[i]) == n_ref[best]
+        assert int(res.lag[i]) == lags[best] and int(res.n[i]) == n
         ref = refs[best]
         k = len(ref["cancor"])
         np.testing.assert_allclose(np.asarray(res.cancor[i])[:k], ref["cancor"], atol=1e-9)
         np.testing.assert_allclose(np.asarray(res.logdet_curve[i])[:len(ref["logdet"])],
                                    ref["logdet"], atol=1e-7)
-        assert int(res.n_samples[i]) == u.shape[1] - big_k - LAG_MAX + 1
+        assert int(res.n_samples[i]) == ne
 
 
 def test_hankel_gram_equals_window_product():
@@ -146,6 +153,17 @@ def test_order_cap_warning_and_field():
     assert np.all(np.asarray(res.n_ident) == 4)
     np.testing.assert_array_equal(np.asarray(res.n_at_cap), np.asarray(res.n) == 4)
     assert np.asarray(res.n_at_cap).any()
+
+
+def test_pooled_order_cap_warning():
+    """The predictor rule pools l = lag_min .. lag_max: n* <= what l = lag_min = 1 gives
+    (k = 2: min(1 * 4, 2 * 2) = 4), so order 6 hits that cap and warns."""
+    rng = np.random.default_rng(0)
+    u, y, _ = simulate_batch(rng, np.array([6, 6]), 600, 2, 2, noise=0.01, min_separation=0.15)
+    with pytest.warns(OrderCapWarning, match="smallest lag pooled"):
+        res = identify(u, y, CVAParams(lag_min=1, lag_max=3))
+    assert np.all(np.asarray(res.n_ident) == 4) and np.all(np.asarray(res.n) == 4)
+    assert np.asarray(res.n_at_cap).all()
 
 
 def test_no_cap_warning_when_order_is_below_cap(data):

@@ -2,9 +2,10 @@
 
 With ``lag = 0`` the lag is chosen per data set by ``params.lag_rule``:
 
-* ``'predictor'`` (default, :mod:`vbl.sysid.sweep`): every l = 1 .. lag_max in one program
-  on a common sample window, n*(l) by Eq. (6), l* by the AIC of the whole one-step predictor
-  (Eq. 6 plus the state map's coefficients). The same choice in any units.
+* ``'predictor'`` (default, :mod:`vbl.sysid.sweep`): every l = lag_min .. lag_max in one
+  program on a common sample window; n* by the order criterion pooled over these lags, l* by
+  the AIC of the whole one-step predictor at n* (Eq. 6 plus the state map's coefficients).
+  The same choice in any units.
 * ``'paper'`` (Sec. 3.1.2): for l = 1, 2, ... identify (AIC picks n); stop at the first l
   with log det R_hat(n*) < ``logdet_stop`` (keep that l); otherwise stop when AIC(n*) at l is
   not lower than at l - 1 (keep l - 1); ``lag_max`` caps l. Each l has its own sample window
@@ -47,18 +48,20 @@ class Identification:
     """
 
     lag: jnp.ndarray          # (B,) int32 selected l
-    n: jnp.ndarray            # (B,) int32 selected n* (argmin AIC at the selected l)
+    n: jnp.ndarray            # (B,) int32 selected n* (argmin AIC; 'predictor': pooled)
     logdet_R: jnp.ndarray     # (B,) log det R_hat(n*) (normalised units if standardize)
     aic: jnp.ndarray          # (B,) AIC(n*)
     n_samples: jnp.ndarray    # (B,) int32 N - k - l + 1
     aic_curve: jnp.ndarray    # (B, c+1) AIC(n), n = 0..c, at the selected l (inf = invalid)
     logdet_curve: jnp.ndarray  # (B, c+1) log det R_hat(n) at the selected l
     cancor: jnp.ndarray       # (B, c) canonical correlations at the selected l
-    lag_aic: jnp.ndarray      # (B, L) AIC(n*) for each lag tried (nan = not computed)
-    lag_logdet: jnp.ndarray   # (B, L) log det R_hat(n*) for each lag tried
-    lag_n: jnp.ndarray        # (B, L) int32 n* for each lag tried (-1 = not computed)
-    lag_criterion: jnp.ndarray  # (B, L) predictor AIC PE(l) ('predictor' rule; else nan)
-    n_ident: jnp.ndarray      # (B,) int32 largest identifiable order min(l(m+q), kq) at l
+    lag_aic: jnp.ndarray      # (B, L) AIC at each lag tried, at n* ('predictor': pooled
+                              # n*; 'paper': each lag's own n*(l); nan = not computed)
+    lag_logdet: jnp.ndarray   # (B, L) log det R_hat at each lag tried, at the same n
+    lag_n: jnp.ndarray        # (B, L) int32 argmin of Eq. (6) at each lag (-1 = not computed)
+    lag_criterion: jnp.ndarray  # (B, L) predictor AIC PE(l) at n* ('predictor' rule; else nan)
+    n_ident: jnp.ndarray      # (B,) int32 largest order the rule can give: min(l(m+q), kq)
+                              # at l ('predictor': at the smallest lag pooled)
     n_at_cap: jnp.ndarray     # (B,) bool n* == n_ident: the true order may be larger
     model: CVAModel           # batched filtering model (float32 unless asked otherwise)
 
@@ -160,10 +163,11 @@ def _raise_or_warn(checks, params: CVAParams, model_dtype) -> None:
         ds = np.flatnonzero(at_cap)
         i = ds[0]
         warnings.warn(OrderCapWarning(
-            f"n* equals the largest identifiable order min(l(m+q), kq) for "
+            f"n* equals the largest identifiable order min(l(m+q), kq) (at the chosen l and "
+            f"k, or with lag_rule='predictor' at the smallest lag pooled, lag_min) for "
             f"{len(ds)} data set(s) (first {ds[:10].tolist()}: l={int(lag[i])}, "
-            f"k={int(horizon[i])}, n*={int(n[i])}): the true order may be "
-            "larger; fix a larger lag, lag_max or horizon"), stacklevel=4)
+            f"k={int(horizon[i])}, n*={int(n[i])}): the true order may be larger; fix a "
+            "larger lag, or raise lag_min, lag_max or horizon"), stacklevel=4)
 
 
 def _by_predictor(u, y, params: CVAParams) -> dict:
@@ -174,16 +178,20 @@ def _by_predictor(u, y, params: CVAParams) -> dict:
     lags = np.asarray(params.lags())
     hors = np.asarray([params.horizon_for(int(lg)) for lg in lags])
     fit, j, per_lag = fit_select_batch(u, y, params, n_cap=n_cap_for(params, m, q))
+    pooled_cap = min(n_identifiable(int(lg), int(k), m, q) for lg, k in zip(lags, hors,
+                                                                              strict=True))
     return _predictor_fields(fit, j, per_lag, lags=tuple(lags.tolist()),
                              hors=tuple(hors.tolist()),
-                             n_samples=n_samp - int(lags.max()) - int(hors.max()) + 1)
+                             n_samples=n_samp - int(lags.max()) - int(hors.max()) + 1,
+                             n_ident=pooled_cap)
 
 
-@functools.partial(jax.jit, static_argnames=("lags", "hors", "n_samples"))
-def _predictor_fields(fit: CVAFit, j, per_lag, *, lags, hors, n_samples) -> dict:
+@functools.partial(jax.jit, static_argnames=("lags", "hors", "n_samples", "n_ident"))
+def _predictor_fields(fit: CVAFit, j, per_lag, *, lags, hors, n_samples, n_ident) -> dict:
     ln, la, lld, lpe = per_lag
     rows = jnp.arange(j.shape[0])
     return dict(lag=jnp.asarray(lags, jnp.int32)[j], horizon=jnp.asarray(hors, jnp.int32)[j],
+                n_ident=jnp.full(j.shape, n_ident, jnp.int32),
                 n=fit.n.astype(jnp.int32),
                 n_samples=jnp.full(j.shape, n_samples, jnp.int32),
                 logdet_R=lld[rows, j], aic=la[rows, j], aic_curve=fit.aic,
@@ -248,7 +256,8 @@ def _assemble(out: dict, shift, *, m: int, q: int, batched: bool, model_dtype: s
     n = out["n"].astype(jnp.int32)
     c = out["A"].shape[-1]
     umat = out["U"] * (jnp.arange(c)[None, :, None] < n[:, None, None])   # mu masked beyond n*
-    n_id = jnp.minimum(out["lag"] * (m + q), out["horizon"] * q).astype(jnp.int32)
+    n_id = out.get("n_ident", jnp.minimum(out["lag"] * (m + q), out["horizon"] * q))
+    n_id = n_id.astype(jnp.int32)
     at_cap = n == n_id
     bad = ~jnp.isfinite(out["logdet_R"]) | ~jnp.isfinite(out["aic"])
     for k in ("U", "A", "B", "C", "D", "R"):

@@ -23,14 +23,24 @@ class CVAParams:
 
     lag: int = param(0, doc="past lag l of the stack p(t); 0 selects l per data set by "
                      "lag_rule among l = 1 .. lag_max", source="P/C", static=True, ge=0)
-    lag_rule: str = param("predictor", doc="lag selection when lag = 0: 'predictor' (default): "
-                          "every l on one common sample window, n*(l) by AIC (Eq. 6), then the "
-                          "l minimising the AIC of the whole one-step predictor, Eq. (6) plus "
-                          "2 n* l (m+q) for the state map's coefficients (the same in any "
-                          "units); 'paper': the rule of Sec. 3.1.2 (stop at the first l with "
-                          "log det R < logdet_stop, else while AIC decreases; depends on the "
-                          "units of y)", source="C", static=True, choices=LAG_RULES)
+    lag_rule: str = param("predictor", doc="lag selection when lag = 0: 'predictor' "
+                          "(default): every l = min(lag_min, lag_max) .. lag_max on one common "
+                          "sample window; n* minimises the order criterion pooled over these "
+                          "lags, sum_l [N_e log det R_l(n) + order_penalty lambda(n)]; l* "
+                          "minimises the AIC of the whole one-step predictor at n*, Eq. (6) "
+                          "plus 2 n* l (m+q) for the state map's coefficients (both the same "
+                          "in any units); 'paper': the rule of Sec. 3.1.2 (l = 1 .. lag_max; "
+                          "stop at the first l with log det R < logdet_stop, else while AIC "
+                          "decreases; depends on the units of y)", source="C", static=True,
+                          choices=LAG_RULES)
+    lag_min: int = param(2, doc="lag_rule='predictor' only: smallest lag tried and pooled "
+                         "(l = 1 identifies at most min(m+q, 2q) states and would cap n*)",
+                         static=True, ge=1)
     lag_max: int = param(6, doc="largest lag the lag rule tries", static=True, ge=1)
+    order_penalty: float = param(3.0, doc="lag_rule='predictor' only: penalty per parameter "
+                                 "of lambda(n) in the pooled order criterion (3: AIC3; "
+                                 "measured to recover the order more often than Eq. (6)'s 2)",
+                                 gt=0.0)
     horizon: int = param(0, doc="future horizon k of the stack f(t); 0 means k = 2l "
                          "(measured: recovers the order more often than k = l)",
                          static=True, ge=0)
@@ -74,8 +84,12 @@ class CVAParams:
             raise ParamError(f"n_min={self.n_min} exceeds n_max={self.n_max}")
 
     def lags(self) -> tuple[int, ...]:
-        """Lags tried: ``(lag,)`` when fixed, else ``1 .. lag_max``."""
-        return (self.lag,) if self.lag > 0 else tuple(range(1, self.lag_max + 1))
+        """Lags tried: ``(lag,)`` when fixed, else ``min(lag_min, lag_max) .. lag_max``
+        (lag_rule 'predictor') or ``1 .. lag_max`` ('paper')."""
+        if self.lag > 0:
+            return (self.lag,)
+        first = min(self.lag_min, self.lag_max) if self.lag_rule == "predictor" else 1
+        return tuple(range(first, self.lag_max + 1))
 
     def horizon_for(self, lag: int) -> int:
         """Future horizon k used with past lag ``lag``."""

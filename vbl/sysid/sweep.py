@@ -1,18 +1,20 @@
-"""Lag selection by the AIC of the whole one-step predictor (``lag_rule='predictor'``).
+"""Lag and order selection pooled over lags (``lag_rule='predictor'``).
 
-All lags ``l = 1 .. L`` (``L = lag_max``) are identified in one program on one common sample
-window ``t = L .. N-K`` (``K`` = the largest horizon, ``N_e = N-K-L+1`` samples), so every lag
-is scored on the same residuals. The covariances of every lag are blocks of the one Gram
-matrix ``G`` of the window ``z(t) = [x(t-L); ...; x(t+K-1)]``, ``x = [u; y]``; lag ``l`` takes
-the rows and columns of its own stacks (delays 1..l in the past, 0..k-1 in the future), so its
-CVA is exactly the CVA of lag ``l`` on that window. Then
+All lags ``l = lag_min .. L`` (``L = lag_max``) are identified in one program on one common
+sample window ``t = L .. N-K`` (``K`` = the largest horizon, ``N_e = N-K-L+1`` samples), so
+every lag is scored on the same residuals. The covariances of every lag are blocks of the one
+Gram matrix ``G`` of the window ``z(t) = [x(t-L); ...; x(t+K-1)]``, ``x = [u; y]``; lag ``l``
+takes the rows and columns of its own stacks (delays 1..l in the past, 0..k-1 in the future),
+so its CVA is exactly the CVA of lag ``l`` on that window. Then
 
-* ``n*(l)`` = argmin of Eq. (6) at lag ``l`` (as for a fixed lag);
-* ``l*`` = argmin over l of ``PE(l) = AIC(n*(l)) + 2 n*(l) l (m+q)``: Eq. (6) counts
-  A, B, C, D, K and R but not the ``n x l(m+q)`` coefficients of the state map
-  ``mu = U p(t)``, which are fixed within one lag but grow with l. Shifting y's units adds
-  the same constant ``N_e`` x 2 sum(log scale) to every lag, so the choice means the same in
-  any units (unlike the paper's ``log det R < 0`` stop).
+* ``n*`` = argmin over n of ``sum_l [N_e log det R_l(n) + order_penalty lambda(n)]``
+  (:func:`pooled_criterion`): each lag's order evidence of Eq. (6), with AIC3's penalty,
+  summed over the lags, for the n every pooled lag can identify;
+* ``l*`` = argmin over l of ``PE(l) = AIC_l(n*) + 2 n* l (m+q)``: Eq. (6) counts A, B, C, D,
+  K and R but not the ``n x l(m+q)`` coefficients of the state map ``mu = U p(t)``, which
+  are fixed within one lag but grow with l. Shifting y's units adds the same constant
+  ``N_e`` x 2 sum(log scale) to every lag and order, so both choices mean the same in any
+  units (unlike the paper's ``log det R < 0`` stop).
 
 Cost (the kernel is the whole of ``identify``'s time at large batches):
 
@@ -43,13 +45,14 @@ import numpy as np
 from jax.scipy.linalg import solve_triangular
 
 from vbl.sysid.aic import aic as aic_fn
+from vbl.sysid.aic import param_count
 from vbl.sysid.cva import CVAFit, _normalise, _ridge, first_argmin
 from vbl.sysid.gram import hankel_gram
 from vbl.sysid.linalg import eigh_desc, svd_thin, x64_scope
 from vbl.sysid.params import CVAParams
 
-__all__ = ["fit_select_one", "fit_select_batch", "predictor_criterion", "hankel_gram",
-           "logdet_spd", "chunk_sizes", "CHUNK"]
+__all__ = ["fit_select_one", "fit_select_batch", "predictor_criterion", "pooled_criterion",
+           "hankel_gram", "logdet_spd", "chunk_sizes", "CHUNK"]
 
 #: Data sets per chunk of :func:`fit_select_batch` (a ``vmap`` inside a chunk, chunks in
 #: sequence): small enough for a chunk's working set to stay in the cache (the cost per
@@ -87,19 +90,19 @@ def logdet_spd(a: jnp.ndarray) -> jnp.ndarray:
     return out
 
 
-def _fit_lag(g4, params, floor, *, big_l, lag, horizon, m, q, ne, n_cap, means) -> CVAFit:
+def _lag_cva(g4, params, floor, *, big_l, lag, horizon, m, q, ne, n_cap) -> dict:
     """CVA + order sweep of lag ``lag`` at its own sizes from the Gram matrix ``g4``
-    ``(w, d, w, d)`` (block ``(a, b)``: window offsets a and b, ``d = m + q``); fields padded
-    to ``n_cap`` orders and the state map to the layout of lag ``big_l`` (zero beyond l).
+    ``(w, d, w, d)`` (block ``(a, b)``: window offsets a and b, ``d = m + q``): the
+    per-order curves (padded to ``n_cap`` orders) and what :func:`_lag_fit` needs to build
+    the model at any order.
 
     Every stack is a slice of ``g4`` (no gather): the past ``p(t)`` = offsets
     ``big_l - l .. big_l - 1`` (oldest first, ``[u; y]`` per offset), ``p(t+1)`` the same
     shifted by one, the future ``f(t)`` / ``u_f(t)`` = the y / u channels of offsets
     ``big_l .. big_l + k - 1``, ``[u(t); y(t)]`` = offset ``big_l``. The order of p's entries
     changes neither the canonical correlations nor U (whose columns are permuted back to
-    ``p(t)``'s layout at the end).
+    ``p(t)``'s layout by :func:`_lag_fit`).
     """
-    dt = g4.dtype
     d = m + q
     lo, hi, k = big_l - lag, big_l, horizon
     dp = lag * d
@@ -153,17 +156,24 @@ def _fit_lag(g4, params, floor, *, big_l, lag, horizon, m, q, ne, n_cap, means) 
     logdet = jnp.concatenate([logdet, jnp.broadcast_to(logdet[-1], (n_cap - c,))])
     rs = jnp.concatenate([rs, jnp.broadcast_to(rs[-1], (n_cap - c, q, q))])
     ns = jnp.arange(n_cap + 1)
-    a = aic_fn(logdet, ns, ne, m, q, params.param_count)
     valid = (ns >= params.n_min) & (ns <= n_ident) & jnp.isfinite(logdet)
-    a = jnp.where(valid, a, jnp.inf)
-    n_star = first_argmin(a)
+    a = jnp.where(valid, aic_fn(logdet, ns, ne, m, q, params.param_count), jnp.inf)
+    return dict(cancor=jnp.pad(jnp.clip(s[:c], 0.0, 1.0), (0, n_cap - c)), logdet=logdet,
+                aic=a, valid=valid, rs=rs, umat=umat, lx=lx, z=z)
 
-    # Theta of Eq. (2) at n*: [mu(t+1); y(t)] = Theta [mu(t); u(t)] regressed on the prefix
-    # [u(t); mu_1..mu_n*] of the regressors, whose Cholesky factor is the leading block of
-    # lx: L^-T (rows of L^-1 S_xt beyond the prefix zeroed) is zero beyond it.
-    wmask = jnp.concatenate([jnp.ones(m, dt), (jnp.arange(c) < n_star).astype(dt)])
+
+def _lag_fit(st: dict, n, *, big_l, lag, m, q, n_cap, means) -> CVAFit:
+    """The :class:`CVAFit` of one lag's :func:`_lag_cva` result ``st`` at order ``n``: Theta
+    of Eq. (2) regressed on the prefix ``[u(t); mu_1..mu_n]`` of the regressors, whose
+    Cholesky factor is the leading block of ``st['lx']`` (``L^-T`` applied to the rows of
+    ``L^-1 S_xt`` up to the prefix is zero beyond it); the state map in the layout of lag
+    ``big_l`` (zero beyond l), fields padded to ``n_cap`` orders."""
+    umat, lx, z = st["umat"], st["lx"], st["z"]
+    dt = z.dtype
+    c, d = umat.shape[0], m + q
+    wmask = jnp.concatenate([jnp.ones(m, dt), (jnp.arange(c) < n).astype(dt)])
     theta = solve_triangular(lx, z * wmask[:, None], lower=True, trans="T").T  # (c+q, m+c)
-    keep = jnp.concatenate([(jnp.arange(c) < n_star).astype(dt), jnp.ones(q, dt)])
+    keep = jnp.concatenate([(jnp.arange(c) < n).astype(dt), jnp.ones(q, dt)])
     theta = theta * keep[:, None]
     pad = n_cap - c
     big_a = jnp.pad(theta[:c, m:], ((0, pad), (0, pad)))
@@ -175,18 +185,30 @@ def _fit_lag(g4, params, floor, *, big_l, lag, horizon, m, q, ne, n_cap, means) 
     u_big = jnp.pad(jnp.concatenate([ur[:, :, :m].reshape(c, big_l * m),
                                      ur[:, :, m:].reshape(c, big_l * q)], 1),
                     ((0, pad), (0, 0)))
-    return CVAFit(cancor=jnp.pad(jnp.clip(s[:c], 0.0, 1.0), (0, pad)), logdet=logdet, aic=a,
-                  n=n_star, U=u_big, A=big_a, B=big_b, C=big_c, D=theta[c:, :m],
-                  R=rs[n_star], u_mean=means[0], u_scale=means[1], y_mean=means[2],
-                  y_scale=means[3])
+    return CVAFit(cancor=st["cancor"], logdet=st["logdet"], aic=st["aic"],
+                  n=jnp.asarray(n, jnp.int32), U=u_big, A=big_a, B=big_b, C=big_c,
+                  D=theta[c:, :m], R=st["rs"][n], u_mean=means[0], u_scale=means[1],
+                  y_mean=means[2], y_scale=means[3])
+
+
+def pooled_criterion(logdet, valid, ne: int, m: int, q: int, params: CVAParams):
+    """The order criterion of the predictor rule: ``sum_l [N_e log det R_l(n) +
+    order_penalty lambda(n)]`` over the lags tried, from the per-lag curves ``logdet``
+    ``(L, c+1)`` and their ``valid`` masks (inf where some lag cannot give n)."""
+    with x64_scope():
+        ns = jnp.arange(logdet.shape[-1])
+        lam = param_count(ns, m, q, params.param_count)
+        crit = jnp.sum(ne * logdet + params.order_penalty * lam, axis=0)
+        return jnp.where(jnp.all(valid, axis=0), crit, jnp.inf)
 
 
 def fit_select_one(u, y, params: CVAParams, *, n_cap: int):
-    """All lags of ``params.lags()`` on one data set ``u (N, m)``, ``y (N, q)``; pick l*.
+    """All lags of ``params.lags()`` on one data set ``u (N, m)``, ``y (N, q)``; pick the
+    pooled n* and l*.
 
-    Returns ``(fit, index of l* (), per-lag (n* (L,), AIC(n*) (L,), log det R(n*) (L,),
-    PE (L,)))``; ``fit`` is the :class:`CVAFit` at l* with the state map in the layout of
-    lag L (entries beyond l* zero).
+    Returns ``(fit, index of l* (), per-lag (argmin of Eq. (6) at each lag (L,), AIC(n*)
+    (L,), log det R(n*) (L,), PE(l) at n* (L,)))``; ``fit`` is the :class:`CVAFit` at l* and
+    order n* with the state map in the layout of lag L (entries beyond l* zero).
     """
     with x64_scope():
         return _fit_select_one(u, y, params, n_cap=n_cap)
@@ -206,18 +228,21 @@ def _fit_select_one(u, y, params, *, n_cap):
     yn, y_mean, y_scale = _normalise(y, params.demean, params.standardize)
     w, d = big_l + big_k, m + q
     g4 = (hankel_gram(jnp.concatenate([un, yn], axis=1), w) / ne).reshape(w, d, w, d)
-    fits = [_fit_lag(g4, params, floor, big_l=big_l, lag=int(lg),
-                     horizon=int(k), m=m, q=q, ne=ne, n_cap=n_cap,
-                     means=(u_mean, u_scale, y_mean, y_scale))
-            for lg, k in zip(lags, hors, strict=True)]
+    kw = dict(big_l=big_l, m=m, q=q, n_cap=n_cap)
+    stats = [_lag_cva(g4, params, floor, lag=int(lg), horizon=int(k), ne=ne, **kw)
+             for lg, k in zip(lags, hors, strict=True)]
+    logdet = jnp.stack([st["logdet"] for st in stats])                   # (L, c+1)
+    aic = jnp.stack([st["aic"] for st in stats])
+    n = first_argmin(pooled_criterion(logdet, jnp.stack([st["valid"] for st in stats]), ne,
+                                      m, q, params))
+    fits = [_lag_fit(st, n, lag=int(lg), means=(u_mean, u_scale, y_mean, y_scale), **kw)
+            for st, lg in zip(stats, lags, strict=True)]
     fits = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *fits)
-    rows = jnp.arange(len(lags))
-    aic_n = fits.aic[rows, fits.n]
-    ld_n = fits.logdet[rows, fits.n]
-    pe = predictor_criterion(aic_n, fits.n, jnp.asarray(lags, dt), m, q)
+    n_lag = jax.vmap(first_argmin)(aic)
+    pe = predictor_criterion(aic[:, n], n, jnp.asarray(lags, dt), m, q)
     j = first_argmin(pe)
     best = jax.tree_util.tree_map(lambda a: a[j], fits)
-    return best, j, (fits.n, aic_n, ld_n, pe)
+    return best, j, (n_lag, aic[:, n], logdet[:, n], pe)
 
 
 @functools.partial(jax.jit, static_argnames=("n_cap",))
