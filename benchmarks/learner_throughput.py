@@ -76,11 +76,12 @@ SPECS = {
         env=lambda c: (ShootPassEnv("shoot"), c.env),
         envs_per_learner=lambda c: c.q.num_envs,
         primitives=lambda c, m: c.q.chunk_steps * c.q.num_envs * m["learners"]),
-    # sync macro actions: the primitives of the training episodes finished in the chunk
+    # async macro actions as well; one engine chunk trains train.eval_every chunks
     "grid_shooting": Spec(
         env=lambda c: (ShootingEnv(), c.env),
         envs_per_learner=lambda c: c.agent.num_envs,
-        primitives=lambda c, m: m["mean_primitives*episodes"]),
+        primitives=lambda c, m: (c.train.eval_every * c.agent.chunk_steps * c.agent.num_envs
+                                 * m["learners"])),
 }
 
 
@@ -88,10 +89,6 @@ def _sum_metrics(acc, metrics):
     out = dict(acc)
     for k, v in metrics.items():
         out[k] = out.get(k, 0.0) + float(np.sum(np.asarray(v, np.float64)))
-    ep = np.asarray(metrics.get("episodes", 0.0), np.float64)
-    mp = np.asarray(metrics.get("mean_primitives", 0.0), np.float64)
-    out["mean_primitives*episodes"] = out.get("mean_primitives*episodes", 0.0) + float(
-        np.sum(ep * mp))
     return out
 
 

@@ -127,7 +127,7 @@ EXPERIMENT = register(Experiment(
     # --quick: a smoke run (one evaluation compiled, not two): the curve is the training
     # success, the final evaluation is as in the full run but on 32 starts
     quick={"train.num_chunks": 4, "train.eval_every": 1, "agent.num_envs": 16,
-           "agent.chunk_steps": 50, "train.eval_curve": False, "train.final_eval_rounds": 1},
+           "agent.chunk_steps": 250, "train.eval_curve": False, "train.final_eval_rounds": 1},
     seeds=8,
     quick_seeds=2,
     paper_result=True,

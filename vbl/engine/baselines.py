@@ -42,23 +42,54 @@ TRACE = TraceParams(lam=0.9, length=32)
 actions): the remedy for the grid's state aliasing, under which one-step Q-learning
 unlearned even a good hand-written table."""
 
-EVAL_STEPS = 400
-"""Cap on (macro) actions per evaluation episode: above ``MAX_STEPS / MIN_REPEATS`` (100), so
-the env's time limit, not the cap, ends an unfinished evaluation episode."""
+MACRO_MODE = "async"
+"""How the robots run macro actions: asynchronously, so one learner step is one primitive of
+every robot (an env decides again when its action ends) and the step counts below count
+primitives. The synchronous loop ran every robot's whole action per step, i.e. as long as
+the longest of 64 actions (often the cap of 20 primitives) where the mean action is 4-8
+primitives; the transitions, the trace window and lambda (per action) are the same."""
+
+MEAN_ACTION = 5
+"""Primitives per macro action of the synchronous learner over its training (the
+step counts below are its counts in actions times this): measured 8.2 under the random
+policy of the first chunks, 4-5.5 once epsilon has fallen (both arms, 40 chunks, 2 seeds
+each)."""
+
+CHUNK_STEPS = 100 * MEAN_ACTION
+"""Learner steps (primitives of each robot) per training chunk: the 100 actions of a
+synchronous chunk, so ``NUM_CHUNKS`` and the per-chunk ``LR_SCALE`` keep their meaning."""
+
+LEM_WINDOW = 100 * MEAN_ACTION
+"""Learner steps (primitives) per LEM window: the synchronous learner's 100 actions."""
+
+EVAL_STEPS = MAX_STEPS
+"""Cap on learner steps (primitives) per evaluation episode: the env's time limit, not the
+cap, ends an unfinished first episode."""
+
+LEARNING_RATE = 0.05
+"""Step size alpha. The "mean" duplicate rule averages the TD errors that one learner step
+brings to a table entry: synchronously every robot's trace window arrives at every step,
+asynchronously only those of the robots whose action ends (~1 in 5), so a shared entry
+takes ~5x more averaged steps per primitive of experience. 0.05 against the synchronous
+learner's 0.1 (with 0.25 there the training success collapsed once the curriculum raised
+the difficulty); 4 seeds, 100 chunks, near-greedy success with LEM: 0.1: 0.505 (8 seeds),
+0.05: 0.766, 0.025: 0.545; without LEM 0.140 / 0.244 / 0.312."""
 
 EVAL_EPSILON = 0.1
 """Epsilon of the near-greedy policy (the final epsilon of training): on an aliased state
 space the best memoryless policy can be stochastic, and the deterministic greedy one cycles
 between look-alike states."""
 
-EXPLORATION_STEPS = 500.0
-"""Learner steps over which epsilon falls linearly from 1 to 0.1 (library: 2,000). With LEM
-the easy episodes are short, so a slow decay spent ~1,300 trials at difficulty 0-0.1 while
-exploration kept the training success under the curriculum's 90 % gate; with 500 the
-curriculum median reached 30 % near-greedy success in 2,190 trials instead of ~3,700."""
+EXPLORATION_STEPS = 3500.0
+"""Learner steps (primitives) over which epsilon falls linearly from 1 to 0.1: 500 actions
+of 7 primitives (the mean action while epsilon is high; library: 2,000 steps). With LEM the
+easy episodes are short, so a slow decay (2,000 actions) spent ~1,300 trials at difficulty
+0-0.1 while exploration kept the training success under the curriculum's 90 % gate; with
+500 actions the curriculum median reached 30 % near-greedy success in 2,190 trials instead
+of ~3,700."""
 
 NUM_CHUNKS = 100
-"""Training chunks (x 100 learner steps x 64 robots): without LEM the episodes at the task
+"""Training chunks (x ``CHUNK_STEPS`` primitives x 64 robots): without LEM the episodes at the task
 difficulty mostly run to the time limit, so it finishes ~2x fewer trials per chunk than
 with LEM (100 chunks: ~3,300 vs ~6,700). That covers LEM's crossings of 20 % and 30 %
 (~1,600 and ~1,900 trials); to compare at 50 % (LEM ~3,800) run the no-LEM arm longer
@@ -90,25 +121,25 @@ def grid_space() -> GridParams:
 
 
 def grid_agent() -> QRunnerParams:
-    """The library's Q-learner with: epsilon from 1 to 0.1 over ``EXPLORATION_STEPS``
-    learner steps; discount 0.98 per primitive (0.8 would make a goal more than ~3 s away
-    worth < 0.8**30 = 1e-3); learning rate 0.1 (0.25 with traces: the training success
-    collapsed once the curriculum raised the difficulty); multi-step returns ``TRACE``;
-    macro actions of at least ``MIN_REPEATS`` primitives (with one, a turn in place flipped
-    the goal's orientation category every primitive and the greedy policy cycled between
-    two look-alike states); LEM from difficulty 0 to ``TASK_DIFFICULTY``, raised by 0.1
-    after every window of 100 learner steps whose training episodes succeed at >= 90 %
-    (``lem.statistic = "none"``: with traces and a constant step size Q never stopped
-    changing by the paper's criterion) and lowered by 0.1 after one below 50 %
-    (``lem.backoff_level``: without it the near-greedy success fell once the difficulty
-    reached 0.8-0.9). LEM off = ``initial_difficulty = max_difficulty``."""
+    """The library's Q-learner with: asynchronous macro actions (``MACRO_MODE``: a learner
+    step is one primitive of every robot, ``CHUNK_STEPS`` per chunk) of at least
+    ``MIN_REPEATS`` primitives (with one, a turn in place flipped the goal's orientation
+    category every primitive and the greedy policy cycled between two look-alike states);
+    epsilon from 1 to 0.1 over ``EXPLORATION_STEPS`` learner steps; discount 0.98 per
+    primitive (0.8 would make a goal more than ~3 s away worth < 0.8**30 = 1e-3); step size
+    ``LEARNING_RATE``; multi-step returns ``TRACE``; LEM from difficulty 0 to
+    ``TASK_DIFFICULTY``, raised by 0.1 after every window of ``LEM_WINDOW`` learner steps
+    whose training episodes succeed at >= 90 % (``lem.statistic = "none"``: with traces and
+    a constant step size Q never stopped changing by the paper's criterion) and lowered by
+    0.1 after one below 50 % (``lem.backoff_level``: without it the near-greedy success fell
+    once the difficulty reached 0.8-0.9). LEM off = ``initial_difficulty = max_difficulty``."""
     a = QRunnerParams()
-    lem = a.lem.replace(statistic="none", window=100, step=0.1, success_level=0.9,
+    lem = a.lem.replace(statistic="none", window=LEM_WINDOW, step=0.1, success_level=0.9,
                         backoff_level=0.5, max_difficulty=TASK_DIFFICULTY)
-    return a.replace(discount=0.98, learning_rate=0.1, update=UPDATE, trace=TRACE,
+    return a.replace(discount=0.98, learning_rate=LEARNING_RATE, update=UPDATE, trace=TRACE,
                      exploration=a.exploration.replace(transition_steps=EXPLORATION_STEPS),
-                     macro=a.macro.replace(min_repeats=MIN_REPEATS), lem=lem, num_envs=64,
-                     chunk_steps=100)
+                     macro=a.macro.replace(min_repeats=MIN_REPEATS, mode=MACRO_MODE), lem=lem,
+                     num_envs=64, chunk_steps=CHUNK_STEPS)
 
 
 def grid_train() -> QTrainParams:
