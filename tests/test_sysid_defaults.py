@@ -32,11 +32,12 @@ def test_predictor_rule_matches_oracle_on_common_window(data):
     minimises sum_l [N_e log det R_l(n) + 3 lambda(n)] over the n every lag can give; l*
     minimises AIC_l(n*) + 2 n* l (m+q); the result is the oracle's fit at l*."""
     u, y = map(_standardised, data)
-    p = CVAParams(lag_max=LAG_MAX)
+    p = CVAParams(lag_max=LAG_MAX, lag_step=1)
     res = identify(u, y, p)
     m = q = 2
     big_k = 2 * LAG_MAX
     lags = np.arange(p.lag_min, LAG_MAX + 1)
+    assert p.lags() == tuple(lags) == (2, 3)
     ne = u.shape[1] - big_k - LAG_MAX + 1
     cap = min(lg * (m + q) for lg in lags)          # n the shortest lag can give (k = 2l)
     lam = np.asarray(param_count(np.arange(cap + 1), m, q))
@@ -155,13 +156,24 @@ def test_order_cap_warning_and_field():
     assert np.asarray(res.n_at_cap).any()
 
 
+def test_lags_tried():
+    """The predictor rule tries lag_max, lag_max - lag_step, ... down to lag_min; the paper
+    rule every l from 1."""
+    assert CVAParams().lags() == (3, 6)
+    assert CVAParams(lag_step=1).lags() == (2, 3, 4, 5, 6)
+    assert CVAParams(lag_max=5, lag_step=2).lags() == (3, 5)
+    assert CVAParams(lag_max=1).lags() == (1,)
+    assert CVAParams(lag_rule="paper").lags() == (1, 2, 3, 4, 5, 6)
+    assert CVAParams(lag=4).lags() == (4,)
+
+
 def test_pooled_order_cap_warning():
     """The predictor rule pools l = lag_min .. lag_max: n* <= what l = lag_min = 1 gives
     (k = 2: min(1 * 4, 2 * 2) = 4), so order 6 hits that cap and warns."""
     rng = np.random.default_rng(0)
     u, y, _ = simulate_batch(rng, np.array([6, 6]), 600, 2, 2, noise=0.01, min_separation=0.15)
     with pytest.warns(OrderCapWarning, match="smallest lag pooled"):
-        res = identify(u, y, CVAParams(lag_min=1, lag_max=3))
+        res = identify(u, y, CVAParams(lag_min=1, lag_max=3, lag_step=2))
     assert np.all(np.asarray(res.n_ident) == 4) and np.all(np.asarray(res.n) == 4)
     assert np.asarray(res.n_at_cap).all()
 
