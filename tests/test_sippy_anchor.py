@@ -50,12 +50,12 @@ def _compare(draws: int, seed: int, f: int, noise: float = 0.05):
 
 def test_sippy_anchor_small():
     ours, sip, e_ours, e_sip = _compare(8, 5, f=5, noise=0.02)
-    assert ours >= sip - 0.25, (ours, sip)     # 8 draws: one miss is 0.125
+    assert ours >= sip, (ours, sip)            # vbl at least as good as SIPPY
     assert e_ours < 1.5 * e_sip + 0.002, (e_ours, e_sip)
 
 
 @pytest.mark.slow
 def test_sippy_anchor_rates():
     ours, sip, e_ours, e_sip = _compare(100, 7, f=10)
-    assert ours >= sip - 0.05, (ours, sip)
+    assert ours >= sip, (ours, sip)
     assert e_ours < 1.5 * e_sip + 0.002, (e_ours, e_sip)
