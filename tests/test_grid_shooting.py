@@ -281,13 +281,14 @@ def test_bad_config_errors():
 
 # ------------------------------------------------------------------ the real experiment (slow)
 
-# Both sweep points in one compiled group, 2 seeds, 3 chunks of 40 learner steps x 32
-# robots, training and evaluation on easy starts (robot 1 m in front of the goal facing it,
-# ball just ahead; 6 s episodes); LEM never raises within its 1000-step window.
-TINY = {"agent.num_envs": 32, "agent.chunk_steps": 40, "train.num_chunks": 3,
-        "train.eval_envs": 32, "train.eval_steps": 60, "train.final_eval_rounds": 2,
-        "env.max_steps": 60, "train.eval_difficulty": 0.0,
-        "agent.exploration.transition_steps": 60.0, "agent.lem.window": 1000}
+# Both sweep points in one compiled group, 2 seeds, 3 chunks of 80 learner steps (primitives)
+# x 32 robots, a curve point after each, training and evaluation on easy starts (robot 1 m
+# in front of the goal facing it, ball just ahead; 6 s episodes); LEM never raises within
+# its 1000-step window.
+TINY = {"agent.num_envs": 32, "agent.chunk_steps": 80, "train.num_chunks": 3,
+        "train.eval_every": 1, "train.eval_envs": 32, "train.eval_steps": 60,
+        "train.final_eval_rounds": 2, "env.max_steps": 60, "train.eval_difficulty": 0.0,
+        "agent.exploration.transition_steps": 160.0, "agent.lem.window": 1000}
 
 
 @pytest.mark.slow
