@@ -114,7 +114,11 @@ def test_report_commands_rebuild_the_recorded_config(tmp_path):
 @pytest.mark.parametrize("folder, command, unrecorded", [
     ("table2_full", "vbl run table2_shoot_pass --set cva.keep_beyond_order=false --set "
      "cva.n_used_objects=4,4,4 --set cva.quantizer.group_codes=16,8,8", False),
-    ("fig5_cells", "vbl run fig5_action_based --preset construction_only", True),
+    # fig5_cells also trained the grid baseline with synchronous macro actions
+    ("fig5_cells", "vbl run fig5_action_based --preset construction_only --set "
+     "baseline.agent.learning_rate=0.1 --set baseline.agent.exploration.transition_steps=500.0 "
+     "--set baseline.agent.macro.mode=sync --set baseline.agent.lem.window=100 --set "
+     "baseline.agent.chunk_steps=100 --set baseline.train.eval_steps=400", True),
     ("table1", "vbl run table1_identification", False),
 ])
 def test_commands_of_older_folders_use_the_legacy_values(folder, command, unrecorded):
