@@ -2,8 +2,9 @@
 Learning from Easy Missions (the earlier work the paper compares against, Figure 5's grid).
 
 Each learner trains one Q-table (319 states x 9 primitives; one action = repeat a primitive
-until the grid state changes) with ``agent.num_envs`` parallel robots and Peng's Q(lambda),
-from fully random starts within 100 s: the preset :mod:`vbl.engine.baselines`, whose
+until the grid state changes, asynchronously: a learner step is one primitive of every
+robot) with ``agent.num_envs`` parallel robots and Peng's Q(lambda), from fully random
+starts within 100 s: the preset :mod:`vbl.engine.baselines`, whose
 defaults are measured choices (docs/findings/grid_shooting.md). After every
 ``train.eval_every`` chunks the near-greedy policy is evaluated on fresh starts: the
 ``eval_success`` curve against training trials. The default sweep compares LEM off

@@ -44,16 +44,16 @@ unlearned even a good hand-written table."""
 
 MACRO_MODE = "async"
 """How the robots run macro actions: asynchronously, so one learner step is one primitive of
-every robot (an env decides again when its action ends) and the step counts below count
-primitives. The synchronous loop ran every robot's whole action per step, i.e. as long as
-the longest of 64 actions (often the cap of 20 primitives) where the mean action is 4-8
-primitives; the transitions, the trace window and lambda (per action) are the same."""
+every robot (a robot decides again when its action ends) and the step counts below count
+primitives. A synchronous learner step runs every robot's whole action, i.e. as long as the
+longest of 64 actions (often the cap of 20 primitives) while the mean action lasts 4-8
+primitives; the transitions, the trace window and lambda (per action) are the same. Full
+run: 191 CPU-s against 1,878 s wall synchronously (docs/findings/grid_shooting.md)."""
 
 MEAN_ACTION = 5
-"""Primitives per macro action of the synchronous learner over its training (the
-step counts below are its counts in actions times this): measured 8.2 under the random
-policy of the first chunks, 4-5.5 once epsilon has fallen (both arms, 40 chunks, 2 seeds
-each)."""
+"""Primitives per macro action of the synchronous learner (whose step counts are in
+actions; the counts below are those times this): measured 8.2 under the random policy of
+the first chunks and 4-5.5 once epsilon has fallen (both arms, 40 chunks)."""
 
 CHUNK_STEPS = 100 * MEAN_ACTION
 """Learner steps (primitives of each robot) per training chunk: the 100 actions of a
@@ -89,11 +89,11 @@ easy episodes are short, so a slow decay (2,000 actions) spent ~1,300 trials at 
 of ~3,700."""
 
 NUM_CHUNKS = 100
-"""Training chunks (x ``CHUNK_STEPS`` primitives x 64 robots): without LEM the episodes at the task
-difficulty mostly run to the time limit, so it finishes ~2x fewer trials per chunk than
-with LEM (100 chunks: ~3,300 vs ~6,700). That covers LEM's crossings of 20 % and 30 %
-(~1,600 and ~1,900 trials); to compare at 50 % (LEM ~3,800) run the no-LEM arm longer
-(``--sweep agent.lem.initial_difficulty=1.0 --set train.num_chunks=132``)."""
+"""Training chunks (x ``CHUNK_STEPS`` primitives x 64 robots): without LEM the episodes at
+the task difficulty mostly run to the time limit, so it finishes ~2x fewer trials than with
+LEM (100 chunks: ~3,200 vs ~7,500). That covers LEM's crossings of 20 % and 30 % near-greedy
+success (~2,300 and ~3,100 trials); to compare at 50 % (LEM ~4,600) run the no-LEM arm
+longer (``--sweep agent.lem.initial_difficulty=1.0 --set train.num_chunks=132``)."""
 
 EVAL_EVERY = 4
 """Training chunks per point of the learning curve: the greedy evaluation of 32 fresh
