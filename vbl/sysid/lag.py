@@ -67,8 +67,11 @@ class Identification:
 
 
 def n_cap_for(params: CVAParams, m: int, q: int) -> int:
-    """Largest order swept: n_max, or the most any tried lag can identify."""
-    ident = max(n_identifiable(lg, params.horizon_for(lg), m, q) for lg in params.lags())
+    """Largest order swept: n_max, or the most any tried lag can identify (lag_rule
+    'predictor': the most every pooled lag can identify, the largest n* it can choose)."""
+    per_lag = [n_identifiable(lg, params.horizon_for(lg), m, q) for lg in params.lags()]
+    pooled = params.lag == 0 and params.lag_rule == "predictor"
+    ident = min(per_lag) if pooled else max(per_lag)
     return min(params.n_max, ident) if params.n_max else ident
 
 
