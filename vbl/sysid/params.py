@@ -40,7 +40,7 @@ class CVAParams:
     lag_step: int = param(3, doc="lag_rule='predictor' only: the lags tried are lag_max, "
                           "lag_max - lag_step, ... down to lag_min (default l = 6, 3: "
                           "neighbouring lags carry nearly the same order evidence; measured "
-                          "the same order recovery as every l = 2..6 at 0.6x the cost)",
+                          "within 0.7 points of every l = 2..6 at 0.6x the cost)",
                           static=True, ge=1)
     order_penalty: float = param(3.0, doc="lag_rule='predictor' only: penalty per parameter "
                                  "of lambda(n) in the pooled order criterion (3: AIC3; "
