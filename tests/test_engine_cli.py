@@ -158,6 +158,13 @@ def test_vbl_host_devices_sets_the_jax_device_count(monkeypatch):
     monkeypatch.setenv("VBL_HOST_DEVICES", "3")
     assert use_all_cores() == 3
     assert "--xla_force_host_platform_device_count=3" in os.environ["XLA_FLAGS"]
+    # several devices wait for each other at collectives: longer than XLA's 40 s, unless
+    # the user sets the wait
+    assert "collective_call_terminate_timeout_seconds=3600" in os.environ["XLA_FLAGS"]
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_collective_call_terminate_timeout_seconds=5")
+    assert use_all_cores() == 3
+    assert "timeout_seconds=5" in os.environ["XLA_FLAGS"]
+    assert "timeout_seconds=3600" not in os.environ["XLA_FLAGS"]
     monkeypatch.setenv("XLA_FLAGS", "--xla_force_host_platform_device_count=4")
     assert use_all_cores() == 0 and os.environ["XLA_FLAGS"].endswith("count=4")  # user wins
     monkeypatch.delenv("XLA_FLAGS")

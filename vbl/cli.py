@@ -285,15 +285,22 @@ def _usable_cores() -> int:
         return os.cpu_count() or 1
 
 
+COLLECTIVE_TIMEOUT_S = 3600
+"""Seconds a host device waits for the others at a collective before XLA aborts the run
+(XLA's default, 40 s, aborted full-scale runs on a shared 2-core machine, where one device's
+thread can wait that long for a core)."""
+
+
 def use_all_cores() -> int:
     """Expose every usable CPU core as a JAX host device (call before JAX starts).
 
     Sets ``--xla_force_host_platform_device_count=N`` with N = the cores this process may
-    use, or ``VBL_HOST_DEVICES=N`` when given (1: one device, as plain JAX). The engine
-    shards the learner axis over the N devices (results do not depend on N, up to the
-    last-bit effect of the per-device batch size described in docs/engine.md). An
-    ``XLA_FLAGS`` that already sets the count wins. Returns the count set (0 when nothing
-    was changed).
+    use, or ``VBL_HOST_DEVICES=N`` when given (1: one device, as plain JAX), and, with
+    N > 1, the wait at collectives to ``COLLECTIVE_TIMEOUT_S`` unless ``XLA_FLAGS`` sets
+    it. The engine shards the learner axis over the N devices (results do not depend on N,
+    up to the last-bit effect of the per-device batch size described in docs/engine.md).
+    An ``XLA_FLAGS`` that already sets the count wins. Returns the count set (0 when
+    nothing was changed).
     """
     flags = os.environ.get("XLA_FLAGS", "")
     if "xla_force_host_platform_device_count" in flags:
@@ -308,7 +315,10 @@ def use_all_cores() -> int:
         raise SystemExit(f"vbl: error: VBL_HOST_DEVICES={raw!r} must be an integer >= 1")
     if n == 1:
         return 0
-    os.environ["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={n}".strip()
+    flags = f"{flags} --xla_force_host_platform_device_count={n}"
+    if "xla_cpu_collective_call_terminate_timeout_seconds" not in flags:
+        flags += f" --xla_cpu_collective_call_terminate_timeout_seconds={COLLECTIVE_TIMEOUT_S}"
+    os.environ["XLA_FLAGS"] = flags.strip()
     return n
 
 
