@@ -48,7 +48,7 @@ every robot (a robot decides again when its action ends) and the step counts bel
 primitives. A synchronous learner step runs every robot's whole action, i.e. as long as the
 longest of 64 actions (often the cap of 20 primitives) while the mean action lasts 4-8
 primitives; the transitions, the trace window and lambda (per action) are the same. Full
-run: 191 CPU-s against 1,878 s wall synchronously (docs/findings/grid_shooting.md)."""
+run: ~200 CPU-s against 1,878 s wall synchronously (docs/findings/grid_shooting.md)."""
 
 MEAN_ACTION = 5
 """Primitives per macro action of the synchronous learner (whose step counts are in
