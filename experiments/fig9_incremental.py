@@ -40,11 +40,11 @@ class Fig9Train:
 
 
 def _grid() -> GridLearner:
-    """vbl.engine.baselines' grid learner on Figure 9's env and final ball, 1 robot x 390 chunks:
-    the on-line learner's experience (180,672 primitives per seed against its 180,000);
+    """vbl.engine.baselines' grid learner on Figure 9's env and final ball, 1 robot x 360
+    chunks of 500 primitives: the on-line learner's experience (180,000 primitives per seed);
     evaluations at Figure 9's training start difficulty."""
     return GridLearner(agent=grid_agent().replace(num_envs=1), train=grid_train().replace(
-        eval_difficulty=0.1, num_chunks=390, eval_every=1))
+        eval_difficulty=0.1, num_chunks=360, eval_every=1))
 
 
 @struct.dataclass

@@ -38,7 +38,7 @@ from vbl.engine.identification import (
 from vbl.engine.paper import TABLE1
 from vbl.envs.collect import CollectParams
 from vbl.params import param, section
-from vbl.sysid.params import CVAParams
+from vbl.sysid.params import PREDICTOR_OPTIONS, CVAParams
 
 
 @struct.dataclass
@@ -115,6 +115,8 @@ EXPERIMENT = register(Experiment(
     headline=tuple(f"l_{slug(k)}" for k in TABLE1_ROWS),
     # the paper's plain recipe is a sweep point now: --sweep ident.method=projected,paper
     removed_params={"paper_method_too": False},
+    # parameters added after run folders were written: the values of the code before them
+    legacy_values={"ident." + k: v for k, v in PREDICTOR_OPTIONS.items()},
 ))
 
 if __name__ == "__main__":

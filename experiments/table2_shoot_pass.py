@@ -33,6 +33,7 @@ from vbl.engine.paper import TABLE2
 from vbl.engine.report import seeds_cell
 from vbl.envs.shoot_pass import ENV_TASKS, ShootPassParams
 from vbl.params import param, section
+from vbl.sysid.params import PREDICTOR_OPTIONS
 
 
 @struct.dataclass
@@ -115,6 +116,7 @@ EXPERIMENT = register(Experiment(
                    "cva.ident.lag_rule": "paper", "cva.ident.collinear_tol": 1e-8,
                    "q.update": "q_learning", "q.mc_log": 128, "env.start_difficulty": 1.0,
                    "env.noise_on.aim": True,
+                   **{"cva.ident." + k: v for k, v in PREDICTOR_OPTIONS.items()},
                    **{f"env.noise_on.{n}": False for n in ("pixel", "slip", "wobble")}},
     sweep={"env.task_pass": [False, True], "cva.use_cva": [False, True]},
     removed_params={"cva.cancor_weight": False},  # docs/findings/pruned_variants.md

@@ -38,7 +38,7 @@ from vbl.envs.collect import CollectParams
 from vbl.envs.noise import NOISE_ON, NoiseParams
 from vbl.envs.shoot_pass import ShootPassParams
 from vbl.params import param, section
-from vbl.sysid.params import CVAParams
+from vbl.sysid.params import PREDICTOR_OPTIONS, CVAParams
 
 ROWS = {"shooter_ball": ("from the shooter", "ball"), "shooter_goal": ("from the shooter", "goal"),
         "shooter_other": ("from the shooter", "passer"),
@@ -135,6 +135,7 @@ EXPERIMENT = register(Experiment(
     headline=("l_shooter_ball", "l_passer_ball", "l_shooter_other", "l_noise_free_ball"),
     # parameters added after run folders were written: the values of the code before them
     legacy_values={"bodies.start_difficulty": 1.0, "bodies.noise_on.aim": True,
+                   **{"ident." + k: v for k, v in PREDICTOR_OPTIONS.items()},
                    **{f"bodies.noise_on.{n}": False for n in ("pixel", "slip", "wobble")}},
 ))
 

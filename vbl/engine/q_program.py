@@ -121,8 +121,9 @@ class QTrainParams:
                             static=True, ge=1)
     eval_envs: int = param(32, doc="fresh starts per greedy evaluation (one episode each)",
                            static=True, ge=1)
-    eval_steps: int = param(300, doc="cap on actions per evaluation episode (an episode not "
-                            "finished by then counts as a failure)", unit="actions",
+    eval_steps: int = param(300, doc="cap on learner steps per evaluation episode (macro "
+                            "actions with synchronous macros, else primitives; an episode not "
+                            "finished by then counts as a failure)", unit="step",
                             static=True, ge=1)
     eval_difficulty: float = param(1.0, doc="start difficulty of evaluation episodes (1: fully "
                                    "random starts)", ge=0.0, le=1.0)
