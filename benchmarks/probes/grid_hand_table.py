@@ -29,6 +29,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 
 
+SYNC_EVAL_STEPS = 400
+"""Cap on synchronous macro actions per evaluation episode: above the time limit over the
+shortest action (1,000 / 3 primitives), so the time limit ends an unfinished episode."""
+
+
 def hand_table(labels: tuple[str, ...]) -> np.ndarray:
     """(319, 9) table with 1 at the rule's action of every grid state, 0 elsewhere."""
     from vbl.spaces.grid import NUM_GRID_STATES, decode_state
@@ -61,17 +66,18 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
 
     from vbl.agents.qlearning import make_qlearning_runner
-    from vbl.engine.registry import load_script
+    from vbl.engine.baselines import TASK_DIFFICULTY, grid_agent, grid_env, grid_space
+    from vbl.envs.shooting import ShootingEnv
     from vbl.spaces.grid import NUM_GRID_STATES, grid_state
     from vbl.world.robots import TWO_MOTOR_LABELS
 
-    gs = load_script(ROOT / "experiments" / "grid_shooting.py")
-    cfg = gs.EXPERIMENT.default_config
-    agent = cfg.agent.replace(num_states=NUM_GRID_STATES)
-    env_params = cfg.env.replace(start_difficulty=float(gs.TASK_DIFFICULTY))
+    grid = grid_space()
+    agent = grid_agent().replace(num_states=NUM_GRID_STATES)
+    agent = agent.replace(macro=agent.macro.replace(mode="sync"))  # as the findings' figures
+    env_params = grid_env().replace(start_difficulty=float(TASK_DIFFICULTY))
     if args.max_steps is not None:
         env_params = env_params.replace(max_steps=args.max_steps)
-    runner = make_qlearning_runner(gs.ENV, lambda o: grid_state(o, cfg.grid), agent)
+    runner = make_qlearning_runner(ShootingEnv(), lambda o: grid_state(o, grid), agent)
     n_envs = agent.num_envs
     if args.starts % n_envs:
         print(f"--starts must be a multiple of {n_envs}", file=sys.stderr)
@@ -79,11 +85,11 @@ def main(argv: list[str] | None = None) -> int:
     ev = jax.jit(runner.evaluate, static_argnums=(4,))
     tables = {"hand-written table": jnp.asarray(hand_table(TWO_MOTOR_LABELS)),
               "random policy (all-zero table)": jnp.zeros((NUM_GRID_STATES, 9), jnp.float32)}
-    print(f"grid_shooting task: start difficulty {float(gs.TASK_DIFFICULTY)}, "
+    print(f"grid_shooting task: start difficulty {float(TASK_DIFFICULTY)}, "
           f"{int(env_params.max_steps)} primitives, {args.starts} fresh starts, seed {args.seed}")
     for name, q in tables.items():
         keys = jax.random.split(jax.random.PRNGKey(args.seed), args.starts // n_envs)
-        s = [float(ev(k, q, agent, env_params, int(gs.EVAL_STEPS))["success_rate"])
+        s = [float(ev(k, q, agent, env_params, SYNC_EVAL_STEPS)["success_rate"])
              for k in keys]
         print(f"{name}: success {np.mean(s):.3f} ({args.starts} starts)")
     return 0

@@ -38,20 +38,22 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
 
     from vbl.agents.qlearning import make_qlearning_runner
+    from vbl.engine.baselines import TASK_DIFFICULTY, grid_agent, grid_env, grid_space
     from vbl.engine.jax_setup import engine_precision
     from vbl.engine.registry import load_script
+    from vbl.envs.shooting import ShootingEnv
     from vbl.spaces.grid import NUM_GRID_STATES, grid_state
     from vbl.world.robots import TWO_MOTOR_LABELS
 
-    gs = load_script(ROOT / "experiments" / "grid_shooting.py")
     hand = load_script(Path(__file__).with_name("grid_hand_table.py"))
-    cfg = gs.EXPERIMENT.default_config
-    d = float(gs.TASK_DIFFICULTY)
-    env_params = cfg.env.replace(start_difficulty=d)
+    grid = grid_space()
+    d = float(TASK_DIFFICULTY)
+    env_params = grid_env().replace(start_difficulty=d)
     q0 = jnp.asarray(hand.hand_table(TWO_MOTOR_LABELS))
-    a = cfg.agent
-    base = a.replace(
-        num_states=NUM_GRID_STATES, learning_rate=0.05,
+    a = grid_agent()
+    base = a.replace(  # synchronous macro actions, 100 actions per chunk: the findings' setting
+        num_states=NUM_GRID_STATES, learning_rate=0.05, chunk_steps=100,
+        macro=a.macro.replace(mode="sync"),
         exploration=a.exploration.replace(schedule="constant", init_value=0.1),
         lem=a.lem.replace(initial_difficulty=d, max_difficulty=d))
     variants = {"one-step Q-learning": "q_learning",
@@ -66,12 +68,12 @@ def main(argv: list[str] | None = None) -> int:
     with engine_precision():
         for name, update in variants.items():
             p = base.replace(update=update)
-            runner = make_qlearning_runner(gs.ENV, lambda o: grid_state(o, cfg.grid), p)
+            runner = make_qlearning_runner(ShootingEnv(), lambda o: grid_state(o, grid), p)
             ev = jax.jit(runner.evaluate, static_argnums=(4,))
             run = jax.jit(runner.run_chunk)
 
             def greedy(q, ev=ev, p=p):
-                return np.mean([float(ev(k, q, p, env_params, int(gs.EVAL_STEPS))[
+                return np.mean([float(ev(k, q, p, env_params, hand.SYNC_EVAL_STEPS)[
                     "success_rate"]) for k in jax.random.split(k_eval, rounds)])
 
             carry = runner.init(k_train, p, env_params).replace(q=q0)

@@ -25,8 +25,8 @@ __all__ = ["GridBaseline", "GridLearner", "grid_program", "grid_env", "grid_spac
 
 TASK_DIFFICULTY = 1.0
 """Start difficulty of the grid's task (evaluation, and the cap of the curriculum): fully
-random starts. A hand-written table on the 319 grid states scores 0.707 there within 100 s
-(random 0.000 on the same starts). One-step Q-learning did not learn it (0.00-0.05); with
+random starts. A hand-written table on the 319 grid states scores 0.648 there within 100 s
+(random 0.004 on the same starts). One-step Q-learning did not learn it (0.00-0.05); with
 multi-step returns (``TRACE``) and the success-gated curriculum it does."""
 
 MIN_REPEATS = 3  #: primitives per macro action at least (0.3 s)
@@ -34,7 +34,8 @@ MIN_REPEATS = 3  #: primitives per macro action at least (0.3 s)
 MAX_STEPS = 1000
 """Time limit of the grid's episodes, primitives (100 s; the env's default is 30 s). From
 fully random starts 30 s is too short even for a hand-written table on the 319 grid states
-(0.102); with 100 s it scores 0.707, and the random policy 0.000 on the same starts."""
+(0.086); with 100 s it scores 0.648, and the random policy 0.004 on the same starts
+(``benchmarks/probes/grid_hand_table.py``)."""
 
 UPDATE = "peng"
 TRACE = TraceParams(lam=0.9, length=32)
