@@ -37,12 +37,9 @@ import numpy as np
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-# host devices must be set before jax is imported: --devices N, default every usable core
-# (as the vbl command)
-DEVICES = int(sys.argv[sys.argv.index("--devices") + 1]) if "--devices" in sys.argv else len(
-    os.sched_getaffinity(0))
-os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "")
-                           + f" --xla_force_host_platform_device_count={DEVICES}")
+from benchmarks.devices import force_host_devices  # noqa: E402
+
+DEVICES = force_host_devices()  # before jax is imported: --devices N, else every core
 os.environ.setdefault("VBL_JAX_CACHE", "0")  # time real compilations
 
 import jax  # noqa: E402
