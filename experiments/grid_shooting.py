@@ -4,14 +4,14 @@ Learning from Easy Missions (the earlier work the paper compares against, Figure
 Each learner trains one Q-table (319 states x 9 primitives; one action = repeat a primitive
 until the grid state changes, asynchronously: a learner step is one primitive of every
 robot) with ``agent.num_envs`` parallel robots and Peng's Q(lambda), from fully random
-starts within 100 s: the preset :mod:`vbl.engine.baselines`, whose
-defaults are measured choices (docs/findings/grid_shooting.md). After every
-``train.eval_every`` chunks the near-greedy policy is evaluated on fresh starts: the
-``eval_success`` curve against training trials. The default sweep compares LEM off
-(``agent.lem.initial_difficulty`` = the cap: every episode at the task difficulty, in the
-same compiled program) with LEM on (episodes start easy). ``final``: greedy, near-greedy
-and random policy success. Other task difficulties: ``--set train.eval_difficulty=D --set
-agent.lem.max_difficulty=D --sweep agent.lem.initial_difficulty=D,0``.
+starts within 100 s: the preset :mod:`vbl.engine.baselines` (measured choices:
+docs/findings/grid_shooting.md). After every ``train.eval_every`` chunks the near-greedy
+policy is evaluated on fresh starts: the ``eval_success`` curve against training trials.
+The default sweep compares LEM off (``agent.lem.initial_difficulty`` = the cap: every
+episode at the task difficulty, in the same compiled program) with LEM on (episodes start
+easy). ``final``: greedy, near-greedy and random policy success. Other task difficulties:
+``--set train.eval_difficulty=D --set agent.lem.max_difficulty=D --sweep
+agent.lem.initial_difficulty=D,0``.
 
 Run: ``vbl run grid_shooting [--quick]`` or ``python experiments/grid_shooting.py``.
 """
@@ -125,8 +125,7 @@ EXPERIMENT = register(Experiment(
     default_config=GridShootingConfig(),
     make_program=grid_program,
     sweep={LEM_PATH: [TASK_DIFFICULTY, 0.0]},
-    # --quick: a smoke run (one evaluation compiled, not two): the curve is the training
-    # success, the final evaluation is as in the full run but on 32 starts
+    # --quick: a smoke run (one evaluation compiled): training-success curve, 32 final starts
     quick={"train.num_chunks": 4, "train.eval_every": 1, "agent.num_envs": 16,
            "agent.chunk_steps": 250, "train.eval_curve": False, "train.final_eval_rounds": 1},
     seeds=8,
