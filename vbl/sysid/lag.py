@@ -181,8 +181,8 @@ def _by_predictor(u, y, params: CVAParams) -> dict:
     lags = np.asarray(params.lags())
     hors = np.asarray([params.horizon_for(int(lg)) for lg in lags])
     fit, j, per_lag = fit_select_batch(u, y, params, n_cap=n_cap_for(params, m, q))
-    pooled_cap = min(n_identifiable(int(lg), int(k), m, q) for lg, k in zip(lags, hors,
-                                                                              strict=True))
+    # the pooled n* is at most what the shortest lag identifies: n_cap_for without n_max
+    pooled_cap = n_cap_for(params.replace(n_max=0), m, q)
     return _predictor_fields(fit, j, per_lag, lags=tuple(lags.tolist()),
                              hors=tuple(hors.tolist()),
                              n_samples=n_samp - int(lags.max()) - int(hors.max()) + 1,
@@ -240,6 +240,7 @@ def _by_lag(u, y, params: CVAParams) -> dict:
     lag_arr = np.asarray(lags, np.int32)[chosen]
     hor = np.asarray([params.horizon_for(int(lg)) for lg in lag_arr])
     out = dict(lag=lag_arr, horizon=hor, n=pick(lambda j, f: f.n).astype(np.int32),
+               n_ident=np.minimum(lag_arr * (m + q), hor * q).astype(np.int32),  # per data set
                n_samples=(n_samp - hor - lag_arr + 1).astype(np.int32),
                logdet_R=ld[np.arange(b), chosen], aic=ai[np.arange(b), chosen],
                lag_aic=ai, lag_logdet=ld, lag_n=ln, lag_criterion=np.full(ld.shape, np.nan),
@@ -259,8 +260,7 @@ def _assemble(out: dict, shift, *, m: int, q: int, batched: bool, model_dtype: s
     n = out["n"].astype(jnp.int32)
     c = out["A"].shape[-1]
     umat = out["U"] * (jnp.arange(c)[None, :, None] < n[:, None, None])   # mu masked beyond n*
-    n_id = out.get("n_ident", jnp.minimum(out["lag"] * (m + q), out["horizon"] * q))
-    n_id = n_id.astype(jnp.int32)
+    n_id = out["n_ident"].astype(jnp.int32)
     at_cap = n == n_id
     bad = ~jnp.isfinite(out["logdet_R"]) | ~jnp.isfinite(out["aic"])
     for k in ("U", "A", "B", "C", "D", "R"):
