@@ -505,6 +505,12 @@ def _green_init(n_box):
     return tuple((zero, zero, zero) for _ in range(n_box)), (big, big, -big, -big)
 
 
+def _opaque_one(x):
+    """Exactly 1 for finite ``x``, but not known to the compiler (the ``one`` of
+    :func:`_stored`)."""
+    return x * 0.0 + 1.0
+
+
 def _stored(x, one):
     """``x / one`` with ``one`` == 1 not known to the compiler: exactly ``x``, but XLA does
     not copy a division into each of its consumers, so ``x`` is computed once and stored
@@ -530,7 +536,7 @@ def _green_step(carry, seg, boxes, orig):
     ix, iy = _safe_div(1.0, dx), _safe_div(1.0, dy)
     big = jnp.asarray(_BIG, F32)
     zero = jnp.zeros((), F32)
-    one = ws * 0.0 + 1.0    # exactly 1 (weights are finite), unknown to the compiler
+    one = _opaque_one(ws)   # weights are finite
     new = []
     for j, ((lu, lv, hu, hv), (ou, ov)) in enumerate(zip(boxes, orig, strict=True)):
         r0, r1 = (lv - y0) * iy, (hv - y0) * iy
@@ -787,7 +793,7 @@ def section3_features(robot_pose, ball_xy, ball_radius, goal_corners, other_pose
     """
     fu, fv = focal_lengths(cam)
     pose = jnp.asarray(robot_pose, F32)
-    one = pose[0] * 0.0 + 1.0   # exactly 1 (poses are finite), unknown to the compiler
+    one = _opaque_one(pose[0])   # poses are finite
     frame = camera_frame(pose, cam, trig=(_stored(jnp.cos(pose[2]), one),
                                           _stored(jnp.sin(pose[2]), one)))
     hw = jnp.asarray(cam.image_width, F32) / 2
