@@ -44,7 +44,7 @@ TABULAR = {"shoot": {"current": (16.5, 2.3), "cva": (16.8, 2.7)},
            "pass": {"current": (22.4, 6.7), "cva": (59.5, 4.3)}}
 # Grid baseline greedy / near-greedy success % (mean, CI) without / with LEM, 8 seeds
 # (docs/results/grid_shooting)
-GRID = {False: (15.9, 13.7, 26.3, 17.4), True: (23.7, 9.5, 45.9, 13.1)}
+GRID = {False: (10.7, 14.1, 16.6, 15.4), True: (45.0, 24.0, 70.4, 19.7)}
 QUICK_PPO = {"ppo.num_envs": 16, "ppo.batch_size": 16, "ppo.num_minibatches": 2,
              "ppo.steps_per_chunk": 2, "ppo.eval_envs": 8, "run.final_eval_envs": 16,
              "run.num_chunks": 2}
