@@ -15,7 +15,11 @@ Usage::
 
     python benchmarks/compile_time.py                        # every experiment
     python benchmarks/compile_time.py --experiments table2_shoot_pass
-Writes benchmarks/results/compile_time.{json,md} (``--out`` elsewhere).
+    python benchmarks/compile_time.py --experiments table2_shoot_pass --merge
+Writes benchmarks/results/compile_time.{json,md} (``--out`` elsewhere). ``--merge`` keeps
+the rows of the other experiments from the existing JSON and replaces those measured now;
+each row records the load average when it was measured (rows of different runs compare
+only roughly: compile CPU time stretches with the load).
 """
 
 from __future__ import annotations
@@ -81,14 +85,17 @@ def time_experiment(name: str) -> list[dict]:
             cfgs = put(group.configs, sharding)
             head = dict(experiment=name, group=group.index, learners=n)
             times, init_c = _timed(init_fn, keys, cfgs)
+            times["load"] = os.getloadavg()[0]
             rows.append(dict(head, function="init", **times))
             print(json.dumps(rows[-1]), flush=True)
             carry = jax.block_until_ready(init_c(keys, cfgs))
             times, _ = _timed(step_fn, carry, cfgs)
+            times["load"] = os.getloadavg()[0]
             rows.append(dict(head, function="step", **times))
             print(json.dumps(rows[-1]), flush=True)
             if final_fn is not None:
                 times, _ = _timed(final_fn, carry, cfgs, final_keys)
+                times["load"] = os.getloadavg()[0]
                 rows.append(dict(head, function="final", **times))
                 print(json.dumps(rows[-1]), flush=True)
     return rows
@@ -98,18 +105,21 @@ def markdown(result: dict, cmd: str) -> str:
     hw = result["hardware"]
     worst = max(result["rows"], key=lambda r: r["trace_cpu_s"] + r["compile_cpu_s"])
     total = worst["trace_cpu_s"] + worst["compile_cpu_s"]
+    merged = " (rows of several runs: the load column is each row's)" if result.get(
+        "merged") else ""
     lines = [f"Compile time ({hw['cpu']}, {hw['cores']} cores, {len(hw['devices'])} "
              f"device(s), jax {hw['jax']}, load average {hw['load_average']:.1f} at the start "
-             f"and {result['load_end']:.1f} at the end; `{cmd}`). Full-scale default plans, "
-             "persistent compilation cache off.", "",
+             f"and {result['load_end']:.1f} at the end{merged}; `{cmd}`). Full-scale default "
+             "plans, persistent compilation cache off.", "",
              "| experiment | group | function | learners | trace CPU s | compile CPU s | "
-             "total CPU s | total wall s |",
-             "|---|---:|---|---:|---:|---:|---:|---:|"]
+             "total CPU s | total wall s | load |",
+             "|---|---:|---|---:|---:|---:|---:|---:|---:|"]
     for r in result["rows"]:
+        load = f"{r['load']:.1f}" if "load" in r else "-"
         lines.append(f"| {r['experiment']} | {r['group']} | {r['function']} | "
                      f"{r['learners']} | {r['trace_cpu_s']:.1f} | {r['compile_cpu_s']:.1f} | "
                      f"{r['trace_cpu_s'] + r['compile_cpu_s']:.1f} | "
-                     f"{r['trace_s'] + r['compile_s']:.1f} |")
+                     f"{r['trace_s'] + r['compile_s']:.1f} | {load} |")
     lines += ["", f"Target: every program <= {MAX_COMPILE_S:.0f} s (trace + compile, CPU time: "
               "on a quiet machine the wall time of a mostly single-threaded compilation): "
               f"{'met' if total <= MAX_COMPILE_S else 'not met'}; the longest is "
@@ -129,17 +139,27 @@ def main(argv=None):
     ap.add_argument("--devices", type=int, default=DEVICES,
                     help="JAX host devices (default: every usable core)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "compile_time"))
+    ap.add_argument("--merge", action="store_true",
+                    help="keep the other experiments' rows of the existing JSON at --out")
     args = ap.parse_args(argv)
+    out = pathlib.Path(args.out)
     result = dict(benchmark="compile_time", hardware=hardware_info(), rows=[],
                   target_s=MAX_COMPILE_S)
-    for name in args.experiments:
-        result["rows"] += time_experiment(name)
+    fresh = {name: time_experiment(name) for name in args.experiments}
+    old = (json.loads(out.with_suffix(".json").read_text())["rows"]
+           if args.merge and out.with_suffix(".json").exists() else [])
+    kept = [r for r in old if r["experiment"] not in fresh]
+    result["merged"] = bool(kept)
+    by_name = {}
+    for r in kept + [r for rows in fresh.values() for r in rows]:
+        by_name.setdefault(r["experiment"], []).append(r)
+    result["rows"] = [r for name in sorted(by_name) for r in by_name[name]]
     result["load_end"] = os.getloadavg()[0]
-    out = pathlib.Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.with_suffix(".json").write_text(json.dumps(result, indent=2))
     cmd = "python benchmarks/compile_time.py" + (
-        " --experiments " + " ".join(args.experiments) if args.experiments != names else "")
+        " --experiments " + " ".join(args.experiments) if args.experiments != names else "") + (
+        " --merge" if args.merge else "")
     text = markdown(result, cmd)
     out.with_suffix(".md").write_text(text)
     print(text)
