@@ -49,6 +49,7 @@ def test_two_robot_report_gives_every_row_its_cells(tmp_path):
             for c in (False, True)}
     base[True, 2, False] = [90.0, 91.0, 92.0]  # pass, CVA, no curriculum: far above current
     base[True, 0, False] = [10.0, 11.0, 12.0]
+    base[False, 1, True] = [0.0, 50.0, 100.0]  # shoot, stack, curriculum: a wide interval
     md = shoot_pass_section(_two_robot_run(tmp_path, base), TABULAR, TABLE2).markdown
     assert (tmp_path / "ppo_success_vs_steps.png").is_file()
     table = [r for r in md.splitlines() if re.match(r"\| (shoot|pass) \| (current|stack|cva) \|",
@@ -67,8 +68,9 @@ def test_two_robot_report_gives_every_row_its_cells(tmp_path):
     assert "CVA: yes, larger than the paper's" in rows["pass", "off"]
     # vs the paper's 53.2 %: stack 50 ± 4.302653 * 10 / sqrt(3) = 50 ± 24.8 holds it
     assert "current below; stack inside; cva above" in rows["pass", "off"]
-    # equal samples: difference 0, interval spans 0
-    assert "CVA: not resolved; stack: not resolved" in rows["shoot", "on"]
+    # shoot, on: CVA equal to current, 0 ± 22.7 (2.776445 * sqrt(200/3)), below +68.3;
+    # stack 0 ± 126.7 (Welch, dof 2.2) holds it
+    assert "CVA: no, none of the paper's size; stack: not resolved" in rows["shoot", "on"]
 
 
 def test_two_robot_report_with_one_seed_prints_means_only(tmp_path):

@@ -79,7 +79,8 @@ def diff_verdict(a: Any, b: Any, paper: float | None = None) -> str:
 def _advantage(by: dict[Key, np.ndarray], task: str, cur: bool, paper: float) -> str:
     """Per input (CVA state, frame stack): does PPO (curriculum ``cur``) show the paper's
     CVA advantage on ``task``? "yes" (interval above 0; of the paper's size when it holds
-    ``paper``), "no, reversed" (below 0) or "not resolved" (spans 0)."""
+    ``paper``), "no, reversed" (below 0), "no, none of the paper's size" (spans 0, below
+    ``paper``) or "not resolved" (spans 0 and holds ``paper``)."""
     now = by.get((task, "current", cur))
     out = []
     for key, name in (("cva", "CVA"), ("stack", "stack")):
@@ -92,7 +93,8 @@ def _advantage(by: dict[Key, np.ndarray], task: str, cur: bool, paper: float) ->
             v = ("yes, the paper's size" if d + h >= paper else "yes, smaller than the "
                  "paper's") if d - h <= paper else "yes, larger than the paper's"
         else:
-            v = "no, reversed" if d + h < 0 else "not resolved"
+            v = ("no, reversed" if d + h < 0 else "no, none of the paper's size"
+                 if d + h < paper else "not resolved")
         out.append(f"{name}: {v}")
     return "; ".join(out) or "not run"
 
