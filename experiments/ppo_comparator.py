@@ -13,8 +13,8 @@ categorical policy of :mod:`vbl.agents.ppo`:
   and without the curriculum (LEM for PPO), at the grid baseline's experience (~3 M
   primitives); beside the grid baseline (``grid_shooting``, 8 seeds).
 
-Reports: :mod:`vbl.engine.ppo_report`. Run: ``vbl run ppo_comparator --quick`` / ``vbl run
-ppo_shooting --quick``; the reported shorter runs: ``--preset short``.
+Reports: :mod:`vbl.engine.ppo_report`. Run: ``vbl run ppo_comparator`` / ``vbl run
+ppo_shooting`` (the reported runs, docs/results/ppo_comparator), or ``--quick``.
 """
 
 from __future__ import annotations
@@ -79,8 +79,7 @@ EXPERIMENT = register(Experiment(
     report=partial(shoot_pass_section, tabular=TABULAR, paper=TABLE2),
     sweep={"env.task_pass": [False, True], "inputs.index": [0, 1, 2],
            "ppo.curriculum.enabled": [False, True]},
-    # short: the reported run (docs/findings/ppo_comparator.md), 18 chunks = 921,600 primitives
-    presets={"short": {"run.num_chunks": 18}}, renamed_params={"cva.cva.": "cva.ident."},
+    renamed_params={"cva.cva.": "cva.ident."},
     removed_params={"cva.cancor_weight": False, "cva.runner.": None},
     cost=300.0))  # s, cold --quick on 2 cores (compile-dominated; 1,389 s at load average 12)
 
@@ -91,8 +90,6 @@ SHOOTING = register(Experiment(
     quick={**QUICK_PPO, "env.max_steps": 100},
     seeds=8, quick_seeds=2, paper_result=True, report=partial(shooting_section, grid=GRID),
     sweep={"ppo.curriculum.enabled": [False, True]},
-    # short: the reported run (docs/ppo.md), 8 chunks = 409,600 primitives
-    presets={"short": {"run.num_chunks": 8}},
     cost=150.0))  # s, cold --quick (guess)
 
 if __name__ == "__main__":
