@@ -236,3 +236,35 @@ def test_select_pads_each_object_block_for_a_per_object_quantiser():
     np.testing.assert_array_equal(x_cur, np.asarray(obs[:20]))
     with pytest.raises(ParamError, match="group_codes"):
         make_cva_learner(env, p.replace(quantizer=pq.replace(group_codes=(4, 2))), Q)
+
+
+def test_collect_observes_what_reset_and_step_return():
+    """collect (the observation inside its loop body, from the env's reset_state /
+    step_state) records the observations, commands and episode starts of a plain loop over
+    the env's own reset / step with the same keys (pixel noise on: its draws follow the
+    state through the loop)."""
+    from vbl.envs.shoot_pass import ShootPassEnv
+
+    env = ShootPassEnv("shoot")
+    ep = env.default_params
+    ep = ep.replace(noise_on=ep.noise_on.replace(pixel=True),
+                    noise=ep.noise.replace(image_std=2.0))
+    key, n = jax.random.PRNGKey(5), 120
+    d = collect(env, key, ep, n)
+    reset, step = jax.jit(env.reset), jax.jit(env.step)
+    k_reset, k_run = jax.random.split(key)
+    obs, st = reset(k_reset, ep)
+    start, ref = True, []
+    for k in jax.random.split(k_run, n):
+        k_a, k_s = jax.random.split(k)
+        a = jax.random.randint(k_a, (), 0, env.num_actions, jnp.int32)
+        obs2, st, _, term, trunc, info = step(k_s, st, a, ep)
+        ref.append((np.asarray(obs), np.asarray(info["u"]), start))
+        obs, start = obs2, bool(term | trunc)
+    assert any(r[2] for r in ref[1:])                      # an episode restarted
+    # float32 features compiled in two programs: equal up to rounding (a few in 1e4 relative
+    # where a feature is a difference of nearby image coordinates)
+    np.testing.assert_allclose(np.asarray(d["obs"]), np.stack([r[0] for r in ref]),
+                               rtol=1e-3, atol=1e-2)
+    np.testing.assert_array_equal(np.asarray(d["u"]), np.stack([r[1] for r in ref]))
+    np.testing.assert_array_equal(np.asarray(d["start"]), [r[2] for r in ref])

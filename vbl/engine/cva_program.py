@@ -148,7 +148,7 @@ class Carry:
     runner: object       # QRunnerState of the learner
     fparams: object      # params of the filtered env (CVA models, quantiser)
     chunk: jax.Array     # () int32 chunks done
-    eval_key: jax.Array  # uint32[2] key of the evaluation restarts
+    fresh: object        # QRunnerState of the evaluation's restart (its envs' fresh starts)
 
 
 def make_cva_program(cfg) -> Program:
@@ -164,8 +164,12 @@ def make_cva_program(cfg) -> Program:
     def init(key, c):
         k_prep, k_run, k_eval = jax.random.split(key, 3)
         fp = lrn.prepare(k_prep, c.cva, c.env)
-        rs = lrn.runner.init(k_run, lrn.runner_params(c.q), fp)
-        return Carry(rs, fp, jnp.int32(0), k_eval)
+        # the training runner and the evaluation's restart in one vmapped init: the env's
+        # reset (its camera) is compiled once, and the step program holds none
+        both = jax.vmap(lambda k: lrn.runner.init(k, lrn.runner_params(c.q), fp))(
+            jnp.stack([k_run, k_eval]))
+        rs, fresh = (jax.tree.map(lambda a, i=i: a[i], both) for i in (0, 1))
+        return Carry(rs, fp, jnp.int32(0), fresh)
 
     def step(carry, c):
         rp = lrn.runner_params(c.q)
@@ -173,14 +177,13 @@ def make_cva_program(cfg) -> Program:
                                                                         carry.chunk))
         rs = carry.runner
         # at the first evaluation chunk every env restarts fresh (counters reset), Q kept
-        fresh = lrn.runner.init(carry.eval_key, rp, carry.fparams).replace(
-            key=rs.key, q=rs.q, steps=rs.steps, episodes=rs.episodes)
+        fresh = carry.fresh.replace(key=rs.key, q=rs.q, steps=rs.steps, episodes=rs.episodes)
         rs = jax.tree.map(lambda a, b: jnp.where(carry.chunk == n_train, a, b), fresh, rs)
         rs, m = lrn.runner.run_chunk(rs, greedy_params(rp, carry.chunk >= n_train),
                                      carry.fparams)
         eps = jnp.sum(m["episodes"]).astype(jnp.float32)
         sr = jnp.sum(m["successes"]).astype(jnp.float32) / jnp.maximum(eps, 1.0)
-        return Carry(rs, carry.fparams, carry.chunk + 1, carry.eval_key), {
+        return Carry(rs, carry.fparams, carry.chunk + 1, carry.fresh), {
             "episodes": eps, "chunk_success": sr, "epsilon": m["rate"][-1]}
 
     def final(carry, c, key):

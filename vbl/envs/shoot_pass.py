@@ -537,16 +537,25 @@ class ShootPassEnv:
         return observe(state.world, me, self.learner_camera(params), params.world,
                        params.noise, params.robot_height, state.phase, eps)
 
-    def reset(self, key: jax.Array, params: ShootPassParams | None = None
-              ) -> tuple[jax.Array, ShootPassState]:
-        """Fresh episode: (obs (26,) float32, state)."""
+    def reset_state(self, key: jax.Array, params: ShootPassParams | None = None
+                    ) -> tuple[ShootPassState, jax.Array | None]:
+        """:meth:`reset` without the observation: (state, eps), where ``get_obs(state,
+        params, eps)`` is the obs :meth:`reset` returns (``eps``: the pixel noise's
+        (SEC3_NOISE_DIM,) standard normals, None when off). A loop that observes inside its
+        body (:func:`vbl.agents.cva_state.collect`) then holds the camera once."""
         params = self._default_params if params is None else params
         if not _is_traced(params):
             self.validate(params)
         fresh, pixel = draw_blocks(key, FRESH_DRAWS,
                                    (SEC3_NOISE_DIM, params.noise_on.pixel))
-        state = self._fresh(uniform01(fresh), params)
-        return self.get_obs(state, params, normals(pixel)), state
+        return self._fresh(uniform01(fresh), params), normals(pixel)
+
+    def reset(self, key: jax.Array, params: ShootPassParams | None = None
+              ) -> tuple[jax.Array, ShootPassState]:
+        """Fresh episode: (obs (26,) float32, state)."""
+        params = self._default_params if params is None else params
+        state, eps = self.reset_state(key, params)
+        return self.get_obs(state, params, eps), state
 
     # ------------------------------------------------------------------ dynamics
     def _draw_transition(self, key, params: ShootPassParams, fresh: bool):
@@ -637,6 +646,21 @@ class ShootPassEnv:
         obs = self.get_obs(state, params, pixel)
         return obs, state, reward, terminated, truncated, info
 
+    def step_state(self, key: jax.Array, state: ShootPassState, action: jax.Array,
+                   params: ShootPassParams | None = None):
+        """:meth:`step` without the observation: (state, eps, reward, terminated,
+        truncated, info), where ``get_obs(state, params, eps)`` is the obs :meth:`step`
+        returns (see :meth:`reset_state`)."""
+        params = self._default_params if params is None else params
+        self._check_inputs(state, action, params)
+        eps, u, pixel = self._draw_transition(key, params, fresh=True)
+        nstate, reward, terminated, truncated, info = self._transition(eps, state, action,
+                                                                      params)
+        done = info["episode_done"]
+        fresh = self._fresh(u, params)
+        nstate = jax.tree_util.tree_map(lambda a, b: jnp.where(done, a, b), fresh, nstate)
+        return nstate, pixel, reward, terminated, truncated, info
+
     def step(self, key: jax.Array, state: ShootPassState, action: jax.Array,
              params: ShootPassParams | None = None):
         """One primitive with auto-reset (fresh start draw when the episode ended).
@@ -646,15 +670,9 @@ class ShootPassEnv:
         reward/terminated/truncated/info describe the finished step.
         """
         params = self._default_params if params is None else params
-        self._check_inputs(state, action, params)
-        eps, u, pixel = self._draw_transition(key, params, fresh=True)
-        nstate, reward, terminated, truncated, info = self._transition(eps, state, action,
-                                                                      params)
-        done = info["episode_done"]
-        fresh = self._fresh(u, params)
-        nstate = jax.tree_util.tree_map(lambda a, b: jnp.where(done, a, b), fresh, nstate)
-        obs = self.get_obs(nstate, params, pixel)
-        return obs, nstate, reward, terminated, truncated, info
+        nstate, pixel, reward, terminated, truncated, info = self.step_state(key, state, action,
+                                                                            params)
+        return self.get_obs(nstate, params, pixel), nstate, reward, terminated, truncated, info
 
     def __repr__(self) -> str:
         fields = [f.name for f in dataclasses.fields(ShootPassParams)]
