@@ -39,9 +39,9 @@ from vbl.envs.shoot_pass import ShootPassParams
 from vbl.envs.shooting import ShootingParams
 from vbl.params import section
 
-# Tabular greedy success %, mean +- 95 % CI over 16 seeds (docs/results/table2_q6488)
-TABULAR = {"shoot": {"current": (16.5, 2.3), "cva": (16.8, 2.7)},
-           "pass": {"current": (22.4, 6.7), "cva": (59.5, 4.3)}}
+# Tabular greedy success %, mean +- 95 % CI over 16 seeds (docs/results/table2_lr025_g099)
+TABULAR = {"shoot": {"current": (26.8, 6.1), "cva": (15.3, 3.2)},
+           "pass": {"current": (37.1, 6.0), "cva": (54.1, 5.6)}}
 # Grid baseline greedy / near-greedy success % (mean, CI) without / with LEM, 8 seeds
 # (docs/results/grid_shooting)
 GRID = {False: (10.7, 14.1, 16.6, 15.4), True: (45.0, 24.0, 70.4, 19.7)}

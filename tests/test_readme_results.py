@@ -113,13 +113,17 @@ def test_report_commands_rebuild_the_recorded_config(tmp_path):
 
 @pytest.mark.parametrize("folder, command, unrecorded", [
     ("table2_full", "vbl run table2_shoot_pass --set cva.keep_beyond_order=false --set "
-     "cva.n_used_objects=4,4,4 --set cva.quantizer.group_codes=16,8,8", False),
+     "cva.n_used_objects=4,4,4 --set cva.quantizer.group_codes=16,8,8 --set q.discount=0.95 "
+     "--set q.learning_rate=0.5", False),
     # fig5_cells also trained the grid baseline with synchronous macro actions
     ("fig5_cells", "vbl run fig5_action_based --preset construction_only --set "
      "baseline.agent.learning_rate=0.1 --set baseline.agent.exploration.transition_steps=500.0 "
      "--set baseline.agent.macro.mode=sync --set baseline.agent.lem.window=100 --set "
      "baseline.agent.chunk_steps=100 --set baseline.train.eval_steps=400", True),
     ("table1", "vbl run table1_identification", False),
+    # swept with an older default of the swept path (0.5) recorded as its base value
+    ("table2_lr_sweep", "vbl run table2_shoot_pass --sweep q.learning_rate=0.1,0.25,0.5 "
+     "--set q.discount=0.95", False),
 ])
 def test_commands_of_older_folders_use_the_legacy_values(folder, command, unrecorded):
     """Parameters added after a folder was written take the experiment's legacy_values
@@ -167,11 +171,11 @@ def test_report_out_writes_links_relative_to_the_file(tmp_path):
 
     out = tmp_path / "sub" / "results.md"
     out.parent.mkdir()
-    assert main(["report", str(ROOT / "docs/results/table2_q6488"), "--out", str(out)]) == 0
+    assert main(["report", str(ROOT / "docs/results/table2_lr025_g099"), "--out", str(out)]) == 0
     text = out.read_text()
     assert "`vbl run table2_shoot_pass`" in text and "| 78.5 |" in text
-    link = re.search(r"\[table2_q6488\]\(([^)]+)\)", text).group(1)
-    assert (out.parent / link).resolve() == ROOT / "docs/results/table2_q6488"
+    link = re.search(r"\[table2_lr025_g099\]\(([^)]+)\)", text).group(1)
+    assert (out.parent / link).resolve() == ROOT / "docs/results/table2_lr025_g099/report.md"
 
 
 if __name__ == "__main__":

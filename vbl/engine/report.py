@@ -488,7 +488,8 @@ def run_command(exp: Experiment, spec: dict[str, Any]) -> tuple[str, list[str]]:
     sw = dict(parse_sweep(t, cfg) for t in texts_sweep)
     _, full_sweep, got_seeds, got = resolve(exp, sets, sw, seeds if "--seeds" in args else None,
                                             base_seed, quick)
-    bad = [k for k, v in rec.items() if got["config"].get(k) != v]
+    # a swept path's recorded base value never reaches a learner: the sweep replaces it
+    bad = [k for k, v in rec.items() if k not in sweep and got["config"].get(k) != v]
     got_sweep = config_to_dict_values(full_sweep)
     if bad or got_seeds != seeds or got_sweep != config_to_dict_values(sweep):
         what = (f"{bad[0]} would be {got['config'].get(bad[0])!r}, not {rec[bad[0]]!r}"
