@@ -62,8 +62,9 @@ class MovingTargetEnv:
     def __init__(self, params: MovingTargetParams | None = None):
         self.default_params = validate(params or MovingTargetParams())
 
-    def _obs(self, key, state, params):
-        noise = params.obs_noise * jax.random.normal(key, (1,), jnp.float32)
+    def get_obs(self, state, params, eps):
+        """The observed position (1,); ``eps``: the key of its noise."""
+        noise = params.obs_noise * jax.random.normal(eps, (1,), jnp.float32)
         return (state.pos[None] + noise).astype(jnp.float32)
 
     def _start(self, key, params):
@@ -73,12 +74,18 @@ class MovingTargetEnv:
         sign = jnp.where(jax.random.bernoulli(k_d), 1.0, -1.0).astype(jnp.float32)
         return MovingTargetState(pos, speed * sign, jnp.int32(0))
 
-    def reset(self, key, params):
+    def reset_state(self, key, params):
+        """(state, eps) without the observation: ``get_obs(state, params, eps)`` is reset's."""
         k_s, k_o = jax.random.split(key)
-        state = self._start(k_s, params)
-        return self._obs(k_o, state, params), state
+        return self._start(k_s, params), k_o
 
-    def step(self, key, state, action, params):
+    def reset(self, key, params):
+        state, eps = self.reset_state(key, params)
+        return self.get_obs(state, params, eps), state
+
+    def step_state(self, key, state, action, params):
+        """:meth:`step` without the observation: (state, eps, reward, terminated,
+        truncated, info)."""
         k_reset, k_o = jax.random.split(key)
         strike = action == 1
         landing = fold(state.pos + state.vel * params.delay)
@@ -96,8 +103,12 @@ class MovingTargetEnv:
         fresh = self._start(k_reset, params)
         fresh = fresh.replace(pos=nxt.pos, vel=jnp.sign(nxt.vel) * jnp.abs(fresh.vel))
         new = jax.tree.map(lambda a, b: jnp.where(done, a, b), fresh, nxt)
-        obs = self._obs(k_o, new, params)
         reward = success.astype(jnp.float32)
         info = {"success": success, "episode_length": t,
                 "u": jnp.where(strike, 1.0, -1.0).astype(jnp.float32)[None]}
-        return obs, new, reward, terminated, truncated, info
+        return new, k_o, reward, terminated, truncated, info
+
+    def step(self, key, state, action, params):
+        new, eps, reward, terminated, truncated, info = self.step_state(key, state, action,
+                                                                        params)
+        return self.get_obs(new, params, eps), new, reward, terminated, truncated, info

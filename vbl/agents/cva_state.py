@@ -190,42 +190,27 @@ class ObjectModel(LinearFilter):
     cancor: jax.Array   # (n_used,) canonical correlations of the used components at that l
 
 
-def _split_observation(env: Any, env_params: Any) -> tuple:
-    """``(reset_state(key), step_state(key, state, action), observe(state, eps))`` of
-    ``env``: its own ``reset_state`` / ``step_state`` / ``get_obs`` where it has them (the
-    observation computed apart from the dynamics), else ``reset`` / ``step`` with the obs
-    carried in the state (``observe`` returns it)."""
-    if hasattr(env, "step_state"):
-        return (lambda k: env.reset_state(k, env_params),
-                lambda k, st, a: env.step_state(k, st, a, env_params),
-                lambda st, eps: env.get_obs(st, env_params, eps))
-    def step_state(k, st, a):
-        obs, st2, r, term, trunc, info = env.step(k, st[1], a, env_params)
-        return (obs, st2), None, r, term, trunc, info
-    return (lambda k: (env.reset(k, env_params), None), step_state, lambda st, eps: st[0])
-
-
 def collect(env: Any, key: jax.Array, env_params: Any, num_steps: int) -> dict[str, jax.Array]:
     """Run uniformly random actions for ``num_steps`` (auto-reset included).
 
     Returns ``obs`` (N, obs_dim) float32 = y(t), ``u`` (N, m) float32 = the command taken
-    after observing y(t), ``start`` (N,) bool = y(t) is the first of an episode. Each step
-    observes its state inside the loop body (an env with ``reset_state`` / ``step_state``
-    holds its camera once in the compiled program, not twice).
+    after observing y(t), ``start`` (N,) bool = y(t) is the first of an episode. ``env``
+    has ``reset_state`` / ``step_state`` / ``get_obs`` (the dynamics apart from the
+    observation, :class:`vbl.envs.shoot_pass.ShootPassEnv`): each step observes its state
+    inside the loop body, so the compiled program holds the env's camera once.
     """
-    reset_state, step_state, observe = _split_observation(env, env_params)
     k_reset, k_run = jax.random.split(key)
 
     def body(c, k):
         st, eps, start = c
         k_a, k_s = jax.random.split(k)
         a = jax.random.randint(k_a, (), 0, env.num_actions, jnp.int32)
-        st2, eps2, _, term, trunc, info = step_state(k_s, st, a)
-        out = (observe(st, eps), jnp.asarray(info["u"], jnp.float32), start)
+        st2, eps2, _, term, trunc, info = env.step_state(k_s, st, a, env_params)
+        out = (env.get_obs(st, env_params, eps), jnp.asarray(info["u"], jnp.float32), start)
         return (st2, eps2, term | trunc), out
 
-    _, (obs, u, start) = jax.lax.scan(body, (*reset_state(k_reset), jnp.bool_(True)),
-                                      jax.random.split(k_run, num_steps))
+    init = (*env.reset_state(k_reset, env_params), jnp.bool_(True))
+    _, (obs, u, start) = jax.lax.scan(body, init, jax.random.split(k_run, num_steps))
     return {"obs": obs.astype(jnp.float32), "u": u, "start": start}
 
 
