@@ -166,7 +166,7 @@ def test_float32_whatever_x64(x64):
 def test_index_and_argmax_actions_match_env_step(adapter):
     s0 = adapter.reset(jax.random.PRNGKey(1))
     k_step = jax.random.split(s0.info["rng"], 3)[0]
-    obs, st, *_ = adapter.vbl_env.step_env(k_step, s0.pipeline_state, jnp.int32(8),
+    obs, st, *_ = adapter.vbl_env.step(k_step, s0.pipeline_state, jnp.int32(8),
                                            adapter.params)
     for action in (jnp.int32(8), jnp.eye(9)[8] * 3.0 - 1.0):
         s1 = adapter.step(s0, action)

@@ -41,9 +41,17 @@ class ToyEnv:
     observation_shape = (4,)
     default_params = None
 
-    def reset(self, key, params):
+    def reset_state(self, key, params):
+        """(state, eps) without the observation (the state holds it; no pixel noise)."""
         obs = jax.random.normal(key, (4,), jnp.float32)
-        return obs, ToyState(jnp.int32(0), obs)
+        return ToyState(jnp.int32(0), obs), None
+
+    def get_obs(self, state, params, eps):
+        return state.obs
+
+    def reset(self, key, params):
+        state, _ = self.reset_state(key, params)
+        return state.obs, state
 
     def step_env(self, key, state, action, params):
         """One step without the auto-reset."""

@@ -157,7 +157,8 @@ def test_shooting_blocks_are_the_whole_layouts_words(pixel):
     obs, nst, *_ = jax.jit(env.step_env)(key, st, a, p)
     world, _ = world_step(st.world, a.reshape(1), p.world, normal(b[:2]).reshape(1, 2))
     _assert_close(nst.world, world, 1e-6)
-    _assert_close(obs, env.get_obs(world, p, normal(b[2:]) if pixel else None), 1e-4)
+    _assert_close(obs, env.get_obs(nst.replace(world=world), p,
+                                   normal(b[2:]) if pixel else None), 1e-4)
     # step at the time limit (auto-reset): slip, start, pixel
     st = st.replace(step=jnp.int32(p.max_steps - 1))
     b = _bits(key, sum(SHOOTING.values()))
@@ -165,7 +166,8 @@ def test_shooting_blocks_are_the_whole_layouts_words(pixel):
     assert bool(truncated)
     fresh = env.start_from_words(b[2:7], p)
     _assert_close(nst.world, fresh, 1e-6)
-    _assert_close(obs, env.get_obs(fresh, p, normal(b[7:]) if pixel else None), 1e-4)
+    _assert_close(obs, env.get_obs(nst.replace(world=fresh), p,
+                                   normal(b[7:]) if pixel else None), 1e-4)
 
 
 @pytest.mark.parametrize("task", ["shoot", "pass"])

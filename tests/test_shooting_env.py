@@ -122,6 +122,41 @@ def test_reset_step_shapes_dtypes(env, short, jitted):
     assert int(st2.step) == 1 and int(info["episode_length"]) == 1
 
 
+def test_split_observation_equals_reset_and_step(env, short, jitted):
+    """A loop that observes inside its body (``reset_state`` / ``step_state`` carried,
+    ``get_obs`` of the carried state) sees the obs, states and rewards of a plain loop over
+    ``reset`` / ``step`` with the same keys, across auto-resets and with pixel noise on (its
+    draws follow the state through the loop)."""
+    p = short.replace(camera=short.camera.replace(pixel_noise_std=2.0),
+                      noise_on=short.noise_on.replace(pixel=True))
+    n = 32
+    k_reset, k_run = jax.random.split(jax.random.key(3))
+    keys = jax.random.split(k_run, n)
+    acts = jnp.asarray(np.random.default_rng(0).integers(0, 9, n), jnp.int32)
+
+    @jax.jit
+    def split_loop(k_reset, keys, acts):
+        def body(c, x):
+            st, eps = c
+            k, a = x
+            obs = env.get_obs(st, p, eps)
+            st2, eps2, r, te, tr, _ = env.step_state(k, st, a, p)
+            return (st2, eps2), (obs, st, r, te | tr)
+
+        return jax.lax.scan(body, env.reset_state(k_reset, p), (keys, acts))[1]
+
+    obs, states, rew, done = split_loop(k_reset, keys, acts)
+    o, st = jax.jit(env.reset)(k_reset, p)
+    step = jax.jit(env.step)
+    for t in range(n):
+        np.testing.assert_array_less(np.abs(np.asarray(obs[t]) - np.asarray(o)), OBS_TOL)
+        jax.tree.map(lambda a, b, t=t: np.testing.assert_allclose(a[t], b, rtol=1e-6, atol=1e-6),
+                     states, st)
+        o, st, r, te, tr, _ = step(keys[t], st, acts[t], p)
+        assert float(rew[t]) == float(r) and bool(done[t]) == bool(te | tr)
+    assert int(np.sum(np.asarray(done))) >= 2  # the loop crossed auto-resets
+
+
 def test_vmapped_batch_equals_loop_of_single_episodes(env, short, jitted):
     n, T = 4, 25
     keys = jax.random.split(jax.random.key(5), n)

@@ -15,9 +15,14 @@
   ``InputParams.index`` picks one per learner (one compilation for all inputs; the
   padding is constant 0 and carries no signal).
 
-It keeps the API the brax adapter needs (``reset``, ``step_env``, ``num_actions``,
-``observation_shape``, ``default_params``); its params (:class:`InputParams`) carry the
-per-learner CVA models, so they vmap over learners.
+It has the API the brax adapter needs: ``reset_state`` / ``step_state`` (the wrapped env's
+dynamics, auto-reset and draws, no observation; the step records the command and whether
+the episode restarted) and ``observe(state, params, eps) -> (obs, state)`` (the wrapped
+env's observation, then the stack and histories pushed with it, or begun afresh after a
+restart), so a step observes once; and the gymnax-style ``reset`` / ``step_env``
+(``step_env``: no auto-reset), ``num_actions``, ``observation_shape``, ``default_params``.
+Its params (:class:`InputParams`) carry the per-learner CVA models, so they vmap over
+learners.
 """
 
 from __future__ import annotations
@@ -29,7 +34,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from vbl.agents.cva_state import CVAStateParams, collect, history_wrapper, identify_object
-from vbl.envs.wrappers import fresh_history, push_history
+from vbl.envs.wrappers import fresh_history
 from vbl.params import ParamError
 
 __all__ = ["INPUTS", "KINDS", "InputParams", "InputState", "InputEnv", "prepare_models"]
@@ -58,12 +63,17 @@ class InputParams:
 @struct.dataclass
 class InputState:
     """inner: the wrapped env's state; stack: (frames, obs_dim) newest first ('stack');
-    hist_y / hist_u: per object (lag, q) outputs / (lag, m) motor commands ('cva')."""
+    hist_y / hist_u: per object (lag, q) outputs / (lag, m) motor commands ('cva'), as of
+    the last observation; u: (m,) float32 the command taken since ('cva'); start: () bool
+    the inner state begins an episode (the next observation starts the stack and the
+    histories afresh)."""
 
     inner: Any
     stack: Any = None
     hist_y: tuple = ()
     hist_u: tuple = ()
+    u: Any = None
+    start: Any = True
 
 
 def _push(h: jax.Array, row: jax.Array) -> jax.Array:
@@ -114,14 +124,18 @@ class InputEnv:
             self.env.validate(params.inner)
         return params
 
-    def _fresh(self, obs: jax.Array, inner: Any) -> InputState:
-        st = InputState(inner)
+    def _advance(self, st: InputState, obs: jax.Array) -> InputState:
+        """``st`` after observing ``obs`` (the wrapped env's): the stack and histories pushed
+        with it, or begun afresh from it where ``st.start``."""
+        start = jnp.asarray(st.start, bool)
         if self.use_stack:
-            st = st.replace(stack=jnp.broadcast_to(obs.astype(F32), (self.frames,) + obs.shape))
+            fresh = jnp.broadcast_to(obs.astype(F32), (self.frames,) + obs.shape)
+            st = st.replace(stack=jnp.where(start, fresh, _push(st.stack, obs)))
         if self.use_cva:
-            hu, hy = fresh_history(obs, self.filtered.slices, self.filtered.lag, self.m)
-            st = st.replace(hist_y=hy, hist_u=hu)
-        return st
+            # the tabular learner's decision-time rule: row 1 = the command just taken, row 0 = 0
+            hu, hy = self.filtered.advance(st.hist_u, st.hist_y, st.u, obs, start)
+            st = st.replace(hist_u=hu, hist_y=hy)
+        return st.replace(start=jnp.zeros((), bool))
 
     def _obs(self, obs: jax.Array, st: InputState, params: InputParams) -> jax.Array:
         out = {"current": obs.astype(F32)}
@@ -135,23 +149,52 @@ class InputEnv:
         padded = jnp.stack([jnp.pad(out[k], (0, n - out[k].shape[0])) for k in INPUTS])
         return padded[jnp.asarray(params.index, jnp.int32)]
 
-    def reset(self, key: jax.Array, params: InputParams):
-        obs, inner = self.env.reset(key, params.inner)
-        st = self._fresh(obs, inner)
+    def reset_state(self, key: jax.Array, params: InputParams) -> tuple[InputState, Any]:
+        """(state, eps) of a fresh episode without the observation (:meth:`observe` begins
+        the stack and histories from it)."""
+        inner, eps = self.env.reset_state(key, params.inner)
+        d = int(self.env.observation_shape[0])
+        zero = jnp.zeros((d,), F32)
+        st = InputState(inner, start=jnp.ones((), bool))
+        if self.use_stack:
+            st = st.replace(stack=jnp.zeros((self.frames, d), F32))
+        if self.use_cva:
+            hu, hy = fresh_history(zero, self.filtered.slices, self.filtered.lag, self.m)
+            st = st.replace(hist_u=hu, hist_y=hy, u=jnp.zeros((self.m,), F32))
+        return st, eps
+
+    def step_state(self, key: jax.Array, state: InputState, action: jax.Array,
+                   params: InputParams):
+        """The wrapped env's ``step_state`` (auto-reset): (state, eps, reward, terminated,
+        truncated, info); the state records the command and whether the episode restarted."""
+        inner, eps, r, term, trunc, info = self.env.step_state(key, state.inner, action,
+                                                               params.inner)
+        st = state.replace(inner=inner, start=jnp.asarray(info["episode_done"], bool))
+        if self.use_cva:
+            st = st.replace(u=jnp.asarray(info["u"], F32))
+        return st, eps, r, term, trunc, info
+
+    def observe(self, state: InputState, params: InputParams, eps: Any
+                ) -> tuple[jax.Array, InputState]:
+        """(obs, state): the input of ``state`` (the wrapped env's ``get_obs`` with pixel
+        noise ``eps``, then the stack and histories advanced with it)."""
+        obs = self.env.get_obs(state.inner, params.inner, eps)
+        st = self._advance(state, obs)
         return self._obs(obs, st, params), st
+
+    def reset(self, key: jax.Array, params: InputParams):
+        st, eps = self.reset_state(key, params)
+        return self.observe(st, params, eps)
 
     def step_env(self, key: jax.Array, state: InputState, action: jax.Array,
                  params: InputParams):
+        """One step without auto-reset: (obs, state, reward, terminated, truncated, info)."""
         obs, inner, r, term, trunc, info = self.env.step_env(key, state.inner, action,
                                                              params.inner)
-        st = InputState(inner)
-        if self.use_stack:
-            st = st.replace(stack=_push(state.stack, obs))
+        st = state.replace(inner=inner, start=jnp.zeros((), bool))
         if self.use_cva:
-            # the tabular learner's decision-time rule: row 1 = the command just taken, row 0 = 0
-            hu, hy = push_history(state.hist_u, state.hist_y, jnp.asarray(info["u"], F32), obs,
-                                  self.filtered.slices)
-            st = st.replace(hist_u=hu, hist_y=hy)
+            st = st.replace(u=jnp.asarray(info["u"], F32))
+        st = self._advance(st, obs)
         return self._obs(obs, st, params), st, r, term, trunc, info
 
 

@@ -245,27 +245,33 @@ def make_ppo_learner(make_env: Callable[[Any, jax.Array], Any], obs_size: int,
         return (params, opt_state, normalizer, env_state, k_next), stats
 
     def evaluate(carry: PPOCarry, key, difficulty, num: int) -> jax.Array:
-        _, base = train_env(carry.env_params, jnp.asarray(difficulty, F32))
-        env = wrappers.EvalWrapper(wrappers.EpisodeWrapper(wrappers.VmapWrapper(base),
-                                                           base.episode_length, 1))
+        # brax's EvalWrapper loop with the observation inside the loop body (the env's
+        # camera held once): an env counts while its first episode runs (until termination
+        # or the time limit), and succeeds if any of those steps succeeds
+        base = make_env(carry.env_params, jnp.asarray(difficulty, F32))
         k_reset, k_run = jax.random.split(key)
-        st = env.reset(jax.random.split(k_reset, num))
+        st, eps = jax.vmap(base.reset_state)(jax.random.split(k_reset, num))
         policy = make_policy((carry.normalizer, carry.params.policy, carry.params.value),
                              deterministic=True)
+        ones = jnp.ones((num,), bool)
 
         def cond(c):
-            s, _, t = c
-            return (t < base.episode_length) & jnp.any(s.info["eval_metrics"].active_episodes
-                                                       > 0)
+            *_, t, active, _ = c
+            return (t < base.episode_length) & jnp.any(active)
 
         def body(c):
-            s, k, t = c
+            s, e, k, t, active, success = c
             k, k_a = jax.random.split(k)
-            s, _ = acting.actor_step(env, s, policy, k_a)
-            return s, k, t + 1
+            s = jax.vmap(base.observe)(s, e)
+            action, _ = policy(s.obs, k_a)
+            s, e = jax.vmap(base.step_state)(s, action)
+            success = success | (active & (s.metrics["success"] > 0))
+            ended = (s.done > 0) | (t + 1 >= base.episode_length)
+            return s, e, k, t + 1, active & ~ended, success
 
-        st, _, _ = jax.lax.while_loop(cond, body, (st, k_run, jnp.zeros((), jnp.int32)))
-        return jnp.mean((st.info["eval_metrics"].episode_metrics["success"] > 0).astype(F32))
+        *_, success = jax.lax.while_loop(
+            cond, body, (st, eps, k_run, jnp.zeros((), jnp.int32), ones, ~ones))
+        return jnp.mean(success.astype(F32))
 
     def train(carry: PPOCarry, pp: PPOParams):
         env, _ = train_env(carry.env_params, carry.difficulty)

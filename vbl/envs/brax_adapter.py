@@ -10,18 +10,31 @@ Conventions (those of brax's training wrappers, ``brax.envs.wrappers.training.wr
 * Actions: an integer primitive index ``()`` (e.g. from
   :class:`vbl.agents.ppo.CategoricalDistribution`), or a float vector ``(num_actions,)``
   whose argmax is the primitive (ties to the lowest index).
-* Fresh starts (``fresh_starts=True``, default): every step also draws the next start and
-  writes it to ``info["first_pipeline_state"]`` / ``info["first_obs"]`` when brax's
-  ``AutoResetWrapper`` is present, so each episode starts from a new draw (the wrapper
-  itself restores the start drawn at ``reset``). Costs one start draw and one observation
-  per step.
+* Observation: the adapter takes the env's dynamics and its observation apart
+  (``reset_state`` / ``step_state`` and ``get_obs``, as
+  :class:`~vbl.envs.shooting.ShootingEnv` has them) and observes once per step, the state
+  the step ends in (after the restart below, when there is one), so a compiled step holds
+  the env's camera once. A wrapper whose state records what it sees (e.g.
+  :class:`vbl.agents.ppo_inputs.InputEnv`) defines ``observe(state, params, eps) -> (obs,
+  state)`` instead of ``get_obs``.
+* Fresh starts (``fresh_starts=True``, default): when brax's ``AutoResetWrapper`` is
+  present, every step also draws the next start from the adapter's own key, and an episode
+  that ends (``terminated | truncated`` of the env) continues from that draw; the adapter
+  writes the state it ends in to ``info["first_pipeline_state"]`` / ``info["first_obs"]``,
+  so the wrapper's own selection keeps it (this needs the wrapper's ``episode_length`` to
+  be the env's ``max_steps``, as above). Costs one start draw per step, no observation.
+  Without fresh starts the wrapper restores the start drawn at ``reset``. Without the
+  wrapper (evaluation) an ended episode continues as the env's own ``step_state`` restarts
+  it.
 * Start difficulty: tasks whose params have ``start_difficulty``
   (:class:`vbl.envs.shooting.ShootingEnv`, :class:`vbl.envs.shoot_pass.ShootPassEnv`,
   also through a wrapper whose params keep the task's in ``inner``, e.g.
   :class:`vbl.agents.ppo_inputs.InputParams`) keep it in ``state.info["difficulty"]`` ()
   float32; fresh starts are drawn at that value, so a curriculum sets it with
   :func:`set_difficulty`. ``adapter.has_difficulty`` says whether the task has one.
-* Randomness: brax's ``step`` takes no key; the adapter keeps one in ``info["rng"]``.
+* Randomness: brax's ``step`` takes no key; the adapter keeps one in ``info["rng"]`` and
+  splits it per step into the env step's key (the words of the env's ``step_state``
+  layout, :mod:`vbl.draws`), the fresh start's key and the next one.
 * Observations, rewards and flags are float32 whatever ``jax_enable_x64`` says.
 
 ``state.pipeline_state`` holds the vbl env state; ``metrics`` has ``success``.
@@ -81,15 +94,18 @@ class BraxAdapter(Env):
     :class:`~vbl.envs.shoot_pass.ShootPassEnv`, or a wrapper with the same API).
 
     Args:
-      env: object with ``reset(key, params)``, ``step_env(key, state, action, params)``
-        (no auto-reset), ``num_actions``, ``observation_shape``, ``default_params``.
+      env: object with ``reset_state(key, params) -> (state, eps)``, ``step_state(key,
+        state, action, params) -> (state, eps, reward, terminated, truncated, info)``
+        (auto-reset), ``get_obs(state, params, eps)`` (or ``observe``, see the module
+        docstring), ``num_actions``, ``observation_shape``, ``default_params``.
       params: env parameters (validated when concrete); ``None`` uses ``env.default_params``.
         May be traced (e.g. per-learner params inside a vmapped program).
       fresh_starts: draw a new start for every episode under ``AutoResetWrapper``.
     """
 
     def __init__(self, env: Any, params: Any = None, fresh_starts: bool = True):
-        for attr in ("reset", "step_env", "num_actions", "observation_shape", "default_params"):
+        for attr in ("reset_state", "step_state", "num_actions", "observation_shape",
+                     "default_params"):
             if not hasattr(env, attr):
                 raise TypeError(f"{type(env).__name__} is not a vbl env: it lacks {attr!r}")
         self.vbl_env = env
@@ -128,23 +144,34 @@ class BraxAdapter(Env):
             return self.params
         return with_difficulty(self.params, difficulty)
 
-    def _draw(self, key: jax.Array, difficulty: jax.Array | None):
-        obs, st = self.vbl_env.reset(key, self._params_at(difficulty))
-        return obs.astype(F32), st
-
-    def reset(self, rng: jax.Array) -> State:
-        """rng: a raw uint32 (2,) key (brax's wrappers take the batch shape from
-        ``rng.shape[:-1]``). Returns the brax State of a fresh episode."""
+    def reset_state(self, rng: jax.Array) -> tuple[State, Any]:
+        """:meth:`reset` without the observation: (State whose ``obs`` is 0, eps); ``observe``
+        of them is :meth:`reset`'s State."""
         k_reset, k_next = jax.random.split(rng)
         info = {"rng": k_next, "success": jnp.zeros((), F32), "truncation": jnp.zeros((), F32)}
         difficulty = None
         if self.has_difficulty:
             difficulty = jnp.asarray(get_difficulty(self.params), F32)
             info["difficulty"] = difficulty
-        obs, st = self._draw(k_reset, difficulty)
+        st, eps = self.vbl_env.reset_state(k_reset, self._params_at(difficulty))
         zero = jnp.zeros((), F32)
+        obs = jnp.zeros(tuple(self.vbl_env.observation_shape), F32)
         return State(pipeline_state=st, obs=obs, reward=zero, done=zero,
-                     metrics={"success": zero}, info=info)
+                     metrics={"success": zero}, info=info), eps
+
+    def observe(self, state: State, eps: Any) -> State:
+        """``state`` with the observation of its env state (pixel-noise normals ``eps``)."""
+        if hasattr(self.vbl_env, "observe"):
+            obs, st = self.vbl_env.observe(state.pipeline_state, self.params, eps)
+        else:
+            st = state.pipeline_state
+            obs = self.vbl_env.get_obs(st, self.params, eps)
+        return state.replace(pipeline_state=st, obs=obs.astype(F32))
+
+    def reset(self, rng: jax.Array) -> State:
+        """rng: a raw uint32 (2,) key (brax's wrappers take the batch shape from
+        ``rng.shape[:-1]``). Returns the brax State of a fresh episode."""
+        return self.observe(*self.reset_state(rng))
 
     def _index(self, action: jax.Array) -> jax.Array:
         action = jnp.asarray(action)
@@ -159,20 +186,32 @@ class BraxAdapter(Env):
                              f"{action.shape} dtype {action.dtype}")
         return jnp.argmax(action).astype(jnp.int32)
 
-    def step(self, state: State, action: jax.Array) -> State:
-        """One primitive. action: integer index () or scores (num_actions,)."""
+    def step_state(self, state: State, action: jax.Array) -> tuple[State, Any]:
+        """:meth:`step` without the observation: (State with the previous ``obs``, eps);
+        ``observe`` of them is :meth:`step`'s State (without ``AutoResetWrapper``)."""
         index = self._index(action)
         k_step, k_start, k_next = jax.random.split(state.info["rng"], 3)
-        obs, st, reward, terminated, truncated, info = self.vbl_env.step_env(
+        st, eps, reward, terminated, truncated, info = self.vbl_env.step_state(
             k_step, state.pipeline_state, index, self.params)
+        if self.fresh_starts and "first_pipeline_state" in state.info:
+            fresh = self.vbl_env.reset_state(
+                k_start, self._params_at(state.info.get("difficulty")))
+            done = jnp.asarray(info["episode_done"], bool)
+            st, eps = jax.tree.map(lambda a, b: jnp.where(done, a, b), fresh, (st, eps))
         success = jnp.asarray(info["success"]).astype(F32)
         new_info = dict(state.info)
         new_info.update(rng=k_next, success=success,
                         truncation=(truncated & ~terminated).astype(F32))
-        if self.fresh_starts and "first_pipeline_state" in state.info:
-            f_obs, f_st = self._draw(k_start, state.info.get("difficulty"))
-            new_info.update(first_pipeline_state=f_st, first_obs=f_obs)
-        return state.replace(pipeline_state=st, obs=obs.astype(F32),
-                             reward=jnp.asarray(reward).astype(F32),
+        return state.replace(pipeline_state=st, reward=jnp.asarray(reward).astype(F32),
                              done=jnp.asarray(terminated).astype(F32),
-                             metrics={**state.metrics, "success": success}, info=new_info)
+                             metrics={**state.metrics, "success": success},
+                             info=new_info), eps
+
+    def step(self, state: State, action: jax.Array) -> State:
+        """One primitive. action: integer index () or scores (num_actions,)."""
+        state = self.observe(*self.step_state(state, action))
+        if self.fresh_starts and "first_pipeline_state" in state.info:
+            info = dict(state.info)
+            info.update(first_pipeline_state=state.pipeline_state, first_obs=state.obs)
+            state = state.replace(info=info)
+        return state

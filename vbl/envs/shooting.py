@@ -22,9 +22,14 @@ API::
     params = env.default_params
     obs, state = env.reset(key, params)
     obs, state, reward, terminated, truncated, info = env.step(key, state, action, params)
+    state, eps = env.reset_state(key, params)   # the same without the observation:
+    obs = env.get_obs(state, params, eps)       # reset == get_obs(reset_state)
 
-``step`` auto-resets with a fresh start draw; ``step_env`` does not (used by the
-brax adapter). Tire slip (``world.robot.slip_std``) and pixel noise
+``step`` auto-resets with a fresh start draw; ``step_env`` does not. ``reset_state`` /
+``step_state`` are ``reset`` / ``step`` without the observation (the dynamics, the
+auto-reset and every random draw; ``eps`` are the pixel noise's normals), so a loop that
+observes inside its body (:func:`vbl.agents.cva_state.collect`, the brax adapter) holds
+the camera once in its compiled program. Tire slip (``world.robot.slip_std``) and pixel noise
 (``camera.pixel_noise_std``) are drawn only when switched on in the static
 ``params.noise_on`` (:class:`ShootingNoiseOn`; off by default, and a std above 0 with its
 switch off is refused by validation, which ``jit`` with traced parameters skips).
@@ -248,25 +253,36 @@ class ShootingEnv:
         return WorldState(robots=robots, ball=b, ball_vel=jnp.zeros(2, F32),
                           scored=jnp.zeros((), bool), ball_out=jnp.zeros((), bool))
 
-    def get_obs(self, world: WorldState, params: ShootingParams,
+    def get_obs(self, state: ShootingState, params: ShootingParams,
                 eps: jax.Array | None = None) -> jax.Array:
-        """Section 2 features (9,) float32 of the robot's camera; ``eps``: optional
-        (SEC2_NOISE_DIM,) float32 standard normals of the pixel noise (None = exact, what
-        ``noise_on.pixel`` off gives)."""
+        """Section 2 features (9,) float32 of the robot's camera in ``state``; ``eps``:
+        optional (SEC2_NOISE_DIM,) float32 standard normals of the pixel noise (None =
+        exact, what ``noise_on.pixel`` off gives)."""
+        world = state.world
         return section2_features(world.robots[0], world.ball,
                                  jnp.asarray(params.world.ball.radius, F32),
                                  goal_corners(params.world), params.camera, eps)
+
+    def reset_state(self, key: jax.Array, params: ShootingParams | None = None
+                    ) -> tuple[ShootingState, jax.Array | None]:
+        """:meth:`reset` without the observation: (state, eps), where ``get_obs(state,
+        params, eps)`` is the obs :meth:`reset` returns (``eps``: the pixel noise's
+        (SEC2_NOISE_DIM,) standard normals, None when off). A loop that observes inside its
+        body then holds the camera once in its compiled program."""
+        params = self._default_params if params is None else params
+        if not _is_traced(params):
+            self.validate(params)
+        start, pixel = draw_blocks(key, START_WORDS, (SEC2_NOISE_DIM, params.noise_on.pixel))
+        state = ShootingState(world=self.start_from_words(start, params),
+                              step=jnp.zeros((), jnp.int32))
+        return state, normals(pixel)
 
     def reset(self, key: jax.Array, params: ShootingParams | None = None
               ) -> tuple[jax.Array, ShootingState]:
         """Fresh episode: (obs (9,) float32, state)."""
         params = self._default_params if params is None else params
-        if not _is_traced(params):
-            self.validate(params)
-        start, pixel = draw_blocks(key, START_WORDS, (SEC2_NOISE_DIM, params.noise_on.pixel))
-        world = self.start_from_words(start, params)
-        state = ShootingState(world=world, step=jnp.zeros((), jnp.int32))
-        return self.get_obs(world, params, normals(pixel)), state
+        state, eps = self.reset_state(key, params)
+        return self.get_obs(state, params, eps), state
 
     def _transition(self, slip_eps, state: ShootingState, action, params: ShootingParams):
         """One primitive; ``slip_eps``: (SLIP_NORMALS,) float32 standard normals of the tire
@@ -298,8 +314,27 @@ class ShootingEnv:
         slip, pixel = draw_blocks(key, (SLIP_NORMALS, on.slip), (SEC2_NOISE_DIM, on.pixel))
         state, reward, terminated, truncated, info = self._transition(
             normals(slip), state, action, params)
-        obs = self.get_obs(state.world, params, normals(pixel))
+        obs = self.get_obs(state, params, normals(pixel))
         return obs, state, reward, terminated, truncated, info
+
+    def step_state(self, key: jax.Array, state: ShootingState, action: jax.Array,
+                   params: ShootingParams | None = None):
+        """:meth:`step` without the observation: (state, eps, reward, terminated,
+        truncated, info), where ``get_obs(state, params, eps)`` is the obs :meth:`step`
+        returns (see :meth:`reset_state`). The auto-reset selects the state, so the
+        observation is computed once, from the selected state."""
+        params = self._default_params if params is None else params
+        self._check_inputs(state, action, params)
+        on = params.noise_on
+        slip, start, pixel = draw_blocks(key, (SLIP_NORMALS, on.slip), START_WORDS,
+                                         (SEC2_NOISE_DIM, on.pixel))
+        nstate, reward, terminated, truncated, info = self._transition(
+            normals(slip), state, action, params)
+        done = info["episode_done"]
+        fresh = ShootingState(world=self.start_from_words(start, params),
+                              step=jnp.zeros((), jnp.int32))
+        nstate = jax.tree_util.tree_map(lambda a, b: jnp.where(done, a, b), fresh, nstate)
+        return nstate, normals(pixel), reward, terminated, truncated, info
 
     def step(self, key: jax.Array, state: ShootingState, action: jax.Array,
              params: ShootingParams | None = None):
@@ -313,18 +348,9 @@ class ShootingEnv:
         ``params.noise_on`` is not drawn).
         """
         params = self._default_params if params is None else params
-        self._check_inputs(state, action, params)
-        on = params.noise_on
-        slip, start, pixel = draw_blocks(key, (SLIP_NORMALS, on.slip), START_WORDS,
-                                         (SEC2_NOISE_DIM, on.pixel))
-        nstate, reward, terminated, truncated, info = self._transition(
-            normals(slip), state, action, params)
-        done = info["episode_done"]
-        fresh = ShootingState(world=self.start_from_words(start, params),
-                              step=jnp.zeros((), jnp.int32))
-        nstate = jax.tree_util.tree_map(lambda a, b: jnp.where(done, a, b), fresh, nstate)
-        obs = self.get_obs(nstate.world, params, normals(pixel))
-        return obs, nstate, reward, terminated, truncated, info
+        nstate, eps, reward, terminated, truncated, info = self.step_state(key, state, action,
+                                                                          params)
+        return self.get_obs(nstate, params, eps), nstate, reward, terminated, truncated, info
 
     def __repr__(self) -> str:
         fields = [f.name for f in dataclasses.fields(ShootingParams)]
