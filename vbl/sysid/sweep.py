@@ -42,6 +42,7 @@ import functools
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.lax.linalg import cholesky, triangular_solve
 from jax.scipy.linalg import solve_triangular
 
 from vbl.sysid.aic import aic as aic_fn
@@ -90,6 +91,12 @@ def logdet_spd(a: jnp.ndarray) -> jnp.ndarray:
     return out
 
 
+def _chol(s: jnp.ndarray) -> jnp.ndarray:
+    """Lower Cholesky factor of symmetric ``s`` from its lower triangle (NaN if not positive
+    definite), without ``jnp.linalg.cholesky``'s symmetrising copy ``(s + s^T) / 2``."""
+    return cholesky(s, symmetrize_input=False)
+
+
 def _lag_cva(g4, params, floor, *, big_l, lag, horizon, m, q, ne, n_cap) -> dict:
     """CVA + order sweep of lag ``lag`` at its own sizes from the Gram matrix ``g4``
     ``(w, d, w, d)`` (block ``(a, b)``: window offsets a and b, ``d = m + q``): the
@@ -116,7 +123,7 @@ def _lag_cva(g4, params, floor, *, big_l, lag, horizon, m, q, ne, n_cap) -> dict
     sff = blk(hi, hi + k, yy, hi, hi + k, yy)
     spf = blk(lo, hi, al, hi, hi + k, yy)
     if params.method == "projected":
-        lu = jnp.linalg.cholesky(_ridge(blk(hi, hi + k, uu, hi, hi + k, uu), floor))
+        lu = _chol(_ridge(blk(hi, hi + k, uu, hi, hi + k, uu), floor))
         a = solve_triangular(lu, jnp.concatenate([blk(hi, hi + k, uu, lo, hi, al),
                                                   blk(hi, hi + k, uu, hi, hi + k, yy)], 1),
                              lower=True)
@@ -124,9 +131,10 @@ def _lag_cva(g4, params, floor, *, big_l, lag, horizon, m, q, ne, n_cap) -> dict
         spp = spp - ap.T @ ap
         sff = sff - af.T @ af
         spf = spf - ap.T @ af
-    lp = jnp.linalg.cholesky(_ridge(spp, floor))
-    lf = jnp.linalg.cholesky(_ridge(sff, floor))
-    mw = solve_triangular(lf, solve_triangular(lp, spf, lower=True).T, lower=True).T
+    lp = _chol(_ridge(spp, floor))
+    lf = _chol(_ridge(sff, floor))
+    mw = triangular_solve(lf, solve_triangular(lp, spf, lower=True), left_side=False,
+                          lower=True, transpose_a=True)                 # Lp^-1 S_pf Lf^-T
     r = min(mw.shape)                            # canonical correlations
     c = min(n_cap, r)                            # orders this lag can give (<= n_cap)
     if mw.shape[0] <= mw.shape[1]:               # U_aux, S_aux^2 from M M^T (see module doc)
@@ -134,7 +142,7 @@ def _lag_cva(g4, params, floor, *, big_l, lag, horizon, m, q, ne, n_cap) -> dict
         s = jnp.sqrt(jnp.maximum(s2, 0.0))
     else:
         ua, s, _ = svd_thin(mw)
-    umat = solve_triangular(lp, ua[:, :c], lower=True, trans="T").T       # (c, dp)
+    umat = triangular_solve(lp, ua[:, :c].T, left_side=False, lower=True)  # (c, dp)
     n_ident = min(lag * (m + q), horizon * q)
 
     # Covariances of mu(t) = U p(t), mu(t+1) = U p(t+1), x0 = [u(t); y(t)]: offsets lo..hi.
@@ -146,7 +154,7 @@ def _lag_cva(g4, params, floor, *, big_l, lag, horizon, m, q, ne, n_cap) -> dict
     sxx = jnp.block([[s_x0[:m, :m], s_mx[:, :m].T], [s_mx[:, :m], s_mm]])
     sxt = jnp.block([[s_xm1[:m], s_x0[:m, m:]], [s_mm1, s_mx[:, m:]]])
     syy = s_x0[m:, m:]
-    lx = jnp.linalg.cholesky(_ridge(sxx, floor))
+    lx = _chol(_ridge(sxx, floor))
     z = solve_triangular(lx, sxt, lower=True)                            # (m+c, c+q)
     wy = z[:, c:]                                                        # L^-1 S_xy
     red = _cumsum0(wy[:, :, None] * wy[:, None, :])[m - 1:]    # n = 0..c
