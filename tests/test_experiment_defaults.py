@@ -40,3 +40,26 @@ def test_parameter_paths_are_shallow_and_do_not_stutter(name):
         names = path.split(".")
         assert len(names) <= MAX_DEPTH, path
         assert all(a != b for a, b in zip(names, names[1:], strict=False)), path
+
+
+def test_table2_quick_is_the_full_run_shortened():
+    """Table 2's --quick compiles the full run's programs (every static parameter equal but
+    the chunk count, the same seeds) and scales each schedule by the chunk ratio, so it is
+    the full run stopped early, with its exploration and step-size decay completed."""
+    from vbl.engine.config import config_to_dict, static_paths
+
+    exp = registry.get("table2_shoot_pass")
+    with engine_precision():
+        full, _, full_seeds, _ = resolve(exp)
+        quick, _, quick_seeds, _ = resolve(exp, quick=True)
+    f, q = config_to_dict(full), config_to_dict(quick)
+    ratio = q["train.num_chunks"] / f["train.num_chunks"]
+    assert ratio < 1 and quick_seeds == full_seeds
+    assert {p: q[p] for p in static_paths(full) if p != "train.num_chunks"} == \
+        {p: f[p] for p in static_paths(full) if p != "train.num_chunks"}
+    for p in ("q.exploration.transition_steps", "train.lr_scale.transition_begin",
+              "train.lr_scale.transition_steps"):
+        assert q[p] == pytest.approx(ratio * f[p])
+    changed = {p for p in f if f[p] != q[p]}
+    assert changed == {"train.num_chunks", "q.exploration.transition_steps",
+                       "train.lr_scale.transition_begin", "train.lr_scale.transition_steps"}
