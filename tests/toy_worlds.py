@@ -15,7 +15,8 @@
 
 All follow the ``ShootingEnv`` API: ``reset(key, params) -> (obs, state)``,
 ``step(key, state, action, params) -> (obs, state, reward, terminated, truncated,
-info)`` with auto-reset and ``info["success"]``.
+info)`` with auto-reset and ``info["success"]``; the two worlds also have its
+``reset_state`` / ``step_state`` / ``get_obs`` (:class:`ObsInState`).
 """
 
 from __future__ import annotations
@@ -44,7 +45,22 @@ class ToyState:
     step: jax.Array    # () int32
 
 
-class LineWorld:
+class ObsInState:
+    """``reset_state`` / ``step_state`` / ``get_obs`` of a toy world whose observation is
+    its state's ``x`` (no observation noise: ``eps`` is None)."""
+
+    def get_obs(self, state, params, eps):
+        return state.x
+
+    def reset_state(self, key, params):
+        return self.reset(key, params)[1], None
+
+    def step_state(self, key, state, action, params):
+        _, st, r, term, trunc, info = self.step(key, state, action, params)
+        return st, None, r, term, trunc, info
+
+
+class LineWorld(ObsInState):
     """Position on a line, forward/backward, goal at p >= 1."""
 
     num_actions = 2
@@ -87,7 +103,7 @@ class TwoRegionParams:
 _DIRS = jnp.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]], F32)
 
 
-class TwoRegionWorld:
+class TwoRegionWorld(ObsInState):
     """Two regions of different affine dynamics in [0, 1]^2."""
 
     num_actions = 4

@@ -7,8 +7,9 @@ actions are int32 indices), and :func:`make_categorical_ppo_networks` is a
 ``network_factory`` for ``brax.training.agents.ppo.train``::
 
     from brax.training.agents.ppo import train as ppo
+    env = BraxAdapter(ShootingEnv())
     make_policy, params, metrics = ppo.train(
-        BraxAdapter(ShootingEnv()), num_timesteps=1_000_000,
+        env, num_timesteps=1_000_000, episode_length=env.episode_length,
         network_factory=make_categorical_ppo_networks, ...)
 
 :class:`PPONetParams` holds the network sizes as named parameters;

@@ -47,25 +47,27 @@ def rollout(env: Any, env_params: Any, key: jax.Array, policy: Policy, num_episo
             max_steps: int, policy_state: Any = ()) -> tuple[jax.Array, jax.Array]:
     """Run ``num_episodes`` episodes from fresh starts (parallel) with ``policy``.
 
-    ``env`` follows the gymnax-style API (``reset``, auto-resetting ``step`` with
-    ``info["success"]``); steps after the first episode ended do not count.
+    ``env`` has ``reset_state`` / ``step_state`` (auto-resetting, ``info["success"]``) and
+    ``get_obs`` (:class:`vbl.envs.shooting.ShootingEnv`): each step observes its state
+    inside the loop body, so the compiled rollout holds the env's camera once. Steps after
+    the first episode ended do not count.
     Returns (success (num_episodes,) bool: the first episode scored within ``max_steps``,
     length (num_episodes,) int32: its steps, ``max_steps`` if it did not end).
     """
     def one(k):
         k0, k1 = jax.random.split(k)
-        obs, st = env.reset(k0, env_params)
+        st, eps = env.reset_state(k0, env_params)
 
         def body(carry, kt):
-            obs, st, ps, alive, ok, n = carry
+            st, eps, ps, alive, ok, n = carry
             ka, ks = jax.random.split(kt)
-            a, ps = policy(obs, ps, ka)
-            obs2, st2, _, term, trunc, info = env.step(ks, st, a, env_params)
+            a, ps = policy(env.get_obs(st, env_params, eps), ps, ka)
+            st2, eps2, _, term, trunc, info = env.step_state(ks, st, a, env_params)
             ok = ok | (alive & info["success"])
             n = n + alive.astype(jnp.int32)
-            return (obs2, st2, ps, alive & ~(term | trunc), ok, n), None
+            return (st2, eps2, ps, alive & ~(term | trunc), ok, n), None
 
-        init = (obs, st, policy_state, jnp.ones((), bool), jnp.zeros((), bool),
+        init = (st, eps, policy_state, jnp.ones((), bool), jnp.zeros((), bool),
                 jnp.zeros((), jnp.int32))
         (*_, ok, n), _ = jax.lax.scan(body, init, jax.random.split(k1, max_steps))
         return ok, n
