@@ -8,8 +8,9 @@ One learner (= one seed) of :func:`identification_program`:
   (:func:`vbl.envs.collect.collect_scenarios`); the data sets stay in the carry, so the
   engine's checkpoint holds them;
 * ``final``: identifies every row's data set with :func:`identify_one` (the jittable core of
-  :func:`vbl.sysid.identify`: the same CVA fits, order cap and lag rule, without its
-  host-side input checks, which cannot run on traced data; the config's ``check()``
+  :func:`vbl.sysid.identify`, :func:`vbl.sysid.lag.identify_one_fit`: the same CVA fits,
+  order cap and lag rule, without its host-side input checks, which cannot run on traced
+  data; the config's ``check()``
   validates what can be checked before the run: the scenarios and the record length) and
   reports l, n, log det R and AIC of each row as per-seed metrics ``<q>_<row>``, and the
   swap test's ``swap_<data>_data_<model>_model``.
@@ -37,11 +38,9 @@ from vbl.envs.collect import CollectData, CollectParams, collect_scenarios, obje
 from vbl.envs.noise import NoiseParams
 from vbl.envs.shoot_pass import OBS_SLICES, ShootPassParams
 from vbl.params import ParamError, param, validate
-from vbl.sysid import CVAModel, fit_one, min_length
-from vbl.sysid.lag import n_cap_for, pad_to_history
-from vbl.sysid.lag_rule import select_lag
+from vbl.sysid import CVAModel, min_length
+from vbl.sysid.lag import identify_one_fit, n_cap_for
 from vbl.sysid.params import CVAParams
-from vbl.sysid.sweep import fit_select_one
 
 __all__ = ["RowSetup", "TABLE1_ROWS", "OBJECT", "QUANTITIES", "table1_scenarios",
            "table3_scenarios", "slug", "check_scenarios", "identify_one",
@@ -131,27 +130,15 @@ def check_scenarios(scenarios: Mapping[str, CollectParams], objects: Mapping[str
 def identify_one(u, y, ident: CVAParams) -> tuple[dict[str, jax.Array], CVAModel]:
     """CVA, AIC order and lag on one data set ``u (N, m)``, ``y (N, q)`` (pure; jit/vmap-able).
 
-    The jittable core of :func:`vbl.sysid.identify` without its input checks: the lag rule
-    ``'paper'`` (or a fixed lag) fits every lag with :func:`vbl.sysid.fit_one` at identify's
-    order cap and chooses by :func:`vbl.sysid.lag_rule.select_lag`; ``'predictor'`` is
-    :func:`vbl.sysid.sweep.fit_select_one`. Returns ``({"l", "n", "logdet_R", "aic"}`` scalars,
-    the filtering model at the chosen lag, history length ``max(ident.lags())``).
+    :func:`vbl.sysid.lag.identify_one_fit` (the jittable core of :func:`vbl.sysid.identify`:
+    its fits, order cap and lag rule, without its input checks) packaged as ``({"l", "n",
+    "logdet_R", "aic"}`` scalars, the filtering model at the chosen lag, history length
+    ``max(ident.lags())``).
     """
     m, q = u.shape[-1], y.shape[-1]
-    lags = ident.lags()
-    h, cap = max(lags), n_cap_for(ident, m, q)
-    if ident.lag == 0 and ident.lag_rule == "predictor":
-        fit, j, (_, aic, logdet, _) = fit_select_one(u, y, ident, n_cap=cap)
-    else:
-        fits = [fit_one(u, y, ident, lag=lg, horizon=ident.horizon_for(lg), n_cap=cap)
-                for lg in lags]
-        logdet = jnp.stack([f.logdet[f.n] for f in fits])
-        aic = jnp.stack([f.aic[f.n] for f in fits])
-        j = select_lag(logdet, aic, ident.logdet_stop)[0]
-        fits = [f.replace(U=pad_to_history(f.U, lg, h, m, q)) for f, lg in zip(fits, lags,
-                                                                                 strict=True)]
-        fit = jax.tree.map(lambda *a: jnp.stack(a)[j], *fits)
-    lag, n = jnp.asarray(lags, jnp.int32)[j], fit.n.astype(jnp.int32)
+    cap = n_cap_for(ident, m, q)
+    fit, j, logdet, aic = identify_one_fit(u, y, ident, n_cap=cap)
+    lag, n = jnp.asarray(ident.lags(), jnp.int32)[j], fit.n.astype(jnp.int32)
     model = CVAModel(U=fit.U * (jnp.arange(cap) < n)[:, None], A=fit.A, B=fit.B, C=fit.C,
                      D=fit.D, R=fit.R, n=n, lag=lag, u_mean=fit.u_mean, u_scale=fit.u_scale,
                      y_mean=fit.y_mean, y_scale=fit.y_scale)

@@ -1,18 +1,25 @@
 """Batched Canonical Variate Analysis, Eqs. (2)-(6) of the paper.
 
-One data set is ``u (N, m)``, ``y (N, q)``; :func:`fit_batch` vmaps :func:`fit_one` over a
-leading data-set axis. Per data set (0-based time, ``t = l .. N-k``, ``N_e = N-k-l+1`` samples):
+One data set is ``u (N, m)``, ``y (N, q)``; :func:`fit_lags` fits several lags of it in one
+fixed-shape computation (``vmap`` over the lags), :func:`fit_one` one lag, :func:`fit_batch`
+vmaps :func:`fit_one` over a leading data-set axis. Per data set and lag l with horizon k
+(0-based time, ``t = l .. N-k``, ``N_e = N-k-l+1`` samples):
 
 * past    ``p(t) = [u(t-1); ...; u(t-l); y(t-1); ...; y(t-l)]``   (l(m+q),)
 * future  ``f(t) = [y(t); ...; y(t+k-1)]``                         (kq,)
 * future inputs ``u_f(t) = [u(t); ...; u(t+k-1)]``                 (km,)
 
-All covariances come from one Gram matrix of the window ``z(t) = [u(t-l..t+k-1); y(t-l..t+k-1)]``.
-With ``method='projected'`` the future inputs are projected out of p and f first
-(``S_ab|u = S_ab - S_au S_uu^-1 S_ub``). Whitening uses Cholesky factors
-(``S = L L^T``, ``S^-1/2 := L^-1``), so ``L_p^-1 S_pf L_f^-T = U_aux S_aux V_aux^T`` (Eq. 4)
-and ``U = U_aux^T L_p^-1``; ``mu(t) = [I_n 0] U p(t)`` (Eq. 5). One SVD serves every n: the
-least-squares fit of Eq. (2) for order n masks the state components beyond n, vmapped over n.
+All covariances come from one Gram matrix of the window ``z(t) = [p(t); u_f(t); f(t)]`` over
+the lag's samples (columns of the zero-padded record taken as slices, no index gathers).
+:func:`fit_lags` lays every lag out at the largest lag ``L`` and horizon ``K`` (the window
+of lag L) and pads: a lag's unused past / future entries get unit variance and zero
+covariance with everything else, which adds only zero canonical correlations, and its
+samples are those of its own window (a mask over t). With ``method='projected'`` the future
+inputs are projected out of p and f first (``S_ab|u = S_ab - S_au S_uu^-1 S_ub``). Whitening
+uses Cholesky factors (``S = L L^T``, ``S^-1/2 := L^-1``), so ``L_p^-1 S_pf L_f^-T = U_aux
+S_aux V_aux^T`` (Eq. 4) and ``U = U_aux^T L_p^-1``; ``mu(t) = [I_n 0] U p(t)`` (Eq. 5). One
+SVD serves every n: the least-squares fit of Eq. (2) for order n masks the state components
+beyond n, vmapped over n. Orders beyond a lag's ``min(l(m+q), kq)`` are invalid.
 """
 
 from __future__ import annotations
@@ -29,22 +36,25 @@ from vbl.sysid.aic import aic as aic_fn
 from vbl.sysid.linalg import svd_thin, x64_scope
 from vbl.sysid.params import CVAParams
 
-__all__ = ["CVAFit", "fit_one", "fit_batch", "n_identifiable", "stack_indices", "first_argmin"]
+__all__ = ["CVAFit", "fit_one", "fit_lags", "fit_batch", "n_identifiable", "first_argmin"]
 
 
 @struct.dataclass
 class CVAFit:
-    """Result of CVA on one data set at one lag (leading data-set axis when batched).
+    """Result of CVA on one data set at one lag (leading data-set axis when batched; leading
+    lag axis from :func:`fit_lags`).
 
-    Shapes use ``c = n_cap`` (orders swept 0..c), ``dp = l(m+q)``. Normalised units: the
-    data after mean removal / standardisation (``u_n = (u - u_mean) / u_scale``).
+    Shapes use ``c = n_cap`` (orders swept 0..c), ``dp = h(m+q)`` with ``h`` the history
+    length (the lag for :func:`fit_one`, the largest lag for :func:`fit_lags`). Normalised
+    units: the data after mean removal / standardisation (``u_n = (u - u_mean) / u_scale``).
     """
 
     cancor: jnp.ndarray      # (c,) canonical correlations S_aux, descending (0-padded)
     logdet: jnp.ndarray      # (c+1,) log det R_hat(n), n = 0..c (output residual covariance)
     aic: jnp.ndarray         # (c+1,) AIC(n); +inf where n < n_min or n > identifiable
     n: jnp.ndarray           # () int32 n* = argmin AIC
-    U: jnp.ndarray           # (c, dp) rows of U = U_aux^T S_pp^-1/2 (0-padded)
+    U: jnp.ndarray           # (c, dp) rows of U = U_aux^T S_pp^-1/2 (0-padded; columns
+                             # [u(t-1..t-h); y(t-1..t-h)], zero beyond the lag)
     A: jnp.ndarray           # (c, c) Theta blocks at n* (zero beyond n*)
     B: jnp.ndarray           # (c, m)
     C: jnp.ndarray           # (q, c)
@@ -61,34 +71,18 @@ def n_identifiable(lag: int, horizon: int, m: int, q: int) -> int:
     return min(lag * (m + q), horizon * q)
 
 
-def stack_indices(lag: int, horizon: int, m: int, q: int) -> dict[str, np.ndarray]:
-    """Positions of p(t), p(t+1), f(t), u_f(t), u(t), y(t) in the window z(t)."""
-    L = lag + horizon
-
-    def ui(off: int) -> list[int]:
-        return [(off + lag) * m + c for c in range(m)]
-
-    def yi(off: int) -> list[int]:
-        return [m * L + (off + lag) * q + c for c in range(q)]
-
-    def cat(parts: list[list[int]]) -> np.ndarray:
-        return np.asarray(sum(parts, []), dtype=np.int32)
-
-    return dict(
-        p=cat([ui(-j) for j in range(1, lag + 1)] + [yi(-j) for j in range(1, lag + 1)]),
-        p1=cat([ui(1 - j) for j in range(1, lag + 1)] + [yi(1 - j) for j in range(1, lag + 1)]),
-        f=cat([yi(j) for j in range(horizon)]),
-        uf=cat([ui(j) for j in range(horizon)]),
-        u0=cat([ui(0)]),
-        y0=cat([yi(0)]),
-    )
-
-
 def _ridge(s: jnp.ndarray, floor) -> jnp.ndarray:
     """S + floor * mean(diag S) * I (the regularisation floor)."""
     d = s.shape[-1]
     scale = jnp.maximum(jnp.trace(s) / d, jnp.finfo(s.dtype).tiny)
     return s + floor * scale * jnp.eye(d, dtype=s.dtype)
+
+
+def _ridge_padded(s: jnp.ndarray, v: jnp.ndarray, floor) -> jnp.ndarray:
+    """:func:`_ridge` of the entries of ``s`` where ``v`` (0/1) is 1 (``s`` zero elsewhere),
+    unit variance on the padded entries: ``s + diag(1 - v) + floor * (tr s / sum v) * I``."""
+    scale = jnp.maximum(jnp.trace(s) / jnp.sum(v), jnp.finfo(s.dtype).tiny)
+    return s + jnp.diag(1.0 - v) + floor * scale * jnp.eye(s.shape[-1], dtype=s.dtype)
 
 
 def _normalise(x: jnp.ndarray, demean: bool, standardize: bool):
@@ -99,94 +93,146 @@ def _normalise(x: jnp.ndarray, demean: bool, standardize: bool):
 
 def fit_one(u: jnp.ndarray, y: jnp.ndarray, params: CVAParams, *, lag: int, horizon: int,
             n_cap: int) -> CVAFit:
-    """CVA + order sweep on one data set ``u (N, m)``, ``y (N, q)`` (pure, jit/vmap-able).
+    """CVA + order sweep on one data set ``u (N, m)``, ``y (N, q)`` at one lag (pure,
+    jit/vmap-able): :func:`fit_lags` of the one lag.
 
     Computes in ``params.dtype`` whether or not ``jax_enable_x64`` is on globally (64-bit
     types are switched on for the duration of the computation, :func:`x64_scope`).
     """
+    fits = fit_lags(u, y, params, lags=(lag,), horizons=(horizon,), n_cap=n_cap)
+    return jax.tree_util.tree_map(lambda a: a[0], fits)
+
+
+def fit_lags(u: jnp.ndarray, y: jnp.ndarray, params: CVAParams, *, lags: tuple[int, ...],
+             horizons: tuple[int, ...], n_cap: int) -> CVAFit:
+    """CVA + order sweep of one data set ``u (N, m)``, ``y (N, q)`` at every lag of ``lags``
+    (with its horizon of ``horizons``), as one computation at the sizes of the largest lag
+    and horizon, vmapped over the lags (one traced copy whatever the number of lags).
+
+    Returns the :class:`CVAFit` s with a leading lag axis ``(J, ...)``, ``J = len(lags)``; the
+    state maps in the layout of history ``h = max(lags)`` (columns beyond a lag zero). Each
+    lag is fitted on its own sample window ``t = l .. N-k``, as a fit at that lag alone
+    (equal to float rounding). Pure, jit/vmap-able, in ``params.dtype`` (:func:`x64_scope`).
+    """
     with x64_scope():
-        return _fit_one(u, y, params, lag=lag, horizon=horizon, n_cap=n_cap)
+        return _fit_lags(u, y, params, lags=tuple(int(lg) for lg in lags),
+                         horizons=tuple(int(k) for k in horizons), n_cap=n_cap)
 
 
-def _fit_one(u: jnp.ndarray, y: jnp.ndarray, params: CVAParams, *, lag: int, horizon: int,
-             n_cap: int) -> CVAFit:
+def _window_layout(big_l: int, big_k: int, m: int, q: int):
+    """Column layout of the window ``z(t) = [p(t); u_f(t); f(t)]`` at lag ``big_l``, horizon
+    ``big_k``: ``(dp, offset of u_f, offset of f, P1)``, ``P1 (dp, width)`` the 0/1 matrix
+    taking ``p(t+1) = [u(t..t-L+1); y(t..t-L+1)]`` from ``z(t)`` (``p1 = P1 z``)."""
+    dp = big_l * (m + q)
+    o_uf, o_f = dp, dp + big_k * m
+    width = o_f + big_k * q
+    p1 = np.zeros((dp, width))
+    for c in range(m):
+        p1[c, o_uf + c] = 1.0                                     # u(t)
+        for i in range(1, big_l):
+            p1[i * m + c, (i - 1) * m + c] = 1.0                  # u(t-i)
+    for c in range(q):
+        p1[big_l * m + c, o_f + c] = 1.0                          # y(t)
+        for i in range(1, big_l):
+            p1[big_l * m + i * q + c, big_l * m + (i - 1) * q + c] = 1.0
+    return dp, o_uf, o_f, p1
+
+
+def _fit_lags(u, y, params, *, lags, horizons, n_cap) -> CVAFit:
     dt = jnp.float32 if params.dtype == "float32" else jnp.float64
     floor = jnp.asarray(params.floor(), dt)
     u = u.astype(dt)
     y = y.astype(dt)
-    N, m = u.shape
+    n_samp, m = u.shape
     q = y.shape[1]
-    L = lag + horizon
-    ne = N - L + 1
+    big_l, big_k = max(lags), max(horizons)
     un, u_mean, u_scale = _normalise(u, params.demean, params.standardize)
     yn, y_mean, y_scale = _normalise(y, params.demean, params.standardize)
+    dp, o_uf, o_f, p1 = _window_layout(big_l, big_k, m, q)
 
-    # Window matrix Z (ne, L(m+q)) and its Gram matrix: every covariance is a block of G.
-    t = jnp.arange(ne)[:, None] + jnp.arange(L)[None, :]
-    z = jnp.concatenate([un[t].reshape(ne, L * m), yn[t].reshape(ne, L * q)], axis=1)
-    g = z.T @ z / ne
-    ix = stack_indices(lag, horizon, m, q)
-    p, f = ix["p"], ix["f"]
-    spp, sff, spf = g[p][:, p], g[f][:, f], g[p][:, f]
-    if params.method == "projected":
-        uf = ix["uf"]
-        lu = jnp.linalg.cholesky(_ridge(g[uf][:, uf], floor))
-        ap = solve_triangular(lu, g[uf][:, p], lower=True)
-        af = solve_triangular(lu, g[uf][:, f], lower=True)
-        spp = spp - ap.T @ ap
-        sff = sff - af.T @ af
-        spf = spf - ap.T @ af
+    # z(t) for every t = 0..N-1 from the zero-padded records (slices): delays L..1, then 0..-(K-1)
+    def delayed(x, delays):
+        xp = jnp.concatenate([jnp.zeros((big_l, x.shape[1]), dt), x,
+                              jnp.zeros((big_k, x.shape[1]), dt)])
+        return jnp.concatenate([xp[big_l - j:big_l - j + n_samp] for j in delays], axis=1)
 
-    # Eq. (4) with Cholesky whitening.
-    lp = jnp.linalg.cholesky(_ridge(spp, floor))
-    lf = jnp.linalg.cholesky(_ridge(sff, floor))
-    x = solve_triangular(lp, spf, lower=True)                 # L_p^-1 S_pf
-    mw = solve_triangular(lf, x.T, lower=True).T              # ... L_f^-T
-    ua, s, _ = svd_thin(mw)                                   # (dp, r), (r,)
-    umat = solve_triangular(lp, ua, lower=True, trans="T").T  # U = U_aux^T L_p^-1, (r, dp)
-    return _order_sweep(g, ix, umat, s, params, floor, m=m, q=q, ne=ne, n_cap=n_cap,
-                        n_ident=n_identifiable(lag, horizon, m, q),
-                        means=(u_mean, u_scale, y_mean, y_scale))
+    past, fut = range(1, big_l + 1), range(0, -big_k, -1)
+    z = jnp.concatenate([delayed(un, past), delayed(yn, past), delayed(un, fut),
+                         delayed(yn, fut)], axis=1)
+
+    # per lag: its samples, its past / future entries (0/1), N_e, identifiable order
+    la, ka = np.asarray(lags), np.asarray(horizons)
+    t = np.arange(n_samp)
+    per_lag = dict(
+        tmask=((t >= la[:, None]) & (t <= n_samp - ka[:, None])).astype(float),
+        vp=np.concatenate([np.repeat(np.arange(1, big_l + 1)[None] <= la[:, None], m, 1),
+                           np.repeat(np.arange(1, big_l + 1)[None] <= la[:, None], q, 1)], 1),
+        vu=np.repeat(np.arange(big_k)[None] < ka[:, None], m, 1),
+        vf=np.repeat(np.arange(big_k)[None] < ka[:, None], q, 1),
+        ne=n_samp - ka - la + 1,
+        n_ident=np.minimum(la * (m + q), ka * q))
+    per_lag = {k: jnp.asarray(v, jnp.int32 if k in ("ne", "n_ident") else dt)
+               for k, v in per_lag.items()}
+    means = (u_mean, u_scale, y_mean, y_scale)
+    p, uf, f = slice(0, dp), slice(o_uf, o_f), slice(o_f, z.shape[1])
+
+    def one_lag(pl):
+        g = (z * pl["tmask"][:, None]).T @ z / pl["ne"].astype(dt)
+        vp, vu, vf = pl["vp"], pl["vu"], pl["vf"]
+        spp = g[p, p] * jnp.outer(vp, vp)
+        sff = g[f, f] * jnp.outer(vf, vf)
+        spf = g[p, f] * jnp.outer(vp, vf)
+        if params.method == "projected":
+            lu = jnp.linalg.cholesky(_ridge_padded(g[uf, uf] * jnp.outer(vu, vu), vu, floor))
+            ap = solve_triangular(lu, g[uf, p] * jnp.outer(vu, vp), lower=True)
+            af = solve_triangular(lu, g[uf, f] * jnp.outer(vu, vf), lower=True)
+            spp = spp - ap.T @ ap
+            sff = sff - af.T @ af
+            spf = spf - ap.T @ af
+        # Eq. (4) with Cholesky whitening.
+        lp = jnp.linalg.cholesky(_ridge_padded(spp, vp, floor))
+        lf = jnp.linalg.cholesky(_ridge_padded(sff, vf, floor))
+        x = solve_triangular(lp, spf, lower=True)                 # L_p^-1 S_pf
+        mw = solve_triangular(lf, x.T, lower=True).T              # ... L_f^-T
+        ua, s, _ = svd_thin(mw)                                   # (dp, r), (r,)
+        umat = solve_triangular(lp, ua, lower=True, trans="T").T  # U = U_aux^T L_p^-1, (r, dp)
+        # the lag's own components: the first n_ident (the rest are the padding's zeros)
+        keep = (jnp.arange(s.shape[0]) < pl["n_ident"]).astype(dt)
+        umat = umat * keep[:, None] * vp[None, :]
+        return _order_sweep(g, umat, s * keep, p1, params, floor, m=m, q=q, o_uf=o_uf,
+                            o_f=o_f, ne=pl["ne"], n_cap=n_cap, n_ident=pl["n_ident"],
+                            means=means)
+
+    return jax.vmap(one_lag)(per_lag)
 
 
 def first_argmin(a: jnp.ndarray) -> jnp.ndarray:
     """Index (int32) of the first minimum of a 1-D array (``jnp.argmin`` for finite input).
 
-    Written with ``min`` and ``where``: ``jnp.argmin`` fails to lower when 64-bit types are
-    switched on only inside a caller's ``jit(vmap(...))``.
+    One variadic reduction over ``(value, index)`` pairs with initial values of ``a``'s own
+    dtype: ``jnp.argmin`` / ``lax.argmin`` fail to lower when 64-bit types are switched on
+    only inside a caller's ``jit(vmap(...))`` (their initial value takes the global default
+    dtype), and an index found by comparing ``a`` with ``min(a)`` can miss every entry when
+    XLA fuses the computation of ``a`` into both and rounds the two copies differently.
     """
+    def pick(x, y):
+        take = (x[0] < y[0]) | ((x[0] == y[0]) & (x[1] < y[1]))
+        return jnp.where(take, x[0], y[0]), jnp.where(take, x[1], y[1])
+
     idx = jnp.arange(a.shape[0], dtype=jnp.int32)
-    return jnp.min(jnp.where(a == jnp.min(a), idx, a.shape[0] - 1)).astype(jnp.int32)
+    init = (jnp.asarray(jnp.inf, a.dtype), jnp.asarray(a.shape[0] - 1, jnp.int32))
+    return jax.lax.reduce((a, idx), init, pick, (0,))[1]
 
 
-def _nested_logdet(sxx, sxy, syy, floor, *, m: int, c: int):
-    """log det R_hat(n) (c+1,) and R_hat(n) (c+1, q, q) for n = 0..c regressors mu_1..mu_n
-    beside u(t): one Cholesky of the covariance of [u(t); mu(t)] (rows of L^-1 S_xy are the
-    successive reductions of the residual covariance)."""
-    order = np.r_[c:c + m, 0:c]                               # [u(t); mu_1..mu_c]
-    lx = jnp.linalg.cholesky(_ridge(sxx[order][:, order], floor))
-    w = solve_triangular(lx, sxy[order], lower=True)          # (m+c, q)
-    red = jnp.cumsum(w[:, :, None] * w[:, None, :], axis=0)   # (m+c, q, q)
-    rs = jax.vmap(lambda r: _ridge(syy - r, floor))(red[m - 1:])
-    logdet = 2.0 * jnp.sum(jnp.log(jnp.diagonal(jnp.linalg.cholesky(rs), axis1=-2,
-                                                axis2=-1)), axis=-1)
-    return logdet, rs
-
-
-def _order_sweep(g, ix, umat, s, params, floor, *, m, q, ne, n_cap, n_ident, means,
-                 nested: bool = False) -> CVAFit:
-    """Eq. (2) for every order n = 0..n_cap from the Gram matrix ``g`` and the state map
-    ``umat`` (r, dp), canonical correlations ``s`` (r,); AIC (Eq. 6) picks n* among
-    ``n_min <= n <= n_ident``.
-
-    ``nested=False``: one masked Cholesky per order (O(c^4)); ``nested=True``: the residual
-    covariances of all orders from one Cholesky of the regressors ordered [u(t); mu(t)]
-    (regressing on a prefix of them, O(c^3)); equal up to the regularisation floor.
-    """
+def _order_sweep(g, umat, s, p1, params, floor, *, m, q, o_uf, o_f, ne, n_cap, n_ident,
+                 means) -> CVAFit:
+    """Eq. (2) for every order n = 0..n_cap from the window's Gram matrix ``g`` (layout of
+    :func:`_window_layout`: ``p(t)`` first, ``u(t)`` at ``o_uf``, ``y(t)`` at ``o_f``, ``P1``
+    selecting ``p(t+1)``) and the state map ``umat`` (r, dp), canonical correlations ``s``
+    (r,): one masked Cholesky per order; AIC (Eq. 6) picks n* among
+    ``n_min <= n <= n_ident``."""
     dt = g.dtype
-    p = ix["p"]
-    r = s.shape[0]
-    dp = p.shape[0]
+    r, dp = umat.shape
     if r >= n_cap:
         umat, s = umat[:n_cap], s[:n_cap]
     else:
@@ -194,8 +240,11 @@ def _order_sweep(g, ix, umat, s, params, floor, *, m, q, ne, n_cap, n_ident, mea
         s = jnp.concatenate([s, jnp.zeros((n_cap - r,), dt)])
 
     # Covariance of [mu(t); mu(t+1); u(t); y(t)] = T G T^T.
-    eye = jnp.eye(g.shape[0], dtype=dt)
-    tm = jnp.concatenate([umat @ eye[p], umat @ eye[ix["p1"]], eye[ix["u0"]], eye[ix["y0"]]])
+    width = g.shape[0]
+    eye = np.eye(width)
+    tm = jnp.concatenate([jnp.pad(umat, ((0, 0), (0, width - dp))),
+                          umat @ jnp.asarray(p1, dt),
+                          jnp.asarray(eye[o_uf:o_uf + m], dt), jnp.asarray(eye[o_f:o_f + q], dt)])
     cov = tm @ g @ tm.T
     c = n_cap
     xi = np.r_[0:c, 2 * c:2 * c + m]                          # regressors [mu(t); u(t)]
@@ -217,10 +266,7 @@ def _order_sweep(g, ix, umat, s, params, floor, *, m, q, ne, n_cap, n_ident, mea
         return 2.0 * jnp.sum(jnp.log(jnp.diag(jnp.linalg.cholesky(rr)))), rr
 
     ns = jnp.arange(c + 1)
-    if nested:
-        logdet, rs = _nested_logdet(sxx, sxy, syy, floor, m=m, c=c)
-    else:
-        logdet, rs = jax.vmap(logdet_r)(ns)
+    logdet, rs = jax.vmap(logdet_r)(ns)
     a = aic_fn(logdet, ns, ne, m, q, params.param_count)
     # an order whose residual covariance is numerically singular (NaN) is not identifiable
     valid = (ns >= params.n_min) & (ns <= n_ident) & jnp.isfinite(logdet)
@@ -252,5 +298,8 @@ def fit_batch(u: jnp.ndarray, y: jnp.ndarray, params: CVAParams, *, lag: int, ho
 
 @functools.partial(jax.jit, static_argnames=("lag", "horizon", "n_cap"))
 def _fit_batch(u, y, params, *, lag, horizon, n_cap):
-    fn = functools.partial(_fit_one, params=params, lag=lag, horizon=horizon, n_cap=n_cap)
-    return jax.vmap(fn)(u, y)
+    def one(u1, y1):
+        fits = _fit_lags(u1, y1, params, lags=(lag,), horizons=(horizon,), n_cap=n_cap)
+        return jax.tree_util.tree_map(lambda a: a[0], fits)
+
+    return jax.vmap(one)(u, y)

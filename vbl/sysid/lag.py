@@ -24,16 +24,16 @@ import numpy as np
 from flax import struct
 
 from vbl.params import validate
-from vbl.sysid.cva import CVAFit, fit_batch, n_identifiable
+from vbl.sysid.cva import CVAFit, fit_batch, fit_lags, n_identifiable
 from vbl.sysid.lag_rule import select_lag as _select_lag
 from vbl.sysid.linalg import x64_scope
 from vbl.sysid.model import CVAModel
 from vbl.sysid.params import CVAParams
-from vbl.sysid.sweep import fit_select_batch
+from vbl.sysid.sweep import fit_select_batch, fit_select_one
 from vbl.sysid.validate import check_data, prepare_scale, warn_collinear
 
-__all__ = ["Identification", "identify", "select_lag", "n_cap_for", "pad_to_history",
-           "OrderCapWarning"]
+__all__ = ["Identification", "identify", "identify_one_fit", "select_lag", "n_cap_for",
+           "pad_to_history", "OrderCapWarning"]
 
 
 class OrderCapWarning(UserWarning):
@@ -94,6 +94,32 @@ def pad_to_history(umat, lag: int, h: int, m: int, q: int):
 
     return xp.concatenate([umat[..., :lag * m], zeros((h - lag) * m), umat[..., lag * m:],
                            zeros((h - lag) * q)], axis=-1)
+
+
+def identify_one_fit(u, y, params: CVAParams, *, n_cap: int):
+    """The jittable core of :func:`identify` on one data set ``u (N, m)``, ``y (N, q)``
+    (normalised as given; no input checks, which cannot run on traced data): the same fits,
+    order cap ``n_cap`` (:func:`n_cap_for`) and lag rule, every lag fitted (no early stop).
+
+    ``'predictor'``: :func:`vbl.sysid.sweep.fit_select_one`; ``'paper'`` or a fixed lag:
+    :func:`vbl.sysid.cva.fit_lags` over ``params.lags()`` (one computation whatever the
+    number of lags), the lag by :func:`vbl.sysid.lag_rule.select_lag`. Returns ``(fit, j,
+    logdet (J,), aic (J,))``: the :class:`CVAFit` at the chosen lag ``params.lags()[j]`` with
+    its state map in the layout of history ``max(params.lags())`` (rows beyond n* kept),
+    and each lag's log det R_hat and AIC at the order the rule compares there.
+    """
+    with x64_scope():
+        if params.lag == 0 and params.lag_rule == "predictor":
+            fit, j, (_, aic, logdet, _) = fit_select_one(u, y, params, n_cap=n_cap)
+            return fit, j, logdet, aic
+        lags = params.lags()
+        fits = fit_lags(u, y, params, lags=lags,
+                        horizons=tuple(params.horizon_for(lg) for lg in lags), n_cap=n_cap)
+        at_n = jnp.arange(fits.logdet.shape[-1])[None, :] == fits.n[:, None]   # (J, c+1)
+        logdet = jnp.sum(jnp.where(at_n, fits.logdet, 0.0), axis=1)
+        aic = jnp.sum(jnp.where(at_n, fits.aic, 0.0), axis=1)
+        j = _select_lag(logdet, aic, params.logdet_stop)[0]
+        return jax.tree_util.tree_map(lambda a: a[j], fits), j, logdet, aic
 
 
 def identify(u, y, params: CVAParams | None = None, *, model_dtype=jnp.float32
