@@ -21,7 +21,7 @@ from vbl.agents import (
     stack_for_learners,
 )
 from vbl.agents.lem import LEMParams
-from vbl.agents.traces import TRACE_KINDS, TraceParams, trace_init, trace_update
+from vbl.agents.traces import _BLOCK, TRACE_KINDS, TraceParams, trace_init, trace_update
 from vbl.envs.macro import MacroActionParams
 from vbl.params import ParamError, validate
 
@@ -110,6 +110,53 @@ def test_envs_whose_action_runs_on_keep_their_window(kind):
     plain = run_np(q0, {k: v for k, v in traj.items() if k != "advance"}, 0.3, 0.9, 0.8, 4,
                    kind, "mean")
     assert not np.allclose(plain[-1], run_np(q0, traj, 0.3, 0.9, 0.8, 4, kind, "mean")[-1])
+
+
+@pytest.mark.parametrize("rule", ["mean", "sum"])
+def test_learners_with_many_envs_match_the_numpy_loop_reference(rule):
+    """More envs than one scatter block (``traces._BLOCK``), the update vmapped over three
+    learners whose envs update at different rates (none, about a third, all): each learner's
+    tables equal the NumPy loop's, the window's states and actions included."""
+    n_env, n_t, length, lam = 2 * _BLOCK + 7, 12, 4, 0.8
+    rng = np.random.default_rng(11)
+    trajs = []
+    for rate in (0.0, 0.3, 1.0):
+        ends = rng.random((n_t, n_env)) < (0.1 if rate > 0 else 0.0)
+        trajs.append(dict(s=rng.integers(0, S, (n_t, n_env)), a=rng.integers(0, A, (n_t, n_env)),
+                          r=rng.normal(size=(n_t, n_env)).astype(np.float32),
+                          s_next=rng.integers(0, S, (n_t, n_env)), term=ends,
+                          n=rng.integers(1, 4, (n_t, n_env)),
+                          advance=(rng.random((n_t, n_env)) < rate) | ends))
+    q0 = rng.normal(size=(S, A)).astype(np.float32)
+
+    def step(carry, x):
+        q, tr = carry
+        q, _, tr = trace_update(q, tr, x["s"], x["a"], x["r"], x["s_next"], x["term"],
+                                x["term"], 0.3, 0.9, lam, kind="peng", duplicates=rule,
+                                num_primitives=x["n"], advance=x["advance"])
+        return (q, tr), q
+
+    def run(q, xs):
+        return jax.lax.scan(step, (q, trace_init(n_env, length)), xs)
+
+    xs = {k: jnp.asarray(np.stack([t[k] for t in trajs], axis=1)) for k in trajs[0]}
+    (_, tr), got = jax.jit(jax.vmap(run, in_axes=(None, 1)))(jnp.asarray(q0), xs)
+    for i, t in enumerate(trajs):
+        q, windows = np.array(q0, np.float64), [[] for _ in range(n_env)]
+        for k in range(n_t):
+            q = trace_step_loop(q, windows, t["s"][k], t["a"][k], t["r"][k], t["s_next"][k],
+                                t["term"][k], t["term"][k], 0.3, 0.9, lam, length,
+                                kind="peng", rule=rule, num_primitives=t["n"][k],
+                                advance=t["advance"][k])
+            np.testing.assert_allclose(np.asarray(got[i, k]), q, rtol=1e-5, atol=1e-5,
+                                       err_msg=f"learner {i} step {k}")
+        for e, w in enumerate(windows):
+            live = np.asarray(tr.e[i, e]) > 0
+            assert int(live.sum()) == len(w)
+            np.testing.assert_array_equal(np.asarray(tr.s[i, e])[live], [p[0] for p in w])
+            np.testing.assert_array_equal(np.asarray(tr.a[i, e])[live], [p[1] for p in w])
+    assert np.array_equal(np.asarray(got[0, -1]), q0)  # no env updated: the table as it was
+    assert not np.allclose(np.asarray(got[2, -1]), q0)
 
 
 @pytest.mark.parametrize("kind", ["peng", "naive", "watkins"])

@@ -6,7 +6,8 @@ multi-step returns are the standard remedy (Loch & Singh 1998: Sarsa(lambda) fin
 memoryless policies in POMDPs). Each of a learner's E environments keeps a shift register
 of its last L (state, action, eligibility) pairs (``TraceParams.length``, static); every
 learner step the TD error of each environment's transition is applied to all L buffered
-pairs in one scatter into the table, with eligibility
+pairs in one batched scatter into the table (the rows of the envs that update only), with
+eligibility
 
     e_k = prod_{j = t-k}^{t-1} (discount**n_j * lambda)     (k = 0: the current pair, e = 1)
 
@@ -64,6 +65,9 @@ __all__ = ["TRACE_KINDS", "TraceParams", "TraceState", "trace_init", "trace_upda
 
 #: TD-error / cut rule of the trace (static choice), see the module doc.
 TRACE_KINDS = ("peng", "naive", "watkins", "sarsa")
+#: Envs per block of the table scatter: only blocks holding envs whose transition updates
+#: (asynchronous macro actions: about 1 in 6.6) are scattered (:func:`_scatter_active`).
+_BLOCK = 16
 
 
 @struct.dataclass
@@ -104,6 +108,40 @@ def _check_lambda(lam: Any) -> None:
         return  # traced: checked where the params were validated
     if np.any((arr < 0) | (arr > 1)) or np.any(np.isnan(arr)):
         raise ParamError(f"trace lambda={lam!r} must be in [0, 1]")
+
+
+def _scatter_active(q_flat: jax.Array, flat: jax.Array, d: jax.Array, w: jax.Array,
+                    active: jax.Array, lr: jax.Array, mean: bool) -> jax.Array:
+    """``q_flat`` (S * A,) plus ``lr`` times the contributions ``d`` (E, L) at ``flat`` (E, L)
+    (divided by ``max(sum of w on the entry, 1)`` if ``mean``) of the ``active`` (E,) envs.
+
+    An inactive env's contributions are exact zeros (finite TD errors), so only the active
+    ones are scattered: their rows, in env order, in blocks of ``_BLOCK`` envs (a loop over
+    as many blocks as there are active envs; rows past the last active env add 0). Same
+    additions in the same order as one scatter of all E x L contributions, hence the same
+    table bit for bit.
+    """
+    n_envs = flat.shape[0]
+    n_blocks = -(-n_envs // _BLOCK)
+    rows = jnp.nonzero(active, size=n_blocks * _BLOCK, fill_value=0)[0]
+    n_active = jnp.sum(active, dtype=jnp.int32)
+    used = (n_active + _BLOCK - 1) // _BLOCK
+
+    def scatter(acc, values):
+        """acc + the active rows of ``values(rows (B,)) -> (B, L)`` at their entries."""
+        def body(c):
+            b, acc = c
+            r = jax.lax.dynamic_slice(rows, (b * _BLOCK,), (_BLOCK,))
+            live = (b * _BLOCK + jnp.arange(_BLOCK)) < n_active
+            v = jnp.where(live[:, None], values(r), 0.0)
+            return b + 1, acc.at[flat[r].reshape(-1)].add(v.reshape(-1))
+
+        return jax.lax.while_loop(lambda c: c[0] < used, body, (jnp.int32(0), acc))[1]
+
+    if not mean:
+        return scatter(q_flat, lambda r: lr * d[r])
+    tot = scatter(jnp.zeros_like(q_flat), lambda r: w[r])
+    return scatter(q_flat, lambda r: lr * (d[r] / jnp.maximum(tot[flat[r]], 1.0)))
 
 
 def trace_update(q: jax.Array, tr: TraceState, s: jax.Array, a: jax.Array, r: jax.Array,
@@ -163,13 +201,9 @@ def trace_update(q: jax.Array, tr: TraceState, s: jax.Array, a: jax.Array, r: ja
     ee = jnp.concatenate([ones, old_e], axis=1)
     d = jnp.concatenate([delta[:, None],
                          jnp.broadcast_to(delta_old[:, None], old_e.shape)], axis=1) * ee
-    flat = (ss * n_actions + aa).reshape(-1)
-    d = d.reshape(-1)
-    if duplicates == "mean":
-        w = (ee * mask[:, None]).reshape(-1)
-        tot = jnp.zeros(n_states * n_actions, jnp.float32).at[flat].add(w)
-        d = d / jnp.maximum(tot[flat], 1.0)
-    new = q.reshape(-1).at[flat].add(lr * d).reshape(n_states, n_actions)
+    w = ee * mask[:, None]
+    new = _scatter_active(q.reshape(-1), ss * n_actions + aa, d, w, mask > 0, lr,
+                          duplicates == "mean").reshape(n_states, n_actions)
     decay = (g * jnp.asarray(lam, jnp.float32))[..., None] * jnp.ones_like(ee)
     e_next = jnp.where(jnp.asarray(done, bool)[:, None], 0.0, ee * decay)
     if advance is not None:  # envs whose action runs on keep their window
