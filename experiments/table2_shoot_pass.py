@@ -88,8 +88,8 @@ def _differences(res) -> str:
         if {"cva", "current"} <= set(a):
             d, h = welch_ci95(a["cva"], a["current"])
             paper = TABLE2[task]["cva"] - TABLE2[task]["current"]
-            lines.append(f"| {task} ({more}) |" if more else f"| {task} |")
-            lines[-1] += f" {d:+.1f} ± {h:.1f} | {'yes' if abs(d) > h else 'no'} | {paper:+.1f} |"
+            lines.append(f"| {task}{f' ({more})' if more else ''} | {d:+.1f} ± {h:.1f} | "
+                         f"{'yes' if abs(d) > h else 'no'} | {paper:+.1f} |")
     if not lines:
         return ""
     return ("\n\nCVA state − current features, greedy success points (Welch 95 % interval; "
@@ -117,9 +117,8 @@ EXPERIMENT = register(Experiment(
     description="Table 2: shoot/pass success, current features vs CVA state vectors",
     default_config=Table2Config(),
     make_program=make_cva_program,
-    # --quick: the full run's programs (same state spaces, envs and seeds: one compilation
-    # serves both) for 1/8 of its chunks, the schedules scaled with them; its 16 seeds
-    # separate the rows (docs/findings/table2_shoot_pass.md, "Experience")
+    # --quick: the full run's programs (one compilation serves both) for 1/8 of its chunks,
+    # schedules scaled (docs/findings/table2_shoot_pass.md, "Experience")
     quick={"train.num_chunks": 50, "q.exploration.transition_steps": 3750.0,
            "train.lr_scale.transition_begin": 35.0, "train.lr_scale.transition_steps": 5.0},
     seeds=16,
