@@ -298,8 +298,5 @@ def fit_batch(u: jnp.ndarray, y: jnp.ndarray, params: CVAParams, *, lag: int, ho
 
 @functools.partial(jax.jit, static_argnames=("lag", "horizon", "n_cap"))
 def _fit_batch(u, y, params, *, lag, horizon, n_cap):
-    def one(u1, y1):
-        fits = _fit_lags(u1, y1, params, lags=(lag,), horizons=(horizon,), n_cap=n_cap)
-        return jax.tree_util.tree_map(lambda a: a[0], fits)
-
-    return jax.vmap(one)(u, y)
+    return jax.vmap(functools.partial(fit_one, params=params, lag=lag, horizon=horizon,
+                                      n_cap=n_cap))(u, y)
