@@ -12,7 +12,7 @@ from reference.sysid_systems import simulate_batch
 from vbl.agents.cva_state import identify_object
 from vbl.engine.identification import identify_one
 from vbl.sysid import CVAParams, identify
-from vbl.sysid.cva import first_argmin, fit_lags, n_identifiable
+from vbl.sysid.cva import first_argmin, fit_lags, fit_one, n_identifiable
 
 M, Q = 2, 3
 LAGS = (1, 2, 3, 4)
@@ -61,6 +61,38 @@ def test_each_lag_equals_the_oracle_at_that_lag_alone(data, method):
             cos = np.abs(np.sum(um[:n] * ref["U"][:n], 1)) / (
                 np.linalg.norm(um[:n], axis=1) * np.linalg.norm(ref["U"][:n], axis=1))
             np.testing.assert_allclose(cos, 1.0, atol=1e-8)
+
+
+def test_lag_caps_fit_each_lag_as_alone_at_its_cap(data):
+    """With one order cap per lag (identify_object's), lag j of fit_lags equals a fit of
+    that lag alone swept to its own cap: orders beyond the cap invalid, its components
+    beyond it zero, and the order sweep's regularisation floor that of its own cap (a large
+    floor makes the floor visible: the common cap gives other log dets)."""
+    u, y = data
+    p = CVAParams(reg=1e-2)
+    hors = tuple(2 * lg for lg in LAGS)
+    caps = tuple(min(7, n_identifiable(lg, k, M, Q)) for lg, k in zip(LAGS, hors, strict=True))
+    with jax.enable_x64(True):
+        both = jax.jit(jax.vmap(lambda a, b: (
+            fit_lags(a, b, p, lags=LAGS, horizons=hors, n_cap=max(caps), lag_caps=caps),
+            fit_lags(a, b, p, lags=LAGS, horizons=hors, n_cap=max(caps)))))
+        fits, common = both(u, y)
+        for j, (lag, k, c) in enumerate(zip(LAGS, hors, caps, strict=True)):
+            alone = jax.jit(jax.vmap(lambda a, b, lag=lag, k=k, c=c: fit_one(
+                a, b, p, lag=lag, horizon=k, n_cap=c)))(u, y)
+            np.testing.assert_allclose(np.asarray(fits.logdet[:, j, :c + 1]),
+                                       np.asarray(alone.logdet), rtol=1e-10, atol=1e-10)
+            assert not np.isfinite(np.asarray(fits.aic[:, j, c + 1:])).any()
+            np.testing.assert_array_equal(np.asarray(fits.n[:, j]), np.asarray(alone.n))
+            np.testing.assert_allclose(np.asarray(fits.cancor[:, j, :c]),
+                                       np.asarray(alone.cancor), atol=1e-12)
+            assert np.all(np.asarray(fits.cancor[:, j, c:]) == 0.0)
+            assert np.all(np.asarray(fits.U[:, j, c:]) == 0.0)
+            if c < max(caps):   # the common cap's floor differs from the lag's own
+                assert np.max(np.abs(np.asarray(common.logdet[:, j, 1:c + 1])
+                                     - np.asarray(alone.logdet[:, 1:]))) > 1e-6
+    with pytest.raises(ValueError, match="lag_caps"):
+        fit_lags(u[0], y[0], p, lags=LAGS, horizons=hors, n_cap=3, lag_caps=caps)
 
 
 @pytest.mark.parametrize("params", [

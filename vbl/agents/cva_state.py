@@ -5,7 +5,7 @@ One learner (all functions are written for one learner and ``vmap``-ed over lear
 1. **collect** ``u(t)``, ``y(t)`` with uniformly random actions (:func:`collect`);
 2. **identify** one CVA model per observed object (``ball``, ``goal``, ``other``) with the
    AIC order and the lag rule of Sec. 3.1.2 (:func:`identify_object`, built on
-   :func:`vbl.sysid.cva.fit_one`);
+   :func:`vbl.sysid.cva.fit_lags`);
 3. **filter**: inside the env loop, each object's model turns the running history of its
    outputs and the learner's inputs into the canonical state ``mu``
    (:func:`vbl.envs.wrappers.linear_filter`); the first ``n_used`` components of every
@@ -65,8 +65,9 @@ from vbl.spaces.quantize import (
     num_states,
     quantize,
 )
-from vbl.sysid.cva import fit_one, n_identifiable
-from vbl.sysid.lag_rule import select_lag
+from vbl.sysid.cva import fit_lags, n_identifiable
+from vbl.sysid.lag import select_fit
+from vbl.sysid.linalg import x64_scope
 from vbl.sysid.params import CVAParams
 
 __all__ = [
@@ -221,20 +222,22 @@ def identify_object(u: jax.Array, y: jax.Array, cva: CVAParams, n_used: int,
     The filter holds the first ``n_used`` canonical components; those beyond the AIC order
     n* are 0 unless ``keep_beyond_order`` (bool, may be traced).
 
-    Lag rule (Sec. 3.1.2, :func:`vbl.sysid.lag_rule.select_lag`): from ``l = 1``, stop at
+    Lag rule (Sec. 3.1.2, :func:`vbl.sysid.lag.select_fit`): from ``l = 1``, stop at
     the first l whose ``log det R(n*) < cva.logdet_stop`` (keep l); otherwise keep growing l
     while ``AIC(n*)`` decreases (keep the last l that lowered it); at most ``cva.lag_max``
-    (a fixed ``cva.lag > 0`` skips the rule). Every lag is fitted (one traced program).
+    (a fixed ``cva.lag > 0`` skips the rule). Every lag is fitted in one computation
+    (:func:`vbl.sysid.cva.fit_lags`), each with its own order cap ``min(l(m+q), kq)`` (and
+    ``cva.n_max``), as a fit of that lag alone.
     """
     m, q = u.shape[1], y.shape[1]
     lags = cva.lags()
-    lag_max = max(lags)
-    fits = []
-    for lag in lags:
-        k = cva.horizon_for(lag)
-        cap = n_identifiable(lag, k, m, q) if not cva.n_max else min(
-            cva.n_max, n_identifiable(lag, k, m, q))
-        f = fit_one(u, y, cva, lag=lag, horizon=k, n_cap=cap)
+    horizons = tuple(cva.horizon_for(lag) for lag in lags)
+    caps = tuple(n_identifiable(lag, k, m, q) for lag, k in zip(lags, horizons, strict=True))
+    caps = tuple(min(cva.n_max, c) for c in caps) if cva.n_max else caps
+    h = max(lags)  # the state map's columns: [u(t-1..t-h); y(t-1..t-h)], zero beyond l
+    with x64_scope():  # the float64 fits stay float64 until the model is cast
+        fits = fit_lags(u, y, cva, lags=lags, horizons=horizons, n_cap=max(caps), lag_caps=caps)
+        f, j, logdet, aic = select_fit(fits, cva.logdet_stop)
         rows = f.U[:n_used]
         if rows.shape[0] < n_used:
             rows = jnp.concatenate([rows, jnp.zeros((n_used - rows.shape[0], rows.shape[1]),
@@ -242,25 +245,12 @@ def identify_object(u: jax.Array, y: jax.Array, cva: CVAParams, n_used: int,
         keep = (jnp.arange(n_used) < f.n) | jnp.asarray(keep_beyond_order, bool)
         rows = rows * keep[:, None]  # components beyond n* are 0 unless kept
         cc = jnp.pad(f.cancor[:n_used], (0, max(0, n_used - f.cancor.shape[0])))
-        uu = rows[:, :lag * m].reshape(n_used, lag, m)
-        uy = rows[:, lag * m:].reshape(n_used, lag, q)
-        pad = lag_max - lag
-        uu = jnp.pad(uu, ((0, 0), (0, pad), (0, 0)))
-        uy = jnp.pad(uy, ((0, 0), (0, pad), (0, 0)))
-        fits.append(ObjectModel(Uu=uu.astype(jnp.float32), Uy=uy.astype(jnp.float32),
-                                u_mean=f.u_mean.astype(jnp.float32),
-                                u_scale=f.u_scale.astype(jnp.float32),
-                                y_mean=f.y_mean.astype(jnp.float32),
-                                y_scale=f.y_scale.astype(jnp.float32),
-                                lag=jnp.int32(lag), n=f.n.astype(jnp.int32),
-                                logdet=f.logdet[f.n].astype(jnp.float32),
-                                aic=f.aic[f.n].astype(jnp.float32),
-                                cancor=(cc * keep).astype(jnp.float32)))
-    if len(fits) == 1:
-        return fits[0]
-    j, _ = select_lag(jnp.stack([f.logdet for f in fits]), jnp.stack([f.aic for f in fits]),
-                      cva.logdet_stop)
-    return jax.tree.map(lambda *leaves: jnp.stack(leaves)[j], *fits)
+        fields = dict(Uu=rows[:, :h * m].reshape(n_used, h, m),
+                      Uy=rows[:, h * m:].reshape(n_used, h, q), u_mean=f.u_mean,
+                      u_scale=f.u_scale, y_mean=f.y_mean, y_scale=f.y_scale,
+                      logdet=logdet[j], aic=aic[j], cancor=cc * keep)
+        return ObjectModel(lag=jnp.asarray(lags, jnp.int32)[j], n=f.n.astype(jnp.int32),
+                           **{k: v.astype(jnp.float32) for k, v in fields.items()})
 
 
 # ---------------------------------------------------------------------------- the env stack

@@ -71,10 +71,12 @@ def n_identifiable(lag: int, horizon: int, m: int, q: int) -> int:
     return min(lag * (m + q), horizon * q)
 
 
-def _ridge(s: jnp.ndarray, floor) -> jnp.ndarray:
-    """S + floor * mean(diag S) * I (the regularisation floor)."""
+def _ridge(s: jnp.ndarray, floor, pad=0) -> jnp.ndarray:
+    """S + floor * mean(diag S) * I (the regularisation floor); the mean leaves out ``pad``
+    (may be traced) padded entries of unit diagonal and zero covariance, so a padded
+    matrix gets the floor of its unpadded block."""
     d = s.shape[-1]
-    scale = jnp.maximum(jnp.trace(s) / d, jnp.finfo(s.dtype).tiny)
+    scale = jnp.maximum((jnp.trace(s) - pad) / (d - pad), jnp.finfo(s.dtype).tiny)
     return s + floor * scale * jnp.eye(d, dtype=s.dtype)
 
 
@@ -104,7 +106,8 @@ def fit_one(u: jnp.ndarray, y: jnp.ndarray, params: CVAParams, *, lag: int, hori
 
 
 def fit_lags(u: jnp.ndarray, y: jnp.ndarray, params: CVAParams, *, lags: tuple[int, ...],
-             horizons: tuple[int, ...], n_cap: int) -> CVAFit:
+             horizons: tuple[int, ...], n_cap: int,
+             lag_caps: tuple[int, ...] | None = None) -> CVAFit:
     """CVA + order sweep of one data set ``u (N, m)``, ``y (N, q)`` at every lag of ``lags``
     (with its horizon of ``horizons``), as one computation at the sizes of the largest lag
     and horizon, vmapped over the lags (one traced copy whatever the number of lags).
@@ -112,11 +115,19 @@ def fit_lags(u: jnp.ndarray, y: jnp.ndarray, params: CVAParams, *, lags: tuple[i
     Returns the :class:`CVAFit` s with a leading lag axis ``(J, ...)``, ``J = len(lags)``; the
     state maps in the layout of history ``h = max(lags)`` (columns beyond a lag zero). Each
     lag is fitted on its own sample window ``t = l .. N-k``, as a fit at that lag alone
-    (equal to float rounding). Pure, jit/vmap-able, in ``params.dtype`` (:func:`x64_scope`).
+    (equal to float rounding). Orders 0..``n_cap`` are swept at every lag; with
+    ``lag_caps`` (one order cap per lag, each <= ``n_cap``) lag j is fitted as
+    ``fit_one(..., n_cap=lag_caps[j])`` alone would fit it (components and orders beyond
+    its cap zero / invalid, the order sweep's regularisation floor that of its own cap).
+    Pure, jit/vmap-able, in ``params.dtype`` (:func:`x64_scope`).
     """
+    caps = tuple(int(c) for c in lag_caps) if lag_caps is not None else (n_cap,) * len(lags)
+    if len(caps) != len(lags) or max(caps) > n_cap:
+        raise ValueError(f"lag_caps={lag_caps} must give one cap <= n_cap={n_cap} per lag "
+                         f"of {tuple(lags)}")
     with x64_scope():
         return _fit_lags(u, y, params, lags=tuple(int(lg) for lg in lags),
-                         horizons=tuple(int(k) for k in horizons), n_cap=n_cap)
+                         horizons=tuple(int(k) for k in horizons), n_cap=n_cap, caps=caps)
 
 
 def _window_layout(big_l: int, big_k: int, m: int, q: int):
@@ -138,7 +149,7 @@ def _window_layout(big_l: int, big_k: int, m: int, q: int):
     return dp, o_uf, o_f, p1
 
 
-def _fit_lags(u, y, params, *, lags, horizons, n_cap) -> CVAFit:
+def _fit_lags(u, y, params, *, lags, horizons, n_cap, caps) -> CVAFit:
     dt = jnp.float32 if params.dtype == "float32" else jnp.float64
     floor = jnp.asarray(params.floor(), dt)
     u = u.astype(dt)
@@ -170,8 +181,9 @@ def _fit_lags(u, y, params, *, lags, horizons, n_cap) -> CVAFit:
         vu=np.repeat(np.arange(big_k)[None] < ka[:, None], m, 1),
         vf=np.repeat(np.arange(big_k)[None] < ka[:, None], q, 1),
         ne=n_samp - ka - la + 1,
-        n_ident=np.minimum(la * (m + q), ka * q))
-    per_lag = {k: jnp.asarray(v, jnp.int32 if k in ("ne", "n_ident") else dt)
+        n_ident=np.minimum(la * (m + q), ka * q),
+        cap=np.asarray(caps))
+    per_lag = {k: jnp.asarray(v, jnp.int32 if k in ("ne", "n_ident", "cap") else dt)
                for k, v in per_lag.items()}
     means = (u_mean, u_scale, y_mean, y_scale)
     p, uf, f = slice(0, dp), slice(o_uf, o_f), slice(o_f, z.shape[1])
@@ -196,12 +208,14 @@ def _fit_lags(u, y, params, *, lags, horizons, n_cap) -> CVAFit:
         mw = solve_triangular(lf, x.T, lower=True).T              # ... L_f^-T
         ua, s, _ = svd_thin(mw)                                   # (dp, r), (r,)
         umat = solve_triangular(lp, ua, lower=True, trans="T").T  # U = U_aux^T L_p^-1, (r, dp)
-        # the lag's own components: the first n_ident (the rest are the padding's zeros)
-        keep = (jnp.arange(s.shape[0]) < pl["n_ident"]).astype(dt)
+        # the lag's own components: the first n_ident (the rest are the padding's zeros),
+        # at most its cap
+        n_ident = jnp.minimum(pl["n_ident"], pl["cap"])
+        keep = (jnp.arange(s.shape[0]) < n_ident).astype(dt)
         umat = umat * keep[:, None] * vp[None, :]
         return _order_sweep(g, umat, s * keep, p1, params, floor, m=m, q=q, o_uf=o_uf,
-                            o_f=o_f, ne=pl["ne"], n_cap=n_cap, n_ident=pl["n_ident"],
-                            means=means)
+                            o_f=o_f, ne=pl["ne"], n_cap=n_cap, n_ident=n_ident,
+                            pad=n_cap - pl["cap"], means=means)
 
     return jax.vmap(one_lag)(per_lag)
 
@@ -225,12 +239,13 @@ def first_argmin(a: jnp.ndarray) -> jnp.ndarray:
 
 
 def _order_sweep(g, umat, s, p1, params, floor, *, m, q, o_uf, o_f, ne, n_cap, n_ident,
-                 means) -> CVAFit:
+                 pad, means) -> CVAFit:
     """Eq. (2) for every order n = 0..n_cap from the window's Gram matrix ``g`` (layout of
     :func:`_window_layout`: ``p(t)`` first, ``u(t)`` at ``o_uf``, ``y(t)`` at ``o_f``, ``P1``
     selecting ``p(t+1)``) and the state map ``umat`` (r, dp), canonical correlations ``s``
     (r,): one masked Cholesky per order; AIC (Eq. 6) picks n* among
-    ``n_min <= n <= n_ident``."""
+    ``n_min <= n <= n_ident``. The floor of each masked Cholesky is that of a sweep to
+    ``n_cap - pad`` (the fit's own cap; ``pad`` may be traced)."""
     dt = g.dtype
     r, dp = umat.shape
     if r >= n_cap:
@@ -257,7 +272,7 @@ def _order_sweep(g, umat, s, p1, params, floor, *, m, q, o_uf, o_f, ne, n_cap, n
     def masked(n):
         w = jnp.concatenate([(jnp.arange(c) < n).astype(dt), jnp.ones(m, dt)])
         sm = sxx * jnp.outer(w, w) + jnp.diag(1.0 - w)
-        return jnp.linalg.cholesky(_ridge(sm, floor)), w
+        return jnp.linalg.cholesky(_ridge(sm, floor, pad)), w
 
     def logdet_r(n):
         lx, w = masked(n)

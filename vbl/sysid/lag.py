@@ -32,7 +32,8 @@ from vbl.sysid.params import CVAParams
 from vbl.sysid.sweep import fit_select_batch, fit_select_one
 from vbl.sysid.validate import check_data, prepare_scale, warn_collinear
 
-__all__ = ["Identification", "identify", "identify_one_fit", "select_lag", "n_cap_for",
+__all__ = ["Identification", "identify", "identify_one_fit", "select_fit", "select_lag",
+           "n_cap_for",
            "pad_to_history", "OrderCapWarning"]
 
 
@@ -115,10 +116,19 @@ def identify_one_fit(u, y, params: CVAParams, *, n_cap: int):
         lags = params.lags()
         fits = fit_lags(u, y, params, lags=lags,
                         horizons=tuple(params.horizon_for(lg) for lg in lags), n_cap=n_cap)
+        return select_fit(fits, params.logdet_stop)
+
+
+def select_fit(fits: CVAFit, logdet_stop: float):
+    """The paper's lag rule (:func:`vbl.sysid.lag_rule.select_lag`) on the per-lag fits of
+    :func:`vbl.sysid.cva.fit_lags` (leading lag axis J, lags ascending from 1): ``(fit, j,
+    logdet (J,), aic (J,))``, the fit at the chosen lag index ``j`` and each lag's log det
+    R_hat and AIC at its n* (jittable)."""
+    with x64_scope():  # the fits' float64 stays float64
         at_n = jnp.arange(fits.logdet.shape[-1])[None, :] == fits.n[:, None]   # (J, c+1)
         logdet = jnp.sum(jnp.where(at_n, fits.logdet, 0.0), axis=1)
         aic = jnp.sum(jnp.where(at_n, fits.aic, 0.0), axis=1)
-        j = _select_lag(logdet, aic, params.logdet_stop)[0]
+        j = _select_lag(logdet, aic, logdet_stop)[0]
         return jax.tree_util.tree_map(lambda a: a[j], fits), j, logdet, aic
 
 
