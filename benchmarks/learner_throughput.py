@@ -7,7 +7,9 @@ over the devices), warmed up, and timed over ``--chunks`` chunks with
 ``block_until_ready`` (each chunk's carry feeds the next; every metric is summed into the
 result). Beside it, in the same run, the raw env of the same experiment steps the same
 number of envs (learners x envs per learner) with random actions, **observation consumed**
-(``benchmarks/env_throughput.py``), for the same number of primitives.
+(``benchmarks/env_throughput.py``), for the same number of primitives, split over the same
+devices (the same batch per device: on one device XLA's CPU runtime spreads a step over the
+cores' threads and spends more CPU time per env step than one device per core).
 
 Primitives are *useful* primitives: env steps that advance an episode the learner trains
 on. ``overhead`` = learner CPU time per primitive / raw env CPU time per primitive (target
@@ -126,7 +128,8 @@ def _time_experiment(name: str, chunks: int, reps: int) -> dict:
     env, env_params = spec.env(group.base_config)
     n_envs = n * spec.envs_per_learner(group.base_config)
     steps = max(int(round(prims / n_envs)), 20)
-    raw = time_jax(env, env_params, n_envs, steps, reps)
+    n_dev = len(jax.devices())  # the learners' devices: the same per-device batch
+    raw = time_jax(env, env_params, n_envs, steps, reps, n_dev if n_envs % n_dev == 0 else 1)
     learner_us = best_cpu / prims * 1e6
     return dict(experiment=name, learners=n, envs=n_envs, chunks=chunks,
                 primitives=prims, learner_primitives_per_s=prims / best_wall,

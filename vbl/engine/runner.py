@@ -319,14 +319,26 @@ def _run_group(plan: SweepPlan, group: Group, sharding, ckpts: Checkpoints, log:
 _JITTED: dict[tuple, tuple] = {}
 
 
+def _per_device(fn, sharding):
+    """``jit(vmap(fn))`` over the learner axis, each device running its own learners
+    (``shard_map``): the learners are independent, so no device waits for another, also
+    not in a loop whose trip count depends on the data (a ``while_loop`` vmapped over
+    learners runs until its last learner is done: over the global learner axis that is a
+    cross-device reduction per iteration)."""
+    spec = sharding.spec
+    # check_vma off: the learner programs use no collectives, and their loop carries start
+    # from constants (which the check would need marked as varying over devices)
+    return jax.jit(jax.shard_map(jax.vmap(fn), mesh=sharding.mesh, in_specs=spec,
+                                 out_specs=spec, check_vma=False))
+
+
 def _compiled(prog, sharding) -> tuple:
-    """jit(vmap(...)) of a program's functions, cached per (program, sharding)."""
+    """The per-device ``jit(vmap(...))`` of a program's functions (:func:`_per_device`),
+    cached per (program, sharding)."""
     key = (id(prog), sharding)
     if key not in _JITTED:
-        final = (jax.jit(jax.vmap(prog.final), out_shardings=sharding)
-                 if prog.final is not None else None)
-        _JITTED[key] = (jax.jit(jax.vmap(prog.init), out_shardings=sharding),
-                        jax.jit(jax.vmap(prog.step), out_shardings=(sharding, sharding)),
+        final = _per_device(prog.final, sharding) if prog.final is not None else None
+        _JITTED[key] = (_per_device(prog.init, sharding), _per_device(prog.step, sharding),
                         final, prog)  # keeps prog alive so its id stays unique
     return _JITTED[key][:3]
 

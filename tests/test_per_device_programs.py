@@ -1,0 +1,58 @@
+"""Learners sharded over devices run independently: a compiled program holds no cross-device
+communication, also where a loop's trip count depends on the data, and gives each learner
+the numbers it gets alone."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+from tests.engine_helpers import REPO
+
+# A program whose step runs a while loop for a data-dependent number of iterations (a
+# learner's own count, as the evaluation loops and the trace update's block loop do),
+# compiled by the engine on 2 forced CPU devices.
+SCRIPT = """
+import jax, jax.numpy as jnp, numpy as np
+from vbl.engine.experiment import Program
+from vbl.engine.runner import _compiled
+from vbl.engine.sharding import learner_sharding, put
+
+def init(key, c):
+    return jax.random.randint(key, (), 1, 50)
+
+def step(carry, c):
+    def body(s):
+        i, acc = s
+        return i + 1, acc + jnp.sin(i.astype(jnp.float32))
+    n, acc = jax.lax.while_loop(lambda s: s[0] < carry, body, (jnp.int32(0), jnp.float32(0)))
+    return carry + 1, {"acc": acc}
+
+prog = Program(init=init, step=step, num_chunks=1)
+sh = learner_sharding()
+assert len(jax.devices()) == 2
+init_fn, step_fn, _ = _compiled(prog, sh)
+keys = put(np.asarray(jax.random.split(jax.random.PRNGKey(0), 8)), sh)
+cfg = put(np.zeros(8, np.float32), sh)
+carry = init_fn(keys, cfg)
+hlo = step_fn.lower(carry, cfg).compile().as_text()
+print("COLLECTIVES", sum(hlo.count(op) for op in
+                         ("all-reduce", "all-gather", "all-to-all", "collective-permute")))
+_, m = step_fn(carry, cfg)
+want = [float(np.sum(np.sin(np.arange(int(k), dtype=np.float32)), dtype=np.float32))
+        for k in np.asarray(carry)]
+print("MAXERR", float(np.max(np.abs(np.asarray(m["acc"]) - want))))
+"""
+
+
+def test_sharded_learners_need_no_collectives():
+    """On 2 devices the step of a program with a data-dependent loop compiles without
+    all-reduce / all-gather (each device loops for its own learners only) and every
+    learner's result equals a NumPy loop of its own count."""
+    env = {"XLA_FLAGS": "--xla_force_host_platform_device_count=2", "PATH": "/usr/bin:/bin"}
+    r = subprocess.run([sys.executable, "-c", SCRIPT], cwd=REPO, env=env, capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-3000:]
+    out = dict(line.split() for line in r.stdout.splitlines() if line.startswith(("COLL", "MAX")))
+    assert int(out["COLLECTIVES"]) == 0
+    assert float(out["MAXERR"]) < 1e-4
