@@ -149,10 +149,13 @@ def _random_batch(rng, n, n_s, n_a):
 
 
 @pytest.mark.parametrize("rule", ["mean", "sum"])
-def test_batched_update_equals_loop_reference(rule):
+@pytest.mark.parametrize("table_states", [6, 600], ids=["small-table", "large-table"])
+def test_batched_update_equals_loop_reference(rule, table_states):
+    """40 transitions on 18 pairs (many duplicates), in a table of 6 or 600 states (the
+    duplicate counts by a table-sized scatter or by comparing the transitions pairwise)."""
     rng = np.random.default_rng(0)
-    n_s, n_a, n = 6, 3, 40  # 40 transitions on 18 pairs: many duplicates
-    q0 = rng.normal(size=(n_s, n_a)).astype(np.float32)
+    n_s, n_a, n = 6, 3, 40
+    q0 = rng.normal(size=(table_states, n_a)).astype(np.float32)
     s, a, r, s2, term = _random_batch(rng, n, n_s, n_a)
     weight = rng.random(n) < 0.8
     n_prim = rng.integers(1, 4, n)

@@ -25,13 +25,23 @@ import jax.numpy as jnp
 
 from vbl.params import ParamError
 
-__all__ = ["init_q", "q_update", "transition_arrays"]
+__all__ = ["init_q", "q_update", "pair_counts", "transition_arrays"]
 
 
 def init_q(p: Any) -> jax.Array:
     """A fresh table (S, A) float32 filled with ``p.q_init`` (``p``: QRunnerParams)."""
     return jnp.full((p.num_states, p.num_actions), jnp.asarray(p.q_init, jnp.float32),
                     jnp.float32)
+
+
+def pair_counts(flat: jax.Array, w: jax.Array, size: int) -> jax.Array:
+    """(N,) float32: per transition, the summed weight ``w`` (0/1) of the transitions on its
+    table entry ``flat`` (N,) int32, of ``size`` entries. Compares the N entries pairwise
+    when N^2 <= size, else scatters into a table-sized buffer; the weights are whole
+    numbers, so both sums are exact and equal."""
+    if flat.shape[0] ** 2 <= size:
+        return jnp.sum(jnp.where(flat[:, None] == flat[None, :], w[None, :], 0.0), axis=1)
+    return jnp.zeros(size, jnp.float32).at[flat].add(w)[flat]
 
 
 def transition_arrays(q, learning_rate, discount, s, a, s_next, weight, num_primitives):
@@ -77,8 +87,7 @@ def q_update(q: jax.Array, s: jax.Array, a: jax.Array, r: jax.Array, s_next: jax
     delta = (target - q[s, a]) * w
     flat = s * n_actions + a
     if duplicates == "mean":
-        counts = jnp.zeros(n_states * n_actions, jnp.float32).at[flat].add(w)
-        step = delta / jnp.maximum(counts[flat], 1.0)
+        step = delta / jnp.maximum(pair_counts(flat, w, n_states * n_actions), 1.0)
     elif duplicates == "sum":
         step = delta
     else:
