@@ -235,9 +235,11 @@ def identify_object(u: jax.Array, y: jax.Array, cva: CVAParams, n_used: int,
     caps = tuple(n_identifiable(lag, k, m, q) for lag, k in zip(lags, horizons, strict=True))
     caps = tuple(min(cva.n_max, c) for c in caps) if cva.n_max else caps
     h = max(lags)  # the state map's columns: [u(t-1..t-h); y(t-1..t-h)], zero beyond l
+    fits = fit_lags(u, y, cva, lags=lags, horizons=horizons, n_cap=max(caps), lag_caps=caps)
+    # the rule in the caller's precision (its index arithmetic must match the enclosing
+    # program's integer width); float64 in the engine, which runs with 64-bit types on
+    f, j, logdet, aic = select_fit(fits, cva.logdet_stop)
     with x64_scope():  # the float64 fits stay float64 until the model is cast
-        fits = fit_lags(u, y, cva, lags=lags, horizons=horizons, n_cap=max(caps), lag_caps=caps)
-        f, j, logdet, aic = select_fit(fits, cva.logdet_stop)
         rows = f.U[:n_used]
         if rows.shape[0] < n_used:
             rows = jnp.concatenate([rows, jnp.zeros((n_used - rows.shape[0], rows.shape[1]),

@@ -123,13 +123,14 @@ def select_fit(fits: CVAFit, logdet_stop: float):
     """The paper's lag rule (:func:`vbl.sysid.lag_rule.select_lag`) on the per-lag fits of
     :func:`vbl.sysid.cva.fit_lags` (leading lag axis J, lags ascending from 1): ``(fit, j,
     logdet (J,), aic (J,))``, the fit at the chosen lag index ``j`` and each lag's log det
-    R_hat and AIC at its n* (jittable)."""
-    with x64_scope():  # the fits' float64 stays float64
-        at_n = jnp.arange(fits.logdet.shape[-1])[None, :] == fits.n[:, None]   # (J, c+1)
-        logdet = jnp.sum(jnp.where(at_n, fits.logdet, 0.0), axis=1)
-        aic = jnp.sum(jnp.where(at_n, fits.aic, 0.0), axis=1)
-        j = _select_lag(logdet, aic, logdet_stop)[0]
-        return jax.tree_util.tree_map(lambda a: a[j], fits), j, logdet, aic
+    R_hat and AIC at its n* (jittable; in the caller's precision: inside
+    :func:`~vbl.sysid.linalg.x64_scope` or with 64-bit types on, float64 fits stay float64).
+    """
+    at_n = jnp.arange(fits.logdet.shape[-1])[None, :] == fits.n[:, None]   # (J, c+1)
+    logdet = jnp.sum(jnp.where(at_n, fits.logdet, 0.0), axis=1)
+    aic = jnp.sum(jnp.where(at_n, fits.aic, 0.0), axis=1)
+    j = _select_lag(logdet, aic, logdet_stop)[0]
+    return jax.tree_util.tree_map(lambda a: a[j], fits), j, logdet, aic
 
 
 def identify(u, y, params: CVAParams | None = None, *, model_dtype=jnp.float32
