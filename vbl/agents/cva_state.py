@@ -65,8 +65,8 @@ from vbl.spaces.quantize import (
     num_states,
     quantize,
 )
-from vbl.sysid.cva import fit_lags, n_identifiable
-from vbl.sysid.lag import select_fit
+from vbl.sysid.cva import fit_lags
+from vbl.sysid.lag import lag_caps_for, select_fit
 from vbl.sysid.linalg import x64_scope
 from vbl.sysid.params import CVAParams
 
@@ -232,8 +232,7 @@ def identify_object(u: jax.Array, y: jax.Array, cva: CVAParams, n_used: int,
     m, q = u.shape[1], y.shape[1]
     lags = cva.lags()
     horizons = tuple(cva.horizon_for(lag) for lag in lags)
-    caps = tuple(n_identifiable(lag, k, m, q) for lag, k in zip(lags, horizons, strict=True))
-    caps = tuple(min(cva.n_max, c) for c in caps) if cva.n_max else caps
+    caps = lag_caps_for(cva, m, q)
     h = max(lags)  # the state map's columns: [u(t-1..t-h); y(t-1..t-h)], zero beyond l
     fits = fit_lags(u, y, cva, lags=lags, horizons=horizons, n_cap=max(caps), lag_caps=caps)
     # the rule in the caller's precision (its index arithmetic must match the enclosing

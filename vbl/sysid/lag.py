@@ -33,8 +33,7 @@ from vbl.sysid.sweep import fit_select_batch, fit_select_one
 from vbl.sysid.validate import check_data, prepare_scale, warn_collinear
 
 __all__ = ["Identification", "identify", "identify_one_fit", "select_fit", "select_lag",
-           "n_cap_for",
-           "pad_to_history", "OrderCapWarning"]
+           "lag_caps_for", "n_cap_for", "pad_to_history", "OrderCapWarning"]
 
 
 class OrderCapWarning(UserWarning):
@@ -67,13 +66,19 @@ class Identification:
     model: CVAModel           # batched filtering model (float32 unless asked otherwise)
 
 
+def lag_caps_for(params: CVAParams, m: int, q: int) -> tuple[int, ...]:
+    """Per lag of ``params.lags()``: the largest order it can identify,
+    ``min(l(m+q), kq)``, at most ``n_max`` (when set)."""
+    per_lag = [n_identifiable(lg, params.horizon_for(lg), m, q) for lg in params.lags()]
+    return tuple(min(params.n_max, c) if params.n_max else c for c in per_lag)
+
+
 def n_cap_for(params: CVAParams, m: int, q: int) -> int:
     """Largest order swept: n_max, or the most any tried lag can identify (lag_rule
     'predictor': the most every pooled lag can identify, the largest n* it can choose)."""
-    per_lag = [n_identifiable(lg, params.horizon_for(lg), m, q) for lg in params.lags()]
+    caps = lag_caps_for(params, m, q)
     pooled = params.lag == 0 and params.lag_rule == "predictor"
-    ident = min(per_lag) if pooled else max(per_lag)
-    return min(params.n_max, ident) if params.n_max else ident
+    return min(caps) if pooled else max(caps)
 
 
 def select_lag(logdet: np.ndarray, aic: np.ndarray, stop: float) -> tuple[np.ndarray, ...]:
