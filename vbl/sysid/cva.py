@@ -181,9 +181,10 @@ def _fit_lags(u, y, params, *, lags, horizons, n_cap, caps) -> CVAFit:
         vu=np.repeat(np.arange(big_k)[None] < ka[:, None], m, 1),
         vf=np.repeat(np.arange(big_k)[None] < ka[:, None], q, 1),
         ne=n_samp - ka - la + 1,
-        n_ident=np.minimum(la * (m + q), ka * q),
-        cap=np.asarray(caps))
-    per_lag = {k: jnp.asarray(v, jnp.int32 if k in ("ne", "n_ident", "cap") else dt)
+        # identifiable orders, at most the lag's cap; the cap's shortfall from n_cap
+        n_ident=np.minimum(np.minimum(la * (m + q), ka * q), caps),
+        pad=n_cap - np.asarray(caps))
+    per_lag = {k: jnp.asarray(v, jnp.int32 if k in ("ne", "n_ident", "pad") else dt)
                for k, v in per_lag.items()}
     means = (u_mean, u_scale, y_mean, y_scale)
     p, uf, f = slice(0, dp), slice(o_uf, o_f), slice(o_f, z.shape[1])
@@ -208,14 +209,12 @@ def _fit_lags(u, y, params, *, lags, horizons, n_cap, caps) -> CVAFit:
         mw = solve_triangular(lf, x.T, lower=True).T              # ... L_f^-T
         ua, s, _ = svd_thin(mw)                                   # (dp, r), (r,)
         umat = solve_triangular(lp, ua, lower=True, trans="T").T  # U = U_aux^T L_p^-1, (r, dp)
-        # the lag's own components: the first n_ident (the rest are the padding's zeros),
-        # at most its cap
-        n_ident = jnp.minimum(pl["n_ident"], pl["cap"])
-        keep = (jnp.arange(s.shape[0]) < n_ident).astype(dt)
+        # the lag's own components: the first n_ident (the rest are the padding's zeros)
+        keep = (jnp.arange(s.shape[0]) < pl["n_ident"]).astype(dt)
         umat = umat * keep[:, None] * vp[None, :]
         return _order_sweep(g, umat, s * keep, p1, params, floor, m=m, q=q, o_uf=o_uf,
-                            o_f=o_f, ne=pl["ne"], n_cap=n_cap, n_ident=n_ident,
-                            pad=n_cap - pl["cap"], means=means)
+                            o_f=o_f, ne=pl["ne"], n_cap=n_cap, n_ident=pl["n_ident"],
+                            pad=pl["pad"], means=means)
 
     return jax.vmap(one_lag)(per_lag)
 
