@@ -24,7 +24,7 @@ from vbl.engine.config import (
     fingerprint,
 )
 from vbl.engine.experiment import Experiment, RunContext, RunResult
-from vbl.engine.jax_setup import engine_precision
+from vbl.engine.jax_setup import COMPILER_OPTIONS, engine_precision
 from vbl.engine.memory import check_memory
 from vbl.engine.plots import plot_curves, plot_names
 from vbl.engine.progress import Progress, auto_quiet
@@ -329,7 +329,8 @@ def _per_device(fn, sharding):
     # check_vma off: the learner programs use no collectives, and their loop carries start
     # from constants (which the check would need marked as varying over devices)
     return jax.jit(jax.shard_map(jax.vmap(fn), mesh=sharding.mesh, in_specs=spec,
-                                 out_specs=spec, check_vma=False))
+                                 out_specs=spec, check_vma=False),
+                   compiler_options=COMPILER_OPTIONS)
 
 
 def _compiled(prog, sharding) -> tuple:
