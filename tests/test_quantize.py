@@ -12,6 +12,7 @@ from vbl.spaces.quantize import (
     fit_quantizer,
     kmeans,
     make_quantizer,
+    nearest,
     num_states,
     quantize,
 )
@@ -59,6 +60,18 @@ def test_bins_range_quantile_ignores_outliers_and_mask():
     mask[-1] = False
     qz2 = fit_quantizer(jax.random.PRNGKey(0), jnp.asarray(x), p, mask=jnp.asarray(mask))
     np.testing.assert_allclose(qz2.hi, [np.quantile(x[:-1, 0], 0.99)], rtol=1e-5)
+
+
+def test_nearest_is_numpy_argmin_with_ties_and_nan():
+    # small integers: many tied minima per row; two rows with NaN (argmin: the first NaN)
+    rng = np.random.default_rng(3)
+    d = rng.integers(0, 4, (500, 64)).astype(np.float32)
+    d[7, [9, 30]] = np.nan
+    d[11, 0] = np.nan
+    d[12] = 2.0  # all tied
+    got = np.asarray(jax.jit(jax.vmap(nearest))(jnp.asarray(d.reshape(5, 100, 64))))
+    np.testing.assert_array_equal(got.ravel(), np.argmin(d, axis=1))
+    assert got.dtype == np.int32
 
 
 def test_vq_maps_points_to_nearest_code():
