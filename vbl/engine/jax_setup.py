@@ -27,13 +27,9 @@ CACHE_MIN_COMPILE_S = 1.0  #: s; programs that compile faster are not written to
 
 COMPILER_OPTIONS = {"xla_backend_optimization_level": 1}
 """XLA options of every engine program (``jax.jit(..., compiler_options=...)``, per
-program, no global flag): LLVM optimisation level 1 instead of XLA's default 2. On a 2-core
-Xeon it compiles the largest programs in 10-30 % less CPU time (PPO comparator step 67-69
--> 49 CPU s, Table 2 init 52 -> 41, grid step 23 -> 19-20) and runs them at the same speed
-within 2 % (benchmarks/compile_time.py; docs/engine.md, "CLI reference"). Results agree with
-level 2 to float rounding: of the 8 paper experiments' ``--quick`` metrics, 3 are the same
-bits, 5 differ in the last bit of some float32 losses and AICs (at most 2.4e-7), and every
-report is the same."""
+program, no global flag): LLVM optimisation level 1 instead of XLA's default 2, which
+compiles the largest programs in 10-30 % less CPU time at the same run time, with results
+equal to float rounding (the measurements: docs/engine.md, "CLI reference")."""
 
 
 def _cache_dir() -> str | None:
