@@ -12,7 +12,7 @@ from reference.sysid_systems import simulate_batch
 from vbl.agents.cva_state import identify_object
 from vbl.engine.identification import identify_one
 from vbl.sysid import CVAParams, identify
-from vbl.sysid.cva import first_argmin, fit_lags, fit_one, n_identifiable
+from vbl.sysid.cva import first_argmin, fit_lags, n_identifiable
 
 M, Q = 2, 3
 LAGS = (1, 2, 3, 4)
@@ -78,8 +78,9 @@ def test_lag_caps_fit_each_lag_as_alone_at_its_cap(data):
             fit_lags(a, b, p, lags=LAGS, horizons=hors, n_cap=max(caps)))))
         fits, common = both(u, y)
         for j, (lag, k, c) in enumerate(zip(LAGS, hors, caps, strict=True)):
-            alone = jax.jit(jax.vmap(lambda a, b, lag=lag, k=k, c=c: fit_one(
-                a, b, p, lag=lag, horizon=k, n_cap=c)))(u, y)
+            alone = jax.jit(jax.vmap(lambda a, b, lag=lag, k=k, c=c: fit_lags(
+                a, b, p, lags=(lag,), horizons=(k,), n_cap=c)))(u, y)
+            alone = jax.tree_util.tree_map(lambda a: a[:, 0], alone)
             np.testing.assert_allclose(np.asarray(fits.logdet[:, j, :c + 1]),
                                        np.asarray(alone.logdet), rtol=1e-10, atol=1e-10)
             assert not np.isfinite(np.asarray(fits.aic[:, j, c + 1:])).any()

@@ -87,7 +87,7 @@ def test_random_batches_jit_and_vmap_match_the_procedure():
 def per_lag():
     """A second-order system driven by random inputs, 600 samples (u (N, 1), y (N, 2)), and
     fit_one's n*, log det R(n*), AIC(n*) (float32, as the learner keeps them) at l = 1..3."""
-    from vbl.sysid.cva import fit_one, n_identifiable
+    from vbl.sysid import fit_one, n_identifiable
     from vbl.sysid.params import CVAParams
 
     rng = np.random.default_rng(5)

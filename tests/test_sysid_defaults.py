@@ -110,9 +110,11 @@ def test_logdet_spd_equals_numpy():
 
 
 def test_chunked_sweep_equals_one_batch(data):
-    """Chunks (the last one padded) give the data sets' results of one unchunked batch."""
+    """Chunks (the last one padded) give the data sets' results of one unchunked batch, with
+    the lag selected (fit_select_batch) and fixed (fit_batch)."""
+    from vbl.sysid.batching import chunk_sizes
     from vbl.sysid.lag import n_cap_for
-    from vbl.sysid.sweep import chunk_sizes, fit_select_batch
+    from vbl.sysid.sweep import fit_batch, fit_select_batch
 
     assert chunk_sizes(11, 4) == [(4, 4), (4, 4), (3, 4)]
     assert chunk_sizes(5, 8) == [(5, 8)] and chunk_sizes(1, 8) == [(1, 1)]
@@ -124,6 +126,11 @@ def test_chunked_sweep_equals_one_batch(data):
     np.testing.assert_array_equal(np.asarray(one[1]), np.asarray(parts[1]))
     np.testing.assert_array_equal(np.asarray(one[0].n), np.asarray(parts[0].n))
     np.testing.assert_allclose(np.asarray(one[2][3]), np.asarray(parts[2][3]), rtol=1e-9)
+    # a fixed lag (fit_batch) likewise
+    one = fit_batch(u, y, p, lag=2, horizon=4, n_cap=c, chunk=8)
+    parts = fit_batch(u, y, p, lag=2, horizon=4, n_cap=c, chunk=2)
+    np.testing.assert_array_equal(np.asarray(one.n), np.asarray(parts.n))
+    np.testing.assert_allclose(np.asarray(one.aic), np.asarray(parts.aic), rtol=1e-9)
 
 
 def test_predictor_rule_same_in_any_units(data):
@@ -186,19 +193,25 @@ def test_no_cap_warning_when_order_is_below_cap(data):
     assert not np.asarray(res.n_at_cap).any()
 
 
-def test_duplicate_output_channel_warning(data):
+@pytest.mark.parametrize("params", [CVAParams(lag=2), CVAParams()], ids=["fixed", "default"])
+def test_duplicate_output_channel_warning(data, params):
+    """A duplicated output channel is named, and the fit stays finite (the past's covariance
+    is singular: the states' covariance needs more than the regularisation floor)."""
     u, y = data
     y3 = np.concatenate([y, -2.5 * y[..., :1]], axis=-1)
     with pytest.warns(CollinearWarning, match="y channels 0 and 2 are duplicates"):
-        res = identify(u, y3, CVAParams(lag=2))
+        res = identify(u, y3, params)
     assert np.all(np.isfinite(np.asarray(res.logdet_R)))
+    assert np.all(np.isfinite(np.asarray(res.model.A)))
 
 
-def test_collinear_input_warning(data):
+@pytest.mark.parametrize("params", [CVAParams(lag=2), CVAParams()], ids=["fixed", "default"])
+def test_collinear_input_warning(data, params):
     u, y = data
     u3 = np.concatenate([u, u[..., :1] - 0.5 * u[..., 1:]], axis=-1)
     with pytest.warns(CollinearWarning, match="u channels are collinear"):
-        identify(u3, y, CVAParams(lag=2))
+        res = identify(u3, y, params)
+    assert np.all(np.isfinite(np.asarray(res.logdet_R)))
 
 
 def test_no_collinear_warning_on_clean_data(data):

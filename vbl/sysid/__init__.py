@@ -14,11 +14,11 @@ scopes float64 itself. See ``docs/sysid.md``, "Numerics: float64 and float32".
 """
 
 from vbl.sysid.aic import aic, param_count
-from vbl.sysid.cva import CVAFit, fit_batch, fit_one, n_identifiable
+from vbl.sysid.cva import CVAFit, n_identifiable
 from vbl.sysid.lag import Identification, OrderCapWarning, identify, select_lag
 from vbl.sysid.model import CVAModel, History
 from vbl.sysid.params import CVAParams
-from vbl.sysid.sweep import fit_select_batch
+from vbl.sysid.sweep import fit_batch, fit_one, fit_select_batch
 from vbl.sysid.validate import CollinearWarning, check_data, min_length
 
 __all__ = ["CVAParams", "identify", "Identification", "CVAModel", "History", "CVAFit",

@@ -1,8 +1,10 @@
 """Batched Canonical Variate Analysis, Eqs. (2)-(6) of the paper.
 
 One data set is ``u (N, m)``, ``y (N, q)``; :func:`fit_lags` fits several lags of it in one
-fixed-shape computation (``vmap`` over the lags), :func:`fit_one` one lag, :func:`fit_batch`
-vmaps :func:`fit_one` over a leading data-set axis. Per data set and lag l with horizon k
+fixed-shape computation (``vmap`` over the lags): the in-program identification of the
+learners and of Tables 1 and 3. (One lag of many data sets, as :func:`vbl.sysid.identify`
+runs it: :func:`vbl.sysid.sweep.fit_one` / ``fit_batch``, the predictor rule's kernel.) Per
+data set and lag l with horizon k
 (0-based time, ``t = l .. N-k``, ``N_e = N-k-l+1`` samples):
 
 * past    ``p(t) = [u(t-1); ...; u(t-l); y(t-1); ...; y(t-l)]``   (l(m+q),)
@@ -24,8 +26,6 @@ beyond n, vmapped over n. Orders beyond a lag's ``min(l(m+q), kq)`` are invalid.
 
 from __future__ import annotations
 
-import functools
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -36,7 +36,7 @@ from vbl.sysid.aic import aic as aic_fn
 from vbl.sysid.linalg import svd_thin, x64_scope
 from vbl.sysid.params import CVAParams
 
-__all__ = ["CVAFit", "fit_one", "fit_lags", "fit_batch", "n_identifiable", "first_argmin"]
+__all__ = ["CVAFit", "fit_lags", "n_identifiable", "first_argmin"]
 
 
 @struct.dataclass
@@ -91,18 +91,6 @@ def _normalise(x: jnp.ndarray, demean: bool, standardize: bool):
     mean = jnp.mean(x, axis=0) if demean else jnp.zeros(x.shape[1], x.dtype)
     scale = jnp.std(x, axis=0) if standardize else jnp.ones(x.shape[1], x.dtype)
     return (x - mean) / scale, mean, scale
-
-
-def fit_one(u: jnp.ndarray, y: jnp.ndarray, params: CVAParams, *, lag: int, horizon: int,
-            n_cap: int) -> CVAFit:
-    """CVA + order sweep on one data set ``u (N, m)``, ``y (N, q)`` at one lag (pure,
-    jit/vmap-able): :func:`fit_lags` of the one lag.
-
-    Computes in ``params.dtype`` whether or not ``jax_enable_x64`` is on globally (64-bit
-    types are switched on for the duration of the computation, :func:`x64_scope`).
-    """
-    fits = fit_lags(u, y, params, lags=(lag,), horizons=(horizon,), n_cap=n_cap)
-    return jax.tree_util.tree_map(lambda a: a[0], fits)
 
 
 def fit_lags(u: jnp.ndarray, y: jnp.ndarray, params: CVAParams, *, lags: tuple[int, ...],
@@ -296,21 +284,3 @@ def _order_sweep(g, umat, s, p1, params, floor, *, m, q, o_uf, o_f, ne, n_cap, n
                   A=theta[:c, :c], B=theta[:c, c:], C=theta[c:, :c], D=theta[c:, c:],
                   R=rs[n_star], u_mean=means[0], u_scale=means[1], y_mean=means[2],
                   y_scale=means[3])
-
-
-def fit_batch(u: jnp.ndarray, y: jnp.ndarray, params: CVAParams, *, lag: int, horizon: int,
-              n_cap: int) -> CVAFit:
-    """:func:`fit_one` vmapped over data sets: ``u (B, N, m)``, ``y (B, N, q)`` (jitted).
-
-    No input checks: use :func:`vbl.sysid.identify` for validated entry. Pass NumPy arrays
-    (or arrays made with 64-bit types on) to keep float64 data exact when
-    ``jax_enable_x64`` is off: the call runs inside :func:`x64_scope`.
-    """
-    with x64_scope():
-        return _fit_batch(u, y, params, lag=lag, horizon=horizon, n_cap=n_cap)
-
-
-@functools.partial(jax.jit, static_argnames=("lag", "horizon", "n_cap"))
-def _fit_batch(u, y, params, *, lag, horizon, n_cap):
-    return jax.vmap(functools.partial(fit_one, params=params, lag=lag, horizon=horizon,
-                                      n_cap=n_cap))(u, y)

@@ -1,6 +1,8 @@
 """Validated entry point: CVA for a batch of data sets, the order by AIC and the lag.
 
-With ``lag = 0`` the lag is chosen per data set by ``params.lag_rule``:
+A fixed lag (``lag > 0``) runs the predictor rule's kernel on that lag's window
+(:func:`vbl.sysid.sweep.fit_batch`), n* by Eq. (6). With ``lag = 0`` the lag is chosen per
+data set by ``params.lag_rule``:
 
 * ``'predictor'`` (default, :mod:`vbl.sysid.sweep`): every l = lag_min .. lag_max in one
   program on a common sample window; n* by the order criterion pooled over these lags, l* by
@@ -24,12 +26,12 @@ import numpy as np
 from flax import struct
 
 from vbl.params import validate
-from vbl.sysid.cva import CVAFit, fit_batch, fit_lags, n_identifiable
+from vbl.sysid.cva import CVAFit, fit_lags, n_identifiable
 from vbl.sysid.lag_rule import select_lag as _select_lag
 from vbl.sysid.linalg import x64_scope
 from vbl.sysid.model import CVAModel
 from vbl.sysid.params import CVAParams
-from vbl.sysid.sweep import fit_select_batch, fit_select_one
+from vbl.sysid.sweep import fit_batch, fit_select_batch, fit_select_one
 from vbl.sysid.validate import check_data, prepare_scale, warn_collinear
 
 __all__ = ["Identification", "identify", "identify_one_fit", "select_fit", "select_lag",
@@ -171,10 +173,10 @@ def _identify(u, y, params, model_dtype) -> Identification:
     u, y, shift = prepare_scale(u, y, params)
     b, _, m = u.shape
     q = y.shape[2]
-    if params.lag == 0 and params.lag_rule == "predictor":
-        out = _by_predictor(u, y, params)
-    else:
+    if params.lag == 0 and params.lag_rule == "paper":
         out = _by_lag(u, y, params)
+    else:
+        out = _by_predictor(u, y, params)
     res, checks = _assemble(out, shift, m=m, q=q, batched=batched,
                             model_dtype=np.dtype(model_dtype).name)
     _raise_or_warn(jax.device_get(checks), params, model_dtype)
@@ -216,19 +218,34 @@ def _raise_or_warn(checks, params: CVAParams, model_dtype) -> None:
 
 
 def _by_predictor(u, y, params: CVAParams) -> dict:
-    """Lag rule 'predictor': one program for all lags (:mod:`vbl.sysid.sweep`); the fields
-    stay on the device."""
+    """Lag rule 'predictor' (one program for all lags, :mod:`vbl.sysid.sweep`) or a fixed lag
+    (:func:`vbl.sysid.sweep.fit_batch`); the fields stay on the device."""
     n_samp, m = u.shape[1:]
     q = y.shape[2]
     lags = np.asarray(params.lags())
     hors = np.asarray([params.horizon_for(int(lg)) for lg in lags])
-    fit, j, per_lag = fit_select_batch(u, y, params, n_cap=n_cap_for(params, m, q))
+    if params.lag > 0:
+        fit = fit_batch(u, y, params, lag=params.lag, horizon=int(hors[0]),
+                        n_cap=n_cap_for(params, m, q))
+        j, per_lag = _one_lag(fit)
+    else:
+        fit, j, per_lag = fit_select_batch(u, y, params, n_cap=n_cap_for(params, m, q))
     # the pooled n* is at most what the shortest lag identifies: n_cap_for without n_max
     pooled_cap = n_cap_for(params.replace(n_max=0), m, q)
     return _predictor_fields(fit, j, per_lag, lags=tuple(lags.tolist()),
                              hors=tuple(hors.tolist()),
                              n_samples=n_samp - int(lags.max()) - int(hors.max()) + 1,
                              n_ident=pooled_cap)
+
+
+@jax.jit
+def _one_lag(fit: CVAFit):
+    """A fixed lag's fits ``(B, ...)`` in the predictor rule's per-lag layout: ``(index of the
+    lag (B,) = 0, (n* (B, 1), AIC(n*) (B, 1), log det R(n*) (B, 1), PE (B, 1) = nan))``."""
+    rows = jnp.arange(fit.n.shape[0])
+    ld, ai = fit.logdet[rows, fit.n], fit.aic[rows, fit.n]
+    return jnp.zeros_like(fit.n), (fit.n[:, None], ai[:, None], ld[:, None],
+                                   jnp.full_like(ai, jnp.nan)[:, None])
 
 
 @functools.partial(jax.jit, static_argnames=("lags", "hors", "n_samples", "n_ident"))
@@ -247,7 +264,7 @@ def _predictor_fields(fit: CVAFit, j, per_lag, *, lags, hors, n_samples, n_ident
 
 
 def _by_lag(u, y, params: CVAParams) -> dict:
-    """A fixed lag, or lag_rule 'paper' (a loop over lags, each vmapped over data sets)."""
+    """Lag rule 'paper': a loop over lags, each vmapped over data sets."""
     b, n_samp, m = u.shape
     q = y.shape[2]
     lags = params.lags()

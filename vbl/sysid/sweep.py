@@ -1,4 +1,7 @@
-"""Lag and order selection pooled over lags (``lag_rule='predictor'``).
+"""CVA of one data set from one Gram matrix: lag and order selection pooled over lags
+(``lag_rule='predictor'``, :func:`fit_select_batch`), and one lag with the order by Eq. (6)
+(:func:`fit_one`, :func:`fit_batch`: :func:`vbl.sysid.identify` with a fixed lag or the
+paper's lag rule; the same kernel on the window of that lag alone).
 
 All lags ``l = lag_min .. L`` (``L = lag_max``) are identified in one program on one common
 sample window ``t = L .. N-K`` (``K`` = the largest horizon, ``N_e = N-K-L+1`` samples), so
@@ -47,18 +50,22 @@ from jax.scipy.linalg import solve_triangular
 
 from vbl.sysid.aic import aic as aic_fn
 from vbl.sysid.aic import param_count
+from vbl.sysid.batching import in_chunks
 from vbl.sysid.cva import CVAFit, _normalise, _ridge, first_argmin
 from vbl.sysid.gram import hankel_gram
 from vbl.sysid.linalg import eigh_desc, svd_thin, x64_scope
 from vbl.sysid.params import CVAParams
 
-__all__ = ["fit_select_one", "fit_select_batch", "predictor_criterion", "pooled_criterion",
-           "hankel_gram", "logdet_spd", "chunk_sizes", "CHUNK"]
+__all__ = ["fit_one", "fit_batch", "fit_select_one", "fit_select_batch", "predictor_criterion",
+           "pooled_criterion",
+           "hankel_gram", "logdet_spd", "CHUNK"]
 
-#: Data sets per chunk of :func:`fit_select_batch` (a ``vmap`` inside a chunk, chunks in
-#: sequence): small enough for a chunk's working set to stay in the cache (the cost per
-#: identification is the same at 1,024 and 4,096 data sets, ``benchmarks/cva_throughput.py``),
-#: large enough to amortise the per-operation overhead of the vmapped program.
+#: Data sets per chunk of :func:`fit_select_batch` and :func:`fit_batch` (a ``vmap`` inside
+#: a chunk, chunks in sequence, :func:`vbl.sysid.batching.in_chunks`): small enough for a
+#: chunk's working set to stay in the cache (the cost per identification is the same at 1,024
+#: and 4,096 data sets, ``benchmarks/cva_throughput.py``), large enough to amortise the
+#: per-operation overhead of the vmapped program (at a fixed l = 3, 0.152 ms CPU per
+#: identification in chunks of 64 against 0.162 in chunks of 32 or 128).
 CHUNK = 64
 
 
@@ -146,7 +153,8 @@ def _lag_cva(g4, params, floor, *, big_l, lag, horizon, m, q, ne, n_cap) -> dict
     n_ident = min(lag * (m + q), horizon * q)
 
     # Covariances of mu(t) = U p(t), mu(t+1) = U p(t+1), x0 = [u(t); y(t)]: offsets lo..hi.
-    ug = umat @ blk(lo, hi, al, lo, hi + 1, al)                         # (c, dp + d)
+    g_p = blk(lo, hi, al, lo, hi + 1, al)                               # (dp, dp + d)
+    ug = umat @ g_p                                                      # (c, dp + d)
     s_mm, s_mm1, s_mx = ug[:, :dp] @ umat.T, ug[:, d:] @ umat.T, ug[:, dp:]
     s_xm1 = blk(hi, hi + 1, al, lo + 1, hi + 1, al) @ umat.T             # (d, c)
     s_x0 = g4[hi, :, hi, :]
@@ -155,6 +163,14 @@ def _lag_cva(g4, params, floor, *, big_l, lag, horizon, m, q, ne, n_cap) -> dict
     sxt = jnp.block([[s_xm1[:m], s_x0[:m, m:]], [s_mm1, s_mx[:, m:]]])
     syy = s_x0[m:, m:]
     lx = _chol(_ridge(sxx, floor))
+    # U S_pp U^T carries rounding errors up to ~ dp eps |U_i|^2 max row sum |S_pp| per state;
+    # where S_pp is (nearly) singular (duplicated or collinear channels) |U_i| is huge, the
+    # errors exceed the regularisation floor and the factorisation fails: then (only then)
+    # that bound is added to the states' variances.
+    bound = dp * jnp.finfo(umat.dtype).eps * jnp.max(jnp.sum(jnp.abs(g_p[:, :dp]), axis=1))
+    lx_safe = _chol(_ridge(sxx + jnp.diag(jnp.concatenate(
+        [jnp.zeros(m, umat.dtype), bound * jnp.sum(umat * umat, axis=1)])), floor))
+    lx = jnp.where(jnp.all(jnp.isfinite(lx)), lx, lx_safe)
     z = solve_triangular(lx, sxt, lower=True)                            # (m+c, c+q)
     wy = z[:, c:]                                                        # L^-1 S_xy
     red = _cumsum0(wy[:, :, None] * wy[:, None, :])[m - 1:]    # n = 0..c
@@ -222,20 +238,64 @@ def fit_select_one(u, y, params: CVAParams, *, n_cap: int):
         return _fit_select_one(u, y, params, n_cap=n_cap)
 
 
-def _fit_select_one(u, y, params, *, n_cap):
+def _gram_window(u, y, params, big_l: int, big_k: int):
+    """The normalised record's Gram matrix of the window of lag ``big_l`` and horizon
+    ``big_k``: ``(g4 (w, d, w, d) / N_e, floor, means (u_mean, u_scale, y_mean, y_scale),
+    N_e)``, ``w = big_l + big_k``, ``d = m + q``, in ``params.dtype``."""
     dt = jnp.float32 if params.dtype == "float32" else jnp.float64
-    floor = jnp.asarray(params.floor(), dt)
     u, y = u.astype(dt), y.astype(dt)
-    n_samp, m = u.shape
-    q = y.shape[1]
+    ne = u.shape[0] - big_l - big_k + 1
+    un, u_mean, u_scale = _normalise(u, params.demean, params.standardize)
+    yn, y_mean, y_scale = _normalise(y, params.demean, params.standardize)
+    w, d = big_l + big_k, u.shape[1] + y.shape[1]
+    g4 = (hankel_gram(jnp.concatenate([un, yn], axis=1), w) / ne).reshape(w, d, w, d)
+    return g4, jnp.asarray(params.floor(), dt), (u_mean, u_scale, y_mean, y_scale), ne
+
+
+def fit_one(u, y, params: CVAParams, *, lag: int, horizon: int, n_cap: int) -> CVAFit:
+    """CVA + order sweep of one data set ``u (N, m)``, ``y (N, q)`` at one lag and horizon
+    (window ``t = lag .. N-horizon``), n* = argmin of Eq. (6) over orders 0..``n_cap``
+    (pure, jit/vmap-able; the kernel of the predictor rule on one lag, :func:`_lag_cva`).
+
+    Computes in ``params.dtype`` whether or not ``jax_enable_x64`` is on globally (64-bit
+    types are switched on for the duration of the computation, :func:`x64_scope`).
+    """
+    with x64_scope():
+        m, q = u.shape[1], y.shape[1]
+        g4, floor, means, ne = _gram_window(u, y, params, lag, horizon)
+        st = _lag_cva(g4, params, floor, big_l=lag, lag=lag, horizon=horizon, m=m, q=q,
+                      ne=ne, n_cap=n_cap)
+        return _lag_fit(st, first_argmin(st["aic"]), big_l=lag, lag=lag, m=m, q=q,
+                        n_cap=n_cap, means=means)
+
+
+def fit_batch(u, y, params: CVAParams, *, lag: int, horizon: int, n_cap: int,
+              chunk: int = CHUNK) -> CVAFit:
+    """:func:`fit_one` vmapped over data sets ``u (B, N, m)``, ``y (B, N, q)``: one jitted
+    ``vmap`` per chunk of ``chunk`` data sets (:func:`vbl.sysid.batching.in_chunks`).
+
+    No input checks: use :func:`vbl.sysid.identify` for validated entry. Pass NumPy arrays
+    (or arrays made with 64-bit types on) to keep float64 data exact when
+    ``jax_enable_x64`` is off: the call runs inside :func:`x64_scope`.
+    """
+    with x64_scope():
+        return in_chunks(functools.partial(_fit_batch, params=params, lag=lag,
+                                           horizon=horizon, n_cap=n_cap), u, y, chunk)
+
+
+@functools.partial(jax.jit, static_argnames=("lag", "horizon", "n_cap"))
+def _fit_batch(u, y, params, *, lag, horizon, n_cap):
+    return jax.vmap(functools.partial(fit_one, params=params, lag=lag, horizon=horizon,
+                                      n_cap=n_cap))(u, y)
+
+
+def _fit_select_one(u, y, params, *, n_cap):
+    m, q = u.shape[1], y.shape[1]
     lags = np.asarray(params.lags())
     hors = np.asarray([params.horizon_for(int(lg)) for lg in lags])
     big_l, big_k = int(lags.max()), int(hors.max())
-    ne = n_samp - big_l - big_k + 1
-    un, u_mean, u_scale = _normalise(u, params.demean, params.standardize)
-    yn, y_mean, y_scale = _normalise(y, params.demean, params.standardize)
-    w, d = big_l + big_k, m + q
-    g4 = (hankel_gram(jnp.concatenate([un, yn], axis=1), w) / ne).reshape(w, d, w, d)
+    g4, floor, means, ne = _gram_window(u, y, params, big_l, big_k)
+    dt = g4.dtype
     kw = dict(big_l=big_l, m=m, q=q, n_cap=n_cap)
     stats = [_lag_cva(g4, params, floor, lag=int(lg), horizon=int(k), ne=ne, **kw)
              for lg, k in zip(lags, hors, strict=True)]
@@ -243,7 +303,7 @@ def _fit_select_one(u, y, params, *, n_cap):
     aic = jnp.stack([st["aic"] for st in stats])
     n = first_argmin(pooled_criterion(logdet, jnp.stack([st["valid"] for st in stats]), ne,
                                       m, q, params))
-    fits = [_lag_fit(st, n, lag=int(lg), means=(u_mean, u_scale, y_mean, y_scale), **kw)
+    fits = [_lag_fit(st, n, lag=int(lg), means=means, **kw)
             for st, lg in zip(stats, lags, strict=True)]
     fits = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *fits)
     n_lag = jax.vmap(first_argmin)(aic)
@@ -258,34 +318,10 @@ def _fit_select_batch(u, y, params, *, n_cap):
     return jax.vmap(functools.partial(_fit_select_one, params=params, n_cap=n_cap))(u, y)
 
 
-def chunk_sizes(b: int, chunk: int) -> list[tuple[int, int]]:
-    """``(data sets, compiled batch)`` per call: full chunks of ``chunk``, then the rest
-    padded to the next power of two (so at most ``log2(chunk) + 1`` batch shapes compile)."""
-    out = [(chunk, chunk)] * (b // chunk)
-    rest = b % chunk
-    if rest:
-        out.append((rest, min(chunk, 1 << (rest - 1).bit_length())))
-    return out
-
-
 def fit_select_batch(u, y, params: CVAParams, *, n_cap: int, chunk: int = CHUNK):
     """:func:`fit_select_one` over data sets ``u (B, N, m)``, ``y (B, N, q)``: one jitted
-    ``vmap`` per chunk of ``chunk`` data sets (the last chunk padded with copies of its first
-    data set, padding dropped), chunks dispatched in sequence (no input checks; use
-    :func:`vbl.sysid.identify`)."""
+    ``vmap`` per chunk of ``chunk`` data sets (:func:`vbl.sysid.batching.in_chunks`; no input
+    checks: use :func:`vbl.sysid.identify`)."""
     with x64_scope():
-        parts, start = [], 0
-        for count, size in chunk_sizes(u.shape[0], chunk):
-            sl = slice(start, start + count)
-            uc, yc = (u, y) if count == u.shape[0] else (u[sl], y[sl])
-            if size > count:
-                reps = np.r_[np.arange(count), np.zeros(size - count, int)]
-                uc, yc = uc[reps], yc[reps]
-            out = _fit_select_batch(uc, yc, params, n_cap=n_cap)
-            if size > count:
-                out = jax.tree_util.tree_map(lambda a, c=count: a[:c], out)
-            parts.append(out)
-            start += count
-        if len(parts) == 1:
-            return parts[0]
-        return jax.tree_util.tree_map(lambda *a: jnp.concatenate(a), *parts)
+        return in_chunks(functools.partial(_fit_select_batch, params=params, n_cap=n_cap),
+                         u, y, chunk)
