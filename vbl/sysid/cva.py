@@ -45,8 +45,9 @@ class CVAFit:
     lag axis from :func:`fit_lags`).
 
     Shapes use ``c = n_cap`` (orders swept 0..c), ``dp = h(m+q)`` with ``h`` the history
-    length (the lag for :func:`fit_one`, the largest lag for :func:`fit_lags`). Normalised
-    units: the data after mean removal / standardisation (``u_n = (u - u_mean) / u_scale``).
+    length (the lag for :func:`vbl.sysid.sweep.fit_one`, the largest lag for
+    :func:`fit_lags`). Normalised units: the data after mean removal / standardisation
+    (``u_n = (u - u_mean) / u_scale``).
     """
 
     cancor: jnp.ndarray      # (c,) canonical correlations S_aux, descending (0-padded)
@@ -105,8 +106,8 @@ def fit_lags(u: jnp.ndarray, y: jnp.ndarray, params: CVAParams, *, lags: tuple[i
     lag is fitted on its own sample window ``t = l .. N-k``, as a fit at that lag alone
     (equal to float rounding). Orders 0..``n_cap`` are swept at every lag; with
     ``lag_caps`` (one order cap per lag, each <= ``n_cap``) lag j is fitted as
-    ``fit_one(..., n_cap=lag_caps[j])`` alone would fit it (components and orders beyond
-    its cap zero / invalid, the order sweep's regularisation floor that of its own cap).
+    ``fit_lags`` of that lag alone with ``n_cap=lag_caps[j]`` would (components and orders
+    beyond its cap zero / invalid, the order sweep's regularisation floor that of its own cap).
     Pure, jit/vmap-able, in ``params.dtype`` (:func:`x64_scope`).
     """
     caps = tuple(int(c) for c in lag_caps) if lag_caps is not None else (n_cap,) * len(lags)

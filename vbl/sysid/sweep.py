@@ -57,8 +57,7 @@ from vbl.sysid.linalg import eigh_desc, svd_thin, x64_scope
 from vbl.sysid.params import CVAParams
 
 __all__ = ["fit_one", "fit_batch", "fit_select_one", "fit_select_batch", "predictor_criterion",
-           "pooled_criterion",
-           "hankel_gram", "logdet_spd", "CHUNK"]
+           "pooled_criterion", "hankel_gram", "logdet_spd", "CHUNK"]
 
 #: Data sets per chunk of :func:`fit_select_batch` and :func:`fit_batch` (a ``vmap`` inside
 #: a chunk, chunks in sequence, :func:`vbl.sysid.batching.in_chunks`): small enough for a
