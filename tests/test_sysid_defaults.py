@@ -279,3 +279,18 @@ def test_ill_conditioned_message_names_the_cause(data):
 def test_param_count_used_by_criterion():
     # the predictor criterion adds n l (m+q) coefficients of the state map to Eq. (6)'s count
     assert float(param_count(3, 2, 2)) + 3 * 2 * 4 == 3 * 6 + 4 + 3 + 24
+
+
+def test_channel_stats_match_numpy_at_any_scale(data):
+    """identify's one-pass channel statistics equal NumPy's std, max |x| and corrcoef, also
+    for channels near the float limits (scaled before squaring: no overflow or underflow)."""
+    from vbl.sysid.validate import channel_stats
+
+    u, y = data
+    x = np.concatenate([y, 1e200 * y[..., :1] + 3e199, 1e-200 * u[..., :1]], axis=-1)
+    st = channel_stats(x)
+    for b in range(len(x)):
+        scale = np.abs(x[b]).max(axis=0)        # NumPy's std of x itself over/underflows
+        np.testing.assert_allclose(st.abs_max[b], scale, rtol=0)
+        np.testing.assert_allclose(st.std[b], (x[b] / scale).std(axis=0) * scale, rtol=1e-12)
+        np.testing.assert_allclose(st.corr[b], np.corrcoef((x[b] / scale).T), atol=1e-12)

@@ -32,7 +32,7 @@ from vbl.sysid.linalg import x64_scope
 from vbl.sysid.model import CVAModel
 from vbl.sysid.params import CVAParams
 from vbl.sysid.sweep import fit_batch, fit_select_batch, fit_select_one
-from vbl.sysid.validate import check_data, prepare_scale, warn_collinear
+from vbl.sysid.validate import checked, prepare_scale, warn_collinear
 
 __all__ = ["Identification", "identify", "identify_one_fit", "select_fit", "select_lag",
            "lag_caps_for", "n_cap_for", "pad_to_history", "OrderCapWarning"]
@@ -168,9 +168,9 @@ def identify(u, y, params: CVAParams | None = None, *, model_dtype=jnp.float32
 
 def _identify(u, y, params, model_dtype) -> Identification:
     params = validate(params if params is not None else CVAParams())
-    u, y, batched = check_data(u, y, params)
-    warn_collinear(u, y, params.collinear_tol)
-    u, y, shift = prepare_scale(u, y, params)
+    u, y, batched, stats_u, stats_y = checked(u, y, params)
+    warn_collinear(stats_u, stats_y, params.collinear_tol)
+    u, y, shift = prepare_scale(u, y, params, (stats_u.abs_max, stats_y.abs_max))
     b, _, m = u.shape
     q = y.shape[2]
     if params.lag == 0 and params.lag_rule == "paper":

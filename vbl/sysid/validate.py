@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 
 from vbl.sysid.params import CVAParams
 
-__all__ = ["check_data", "min_length", "prepare_scale", "warn_collinear", "safe_range",
-           "CollinearWarning", "channel_major"]
+__all__ = ["check_data", "checked", "min_length", "prepare_scale", "warn_collinear",
+           "safe_range", "CollinearWarning", "channel_major", "channel_stats", "ChannelStats"]
 
 
 class CollinearWarning(UserWarning):
@@ -39,6 +40,37 @@ def check_data(u, y, params: CVAParams) -> tuple[np.ndarray, np.ndarray, bool]:
     Raises ValueError for wrong shapes, NaN/inf, constant channels and data too short for
     the largest lag tried.
     """
+    return checked(u, y, params)[:3]
+
+
+@dataclass(frozen=True)
+class ChannelStats:
+    """Per data set and channel of one signal ``(B, N, c)``: what the checks, the collinearity
+    warning and :func:`prepare_scale` read."""
+
+    abs_max: np.ndarray   # (B, c) max |x|
+    std: np.ndarray       # (B, c) standard deviation (over N)
+    corr: np.ndarray      # (B, c, c) correlation matrix of the channels
+
+
+def channel_stats(x: np.ndarray) -> ChannelStats:
+    """:class:`ChannelStats` of finite ``x (B, N, c)`` from one channel-major copy: scaled by
+    each channel's max |x| (no overflow or underflow in the squares), centred in place, and
+    one product of the centred channels for the variances and correlations."""
+    xt = channel_major(x)
+    amax = _abs_max(xt)
+    xt /= np.maximum(amax, np.finfo(xt.dtype).tiny)[..., None]
+    xt -= xt.mean(axis=-1, keepdims=True)
+    g = np.matmul(xt, np.swapaxes(xt, 1, 2))                       # (B, c, c)
+    sq = np.diagonal(g, axis1=1, axis2=2)                          # (B, c) sums of squares
+    norm = np.sqrt(np.maximum(sq, np.finfo(xt.dtype).tiny))
+    return ChannelStats(abs_max=amax, std=np.sqrt(sq / xt.shape[-1]) * amax,
+                        corr=g / (norm[..., :, None] * norm[..., None, :]))
+
+
+def checked(u, y, params: CVAParams):
+    """:func:`check_data`, also returning the :class:`ChannelStats` of u and y:
+    ``(u, y, batched, stats_u, stats_y)``."""
     u = np.asarray(u)
     y = np.asarray(y)
     for name, a in (("u", u), ("y", y)):
@@ -76,16 +108,15 @@ def check_data(u, y, params: CVAParams) -> tuple[np.ndarray, np.ndarray, bool]:
             f"data too short: N={n} samples, but lag l={lag} and horizon k={horizon} with "
             f"m={m}, q={q} need N >= {need} (N-k-l+1 >= {params.min_samples_factor} x "
             f"(l+k)(m+q)); give longer records or lower lag/lag_max/horizon")
-    for name, a in (("u", u), ("y", y)):
-        at = channel_major(a)
-        std = at.std(axis=-1)
-        const = std <= params.const_tol * _abs_max(at)
+    stats = channel_stats(u), channel_stats(y)
+    for name, st in zip(("u", "y"), stats, strict=True):
+        const = st.std <= params.const_tol * st.abs_max
         if const.any():
             ds, ch = np.argwhere(const)[0]
             raise ValueError(f"{name} channel {ch} of data set {ds} is constant "
                              f"({int(const.sum())} constant channel(s) in all); CVA needs "
                              "every channel to vary: drop it or add excitation")
-    return u, y, batched
+    return u, y, batched, *stats
 
 
 def safe_range(dtype: str) -> tuple[float, float]:
@@ -95,7 +126,8 @@ def safe_range(dtype: str) -> tuple[float, float]:
     return 2.0 ** -(e // 4), 2.0 ** (e // 4)
 
 
-def prepare_scale(u: np.ndarray, y: np.ndarray, params: CVAParams):
+def prepare_scale(u: np.ndarray, y: np.ndarray, params: CVAParams,
+                  abs_max: tuple[np.ndarray, np.ndarray] | None = None):
     """Bring data near float limits into range without changing the identification.
 
     Per data set and channel: with ``dtype='float32'`` and ``demean`` the mean is removed in
@@ -103,16 +135,19 @@ def prepare_scale(u: np.ndarray, y: np.ndarray, params: CVAParams):
     ``standardize`` a channel whose magnitude is outside :func:`safe_range` is divided by a
     power of two (exact, so the standardised data are the same bits). Returns ``u, y`` and
     ``(u_off, u_mul, y_off, y_mul)`` (B, m) / (B, q) with raw = off + mul * prepared.
-    Raises ValueError for out-of-range data that is not standardised.
+    Raises ValueError for out-of-range data that is not standardised. ``abs_max``: u's and
+    y's max |x| per data set and channel if known (:class:`ChannelStats`).
     """
     lo, hi = safe_range(params.dtype)
     out = []
-    for name, x in (("u", u), ("y", y)):
+    for i, (name, x) in enumerate((("u", u), ("y", y))):
         off = np.zeros(x.shape[::2])
         if params.dtype == "float32" and params.demean:
             off = x.mean(axis=1)
             x = x - off[:, None, :]
-        mag = _abs_max(channel_major(x))
+            mag = _abs_max(channel_major(x))
+        else:
+            mag = abs_max[i] if abs_max is not None else _abs_max(channel_major(x))
         bad = (mag > hi) | (mag < lo)
         mul = np.ones_like(mag)
         if bad.any() and not params.standardize:
@@ -130,13 +165,9 @@ def prepare_scale(u: np.ndarray, y: np.ndarray, params: CVAParams):
     return u, y, (u_off, u_mul, y_off, y_mul)
 
 
-def _collinear(x: np.ndarray, tol: float):
-    """Per data set: duplicate channel pairs (|corr| >= 1 - tol) and collinearity flags."""
-    xc = channel_major(x)
-    xc = xc - xc.mean(axis=-1, keepdims=True)
-    xc = xc / np.maximum(_abs_max(xc), np.finfo(float).tiny)[..., None]   # no overflow below
-    xc = xc / np.maximum(np.linalg.norm(xc, axis=-1, keepdims=True), np.finfo(float).tiny)
-    corr = np.matmul(xc, np.swapaxes(xc, 1, 2))
+def _collinear(corr: np.ndarray, tol: float):
+    """Per data set: duplicate channel pairs (|corr| >= 1 - tol) and collinearity flags, from
+    the channels' correlation matrices ``corr (B, c, c)``."""
     ch = corr.shape[-1]
     iu = np.triu_indices(ch, 1)
     dup = np.abs(corr[:, iu[0], iu[1]]) >= 1.0 - tol           # (B, pairs)
@@ -144,12 +175,13 @@ def _collinear(x: np.ndarray, tol: float):
     return [(int(iu[0][k]), int(iu[1][k])) for k in range(len(iu[0]))], dup, flat
 
 
-def warn_collinear(u: np.ndarray, y: np.ndarray, tol: float) -> None:
-    """Warn (:class:`CollinearWarning`) naming duplicated or collinear channels of u and y."""
-    for name, x in (("u", u), ("y", y)):
-        if x.shape[-1] < 2:
+def warn_collinear(stats_u: ChannelStats, stats_y: ChannelStats, tol: float) -> None:
+    """Warn (:class:`CollinearWarning`) naming duplicated or collinear channels of u and y
+    (their :class:`ChannelStats`)."""
+    for name, st in (("u", stats_u), ("y", stats_y)):
+        if st.corr.shape[-1] < 2:
             continue
-        pairs, dup, flat = _collinear(x, tol)
+        pairs, dup, flat = _collinear(st.corr, tol)
         if dup.any():
             k = int(np.argwhere(dup.any(axis=0))[0, 0])
             ds = np.flatnonzero(dup[:, k])
