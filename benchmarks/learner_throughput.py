@@ -19,6 +19,8 @@ Usage::
 
     python benchmarks/learner_throughput.py            # every experiment below
     python benchmarks/learner_throughput.py --experiments table2_shoot_pass --chunks 3
+    python benchmarks/learner_throughput.py --experiments grid_shooting \
+        --set train.eval_curve=false --out /path/elsewhere   # what one setting costs
 Writes benchmarks/results/learner_throughput.{json,md} (``--out`` elsewhere).
 """
 
@@ -50,12 +52,14 @@ import vbl  # noqa: E402,F401
 from benchmarks.env_throughput import time_jax  # noqa: E402
 from benchmarks.hardware import hardware_info  # noqa: E402
 from vbl.engine import registry  # noqa: E402
+from vbl.engine.config import parse_assignment  # noqa: E402
 from vbl.engine.jax_setup import engine_precision  # noqa: E402
 from vbl.engine.runner import _compiled, resolve  # noqa: E402
 from vbl.engine.sharding import learner_sharding, put  # noqa: E402
 from vbl.engine.sweep import make_plan  # noqa: E402
 from vbl.envs.shoot_pass import ShootPassEnv  # noqa: E402
 from vbl.envs.shooting import ShootingEnv  # noqa: E402
+from vbl.params import ParamError  # noqa: E402
 
 MAX_OVERHEAD = 1.5  #: target: training step at most this x the raw env step (same batch)
 
@@ -91,17 +95,19 @@ def _sum_metrics(acc, metrics):
     return out
 
 
-def time_experiment(name: str, chunks: int, reps: int) -> dict:
+def time_experiment(name: str, chunks: int, reps: int, sets: list[str] = ()) -> dict:
     """One row: the experiment's step as the engine compiles and runs it (inside
-    :func:`vbl.engine.jax_setup.engine_precision`) beside its raw env."""
+    :func:`vbl.engine.jax_setup.engine_precision`) beside its raw env; ``sets``: overrides
+    ``PATH=VALUE`` as ``vbl run --set`` takes them."""
     with engine_precision():
-        return _time_experiment(name, chunks, reps)
+        return _time_experiment(name, chunks, reps, sets)
 
 
-def _time_experiment(name: str, chunks: int, reps: int) -> dict:
+def _time_experiment(name: str, chunks: int, reps: int, sets: list[str]) -> dict:
     exp = registry.get(name)
     spec = SPECS[name]
-    config, sweep, seeds, _ = resolve(exp)
+    overrides = dict(parse_assignment(s, exp.default_config) for s in sets)
+    config, sweep, seeds, _ = resolve(exp, sets=overrides or None)
     plan = make_plan(exp, config, sweep, seeds)
     group = plan.groups[0]
     prog, n = group.program, group.num_learners
@@ -131,7 +137,7 @@ def _time_experiment(name: str, chunks: int, reps: int) -> dict:
     n_dev = len(jax.devices())  # the learners' devices: the same per-device batch
     raw = time_jax(env, env_params, n_envs, steps, reps, n_dev if n_envs % n_dev == 0 else 1)
     learner_us = best_cpu / prims * 1e6
-    return dict(experiment=name, learners=n, envs=n_envs, chunks=chunks,
+    return dict(experiment=name, sets=list(sets), learners=n, envs=n_envs, chunks=chunks,
                 primitives=prims, learner_primitives_per_s=prims / best_wall,
                 learner_cpu_us_per_primitive=learner_us, step_compile_s=compile_s,
                 raw_env_steps_per_s=raw["steps_per_s"],
@@ -167,6 +173,9 @@ def main(argv=None):
     ap.add_argument("--chunks", type=int, default=3, help="chunks timed per repetition")
     ap.add_argument("--reps", type=int, default=2)
     ap.add_argument("--quick", action="store_true", help="one chunk, one repetition")
+    ap.add_argument("--set", dest="sets", action="append", default=[], metavar="PATH=VALUE",
+                    help="override a parameter of every experiment timed, as `vbl run --set` "
+                         "(e.g. to measure what one setting costs; give --out elsewhere)")
     ap.add_argument("--devices", type=int, default=DEVICES,
                     help="JAX host devices (default: every usable core)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" /
@@ -177,7 +186,10 @@ def main(argv=None):
     result = dict(benchmark="learner_throughput", hardware=hardware_info(), rows=[],
                   target_overhead=MAX_OVERHEAD)
     for name in args.experiments:
-        row = time_experiment(name, chunks, reps)
+        try:
+            row = time_experiment(name, chunks, reps, args.sets)
+        except ParamError as e:  # a bad --set: one line, exit 2
+            ap.error(f"{name}: {e}")
         print(json.dumps(row), flush=True)
         result["rows"].append(row)
     result["load_end"] = os.getloadavg()[0]
@@ -185,7 +197,8 @@ def main(argv=None):
     out.parent.mkdir(parents=True, exist_ok=True)
     out.with_suffix(".json").write_text(json.dumps(result, indent=2))
     cmd = "python benchmarks/learner_throughput.py" + (" --quick" if args.quick else "") + (
-        f" --devices {args.devices}" if "--devices" in (argv or sys.argv) else "")
+        f" --devices {args.devices}" if "--devices" in (argv or sys.argv) else "") + "".join(
+        f" --set {s}" for s in args.sets)
     text = markdown(result, cmd)
     out.with_suffix(".md").write_text(text)
     print(text)
