@@ -224,12 +224,12 @@ def _by_predictor(u, y, params: CVAParams) -> dict:
     q = y.shape[2]
     lags = np.asarray(params.lags())
     hors = np.asarray([params.horizon_for(int(lg)) for lg in lags])
+    n_cap = n_cap_for(params, m, q)
     if params.lag > 0:
-        fit = fit_batch(u, y, params, lag=params.lag, horizon=int(hors[0]),
-                        n_cap=n_cap_for(params, m, q))
+        fit = fit_batch(u, y, params, lag=params.lag, horizon=int(hors[0]), n_cap=n_cap)
         j, per_lag = _one_lag(fit)
     else:
-        fit, j, per_lag = fit_select_batch(u, y, params, n_cap=n_cap_for(params, m, q))
+        fit, j, per_lag = fit_select_batch(u, y, params, n_cap=n_cap)
     # the pooled n* is at most what the shortest lag identifies: n_cap_for without n_max
     pooled_cap = n_cap_for(params.replace(n_max=0), m, q)
     return _predictor_fields(fit, j, per_lag, lags=tuple(lags.tolist()),

@@ -127,7 +127,7 @@ def safe_range(dtype: str) -> tuple[float, float]:
 
 
 def prepare_scale(u: np.ndarray, y: np.ndarray, params: CVAParams,
-                  abs_max: tuple[np.ndarray, np.ndarray] | None = None):
+                  abs_max: tuple[np.ndarray, np.ndarray]):
     """Bring data near float limits into range without changing the identification.
 
     Per data set and channel: with ``dtype='float32'`` and ``demean`` the mean is removed in
@@ -136,7 +136,7 @@ def prepare_scale(u: np.ndarray, y: np.ndarray, params: CVAParams,
     power of two (exact, so the standardised data are the same bits). Returns ``u, y`` and
     ``(u_off, u_mul, y_off, y_mul)`` (B, m) / (B, q) with raw = off + mul * prepared.
     Raises ValueError for out-of-range data that is not standardised. ``abs_max``: u's and
-    y's max |x| per data set and channel if known (:class:`ChannelStats`).
+    y's max |x| per data set and channel (:class:`ChannelStats`).
     """
     lo, hi = safe_range(params.dtype)
     out = []
@@ -147,7 +147,7 @@ def prepare_scale(u: np.ndarray, y: np.ndarray, params: CVAParams,
             x = x - off[:, None, :]
             mag = _abs_max(channel_major(x))
         else:
-            mag = abs_max[i] if abs_max is not None else _abs_max(channel_major(x))
+            mag = abs_max[i]
         bad = (mag > hi) | (mag < lo)
         mul = np.ones_like(mag)
         if bad.any() and not params.standardize:
