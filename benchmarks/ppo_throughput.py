@@ -31,9 +31,10 @@ import jax  # noqa: E402
 
 import vbl  # noqa: E402,F401
 from benchmarks.hardware import hardware_info  # noqa: E402
-from vbl.agents.ppo import PPONetParams, network_size  # noqa: E402
+from vbl.agents.ppo import network_size  # noqa: E402
 from vbl.agents.ppo_inputs import InputEnv, InputParams  # noqa: E402
-from vbl.agents.ppo_train import PPOParams, make_ppo_learner  # noqa: E402
+from vbl.agents.ppo_params import PPONetParams, PPOParams  # noqa: E402
+from vbl.agents.ppo_train import make_ppo_learner  # noqa: E402
 from vbl.envs.brax_adapter import BraxAdapter, with_difficulty  # noqa: E402
 from vbl.envs.shoot_pass import ShootPassEnv  # noqa: E402
 from vbl.envs.shooting import ShootingEnv  # noqa: E402

@@ -13,7 +13,7 @@ from flax import struct
 from vbl.agents import segmentation_learner as sl
 from vbl.engine import Experiment, register
 from vbl.engine import segmentation_figures as figs
-from vbl.engine.baselines import GridLearner, grid_agent, grid_migration, grid_renames, grid_train
+from vbl.engine.baselines import GridLearner, grid_agent, grid_train
 from vbl.engine.segmentation_program import make_segmentation_program
 from vbl.envs.schedules import BallChangeParams
 from vbl.envs.shooting import ShootingParams
@@ -82,23 +82,10 @@ EXPERIMENT = register(Experiment(
              "no_baselines": {"train.grid_baseline": False, "train.steer_reference": False},
              "grid_full_budget": {"baseline.agent.num_envs": 64,
                                   "baseline.train.num_chunks": 100}},
-    seeds=8, quick_seeds=2, paper_result=True,
+    seeds=8, quick_seeds=8, paper_result=True,
     cost=49.0,  # s of a cold --quick run on 2 shared cores (compile-dominated)
     paper={"trials": 1110, "ball size change": "twice, around trial 500"},
     report=figs.report, paper_rows=figs.paper_rows,
-    renamed_metrics={"success_rate": "train_success"},
-    legacy_values={"baseline.train.eval_every": 1, "env.noise_on.pixel": False,  # not recorded
-                   "env.noise_on.slip": False},  # by older folders
-    renamed_params={"learner.alpha": "learner.learning_rate", "learner.gamma": "learner.discount",
-                    "learner.mc_gamma": "learner.mc_discount",
-                    "learner.value_update": "learner.update", **grid_renames("grid.", "baseline.")},
-    migrate=grid_migration("grid."),
-    # default-off options of the segmentation (docs/findings/pruned_variants.md)
-    removed_params={"learner.return_output": False, "learner.return_weight": None,
-                    "learner.return_gamma": None, "learner.exit_output": False,
-                    "learner.exit_weight": None, "learner.value_fringe": False,
-                    "learner.value_per_buffer": False, "learner.discount_per_primitive": False,
-                    "learner.anneal_trials": 0, "learner.temperature_final": None},
 ))
 
 if __name__ == "__main__":

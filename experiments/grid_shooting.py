@@ -29,9 +29,7 @@ from vbl.engine.baselines import (
     TASK_DIFFICULTY,
     grid_agent,
     grid_env,
-    grid_migration,
     grid_program,
-    grid_renames,
     grid_space,
     grid_train,
 )
@@ -45,8 +43,8 @@ from vbl.engine.curves import (
     trials_to_levels,
 )
 from vbl.engine.experiment import PaperRow
-from vbl.engine.q_program import RENAMED_METRICS, QTrainParams
-from vbl.engine.report import seeds_cell
+from vbl.engine.q_program import QTrainParams, curve_metric
+from vbl.engine.report import claim, rate_cell
 from vbl.envs.shooting import ShootingParams
 from vbl.params import section
 from vbl.spaces.grid import NUM_GRID_STATES, GridParams
@@ -80,10 +78,10 @@ def report(res: RunResult) -> ReportSection:
           "memoryless policy can be stochastic).", "",
           "| policy | greedy success | near-greedy success | training trials |",
           "|---|---|---|---|"]
-    md += [f"| {n} | {seeds_cell(fin['greedy_success'][p], fmt='.3f')} | "
-           f"{seeds_cell(fin['near_greedy_success'][p], fmt='.3f')} | {runs[n]:.0f} |"
+    md += [f"| {n} | {rate_cell(fin['greedy_success'][p])} | "
+           f"{rate_cell(fin['near_greedy_success'][p])} | {runs[n]:.0f} |"
            for p, n in enumerate(names)]
-    md += [f"| random policy | {seeds_cell(rnd, fmt='.3f')} | | |", "",
+    md += [f"| random policy | {rate_cell(rnd)} | | |", "",
            f"Training trials (episodes) until {curve_description(res)[0]}, averaged over the "
            f"last {window} chunks, first reaches each level: median over the seeds (a seed "
            "that never reaches it counts as slowest) and seeds reaching it.", "",
@@ -94,13 +92,15 @@ def report(res: RunResult) -> ReportSection:
             f"{t:.0f} ({k}/{s})" if np.isfinite(t) else f"not reached ({k}/{s})"
             for t, k, s in (reach[n][lv] for lv in levels)) + " |")
     md += ["", "What must hold (the paper gives no number for this baseline):", ""]
-    r = mean_ci95(rnd)
     for kind, metric in (("greedy", "greedy_success"), ("near-greedy", "near_greedy_success")):
-        best = max((mean_ci95(fin[metric][p]) for p in range(len(names))), key=lambda v: v[0])
-        above = best[0] - best[1] > r[0] + r[1]
-        md.append(f"* the {kind} policy shoots above the random policy (95% intervals apart): "
-                  f"{'yes' if above else '**no**'} (best {best[0]:.3f} vs random {r[0]:.3f});")
-    if {"with LEM", "without LEM"} <= set(names):
+        best = max(range(len(names)), key=lambda p: mean_ci95(fin[metric][p])[0])
+        md.append(f"* the {kind} policy ({names[best]}) shoots above the random policy: "
+                  f"{claim(fin[metric][best], rnd)};")
+    if {"with LEM", "without LEM"} <= set(names) and curve_metric(res.curves) != "eval_success":
+        md.append("* LEM reaches each level in fewer trials: not measured at this scale (the "
+                  "evaluation curve is off; the training success runs at LEM's own, easier "
+                  "starts).")
+    elif {"with LEM", "without LEM"} <= set(names):
         for lv in levels:
             verdict = lem_verdict(reach["with LEM"][lv][0], reach["without LEM"][lv][0],
                                   runs["without LEM"])
@@ -111,12 +111,12 @@ def report(res: RunResult) -> ReportSection:
 def paper_rows(res: RunResult) -> list[PaperRow]:
     rows = [PaperRow(f"Grid baseline (319 states), {lem_label(pt, res.config)}: greedy / "
                      "near-greedy success", "none given (the earlier work's learner)",
-                     f"{seeds_cell(res.final['greedy_success'][i], fmt='.3f')} / "
-                     f"{seeds_cell(res.final['near_greedy_success'][i], fmt='.3f')}")
+                     f"{rate_cell(res.final['greedy_success'][i])} / "
+                     f"{rate_cell(res.final['near_greedy_success'][i])}")
             for i, pt in enumerate(res.points)]
     rnd = np.mean(np.asarray(res.final["random_success"], float), axis=0)
     return rows + [PaperRow("Grid baseline, random policy: success", "-",
-                            seeds_cell(rnd, fmt=".3f"))]
+                            rate_cell(rnd))]
 
 
 EXPERIMENT = register(Experiment(
@@ -125,23 +125,16 @@ EXPERIMENT = register(Experiment(
     default_config=GridShootingConfig(),
     make_program=grid_program,
     sweep={LEM_PATH: [TASK_DIFFICULTY, 0.0]},
-    # --quick: a smoke run (one evaluation compiled): training-success curve, 32 final starts
-    quick={"train.num_chunks": 4, "train.eval_every": 1, "agent.num_envs": 16,
-           "agent.chunk_steps": 250, "train.eval_curve": False, "train.final_eval_rounds": 1},
+    # --quick: the full run's programs for its first 24 chunks (LEM's first crossings)
+    quick={"train.num_chunks": 24},
     seeds=8,
-    quick_seeds=2,
+    quick_seeds=8,
     paper_result=True,
     cost=135.0,  # s of a cold --quick run on 2 cores (compile-dominated)
     paper={"baseline": "the earlier work's hand-designed grid (grid lines of Figure 5)"},
     report=report,
     headline=("greedy_success", "near_greedy_success", "random_success"),
-    renamed_metrics=RENAMED_METRICS,
     paper_rows=paper_rows,
-    presets={"every_chunk": {"train.eval_every": 1, "report.smooth_chunks": 3}},
-    # parameters added after run folders were written: the values of the code before them
-    legacy_values={"train.eval_every": 1, "agent.update": "q_learning", "agent.mc_log": 128,
-                   "env.noise_on.pixel": False, "env.noise_on.slip": False},
-    renamed_params=grid_renames(), migrate=grid_migration(),
 ))
 
 if __name__ == "__main__":

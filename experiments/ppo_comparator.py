@@ -6,15 +6,16 @@ categorical policy of :mod:`vbl.agents.ppo`:
 
 * ``ppo_comparator``: the two-robot task of Table 2 (shooter and passer) with three inputs,
   current features, the last 3 frames, and the CVA state vector of the tabular learner
-  (its own identification per seed), with and without the curriculum (on
-  ``env.start_difficulty``), at Table 2's experience (2.56 M primitives); beside the
-  tabular results of Table 2 (current defaults, 16 seeds) and the paper.
+  (its own identification per seed), without a curriculum (as the tabular learner), at
+  Table 2's experience (2.56 M primitives); beside the tabular results of Table 2 (the
+  ``table2_shoot_pass`` run of the same ``vbl reproduce``) and the paper.
 * ``ppo_shooting``: the shooting task of Section 2 (100 s limit, fully random starts), with
   and without the curriculum (LEM for PPO), at the grid baseline's experience (~3 M
-  primitives); beside the grid baseline (``grid_shooting``, 8 seeds).
+  primitives); beside the grid baseline (the ``grid_shooting`` run of the same
+  ``vbl reproduce``).
 
 Reports: :mod:`vbl.engine.ppo_report`. Run: ``vbl run ppo_comparator`` / ``vbl run
-ppo_shooting`` (the reported runs, docs/results/ppo_comparator), or ``--quick``.
+ppo_shooting``, or ``--quick``.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from functools import partial
 from flax import struct
 
 from vbl.agents.cva_state import CVAStateParams
-from vbl.agents.ppo_train import PPOParams
+from vbl.agents.ppo_params import PPOParams
 from vbl.engine import Experiment, register
 from vbl.engine.cva_program import default_cva
 from vbl.engine.paper import TABLE2
@@ -34,17 +35,16 @@ from vbl.engine.ppo_program import (
     make_shoot_pass_program,
     make_shooting_program,
 )
-from vbl.engine.ppo_report import shoot_pass_section, shooting_section
+from vbl.engine.ppo_report import (
+    shoot_pass_rows,
+    shoot_pass_section,
+    shooting_rows,
+    shooting_section,
+)
 from vbl.envs.shoot_pass import ShootPassParams
 from vbl.envs.shooting import ShootingParams
 from vbl.params import section
 
-# Tabular greedy success %, mean +- 95 % CI over 16 seeds (docs/results/table2_lr025_g099)
-TABULAR = {"shoot": {"current": (26.8, 6.1), "cva": (15.3, 3.2)},
-           "pass": {"current": (37.1, 6.0), "cva": (54.1, 5.6)}}
-# Grid baseline greedy / near-greedy success % (mean, CI) without / with LEM, 8 seeds
-# (docs/results/grid_shooting)
-GRID = {False: (10.7, 14.1, 16.6, 15.4), True: (45.0, 24.0, 70.4, 19.7)}
 QUICK_PPO = {"ppo.num_envs": 16, "ppo.batch_size": 16, "ppo.num_minibatches": 2,
              "ppo.steps_per_chunk": 2, "ppo.eval_envs": 8, "run.final_eval_envs": 16,
              "run.num_chunks": 2}
@@ -76,11 +76,8 @@ EXPERIMENT = register(Experiment(
     default_config=ShootPassConfig(), make_program=make_shoot_pass_program,
     quick={**QUICK_PPO, "cva.collect_steps": 1000, "cva.ident.lag_max": 2},
     seeds=8, quick_seeds=2, paper_result=True, paper=TABLE2,
-    report=partial(shoot_pass_section, tabular=TABULAR, paper=TABLE2),
-    sweep={"env.task_pass": [False, True], "inputs.index": [0, 1, 2],
-           "ppo.curriculum.enabled": [False, True]},
-    renamed_params={"cva.cva.": "cva.ident."},
-    removed_params={"cva.cancor_weight": False, "cva.runner.": None},
+    report=partial(shoot_pass_section, paper=TABLE2), paper_rows=shoot_pass_rows,
+    sweep={"env.task_pass": [False, True], "inputs.index": [0, 1, 2]},
     cost=300.0))  # s, cold --quick on 2 cores (compile-dominated; 1,389 s at load average 12)
 
 SHOOTING = register(Experiment(
@@ -88,7 +85,8 @@ SHOOTING = register(Experiment(
     description="brax PPO on the shooting task, with and without the curriculum",
     default_config=ShootingConfig(), make_program=make_shooting_program,
     quick={**QUICK_PPO, "env.max_steps": 100},
-    seeds=8, quick_seeds=2, paper_result=True, report=partial(shooting_section, grid=GRID),
+    seeds=8, quick_seeds=2, paper_result=True, report=shooting_section,
+    paper_rows=shooting_rows,
     sweep={"ppo.curriculum.enabled": [False, True]},
     cost=150.0))  # s, cold --quick (guess)
 

@@ -17,11 +17,14 @@ import vbl  # noqa: F401
 from vbl.agents.cva_state import (
     CVAStateParams,
     collect,
-    default_q,
     history_wrapper,
     identify_object,
     make_cva_learner,
 )
+from vbl.agents.exploration import ExplorationParams
+from vbl.agents.lem import LEMParams
+from vbl.agents.qlearning import QRunnerParams
+from vbl.envs.macro import MacroActionParams
 from vbl.envs.wrappers import linear_filter
 from vbl.params import ParamError
 from vbl.spaces.quantize import QuantizerParams
@@ -34,8 +37,11 @@ SEEDS = 4
 CHUNKS = 30
 
 
-Q = default_q().replace(num_actions=2, num_envs=32, chunk_steps=200)
-Q = Q.replace(exploration=Q.exploration.replace(init_value=0.5, transition_steps=3000.0))
+# primitive actions (no macro actions), no LEM, epsilon 0.5 -> 0.05 over 3,000 steps
+Q = QRunnerParams(num_states=1, num_actions=2, num_envs=32, chunk_steps=200,
+                  exploration=ExplorationParams(schedule="linear", init_value=0.5,
+                                                end_value=0.05, transition_steps=3000.0),
+                  macro=MacroActionParams(enabled=False), lem=LEMParams(enabled=False))
 
 
 def params(state: str) -> CVAStateParams:

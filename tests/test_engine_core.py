@@ -255,21 +255,30 @@ def test_reproduce_in_worker_processes_equals_in_process(tmp_path, monkeypatch):
         assert ok, path.read_text()
         text = path.read_text()
         assert "## paper_a" in text and "## paper_b" in text
-        reports[jobs] = re.sub(r"Generated .*|\| [0-9.]+ \|\n", "", text)
+        reports[jobs] = re.sub(r"^[0-9]+ s wall .*|\| [0-9.]+ \|\n", "", text, flags=re.M)
+        manifest = json.loads((tmp_path / f"rep{jobs}" / "reproduce.json").read_text())
+        assert [r["folder"] for r in manifest["runs"]] == ["paper_a", "paper_b"]
+        assert manifest["workers"] == jobs and manifest["quick"] is True
+        assert all(r["status"] == "ok" and r["peak_rss_mb"] > 0 for r in manifest["runs"])
     assert f"{jobs} worker processes" in path.read_text()
     assert reports[1] == reports[2]
 
 
 def test_reproduce_chains_group_experiments_and_start_the_costliest(toy):
-    from vbl.engine.report import _chains
+    from vbl.engine.report import Job, _chains, reproduce_jobs
 
-    def exp(name, cost, group=None):
+    def exp(name, cost, group=None, presets=()):
         return Experiment(name=name, description="", default_config=toy.default_config,
-                          make_program=toy.make_program, cost=cost, group=group)
+                          make_program=toy.make_program, cost=cost, group=group,
+                          presets={p: {"agent.epsilon": 0.0} for p in presets},
+                          published_presets=tuple(presets))
 
-    exps = {e.name: e for e in (exp("t1", 70, "ident"), exp("grid", 45), exp("t2", 90),
-                                exp("t3", 70, "ident"))}
-    assert _chains(exps) == [["t1", "t3"], ["t2"], ["grid"]]
+    exps = {e.name: e for e in (exp("t1", 70, "ident"), exp("grid", 45, presets=("p",)),
+                                exp("t2", 90), exp("t3", 70, "ident"))}
+    jobs = reproduce_jobs(exps)
+    assert jobs == [Job("t1"), Job("grid"), Job("grid", "p"), Job("t2"), Job("t3")]
+    assert [[j.folder for j in c] for c in _chains(jobs, exps)] == [
+        ["t1", "t3"], ["t2"], ["grid"], ["grid-p"]]
 
 
 def test_report_figure_links_resolve_with_a_relative_out_dir(toy, tmp_path, monkeypatch):

@@ -33,19 +33,40 @@ def _vbl(args: list[str], cwd: Path, **extra: str) -> subprocess.CompletedProces
                           capture_output=True, text=True, timeout=TIMEOUT)
 
 
+def doc_scripts(section: str) -> list[str]:
+    """The Python blocks of a section of docs/engine.md, exactly."""
+    text = (REPO / "docs" / "engine.md").read_text()
+    m = re.search(rf"^## {section}\n(.*?)(?=^## )", text, re.S | re.M)
+    assert m, f"docs/engine.md has no '## {section}' section"
+    return re.findall(r"^```python\n(.*?)^```", m.group(1), re.S | re.M)
+
+
 def readme_script() -> str:
-    """The Python block of the README's "Your own experiment" section, exactly."""
-    text = (REPO / "README.md").read_text()
-    m = re.search(r"^## Your own experiment\n(.*?)(?=^## )", text, re.S | re.M)
-    assert m, "README.md has no '## Your own experiment' section"
-    blocks = re.findall(r"^```python\n(.*?)^```", m.group(1), re.S | re.M)
+    """The Python block of docs/engine.md's "Your own experiment" section."""
+    blocks = doc_scripts("Your own experiment")
     assert len(blocks) == 1, "the section holds one python block"
     return blocks[0]
 
 
+def test_the_reuse_examples_load_and_resolve(tmp_path):
+    """The scripts of "Reusing the paper's learners" register experiments whose configs
+    are the paper learners' with the changes they state."""
+    from vbl.engine.registry import load_experiment_file
+    from vbl.engine.runner import resolve
+
+    grid, cva = doc_scripts("Reusing the paper's learners")
+    for name, text in (("grid_big_ball", grid), ("pass_step_sizes", cva)):
+        (tmp_path / f"{name}.py").write_text(text)
+        exp = load_experiment_file(str(tmp_path / f"{name}.py"))
+        assert exp.name == name and exp.make_program is not None
+        config, sweep, seeds, _ = resolve(exp)
+        assert seeds >= 8 and len(next(iter(sweep.values()))) >= 2
+    assert config.task == "pass" and config.q.learning_rate == 0.25
+
+
 def test_readme_experiment_runs_from_a_temporary_folder(tmp_path):
     script = readme_script()
-    assert 25 <= len(script.splitlines()) <= 60
+    assert 25 <= len(script.splitlines()) <= 40
     (tmp_path / "two_arms.py").write_text(script)
     # a helper beside it must not be imported by `vbl run two_arms.py`
     (tmp_path / "helper.py").write_text("open('HELPER_RAN', 'w').close()\n")
@@ -181,35 +202,11 @@ def _tree_digest(d: Path) -> dict[str, str]:
             for p in sorted(d.rglob("*")) if p.is_file()}
 
 
-def test_run_folders_with_old_metric_names_read_under_the_new_ones(tmp_path):
-    import dataclasses
-
-    from tests.engine_helpers import TINY_SETS
-    from vbl.engine.registry import load_script
-    from vbl.engine.runner import load_result, resolve, run_experiment
-    from vbl.engine.sweep import make_plan
-
-    toy = load_script(REPO / "experiments" / "toy_bandit.py").EXPERIMENT
-    sets = {**TINY_SETS, "train.num_chunks": 2}
-    res = run_experiment(toy, sets=sets, seeds=2, out=tmp_path / "run", quiet=True,
-                         plots=False)
-    log = tmp_path / "run" / "metrics.jsonl"
-    log.write_text(log.read_text().replace('"regret"', '"old_regret"'))
-    renamed = dataclasses.replace(toy, renamed_metrics={"old_regret": "regret"})
-    config, sweep, seeds, _ = resolve(renamed, sets, None, 2)
-    old = load_result(tmp_path / "run", renamed, config, make_plan(renamed, config, sweep, seeds),
-                      plots=False)
-    assert "old_regret" not in old.curves
-    assert (old.curves["regret"] == res.curves["regret"]).all()
-
-
 def test_q_program_names_its_success_curves_by_what_they_measure():
-    from vbl.engine.q_program import RENAMED_METRICS, curve_metric
+    from vbl.engine.q_program import curve_metric
 
     assert curve_metric({"eval_success": 1, "train_success": 0}) == "eval_success"
     assert curve_metric({"train_success": 0}) == "train_success"
-    assert RENAMED_METRICS == {"success_rate": "eval_success",
-                               "train_success_rate": "train_success"}
 
 
 FAKE_BENCH = '''"""A benchmark written like the real ones: results under ROOT/benchmarks/results."""

@@ -47,27 +47,3 @@ def test_slice_is_ball_size_by_goal_size_with_centred_objects():
     np.testing.assert_array_equal(x[2, :, 0], centres)     # ball size along the columns
     np.testing.assert_array_equal(x[:, 1, 2], centres)     # goal size along the rows
     np.testing.assert_array_equal(x[..., [1, 3, 4, 5, 6]], 0.5)
-
-
-def test_committed_fig5_runs_rebuild_to_their_presets():
-    """docs/results/fig5_cells was run without refinement and fig5_refined with it, both
-    with the grid's curve after every chunk: the commands `vbl report` rebuilds name the
-    presets, plus the grid baseline's synchronous settings (and resolve to the folders'
-    recorded values: run_command checks that)."""
-    import json
-
-    from vbl.engine.registry import get
-    from vbl.engine.report import run_command
-
-    exp = get("fig5_action_based")
-    for folder, preset in (("fig5_cells", "construction_only"), ("fig5_refined",
-                                                                 "every_chunk")):
-        spec = json.loads((ROOT / "docs" / "results" / folder / "config.json").read_text())
-        command, _ = run_command(exp, spec)
-        head = f"vbl run fig5_action_based --preset {preset}"
-        assert command.startswith(head), (folder, command)
-        # beyond the preset only the grid baseline's settings (it trained with synchronous
-        # macro actions; the preset's are asynchronous)
-        extra = command[len(head):].split()
-        assert extra[::2] == ["--set"] * (len(extra) // 2), command
-        assert all(a.startswith("baseline.") for a in extra[1::2]), command

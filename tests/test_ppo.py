@@ -12,10 +12,10 @@ from scipy import special, stats
 import vbl  # noqa: F401
 from vbl.agents.ppo import (
     CategoricalDistribution,
-    PPONetParams,
     make_categorical_ppo_networks,
     network_size,
 )
+from vbl.agents.ppo_params import PPONetParams
 from vbl.envs.brax_adapter import BraxAdapter
 from vbl.envs.shoot_pass import ShootPassEnv
 from vbl.envs.shooting import ShootingEnv

@@ -6,8 +6,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from vbl.agents.ppo import PPONetParams
-from vbl.agents.ppo_train import CurriculumParams, PPOParams, curriculum_update, make_ppo_learner
+from vbl.agents.ppo_params import CurriculumParams, PPONetParams, PPOParams
+from vbl.agents.ppo_train import curriculum_update, make_ppo_learner
 from vbl.params import ParamError, validate
 
 

@@ -1,8 +1,10 @@
-"""The README's generated tables: the results table is `vbl report` over the committed run
-folders its marker names, the benchmark table is each benchmark's headline figure read from
-benchmarks/results/*.json (what `vbl bench` prints). Neither can be typed by hand.
+"""The generated blocks of the README and the findings notes: results tables are `vbl
+report` over the committed `vbl reproduce` run (docs/results/reproduce), the runs table is
+read from the committed runs' reproduce.json (full and quick scale), the benchmark table is
+each benchmark's headline figure read from benchmarks/results/*.json (what `vbl bench`
+prints). None can be typed by hand, and the committed runs must be of today's configs.
 
-Regenerate both after a new run folder or benchmark result:
+Regenerate every block after a new reproduce run or benchmark result:
 
     python tests/test_readme_results.py
 """
@@ -18,20 +20,49 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
+FULL = "docs/results/reproduce"  #: the committed full-scale `vbl reproduce` run
+QUICK = "docs/results/reproduce-quick"  #: the committed `vbl reproduce --quick` run
 REPORT = re.compile(r"(<!-- vbl report ([^>]*?) -->\n)(.*?)(<!-- /vbl report -->)", re.S)
+RUNS = re.compile(r"(<!-- vbl reproduce runs -->\n)(.*?)(<!-- /vbl reproduce runs -->)", re.S)
 BENCH = re.compile(r"(<!-- vbl bench headlines -->\n)(.*?)(<!-- /vbl bench -->)", re.S)
+COMMAND = re.compile(r"`vbl run [a-z0-9_]+( --preset [a-z0-9_]+)?`")
 
 
 def report_folders(text: str) -> list[str]:
     m = REPORT.search(text)
-    assert m, "README.md has no <!-- vbl report RUN_DIR ... --> ... <!-- /vbl report --> block"
+    assert m, "no <!-- vbl report RUN_DIR ... --> ... <!-- /vbl report --> block"
     return m.group(2).split()
 
 
-def results_block(folders: list[str]) -> str:
+def results_block(folders: list[str], base: Path = ROOT) -> str:
     from vbl.engine.report import results_table
 
-    return results_table([ROOT / f for f in folders], link_base=ROOT)
+    return results_table([ROOT / f for f in folders], link_base=base)
+
+
+def _manifest(folder: str) -> dict:
+    return json.loads((ROOT / folder / "reproduce.json").read_text())
+
+
+def runs_block() -> str:
+    """The committed runs' machine, code and per-run wall time and peak memory, full and
+    quick scale (from each run's reproduce.json)."""
+    full, quick = _manifest(FULL), _manifest(QUICK)
+    q = {r["folder"]: r for r in quick["runs"]}
+    lines = [f"Full scale: `vbl reproduce` on {full['machine']}, {full['wall_s'] / 60:.0f} min "
+             f"wall in {full['workers']} worker processes (load average "
+             f"{full['load_average'][0]:g} at the start), code `{full['commit'][:12]}`. "
+             f"Quick scale: `vbl reproduce --quick` on {quick['machine']}, "
+             f"{quick['wall_s']:.0f} s wall (load average {quick['load_average'][0]:g} at the "
+             f"start), code `{quick['commit'][:12]}`.", "",
+             "| run | full: wall time | full: peak memory | quick: wall time | quick: peak "
+             "memory |", "|---|---|---|---|---|"]
+    for r in full["runs"]:
+        rq = q.get(r["folder"], {})
+        lines.append(f"| {r['folder']} | {r['seconds'] / 60:.1f} min | "
+                     f"{r['peak_rss_mb'] / 1024:.1f} GiB | {rq.get('seconds', float('nan')):.0f} s"
+                     f" | {rq.get('peak_rss_mb', float('nan')) / 1024:.1f} GiB |")
+    return "\n".join(lines) + "\n"
 
 
 def bench_block() -> str:
@@ -62,36 +93,68 @@ def bench_block() -> str:
     return "\n".join(lines) + "\n"
 
 
-def regenerate(text: str) -> str:
-    folders = report_folders(text)
-    text = REPORT.sub(lambda m: m.group(1) + results_block(folders) + m.group(4), text)
+FINDINGS = sorted((ROOT / "docs" / "findings").glob("*.md"))
+
+
+def regenerate(text: str, base: Path = ROOT) -> str:
+    """``text`` with every generated block made again: results tables (links relative to
+    ``base``), the runs table and the benchmark table."""
+    text = REPORT.sub(lambda m: m.group(1) + results_block(m.group(2).split(), base)
+                      + m.group(4), text)
+    text = RUNS.sub(lambda m: m.group(1) + runs_block() + m.group(3), text)
     return BENCH.sub(lambda m: m.group(1) + bench_block() + m.group(3), text)
 
 
-def test_readme_results_table_is_vbl_report_of_the_committed_run_folders():
+def test_readme_results_table_is_vbl_report_of_the_committed_reproduce_run():
     text = README.read_text()
-    folders = report_folders(text)
-    assert all((ROOT / f / "config.json").exists() for f in folders), folders
-    assert REPORT.search(text).group(3) == results_block(folders), (
-        "README.md's results table differs from `vbl report` over its run folders; "
-        "regenerate: python tests/test_readme_results.py")
+    assert report_folders(text) == [FULL]
+    assert REPORT.search(text).group(3) == results_block([FULL]), (
+        "README.md's results table differs from `vbl report` over the committed reproduce "
+        "run; regenerate: python tests/test_readme_results.py")
 
 
-def test_readme_benchmark_table_is_read_from_the_committed_results():
-    m = BENCH.search(README.read_text())
-    assert m, "README.md has no <!-- vbl bench headlines --> ... <!-- /vbl bench --> block"
-    assert m.group(2) == bench_block(), (
-        "README.md's benchmark table differs from benchmarks/results/*.json; regenerate: "
-        "python tests/test_readme_results.py")
+def test_vbl_report_of_the_reproduce_folder_equals_the_readme_table(capsys):
+    from vbl.cli import main
+
+    assert main(["report", str(ROOT / FULL)]) == 0
+    printed = capsys.readouterr().out
+    assert printed.splitlines()[2:] and len(printed.splitlines()) == len(
+        REPORT.search(README.read_text()).group(3).splitlines())
 
 
-def test_every_paper_experiment_has_a_row_in_the_readme():
-    from vbl.engine.report import paper_experiments
+def test_every_readme_row_is_a_default_or_a_named_preset():
+    block = REPORT.search(README.read_text()).group(3)
+    commands = [c for c in (row.split("|")[6].strip() for row in block.splitlines()[2:]) if c]
+    assert commands and all(COMMAND.fullmatch(c) for c in commands), commands
 
-    reported = {json.loads((ROOT / f / "config.json").read_text())["experiment"]
-                for f in report_folders(README.read_text())}
-    missing = {n for n, e in paper_experiments().items() if e.paper_rows is not None}
-    assert missing <= reported, f"paper experiments without a README row: {missing - reported}"
+
+def test_generated_blocks_of_readme_and_findings_are_current():
+    for path in [README, *FINDINGS]:
+        text = path.read_text()
+        assert regenerate(text, path.parent) == text, (
+            f"{path.relative_to(ROOT)}: a generated block is out of date; regenerate: "
+            "python tests/test_readme_results.py")
+
+
+@pytest.mark.parametrize("folder, quick", [(FULL, False), (QUICK, True)])
+def test_the_committed_reproduce_runs_are_todays_published_configs(folder, quick):
+    """Every published result ran, at its scale, with the config today's code resolves for
+    it (a changed default, preset or quick override fails here until the runs are redone),
+    and every run finished."""
+    from vbl.engine.report import paper_experiments, reproduce_jobs
+    from vbl.engine.runner import resolve
+
+    manifest = _manifest(folder)
+    assert manifest["quick"] is quick
+    exps = paper_experiments()
+    jobs = reproduce_jobs(exps)
+    assert [r["folder"] for r in manifest["runs"]] == [j.folder for j in jobs]
+    assert all(r["status"] == "ok" for r in manifest["runs"]), manifest["runs"]
+    assert not manifest["commit"].endswith("+dirty") and manifest["commit"] != "unknown"
+    for j in jobs:
+        spec = json.loads((ROOT / folder / j.folder / "config.json").read_text())
+        *_, today = resolve(exps[j.name], quick=quick, preset=j.preset)
+        assert spec == today, f"{folder}/{j.folder} ran another config than today's"
 
 
 def test_report_commands_rebuild_the_recorded_config(tmp_path):
@@ -104,36 +167,9 @@ def test_report_commands_rebuild_the_recorded_config(tmp_path):
                    sweep={"agent.learning_rate": [0.1, 0.5]}, seeds=3, base_seed=7,
                    out=tmp_path / "run", quick=True, quiet=True, plots=False)
     exp, _, spec = load_run(tmp_path / "run")
-    command, unrecorded = run_command(exp, spec)
-    assert command == ("vbl run toy_bandit --quick --seeds 3 --seed 7 --sweep "
-                       "agent.learning_rate=0.1,0.5 --set env.num_arms=4 --set "
-                       "agent.epsilon=0.05")
-    assert unrecorded == []
-
-
-@pytest.mark.parametrize("folder, command, unrecorded", [
-    ("table2_full", "vbl run table2_shoot_pass --set cva.keep_beyond_order=false --set "
-     "cva.n_used_objects=4,4,4 --set cva.quantizer.group_codes=16,8,8 --set q.discount=0.95 "
-     "--set q.learning_rate=0.5", False),
-    # fig5_cells also trained the grid baseline with synchronous macro actions
-    ("fig5_cells", "vbl run fig5_action_based --preset construction_only --set "
-     "baseline.agent.learning_rate=0.1 --set baseline.agent.exploration.transition_steps=500.0 "
-     "--set baseline.agent.macro.mode=sync --set baseline.agent.lem.window=100 --set "
-     "baseline.agent.chunk_steps=100 --set baseline.train.eval_steps=400", True),
-    ("table1", "vbl run table1_identification", False),
-    # swept with an older default of the swept path (0.5) recorded as its base value
-    ("table2_lr_sweep", "vbl run table2_shoot_pass --sweep q.learning_rate=0.1,0.25,0.5 "
-     "--set q.discount=0.95", False),
-])
-def test_commands_of_older_folders_use_the_legacy_values(folder, command, unrecorded):
-    """Parameters added after a folder was written take the experiment's legacy_values
-    (fig5_cells predates the refinement: refine.iterations=0); the others are named."""
-    from vbl.engine.report import load_run, run_command
-
-    exp, _, spec = load_run(ROOT / "docs/results" / folder)
-    got, missing = run_command(exp, spec)
-    assert got == command
-    assert bool(missing) == unrecorded, missing
+    assert run_command(exp, spec) == (
+        "vbl run toy_bandit --quick --seeds 3 --seed 7 --sweep agent.learning_rate=0.1,0.5 "
+        "--set env.num_arms=4 --set agent.epsilon=0.05")
 
 
 def _unknown_experiment(p: Path) -> Path:
@@ -171,14 +207,15 @@ def test_report_out_writes_links_relative_to_the_file(tmp_path):
 
     out = tmp_path / "sub" / "results.md"
     out.parent.mkdir()
-    assert main(["report", str(ROOT / "docs/results/table2_lr025_g099"), "--out", str(out)]) == 0
+    run = ROOT / FULL / "table2_shoot_pass"
+    assert main(["report", str(run), "--out", str(out)]) == 0
     text = out.read_text()
     assert "`vbl run table2_shoot_pass`" in text and "| 78.5 |" in text
-    link = re.search(r"\[table2_lr025_g099\]\(([^)]+)\)", text).group(1)
-    assert (out.parent / link).resolve() == ROOT / "docs/results/table2_lr025_g099/report.md"
+    link = re.search(r"\[table2_shoot_pass\]\(([^)]+)\)", text).group(1)
+    assert (out.parent / link).resolve() == run / "report.md"
 
 
 if __name__ == "__main__":
-    new = regenerate(README.read_text())
-    README.write_text(new)
-    print(f"{README.relative_to(ROOT)}: tables regenerated", file=sys.stderr)
+    for path in [README, *FINDINGS]:
+        path.write_text(regenerate(path.read_text(), path.parent))
+        print(f"{path.relative_to(ROOT)}: generated blocks regenerated", file=sys.stderr)

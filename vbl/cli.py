@@ -148,12 +148,12 @@ def _run(experiment, args) -> int:
             raise ParamError(f"--sweep {path} is given twice; give all its values in one "
                              f"--sweep {path}=V1,V2,...")
         sweep[path] = values
-    sets = {**experiment.preset(args.preset, sweep), **sets}
     import jax
 
     primary = jax.process_index() == 0
     if primary:
-        print(describe_sweep(experiment, sets, sweep, args.seeds, args.quick)[2], flush=True)
+        print(describe_sweep(experiment, sets, sweep, args.seeds, args.quick, args.preset)[2],
+              flush=True)
     t0 = time.perf_counter()
     result = run_experiment(experiment, sets=sets, sweep=sweep, seeds=args.seeds,
                             base_seed=args.seed, out=args.out, resume=args.resume,
@@ -161,7 +161,7 @@ def _run(experiment, args) -> int:
                             quiet=True if args.quiet else None,
                             checkpoint_every=args.checkpoint_every,
                             learner_batch=args.learner_batch,
-                            memory_check=not args.no_memory_check)
+                            memory_check=not args.no_memory_check, preset=args.preset)
     if primary:
         try:
             _, report = run_report(experiment, result)

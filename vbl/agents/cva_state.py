@@ -42,10 +42,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from vbl.agents.exploration import ExplorationParams
-from vbl.agents.lem import LEMParams
 from vbl.agents.qlearning import QRunnerParams, make_qlearning_runner
-from vbl.envs.macro import MacroActionParams
 from vbl.envs.wrappers import (
     KINDS,
     EpisodeCounts,
@@ -81,7 +78,6 @@ __all__ = [
     "filtered_params",
     "state_dim",
     "make_cva_learner",
-    "default_q",
     "greedy_params",
     "first_episode_stats",
 ]
@@ -90,18 +86,6 @@ __all__ = [
 #: to one length) and the traced ``use_cva`` picks one per learner, so one compilation serves
 #: both rows of Table 2.
 STATE_KINDS = KINDS
-
-
-def default_q() -> QRunnerParams:
-    """Q-learner defaults of this pipeline: primitive actions (no macro actions), no LEM,
-    epsilon-greedy with epsilon 1.0 -> 0.05 over 2000 learner steps (num_states is set from
-    the quantiser by :attr:`CVALearner.runner_params`)."""
-    return QRunnerParams(
-        num_states=1, num_actions=7,
-        exploration=ExplorationParams(schedule="linear", init_value=1.0, end_value=0.05,
-                                      transition_steps=2000.0),
-        macro=MacroActionParams(enabled=False), lem=LEMParams(enabled=False),
-        num_envs=64, chunk_steps=100)
 
 
 @struct.dataclass

@@ -12,7 +12,7 @@ actions are int32 indices), and :func:`make_categorical_ppo_networks` is a
         env, num_timesteps=1_000_000, episode_length=env.episode_length,
         network_factory=make_categorical_ppo_networks, ...)
 
-:class:`PPONetParams` holds the network sizes as named parameters;
+:class:`vbl.agents.ppo_params.PPONetParams` holds the network sizes as named parameters;
 ``functools.partial(make_categorical_ppo_networks, **net.kwargs())`` passes them.
 """
 
@@ -22,14 +22,16 @@ from collections.abc import Sequence
 
 import jax
 import jax.numpy as jnp
-from brax.training import distribution, networks, types
-from brax.training.agents.ppo import networks as ppo_networks
-from flax import linen, struct
+from flax import linen
 
-from vbl.params import param
+from vbl.agents.ppo_params import PPONetParams
+from vbl.envs.brax_adapter import quiet_import
 
-__all__ = ["CategoricalDistribution", "make_categorical_ppo_networks", "PPONetParams",
-           "network_size"]
+with quiet_import():
+    from brax.training import distribution, networks, types
+    from brax.training.agents.ppo import networks as ppo_networks
+
+__all__ = ["CategoricalDistribution", "make_categorical_ppo_networks", "network_size"]
 
 
 class _Categorical:
@@ -96,29 +98,6 @@ class CategoricalDistribution(distribution.ParametricDistribution):
 
     def create_dist(self, parameters):
         return _Categorical(parameters)
-
-
-@struct.dataclass
-class PPONetParams:
-    """Sizes of the policy and value networks (multi-layer perceptrons, swish units)."""
-
-    policy_hidden: tuple = param((64, 64), doc="hidden layer widths of the policy network "
-                                 "(brax's default (32,)*4)", static=True)
-    value_hidden: tuple = param((64, 64), doc="hidden layer widths of the value network "
-                                "(brax's default (256,)*5 limits PPO to ~20 k env steps/s "
-                                "on 2 CPU cores, benchmarks/ppo_throughput.py)", static=True)
-
-    def check(self) -> None:
-        from vbl.params import ParamError
-
-        for name in ("policy_hidden", "value_hidden"):
-            v = getattr(self, name)
-            if not v or not all(isinstance(k, int) and k >= 1 for k in v):
-                raise ParamError(f"{name}={v!r}: one or more layer widths, integers >= 1")
-
-    def kwargs(self) -> dict:
-        return {"policy_hidden_layer_sizes": tuple(self.policy_hidden),
-                "value_hidden_layer_sizes": tuple(self.value_hidden)}
 
 
 def make_categorical_ppo_networks(

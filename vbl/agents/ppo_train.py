@@ -25,79 +25,23 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import optax
-from brax.envs.wrappers import training as wrappers
-from brax.training import acting
-from brax.training.acme import running_statistics, specs
-from brax.training.agents.ppo import losses as ppo_losses
-from brax.training.agents.ppo import networks as ppo_networks
 from flax import struct
 
-from vbl.agents.ppo import PPONetParams, make_categorical_ppo_networks
-from vbl.envs.brax_adapter import set_difficulty
-from vbl.params import ParamError, param, section
+from vbl.agents.ppo import make_categorical_ppo_networks
+from vbl.agents.ppo_params import CurriculumParams, PPOParams
+from vbl.envs.brax_adapter import quiet_import, set_difficulty
 
-__all__ = ["PPOParams", "CurriculumParams", "curriculum_update", "PPOCarry", "PPOLearner",
-           "make_ppo_learner"]
+with quiet_import():
+    from brax.envs.wrappers import training as wrappers
+    from brax.training import acting
+    from brax.training.acme import running_statistics, specs
+    from brax.training.agents.ppo import losses as ppo_losses
+    from brax.training.agents.ppo import networks as ppo_networks
+
+__all__ = ["curriculum_update", "PPOCarry", "PPOLearner", "make_ppo_learner"]
 
 F32 = jnp.float32
 EXTRA_FIELDS = ("truncation", "episode_metrics", "episode_done")
-
-
-@struct.dataclass
-class CurriculumParams:
-    """LEM for PPO: raise the start difficulty as the evaluation success passes a level."""
-
-    enabled: bool = param(False, doc="curriculum on (traced: both arms share a compilation)")
-    initial_difficulty: float = param(0.0, doc="start difficulty of the first chunk", ge=0.0,
-                                      le=1.0)
-    step: float = param(0.1, doc="difficulty added after a chunk whose evaluation at the "
-                        "current difficulty succeeds at >= success_level", gt=0.0, le=1.0)
-    success_level: float = param(0.8, doc="deterministic-policy success at the current "
-                                 "difficulty that raises it", gt=0.0, le=1.0)
-
-
-@struct.dataclass
-class PPOParams:
-    """brax PPO hyperparameters (names as in ``brax.training.agents.ppo.train``)."""
-
-    net: PPONetParams = section(PPONetParams, doc="network sizes")
-    num_envs: int = param(64, doc="parallel envs per learner", static=True, ge=1)
-    unroll_length: int = param(20, doc="env steps per trajectory of the PPO loss", unit="step",
-                               static=True, ge=1)
-    batch_size: int = param(32, doc="trajectories per minibatch", static=True, ge=1)
-    num_minibatches: int = param(4, doc="minibatches per pass over a batch", static=True,
-                                 ge=1)
-    num_updates_per_batch: int = param(4, doc="SGD passes over each batch", static=True, ge=1)
-    steps_per_chunk: int = param(20, doc="training steps (batches) per engine chunk",
-                                 static=True, ge=1)
-    normalize_observations: bool = param(True, doc="running mean/std normalisation of the "
-                                         "observations (brax's running_statistics)",
-                                         static=True)
-    learning_rate: float = param(3e-4, doc="Adam step size", gt=0.0)
-    entropy_cost: float = param(1e-2, doc="weight of the entropy bonus", ge=0.0)
-    discounting: float = param(0.99, doc="discount per primitive (0.1 s)", gt=0.0, le=1.0)
-    gae_lambda: float = param(0.95, doc="GAE lambda", ge=0.0, le=1.0)
-    clipping_epsilon: float = param(0.2, doc="PPO ratio clipping", gt=0.0)
-    reward_scaling: float = param(1.0, doc="factor on rewards", gt=0.0)
-    max_grad_norm: float = param(0.5, doc="global gradient-norm clip", gt=0.0)
-    eval_envs: int = param(32, doc="fresh starts per evaluation after each chunk "
-                           "(deterministic policy, first episode of each)", static=True, ge=1)
-    curriculum: CurriculumParams = section(CurriculumParams, doc="LEM for PPO")
-
-    def check(self) -> None:
-        n = self.batch_size * self.num_minibatches
-        if n % self.num_envs:
-            raise ParamError(f"batch_size x num_minibatches = {n} must be a multiple of "
-                             f"num_envs = {self.num_envs} (each env unrolls whole "
-                             "trajectories)")
-
-    @property
-    def env_steps_per_training_step(self) -> int:
-        return self.batch_size * self.num_minibatches * self.unroll_length
-
-    @property
-    def env_steps_per_chunk(self) -> int:
-        return self.env_steps_per_training_step * self.steps_per_chunk
 
 
 @struct.dataclass

@@ -15,13 +15,13 @@ from flax import struct
 from vbl.agents.exploration import ScheduleParams
 from vbl.agents.qlearning import QRunnerParams
 from vbl.agents.traces import TraceParams
-from vbl.engine.q_program import QTrainParams, make_q_program, q_renames, trace_alias_to_update
+from vbl.engine.q_program import QTrainParams, make_q_program
 from vbl.envs.shooting import ShootingEnv, ShootingParams
 from vbl.params import section
 from vbl.spaces.grid import NUM_GRID_STATES, GridParams, grid_state
 
 __all__ = ["GridBaseline", "GridLearner", "grid_program", "grid_env", "grid_space", "grid_agent",
-           "grid_train", "grid_renames", "grid_migration", "TASK_DIFFICULTY"]
+           "grid_train", "TASK_DIFFICULTY"]
 
 TASK_DIFFICULTY = 1.0
 """Start difficulty of the grid's task (evaluation, and the cap of the curriculum): fully
@@ -183,20 +183,3 @@ def grid_program(cfg: Any):
     :class:`GridBaseline` (``env``, ``grid``, ``agent``, ``train``)."""
     return make_q_program(ShootingEnv(), lambda obs, c: grid_state(obs, c.grid), cfg,
                           num_states=NUM_GRID_STATES)
-
-
-def grid_renames(old: str = "", new: str = "") -> dict[str, str]:
-    """``Experiment.renamed_params`` of the grid learner's sections (``grid``, ``agent``,
-    ``train``) recorded under prefix ``old`` in the earlier layout (``agent.agent.*``,
-    ``exploration.schedule.*``, ``lr_scale.kind``), now under ``new``."""
-    renames = {**q_renames(old + "agent.", new + "agent."),
-               old + "train.lr_scale.kind": new + "train.lr_scale.schedule"}
-    if old != new:
-        renames.update({old + "grid.": new + "grid.", old + "train.": new + "train."})
-    return renames
-
-
-def grid_migration(old: str = ""):
-    """``Experiment.migrate`` of the grid learner's sections recorded under ``old``: the
-    former trace alias (:func:`~vbl.engine.q_program.trace_alias_to_update`)."""
-    return trace_alias_to_update(old + "agent.agent.")

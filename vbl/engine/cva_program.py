@@ -25,23 +25,22 @@ from flax import struct
 
 from vbl.agents.cva_state import (
     CVAStateParams,
-    default_q,
     first_episode_stats,
     greedy_params,
     make_cva_learner,
 )
-from vbl.agents.exploration import ScheduleParams, schedule_value
+from vbl.agents.exploration import ExplorationParams, ScheduleParams, schedule_value
+from vbl.agents.lem import LEMParams
 from vbl.agents.qlearning import QRunnerParams
 from vbl.engine.experiment import Program
-from vbl.engine.q_program import q_renames, trace_alias_to_update
+from vbl.envs.macro import MacroActionParams
 from vbl.envs.shoot_pass import ShootPassEnv
 from vbl.params import ParamError, param, section
 from vbl.spaces.quantize import QuantizerParams
 from vbl.sysid.params import CVAParams
 
 __all__ = ["default_cva", "default_table2_q", "default_lr_scale", "CVATrainParams",
-           "make_cva_program", "task_label", "state_label", "POINT_KEYS",
-           "absolute_lr_schedule_to_scale", "RENAMED_PARAMS", "migrate"]
+           "make_cva_program", "task_label", "state_label", "POINT_KEYS"]
 
 POINT_KEYS = ("task", "env.task_pass", "cva.use_cva", "cva.state")
 """Sweep paths that name a row's task and state vector (the others are extra settings)."""
@@ -68,23 +67,24 @@ def default_cva() -> CVAStateParams:
                                   kmeans_iters=20))
 
 
-def default_table2_q(transition_steps: float = 30000.0) -> QRunnerParams:
-    """Q-learner defaults with discount 0.99, step size 0.25 and epsilon 1.0 -> 0.05 over
-    ``transition_steps`` learner steps (primitives, about 75 % of a run: num_chunks x
-    chunk_steps)."""
-    r = default_q()
-    # macro actions: repeat a primitive until the quantised state changes (a deviation:
-    # docs/findings/table2_shoot_pass.md, "Deviations")
-    # (async: every runner step is one primitive of every env; an env decides when its
-    # action ends; an action lasts a few primitives on average against a cap of 20, and a
-    # synchronous loop runs as long as the longest action of the batch)
-    r = r.replace(macro=r.macro.replace(enabled=True, mode="async"))
-    # discount 0.99 per 0.1 s primitive (a goal 3-4 s after the start is still worth ~0.7)
-    # and learning rate 0.25, scaled per chunk by train.lr_scale (default_lr_scale): the best
-    # mean greedy success of the four rows in the engine's own 16-seed sweeps
-    # (docs/findings/table2_shoot_pass.md, "Step size and discount")
-    return r.replace(discount=0.99, learning_rate=0.25, exploration=r.exploration.replace(
-        transition_steps=transition_steps))
+def default_table2_q() -> QRunnerParams:
+    """Table 2's Q-learner, every value in one place (the library's QRunnerParams defaults
+    for the rest): 7 primitive commands; asynchronous macro actions (repeat a primitive
+    until the quantised state changes, a deviation: docs/findings/table2_shoot_pass.md,
+    "Deviations"; every runner step is one primitive of every env and an env decides when
+    its action ends, while a synchronous loop would run as long as the longest action of
+    the batch); no LEM; 64 envs x 100 learner steps per chunk; epsilon-greedy, epsilon 1.0
+    -> 0.05 over 30,000 learner steps (about 75 % of the default run: num_chunks x
+    chunk_steps); discount 0.99 per 0.1 s primitive (a goal 3-4 s after the start is still
+    worth ~0.7) and step size 0.25, scaled per chunk by train.lr_scale (default_lr_scale):
+    the best mean greedy success of the four rows in the engine's own 16-seed sweeps
+    (docs/findings/table2_shoot_pass.md, "Step size and discount")."""
+    return QRunnerParams(
+        num_states=1, num_actions=7, discount=0.99, learning_rate=0.25,
+        exploration=ExplorationParams(schedule="linear", init_value=1.0, end_value=0.05,
+                                      transition_steps=30000.0),
+        macro=MacroActionParams(enabled=True, mode="async"), lem=LEMParams(enabled=False),
+        num_envs=64, chunk_steps=100)
 
 
 def default_lr_scale() -> ScheduleParams:
@@ -109,37 +109,6 @@ class CVATrainParams:
     lr_scale: ScheduleParams = section(default_lr_scale, doc="factor on q.learning_rate "
                                        "per training chunk, count = training chunks done "
                                        "(as the Q programs' train.lr_scale)")
-
-
-def absolute_lr_schedule_to_scale(rec: dict) -> dict:
-    """A recorded config with the absolute step-size schedule ``train.lr_schedule`` (older
-    run folders) in today's terms: its start as ``q.learning_rate``,
-    the schedule as the factor ``train.lr_scale`` (the same step sizes)."""
-    if "train.lr_schedule.init_value" not in rec:
-        return rec
-    rec = dict(rec)
-    init = rec.pop("train.lr_schedule.init_value")
-    for key in [k for k in rec if k.startswith("train.lr_schedule.")]:
-        name, value = key.rsplit(".", 1)[1], rec.pop(key)
-        rec[f"train.lr_scale.{name}"] = round(value / init, 9) if name == "end_value" else value
-    rec["train.lr_scale.init_value"] = 1.0
-    rec.pop("learner.runner.agent.learning_rate", None)  # the schedule overrode it
-    rec["q.learning_rate"] = init
-    return rec
-
-
-RENAMED_PARAMS = {**q_renames("learner.runner.", "q."), "learner.cva.": "cva.ident.",
-                  "learner.": "cva.", "train.lr_scale.kind": "train.lr_scale.schedule"}
-"""``Experiment.renamed_params`` of this program's config: the Q-learner was
-``learner.runner`` (its table's parameters ``learner.runner.agent``), the state
-construction ``learner`` with the identification at ``learner.cva``."""
-
-
-def migrate(rec: dict) -> dict:
-    """``Experiment.migrate`` of this program's config: the absolute step-size schedule
-    (:func:`absolute_lr_schedule_to_scale`) and the former trace alias
-    (:func:`~vbl.engine.q_program.trace_alias_to_update`)."""
-    return absolute_lr_schedule_to_scale(trace_alias_to_update("learner.runner.agent.")(rec))
 
 
 @struct.dataclass

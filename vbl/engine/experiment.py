@@ -167,28 +167,14 @@ class Experiment:
         interval; a ``final`` metric, else the last chunk's); default: the scalar ``final``
         metrics, then the last chunk's, as many as fit 100 columns. Every metric stays in
         ``summary.json``.
-      renamed_metrics: ``{old name: current name}`` of metrics the experiment renamed: rows
-        of run folders written under an old name are read under the current one.
       paper_rows: ``RunResult -> list[PaperRow]``: the paper's numbers beside the run's, for
         ``vbl report``, which rebuilds the ``RunResult`` from a run folder's ``config.json``
         and ``summary.json`` (``curves`` empty; ``final`` from the per-seed values).
-      legacy_values: ``{path: value}`` for parameters added after run folders were written:
-        the value that reproduces the code before the parameter existed. ``vbl report``
-        uses it to rebuild the command of a run folder that does not record the parameter.
-      presets: ``{name: {path: value}}``: named variants (``vbl run NAME --preset P``), e.g.
-        every variant the README reports; ``--set`` overrides a preset's values and
-        ``--sweep`` of one of its paths replaces it.
-      renamed_params: ``{old path: current path}`` of parameters the experiment moved (a
-        key ending in ``.`` moves every path under it; the longest matching key wins, an
-        exact path before any prefix): run folders that recorded the old path are read
-        under the current one, and ``--set`` / ``--sweep`` of an old path name the new one.
-      migrate: ``recorded config -> config`` (``{path: value}`` dicts) for run folders
-        whose parameters changed meaning (a value conversion, not only a new path); applied
-        before ``renamed_params``.
-      removed_params: ``{path: value}`` of parameters the experiment no longer has, with the
-        value under which a run equals today's code (``None``: any value; a path ending in
-        ``.`` covers every parameter under it). ``vbl report`` names a folder that recorded
-        another value (its command runs today's code).
+      presets: ``{name: {path: value}}``: named variants (``vbl run NAME --preset P``);
+        ``--set`` overrides a preset's values and ``--sweep`` of one of its paths replaces
+        it.
+      published_presets: the presets whose results the README publishes: ``vbl reproduce``
+        runs each of them beside the default config (into ``<out>/<name>-<preset>``).
     """
 
     name: str
@@ -206,32 +192,9 @@ class Experiment:
     cost: float = 1.0
     group: str | None = None
     headline: tuple[str, ...] = ()
-    renamed_metrics: Mapping[str, str] = field(default_factory=dict)
     paper_rows: Callable[[RunResult], list[PaperRow]] | None = None
-    legacy_values: Mapping[str, Any] = field(default_factory=dict)
     presets: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
-    renamed_params: Mapping[str, str] = field(default_factory=dict)
-    removed_params: Mapping[str, Any] = field(default_factory=dict)
-    migrate: Callable[[dict[str, Any]], dict[str, Any]] | None = None
-
-    def removed_as_today(self, path: str, value: Any) -> bool:
-        """Whether a run that recorded ``path = value`` (a parameter the config no longer
-        has) equals today's code (:attr:`removed_params`)."""
-        for p, v in self.removed_params.items():
-            if path == p or (p.endswith(".") and path.startswith(p)):
-                return v is None or v == value
-        return False
-
-    def renamed(self, path: str) -> str:
-        """Today's name of a parameter path that a run folder or a user may give under an
-        older name (:attr:`renamed_params`); other paths are returned unchanged."""
-        if path in self.renamed_params:
-            return self.renamed_params[path]
-        prefixes = [p for p in self.renamed_params if p.endswith(".") and path.startswith(p)]
-        if not prefixes:
-            return path
-        old = max(prefixes, key=len)
-        return self.renamed_params[old] + path[len(old):]
+    published_presets: tuple[str, ...] = ()
 
     def preset(self, name: str | None, swept: Any = ()) -> dict[str, Any]:
         """The ``{path: value}`` overrides of preset ``name`` ({} for None) but the paths in
@@ -261,20 +224,16 @@ class Experiment:
                              f"dataclass instance, got {type(self.default_config).__name__}")
         from vbl.params import ParamError, get_path
 
-        checked = [("legacy_values", p) for p in self.legacy_values]
-        checked += [("renamed_params", p.rstrip(".")) for p in self.renamed_params.values()]
-        checked += [(f"presets[{n!r}]", p) for n, v in self.presets.items() for p in v]
+        checked = [(f"presets[{n!r}]", p) for n, v in self.presets.items() for p in v]
         for what, path in checked:
             try:
                 get_path(self.default_config, path)
             except ParamError as e:
                 raise ValueError(f"experiment {self.name!r}: {what}: {e}") from None
-        for path in self.removed_params:
-            try:
-                get_path(self.default_config, path.rstrip("."))
-            except ParamError:
-                continue
-            raise ValueError(f"experiment {self.name!r}: removed_params: {path} still exists")
+        unknown = [p for p in self.published_presets if p not in self.presets]
+        if unknown:
+            raise ValueError(f"experiment {self.name!r}: published_presets {unknown} are not "
+                             f"presets; valid: {sorted(self.presets)}")
         for n, v in (("seeds", self.seeds), ("quick_seeds", self.quick_seeds)):
             if v is not None and (not isinstance(v, int) or v < 1):
                 raise ValueError(f"experiment {self.name!r}: {n} must be an int >= 1, got {v!r}")

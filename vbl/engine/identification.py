@@ -236,10 +236,11 @@ def row_markdown(cells: list[str], s: dict, paper: tuple | None, mode: bool = Fa
                              ms("aic", ".0f"), p]) + " |"
 
 
-def claims_markdown(checks: dict[str, bool]) -> list[str]:
-    """The lines of a ``| claim | holds |`` table (after a blank line)."""
-    return ["", "| claim | holds |", "|---|---|"] + [
-        f"| {c} | {'yes' if ok else '**no**'} |" for c, ok in checks.items()]
+def claims_markdown(checks: dict[str, str]) -> list[str]:
+    """The lines of a ``| claim | holds |`` table (after a blank line); the verdicts are
+    :func:`vbl.engine.report.claim` texts (95 % intervals over seeds)."""
+    return ["", "| claim | holds (95 % interval of the difference over seeds) |", "|---|---|"] + [
+        f"| {c} | {v} |" for c, v in checks.items()]
 
 
 def identification_cells(final: Mapping[str, Any], point: int, row: str) -> str:

@@ -25,9 +25,7 @@ import jax
 from flax import struct
 
 from vbl.agents.ppo_inputs import InputEnv, InputParams, prepare_models
-from vbl.agents.ppo_train import make_ppo_learner
 from vbl.engine.experiment import Program
-from vbl.envs.brax_adapter import BraxAdapter, with_difficulty
 from vbl.envs.shoot_pass import ShootPassEnv
 from vbl.envs.shooting import ShootingEnv
 from vbl.params import param
@@ -73,6 +71,9 @@ def _program(lrn, init_env, num_chunks: int, final_envs: int):
 def make_shooting_program(cfg: Any):
     """Program for a config with sections ``env`` (ShootingParams), ``ppo`` (PPOParams),
     ``run`` (PPORunParams); evaluation at start difficulty 1 (fully random starts)."""
+    from vbl.agents.ppo_train import make_ppo_learner  # brax: imported when a program is built
+    from vbl.envs.brax_adapter import BraxAdapter
+
     env = ShootingEnv()
 
     def make_env(env_params, difficulty):
@@ -85,6 +86,9 @@ def make_shooting_program(cfg: Any):
 def make_shoot_pass_program(cfg: Any):
     """Program for a config with sections ``env`` (ShootPassParams), ``inputs``
     (InputChoice), ``cva`` (CVAStateParams of the tabular learner), ``ppo``, ``run``."""
+    from vbl.agents.ppo_train import make_ppo_learner  # brax: imported when a program is built
+    from vbl.envs.brax_adapter import BraxAdapter, with_difficulty
+
     base = ShootPassEnv("select")
     ienv = InputEnv(base, "select", cfg.inputs.frames, cfg.cva, m=2)
 

@@ -22,16 +22,22 @@ from typing import Any
 import numpy as np
 
 from vbl.agents.ppo_inputs import INPUTS
-from vbl.engine.experiment import ReportSection, RunResult
+from vbl.engine.curves import LEM_PATH
+from vbl.engine.experiment import PaperRow, ReportSection, RunResult
+from vbl.engine.paper import TABLE2
 from vbl.engine.plots import band
-from vbl.engine.report import seeds_cell
-from vbl.stats import mean_ci95, welch_ci95
+from vbl.engine.report import rate_cell, seeds_cell, sibling_result
+from vbl.stats import mean_ci95, seeds_to_resolve, welch_ci95
 
 __all__ = ["TASKS", "point_keys", "diff_verdict", "shoot_pass_section", "shooting_section",
+           "tabular_cells", "grid_cells", "shoot_pass_rows", "shooting_rows",
            "plot_success_vs_steps", "plot_two_robot_curves", "curves_from_metrics",
            "rerender"]
 
 TASKS = ("shoot", "pass")  #: two-robot tasks, in report order (``env.task_pass`` False, True)
+PCT = (0.0, 100.0)  #: range of a success rate in %
+INPUT_LABELS = {"current": "current features", "stack": "last 3 frames",
+                "cva": "CVA state"}  #: row labels of the inputs
 Key = tuple[str, str, bool]  #: (task, input, curriculum on) of a two-robot sweep point
 
 
@@ -70,6 +76,10 @@ def diff_verdict(a: Any, b: Any, paper: float | None = None) -> str:
         return f"{d:+.1f} (one seed: no interval)"
     lo, hi = d - h, d + h
     side = "above 0" if lo > 0 else "below 0" if hi < 0 else "spans 0"
+    n = min(np.size(a), np.size(b))
+    need = seeds_to_resolve(d, h, n) if side == "spans 0" else None
+    if need:
+        side += f": not resolved at {n} seeds, about {need} would resolve it"
     if paper is not None:
         where = "inside" if lo <= paper <= hi else "above" if paper > hi else "below"
         side += f"; paper's {paper:+.1f} {where} it"
@@ -99,33 +109,64 @@ def _advantage(by: dict[Key, np.ndarray], task: str, cur: bool, paper: float) ->
     return "; ".join(out) or "not run"
 
 
-def shoot_pass_section(res: RunResult, tabular: Mapping[str, Mapping[str, tuple]],
-                       paper: Mapping[str, Mapping[str, float]]) -> ReportSection:
-    """The two-robot comparison. ``tabular[task][input]`` = (mean, 95 % half-width) % of
-    the tabular learner (Table 2 defaults, no curriculum); ``paper[task][input]`` = the
-    paper's % (:data:`vbl.engine.paper.TABLE2`)."""
+def tabular_cells(res: RunResult) -> dict[str, dict[str, str]]:
+    """``{task: {input: "mean ± half-width"}}`` greedy success % of the tabular learner
+    (Table 2's defaults) from the ``table2_shoot_pass`` run folder beside ``res``'s (as
+    ``vbl reproduce`` writes them); {} without one."""
+    t2 = sibling_result(res, "table2_shoot_pass")
+    if t2 is None or "greedy_success_rate" not in t2.final:
+        return {}
+    out: dict[str, dict[str, str]] = {}
+    for i, pt in enumerate(t2.points):
+        task = "pass" if bool(_value(t2, pt, "env.task_pass")) else "shoot"
+        inp = "cva" if bool(_value(t2, pt, "cva.use_cva")) else "current"
+        out.setdefault(task, {})[inp] = rate_cell(t2.final["greedy_success_rate"][i], 100.0,
+                                                  ".1f")
+    return out
+
+
+def grid_cells(res: RunResult) -> dict[bool, tuple[str, str]]:
+    """``{lem on: (greedy %, near-greedy %)}`` of the grid baseline from the
+    ``grid_shooting`` run folder beside ``res``'s; {} without one."""
+    g = sibling_result(res, "grid_shooting")
+    if g is None or "greedy_success" not in g.final:
+        return {}
+    out = {}
+    for i, pt in enumerate(g.points):
+        on = float(_value(g, pt, LEM_PATH)) < float(g.config.agent.lem.max_difficulty)
+        out[on] = tuple(rate_cell(g.final[k][i], 100.0, ".1f")
+                        for k in ("greedy_success", "near_greedy_success"))
+    return out
+
+
+def shoot_pass_section(res: RunResult, paper: Mapping[str, Mapping[str, float]]
+                       ) -> ReportSection:
+    """The two-robot comparison beside the tabular learner (:func:`tabular_cells`) and the
+    paper's % (``paper[task][input]``, :data:`vbl.engine.paper.TABLE2`)."""
+    tabular = tabular_cells(res)
     keys, sr = point_keys(res), _pct(res)
     by = dict(zip(keys, sr, strict=True))
     cur_label = {False: "off", True: "on"}
-    rows = ["| task | input | PPO greedy %, curriculum off | PPO greedy %, curriculum on | "
-            "tabular Q %, Table 2 defaults (no curriculum, 16 seeds) | paper % |",
-            "|---|---|---|---|---|---|"]
+    arms = sorted({k[2] for k in keys})  # curriculum settings the run has
+    rows = ["| task | input | " + " | ".join(f"PPO greedy %, curriculum {cur_label[c]}"
+                                           for c in arms)
+            + " | tabular Q %, Table 2 defaults (table2_shoot_pass beside this run) | paper % |",
+            "|---|---|" + "---|" * len(arms) + "---|---|"]
     for task in TASKS:
         for inp in INPUTS:
-            ppo = [seeds_cell(by[task, inp, c], fmt=".1f") if (task, inp, c) in by
-                   else "not run" for c in (False, True)]
-            if ppo == ["not run"] * 2:
+            if not any((task, inp, c) in by for c in arms):
                 continue
-            tab = tabular[task].get(inp)
-            rows.append(f"| {task} | {inp} | {ppo[0]} | {ppo[1]} | "
-                        f"{f'{tab[0]} ± {tab[1]}' if tab else '- (none on frame stacks)'} | "
+            ppo = [seeds_cell(by[task, inp, c], fmt=".1f", bounds=PCT) if (task, inp, c) in by
+                   else "not run" for c in arms]
+            tab = tabular.get(task, {}).get(inp, "-" if tabular else "- (no run beside)")
+            rows.append(f"| {task} | {inp} | {' | '.join(ppo)} | {tab} | "
                         f"{paper[task].get(inp, '- (none)')} |")
     adv = ["| task | curriculum | PPO CVA − current | PPO stack − current | PPO shows the "
            "paper's CVA advantage? | PPO greedy % vs the paper's CVA learner |",
            "|---|---|---|---|---|---|"]
     for task in TASKS:
         gap = paper[task]["cva"] - paper[task]["current"]
-        for cur in (False, True):
+        for cur in arms:
             now = by.get((task, "current", cur))
             if now is None:
                 continue
@@ -146,16 +187,41 @@ def shoot_pass_section(res: RunResult, tabular: Mapping[str, Mapping[str, tuple]
           f"{_steps(res):,} training primitives per learner; greedy = deterministic policy "
           "at the full start distribution (start difficulty 1), first episode from each of "
           "the final evaluation's fresh starts; mean ± 95 % CI over seeds. The tabular "
-          "learner of Table 2 runs without a curriculum: compare it with the "
-          "curriculum-off column.\n\n" + "\n".join(rows)
+          "learner of Table 2 runs without a curriculum, as PPO's curriculum-off runs."
+          "\n\n" + "\n".join(rows)
           + "\n\nDoes PPO show the paper's CVA advantage (paper, CVA − current: "
           f"{paper_gap} points)? Differences of means with Welch 95 % intervals; an "
           "input shows the advantage when its interval is above 0, of the paper's size "
           "when it also holds the paper's difference. Last column: PPO's greedy success "
           "on each input against the paper's CVA learner's (one-sample 95 % interval "
           "above, below or holding it).\n\n" + "\n".join(adv)
-          + "\n\nCurriculum on − off (Welch 95 %):\n\n" + "\n".join(on_off))
+          + ("\n\nCurriculum on − off (Welch 95 %):\n\n" + "\n".join(on_off)
+             if any(k[2] for k in keys) else ""))
     return ReportSection(markdown=md, figures=(fig, *res.figures))
+
+
+def shoot_pass_rows(res: RunResult) -> list[PaperRow]:
+    """``vbl report`` rows of a ``ppo_comparator`` run: greedy success % per task and input
+    (not in the paper: its CVA learner's % stands beside the CVA row)."""
+    rows = []
+    for (task, inp, cur), sr in zip(point_keys(res), _pct(res), strict=True):
+        what = "passing" if task == "pass" else "shooting"
+        paper = TABLE2[task].get(inp)
+        rows.append(PaperRow(
+            f"PPO (not in the paper), {what}, {INPUT_LABELS[inp]}"
+            f"{', curriculum' if cur else ''}: greedy success %",
+            f"{paper} (tabular)" if paper is not None else "-", seeds_cell(sr, fmt=".1f",
+                                                                        bounds=PCT)))
+    return rows
+
+
+def shooting_rows(res: RunResult) -> list[PaperRow]:
+    """``vbl report`` rows of a ``ppo_shooting`` run: greedy success % per curriculum arm."""
+    sr = _pct(res)
+    return [PaperRow("PPO (not in the paper), Section 2 shooting, "
+                     f"{'with' if bool(_value(res, pt, 'ppo.curriculum.enabled')) else 'without'}"
+                     " curriculum: greedy success %", "-", seeds_cell(sr[i], fmt=".1f", bounds=PCT))
+            for i, pt in enumerate(res.points)]
 
 
 def _versus(x: np.ndarray, level: float, name: str) -> str:
@@ -165,18 +231,19 @@ def _versus(x: np.ndarray, level: float, name: str) -> str:
     return f"{name} {'above' if m - h > level else 'below' if m + h < level else 'inside'}"
 
 
-def shooting_section(res: RunResult, grid: Mapping[bool, tuple]) -> ReportSection:
-    """The shooting task. ``grid[lem]`` = (greedy mean, half-width, near-greedy mean,
-    half-width) % of the grid baseline without / with LEM."""
+def shooting_section(res: RunResult) -> ReportSection:
+    """The shooting task beside the grid baseline without / with LEM
+    (:func:`grid_cells`)."""
+    grid = grid_cells(res)
     sr, rows = _pct(res), ["| curriculum | PPO greedy % | grid Q greedy % (LEM as the "
                            "row) | grid Q near-greedy % |", "|---|---|---|---|"]
     labels = []
     for i, pt in enumerate(res.points):
         on = bool(_value(res, pt, "ppo.curriculum.enabled"))
         labels.append("with curriculum" if on else "without curriculum")
-        g = grid[on]
-        rows.append(f"| {'on' if on else 'off'} | {seeds_cell(sr[i], fmt='.1f')} | "
-                    f"{g[0]} ± {g[1]} | {g[2]} ± {g[3]} |")
+        g = grid.get(on, ("- (no run beside)",) * 2)
+        rows.append(f"| {'on' if on else 'off'} | {seeds_cell(sr[i], fmt='.1f', bounds=PCT)} | "
+                    f"{g[0]} | {g[1]} |")
     fig = plot_success_vs_steps(res.curves, labels, res.out_dir / "ppo_success_vs_steps.png",
                                 "PPO, shooting (Section 2)")
     md = (f"brax PPO on the shooting task from fully random starts (100 s limit), "

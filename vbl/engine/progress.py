@@ -1,7 +1,9 @@
-"""Progress bar over chunks (tqdm): episodes per second and the current success rate."""
+"""Progress over chunks: a tqdm bar (episodes per second, the current success rate) and a
+small status file in the run folder that ``vbl reproduce`` reads for its progress lines."""
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import sys
@@ -10,7 +12,14 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["auto_quiet", "Progress", "bar_width", "SUCCESS_METRICS"]
+__all__ = ["auto_quiet", "Progress", "bar_width", "SUCCESS_METRICS", "STATUS_FILE",
+           "read_status"]
+
+STATUS_FILE = ".vbl-progress"
+"""JSON ``{"phase", "done", "total", "eta_s"}`` in a run folder while it runs: phase
+"compiling" until the first chunk ends (it includes tracing and compilation), then
+"training" with chunks done and an ETA from the chunks after the first; "finishing" once
+the last chunk is done (final metrics, summary, plots)."""
 
 SUCCESS_METRICS = ("eval_success", "greedy_success", "success_rate", "train_success",
                    "chunk_success")
@@ -37,8 +46,13 @@ class Progress:
     """``update(metrics, seconds)`` after every chunk; ``metrics`` are host arrays with the
     learner axis first."""
 
-    def __init__(self, total: int, initial: int = 0, desc: str = "", quiet: bool = False):
+    def __init__(self, total: int, initial: int = 0, desc: str = "", quiet: bool = False,
+                 status_dir: str | os.PathLike | None = None):
         self._bar = None
+        self._status = None if status_dir is None else os.path.join(status_dir, STATUS_FILE)
+        self._total, self._done, self._first = total, initial, initial
+        self._t0: float | None = None  # end of the first chunk of this process
+        self._write_status("compiling")
         if not quiet:
             from tqdm.auto import tqdm
 
@@ -51,6 +65,10 @@ class Progress:
         now = time.perf_counter()
         dt = seconds if seconds is not None else now - self._t
         self._t = now
+        self._done += 1
+        if self._t0 is None:
+            self._t0, self._first = now, self._done
+        self._write_status("training" if self._done < self._total else "finishing")
         if self._bar is None:
             return
         post = {}
@@ -62,6 +80,37 @@ class Progress:
         self._bar.set_postfix(post, refresh=False)
         self._bar.update(1)
 
+    def _write_status(self, phase: str) -> None:
+        if self._status is None:
+            return
+        eta = None
+        if self._t0 is not None and self._done > self._first:
+            per_chunk = (time.perf_counter() - self._t0) / (self._done - self._first)
+            eta = round(per_chunk * (self._total - self._done), 1)
+        tmp = self._status + ".tmp"
+        try:
+            with open(tmp, "w") as f:
+                json.dump({"phase": phase, "done": self._done, "total": self._total,
+                           "eta_s": eta}, f)
+            os.replace(tmp, self._status)
+        except OSError:
+            pass  # progress is best effort; the run's results do not depend on it
+
     def close(self) -> None:
         if self._bar is not None:
             self._bar.close()
+
+
+def read_status(run_dir: str | os.PathLike) -> str:
+    """The status file of a running run folder as short text, e.g. "training 12/400 chunks,
+    ETA 3 min"; "" when there is none (not started, or not a chunked program)."""
+    try:
+        with open(os.path.join(run_dir, STATUS_FILE)) as f:
+            st = json.load(f)
+    except (OSError, ValueError):
+        return ""
+    text = f"{st.get('phase')} {st.get('done')}/{st.get('total')} chunks"
+    eta = st.get("eta_s")
+    if isinstance(eta, int | float):
+        text += f", ETA {eta / 60:.0f} min" if eta >= 90 else f", ETA {eta:.0f} s"
+    return text

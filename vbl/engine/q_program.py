@@ -60,43 +60,10 @@ from vbl.agents.qlearning import QRunnerState, make_qlearning_runner
 from vbl.engine.experiment import Program
 from vbl.params import ParamError, param, section, validate
 
-__all__ = ["QTrainParams", "make_q_program", "curve_metric", "q_renames",
-           "trace_alias_to_update", "RENAMED_METRICS", "EVAL_STREAM"]
+__all__ = ["QTrainParams", "make_q_program", "curve_metric", "EVAL_STREAM"]
 
 F32 = jnp.float32
 EVAL_STREAM = 0x5EED  #: fold_in tag of the evaluation keys (kept off the training stream)
-
-RENAMED_METRICS = {"success_rate": "eval_success", "train_success_rate": "train_success"}
-"""Earlier names of the per-chunk metrics (``Experiment.renamed_metrics``): run folders
-written under them are read under the current ones."""
-
-
-def q_renames(old: str, new: str) -> dict[str, str]:
-    """``Experiment.renamed_params`` of a Q-learner section recorded at ``old`` (e.g.
-    ``"agent."``) in the earlier layout, where ``old + "agent."`` held the table's
-    parameters, the exploration schedule was a section of its own and the selection rule
-    was ``exploration.kind``; the section is now at ``new``."""
-    a = old + "agent."
-    renames = {a + "exploration.kind": new + "exploration.policy",
-               a + "exploration.schedule.kind": new + "exploration.schedule",
-               a + "exploration.schedule.": new + "exploration.", a: new}
-    return {**renames, old: new} if old != new else renames
-
-
-def trace_alias_to_update(prefix: str) -> Callable[[dict], dict]:
-    """``Experiment.migrate`` for run folders that recorded the former alias of an update
-    rule, ``PREFIX.trace.enabled`` with ``PREFIX.trace.kind`` K: today's ``update = K``
-    (``prefix`` as recorded, e.g. ``"agent.agent."``)."""
-    def migrate(rec: dict) -> dict:
-        rec = dict(rec)
-        enabled = rec.pop(prefix + "trace.enabled", False)
-        kind = rec.pop(prefix + "trace.kind", None)
-        if enabled:
-            rec[prefix + "update"] = kind
-        return rec
-
-    return migrate
-
 
 def curve_metric(curves: dict) -> str:
     """The learning curve a run has: ``eval_success`` (``train.eval_curve`` on), else

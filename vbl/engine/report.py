@@ -10,6 +10,7 @@ import os
 import shlex
 import time
 import traceback
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -19,9 +20,11 @@ from vbl.engine.registry import all_experiments, discover, import_errors
 from vbl.engine.runfolder import record_files
 from vbl.stats import mean_ci95, t_quantile_975
 
-__all__ = ["default_section", "default_jobs", "reproduce", "paper_experiments",
-           "run_report", "headline_table", "TABLE_COLUMNS", "load_run", "run_command",
-           "stat_cell", "seeds_cell", "results_table"]
+__all__ = ["default_section", "default_jobs", "reproduce", "reproduce_jobs", "Job",
+           "paper_experiments", "run_report", "headline_table", "TABLE_COLUMNS", "load_run",
+           "run_command", "run_folders", "sibling_result", "stat_cell", "seeds_cell",
+           "rate_cell", "RATE", "claim", "results_table", "REPRODUCE_MANIFEST",
+           "machine_description"]
 
 TABLE_COLUMNS = 100  #: the width ``vbl run``'s terminal table keeps to
 
@@ -151,18 +154,50 @@ def headline_table(result: RunResult, exp: Experiment | None = None,
     return "\n".join(lines + [note])
 
 
-def default_jobs(n_experiments: int) -> int:
-    """Worker processes for ``vbl reproduce``: one per CPU core, at most one per experiment.
+REPRODUCE_MANIFEST = "reproduce.json"
+"""What ``vbl reproduce`` ran, in order: per run its experiment, preset, folder, status, wall
+time and peak memory; the commit, machine and load of the whole run."""
+
+HEARTBEAT_S = 30.0  #: most seconds between two progress lines of ``vbl reproduce``
+
+
+@dataclass(frozen=True)
+class Job:
+    """One run of ``vbl reproduce``: an experiment's default config or one of its
+    :attr:`~vbl.engine.Experiment.published_presets`, into ``<out>/<folder>``."""
+
+    name: str
+    preset: str | None = None
+
+    @property
+    def folder(self) -> str:
+        return self.name if self.preset is None else f"{self.name}-{self.preset}"
+
+
+def reproduce_jobs(exps: dict[str, Experiment]) -> list[Job]:
+    """Every published result: each experiment's default, then its published presets."""
+    return [Job(n, p) for n, e in exps.items() for p in (None, *e.published_presets)]
+
+
+def default_jobs(n_runs: int) -> int:
+    """Worker processes for ``vbl reproduce``: one per CPU core, at most one per run.
 
     A quick run is dominated by XLA compilation, which uses one core per program, so
-    experiments in separate processes use every core while they compile.
+    runs in separate processes use every core while they compile.
     """
-    return max(1, min(os.cpu_count() or 1, n_experiments))
+    return max(1, min(os.cpu_count() or 1, n_runs))
 
 
-def _run_one(name: str, out: Path, quick: bool, quiet: bool | None, resume: bool,
+def _peak_rss_mb() -> float:
+    """Peak resident memory of this process so far, MiB (Linux reports KiB)."""
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _run_one(job: Job, out: Path, quick: bool, quiet: bool | None, resume: bool,
              overwrite: bool, exp: Experiment | None = None) -> dict[str, Any]:
-    """Run one paper experiment and build its report section; never raises.
+    """Run one job and build its report section; never raises.
 
     In a worker process ``exp`` is None and the experiment is looked up in the registry
     (the worker imports the experiment scripts itself). Returns a picklable dict.
@@ -171,11 +206,12 @@ def _run_one(name: str, out: Path, quick: bool, quiet: bool | None, resume: bool
 
     t0 = time.perf_counter()
     result = None
+    folder = out / job.folder
     try:
         if exp is None:
-            exp = paper_experiments()[name]
-        result = run_experiment(exp, out=out / name, quick=quick, quiet=quiet,
-                                resume=resume and (out / name).exists(), overwrite=overwrite)
+            exp = paper_experiments()[job.name]
+        result = run_experiment(exp, out=folder, quick=quick, quiet=quiet, preset=job.preset,
+                                resume=resume and folder.exists(), overwrite=overwrite)
         section, _ = run_report(exp, result)
         status = "ok"
     except Exception as e:  # noqa: BLE001 - report and continue with the others
@@ -185,67 +221,140 @@ def _run_one(name: str, out: Path, quick: bool, quiet: bool | None, resume: bool
     figs = [str(_figure_path(f, result.out_dir if result is not None else Path.cwd()))
             for f in section.figures]
     return dict(status=status, markdown=section.markdown, figures=figs,
-                seconds=time.perf_counter() - t0)
+                seconds=time.perf_counter() - t0, peak_rss_mb=_peak_rss_mb())
 
 
-def _run_chain(names: list[str], out: Path, quick: bool, resume: bool, overwrite: bool
+def _run_chain(jobs: list[Job], out: Path, quick: bool, resume: bool, overwrite: bool
                ) -> dict[str, dict]:
-    """Worker task: run experiments one after the other (one :attr:`Experiment.group`)."""
+    """Worker task: run jobs one after the other (one :attr:`Experiment.group`)."""
     from vbl.engine.errors import quiet_xla_log
     from vbl.engine.jax_setup import use_compilation_cache
 
     quiet_xla_log()
     use_compilation_cache()
-    return {n: _run_one(n, out, quick, True, resume, overwrite) for n in names}
+    return {j.folder: _run_one(j, out, quick, True, resume, overwrite) for j in jobs}
 
 
-def _chains(exps: dict[str, Experiment]) -> list[list[str]]:
-    """Experiments grouped by :attr:`Experiment.group` (registry order inside a group),
-    costliest chain first."""
-    chains: dict[str, list[str]] = {}
-    for n, e in exps.items():
-        chains.setdefault(e.group if e.group is not None else f"\0{n}", []).append(n)
-    return sorted(chains.values(), key=lambda c: -sum(exps[n].cost for n in c))
+def _chains(jobs: list[Job], exps: dict[str, Experiment]) -> list[list[Job]]:
+    """Jobs grouped by :attr:`Experiment.group` (registry order inside a group), costliest
+    chain first."""
+    chains: dict[str, list[Job]] = {}
+    for j in jobs:
+        e = exps[j.name]
+        chains.setdefault(e.group if e.group is not None else f"\0{j.folder}", []).append(j)
+    return sorted(chains.values(), key=lambda c: -sum(exps[j.name].cost for j in c))
 
 
-def _run_parallel(exps: dict[str, Experiment], jobs: int, out: Path, quick: bool,
-                  resume: bool, overwrite: bool, quiet: bool | None) -> dict[str, dict]:
-    """Run experiments in ``jobs`` spawned worker processes, costliest chain first."""
+def _progress_line(out: Path, running: list[Job], n_done: int, n_all: int, t0: float) -> str:
+    """One line: runs done, and per running run its phase and chunks (from the status file
+    its runner writes, :data:`vbl.engine.progress.STATUS_FILE`)."""
+    from vbl.engine.progress import read_status
+
+    parts = []
+    for j in running:  # a queued job counts as running before its worker takes it
+        st = read_status(out / j.folder)
+        if st or (out / j.folder).exists():
+            parts.append(f"{j.folder} {st or 'starting'}")
+    elapsed = time.perf_counter() - t0
+    return (f"vbl reproduce [{n_done}/{n_all} done, {elapsed // 60:.0f} min "
+            f"{elapsed % 60:02.0f} s] " + ("; ".join(parts) if parts else "finishing"))
+
+
+def _run_parallel(jobs: list[Job], exps: dict[str, Experiment], workers: int, out: Path,
+                  quick: bool, resume: bool, overwrite: bool, quiet: bool | None
+                  ) -> dict[str, dict]:
+    """Run jobs in ``workers`` spawned processes (a fresh one per chain, so each run's peak
+    memory is its own), costliest chain first, with a progress line at least every
+    :data:`HEARTBEAT_S` seconds."""
     import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
     done: dict[str, dict] = {}
     ctx = multiprocessing.get_context("spawn")  # jax is not fork-safe
-    with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
+    t0 = last = time.perf_counter()
+    chains = _chains(jobs, exps)
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
+                             max_tasks_per_child=1) as pool:
         futures = {pool.submit(_run_chain, c, out, quick, resume, overwrite): c
-                   for c in _chains(exps)}
-        for fut in as_completed(futures):
-            try:
-                results = fut.result()
-            except Exception as e:  # noqa: BLE001 - a worker died (killed, out of memory)
-                results = {n: dict(status=f"failed: worker process died: {e!r}",
-                                   markdown="**failed** (worker process died)", figures=[],
-                                   seconds=float("nan")) for n in futures[fut]}
-            for name, r in results.items():
-                done[name] = r
-                if not quiet:
-                    print(f"[{len(done)}/{len(exps)}] {name}: {r['status'].splitlines()[0]}"
-                          f" ({r['seconds']:.0f} s)", flush=True)
+                   for c in chains}
+        pending = set(futures)
+        while pending:
+            finished, pending = wait(pending, timeout=5.0, return_when=FIRST_COMPLETED)
+            for fut in finished:
+                try:
+                    results = fut.result()
+                except Exception as e:  # noqa: BLE001 - a worker died (killed, out of memory)
+                    results = {j.folder: dict(status=f"failed: worker process died: {e!r}",
+                                              markdown="**failed** (worker process died)",
+                                              figures=[], seconds=float("nan"),
+                                              peak_rss_mb=float("nan")) for j in futures[fut]}
+                for name, r in results.items():
+                    done[name] = r
+                    if not quiet:
+                        print(f"[{len(done)}/{len(jobs)}] {name}: "
+                              f"{r['status'].splitlines()[0]} ({r['seconds']:.0f} s)", flush=True)
+            now = time.perf_counter()
+            if not quiet and pending and now - last >= HEARTBEAT_S - 2.5:
+                running = [j for f in pending if f.running() for j in futures[f]
+                           if j.folder not in done]
+                print(_progress_line(out, running, len(done), len(jobs), t0), flush=True)
+                last = now
     return done
+
+
+def _git_commit() -> str:
+    """``HEAD`` of the source tree vbl runs from (``+dirty`` with uncommitted changes to
+    tracked files), or "unknown" outside a git checkout."""
+    import subprocess
+
+    root = Path(__file__).resolve().parents[2]
+    try:
+        head = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], check=True,
+                              capture_output=True, text=True, timeout=10).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain",
+                                "--untracked-files=no"], check=True, capture_output=True,
+                               text=True, timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return head + ("+dirty" if dirty else "")
+
+
+def machine_description() -> str:
+    """CPU model and core count of this machine, e.g. "Intel Xeon ... (2 cores)"."""
+    import platform
+
+    model = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{model} ({os.cpu_count()} cores)"
+
+
+def _load() -> float:
+    try:
+        return round(os.getloadavg()[0], 2)
+    except OSError:
+        return float("nan")
 
 
 def reproduce(out: Path, *, quick: bool, quiet: bool | None, resume: bool = False,
               overwrite: bool = False, names: list[str] | None = None,
               jobs: int | None = 1) -> tuple[Path, bool]:
-    """Run the paper experiments into ``out/<name>/`` and write ``out/report.md``.
+    """Run every published result (:func:`reproduce_jobs`) into ``out/<folder>/`` and write
+    ``out/report.md`` and ``out/reproduce.json``.
 
     ``jobs``: worker processes (None: :func:`default_jobs`; 1: in this process, in
-    registry order). With ``jobs > 1`` every experiment runs quietly in a spawned process
-    that imports the experiment scripts itself, so only discoverable experiments (scripts
-    in the experiments folders) can run there. Results do not depend on ``jobs``.
-    Returns ``(report path, all succeeded)``. A failing experiment is reported and the
-    others still run.
+    registry order). With ``jobs > 1`` every run goes quietly in a spawned process that
+    imports the experiment scripts itself, so only discoverable experiments (scripts in the
+    experiments folders) can run there. Results do not depend on ``jobs``.
+    Returns ``(report path, all succeeded)``. A failing run is reported and the others
+    still run.
     """
+    from vbl.engine.results import write_json
     from vbl.engine.runfolder import check_new_folder
 
     exps = paper_experiments()
@@ -261,35 +370,47 @@ def reproduce(out: Path, *, quick: bool, quiet: bool | None, resume: bool = Fals
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise EngineError(f"cannot write to output folder {out}: {e.strerror or e}") from e
-    jobs = default_jobs(len(exps)) if jobs is None else max(1, min(int(jobs), len(exps) or 1))
-    t_start = time.perf_counter()
-    if jobs > 1:
-        done = _run_parallel(exps, jobs, out, quick, resume, overwrite, quiet)
+    todo = reproduce_jobs(exps)
+    workers = default_jobs(len(todo)) if jobs is None else max(1, min(int(jobs), len(todo)))
+    load_start, t_start = _load(), time.perf_counter()
+    if quiet is not True:
+        print(f"vbl reproduce{' --quick' if quick else ''}: {len(todo)} runs in {workers} "
+              f"worker process{'es' * (workers > 1)} -> {out}", flush=True)
+    if workers > 1:
+        done = _run_parallel(todo, exps, workers, out, quick, resume, overwrite, quiet)
     else:
-        done = {n: _run_one(n, out, quick, quiet, resume, overwrite, exp=e)
-                for n, e in exps.items()}
+        done = {j.folder: _run_one(j, out, quick, quiet, resume, overwrite, exp=exps[j.name])
+                for j in todo}
     wall = time.perf_counter() - t_start
+    manifest = {"quick": quick, "commit": _git_commit(), "machine": machine_description(),
+                "workers": workers, "wall_s": round(wall, 1),
+                "load_average": [load_start, _load()],
+                "runs": [{"experiment": j.name, "preset": j.preset, "folder": j.folder,
+                          "status": done[j.folder]["status"].splitlines()[0],
+                          "seconds": round(done[j.folder]["seconds"], 1),
+                          "peak_rss_mb": round(done[j.folder]["peak_rss_mb"])}
+                         for j in todo]}
+    write_json(out / REPRODUCE_MANIFEST, manifest)
     parts = [f"# vbl reproduction report{' (--quick)' if quick else ''}", "",
-             f"Generated {time.strftime('%Y-%m-%d %H:%M:%S')} in {wall:.0f} s wall "
-             f"({jobs} worker process{'es' if jobs > 1 else ''}). Each section puts our "
-             "numbers beside the paper's; intervals are 95% confidence intervals over seeds.",
-             ""]
+             f"{wall:.0f} s wall in {workers} worker process{'es' * (workers > 1)} on "
+             f"{manifest['machine']}, load average {load_start} at the start; code "
+             f"{manifest['commit']}. Each section puts vbl's numbers beside the paper's.", ""]
     ok = True
-    rows = []
-    sections = []
-    for name, exp in exps.items():
-        r = done[name]
+    rows, sections = [], []
+    for j in todo:
+        r, exp = done[j.folder], exps[j.name]
         ok &= r["status"] == "ok"
-        rows.append(f"| {name} | {exp.description} | {r['status'].splitlines()[0]} | "
-                    f"{r['seconds']:.1f} |")
-        figs = [f"![{Path(f).stem}]({os.path.relpath(f, out.absolute())})"
+        what = exp.description + (f" (preset `{j.preset}`)" if j.preset else "")
+        rows.append(f"| {j.folder} | {what} | {r['status'].splitlines()[0]} | "
+                    f"{r['seconds']:.0f} |")
+        figs = [f"![{Path(f).stem}]({Path(os.path.relpath(f, out.absolute())).as_posix()})"
                 for f in r["figures"]]
-        sections += [f"## {name}", "", exp.description, "", r["markdown"], "",
+        sections += [f"## {j.folder}", "", what, "", r["markdown"], "",
                      *(f + "\n" for f in figs), ""]
     for path, err in import_errors().items():
         rows.append(f"| {Path(path).stem} | (script failed to import) | failed: {err} | |")
         ok = False
-    parts += ["| experiment | what | status | time (s) |", "|---|---|---|---|", *rows, "",
+    parts += ["| run | what | status | time (s) |", "|---|---|---|---|", *rows, "",
               *sections]
     report = out / "report.md"
     report.write_text("\n".join(parts) + "\n")
@@ -319,23 +440,71 @@ def stat_cell(st: dict[str, Any], scale: float = 1.0, fmt: str = ".3g",
     return f"{format(m * scale, fmt)} ± {format(ci * scale, fmt)}"
 
 
-def seeds_cell(values: Any, scale: float = 1.0, fmt: str = ".3g") -> str:
-    """``"mean ± half-width"`` of per-seed values (95 % Student t interval of the mean)."""
+RATE = (0.0, 1.0)  #: range of a success rate (``bounds`` of :func:`seeds_cell`)
+
+
+def seeds_cell(values: Any, scale: float = 1.0, fmt: str = ".3g",
+               bounds: tuple[float, float] | None = None) -> str:
+    """``"mean ± half-width"`` of per-seed values (95 % Student t interval of the mean),
+    scaled by ``scale``. With ``bounds``, the range of the metric before scaling (e.g.
+    :data:`RATE`), the interval stays in it: ``"mean [lower, upper]"`` where the t
+    interval crosses the range, and ``"mean (n seeds: too few for an interval)"`` where it
+    does so with fewer than :data:`vbl.stats.MIN_SEEDS_BOUNDED` seeds."""
     import numpy as np
 
-    m, half = mean_ci95(np.asarray(values, np.float64).ravel() * scale)
+    from vbl.stats import bounded_ci95
+
+    x = np.asarray(values, np.float64).ravel()
+    m, half = mean_ci95(x)
+    f = lambda v: format(v * scale, fmt)  # noqa: E731
     if half != half:
-        return format(m, fmt)
-    return f"{format(m, fmt)} ± {format(half, fmt)}"
+        return f(m)
+    if bounds is None or bounds[0] <= m - half and m + half <= bounds[1]:
+        return f"{f(m)} ± {format(half * scale, fmt)}"
+    b = bounded_ci95(x, *bounds)
+    if b is None:
+        return f"{f(m)} ({x.size} seeds: too few for an interval)"
+    return f"{f(m)} [{f(b[1])}, {f(b[2])}]"
+
+
+def rate_cell(values: Any, scale: float = 1.0, fmt: str = ".3f") -> str:
+    """:func:`seeds_cell` of a success rate in [0, 1] (shown times ``scale``)."""
+    return seeds_cell(values, scale, fmt, RATE)
+
+
+def claim(a: Any, b: Any, paired: bool = False, fmt: str = ".3g") -> str:
+    """Verdict on "mean(a) > mean(b)" over seeds: "yes" when the 95 % interval of the
+    difference (Welch's; with ``paired``, Student's on the per-seed differences) lies above
+    0, "**no**" when it lies below, else "not resolved" with the number of seeds that would
+    resolve a difference of this size. A verdict never rests on two means alone."""
+    import numpy as np
+
+    from vbl.stats import seeds_to_resolve, welch_ci95
+
+    a, b = np.asarray(a, np.float64).ravel(), np.asarray(b, np.float64).ravel()
+    d, h = mean_ci95(a - b) if paired else welch_ci95(a, b)
+    n = min(a.size, b.size)
+    diff = f"{format(d, '+' + fmt)} ± {format(h, fmt)}" if h == h else format(d, "+" + fmt)
+    if h != h:
+        return f"not resolved ({n} seed{'s' * (n != 1)}: no interval; {diff})"
+    if d - h > 0:
+        return f"yes ({diff})"
+    if d + h < 0:
+        return f"**no** ({diff})"
+    need = seeds_to_resolve(d, h, n)
+    more = (f"; about {need} seeds would resolve a difference this size" if need else "")
+    return f"not resolved at {n} seeds ({diff}{more})"
 
 
 def load_run(folder: str | Path) -> tuple[Experiment, RunResult, dict[str, Any]]:
     """``(experiment, RunResult, config.json)`` of a finished run folder. The result is
     rebuilt from ``config.json`` and ``summary.json``: ``final`` holds the per-seed values
     (``[points, seeds]``), ``curves`` is empty, ``config`` is the experiment's default
-    config with the folder's recorded values."""
+    config with the folder's recorded values. A folder of another run-folder format, or
+    one that records parameters the experiment does not have, is an EngineError."""
     from vbl.engine.registry import get
     from vbl.engine.results import read_json
+    from vbl.engine.runfolder import check_format
 
     folder = Path(folder)
     if not folder.is_dir():
@@ -349,27 +518,21 @@ def load_run(folder: str | Path) -> tuple[Experiment, RunResult, dict[str, Any]]
         raise EngineError(f"{folder}: unreadable config.json or summary.json: {e}") from e
     if not isinstance(spec, dict) or "experiment" not in spec or "config" not in spec:
         raise EngineError(f"{folder}/config.json is not a vbl run's config")
+    check_format(spec, folder)
     exp = get(spec["experiment"])
     config = _recorded_config(exp, spec, folder)
     points = summary.get("points", [])
-    renamed = dict(exp.renamed_metrics)
     final: dict[str, Any] = {}
     for i, entry in enumerate(points):
         for k, st in entry.get("final", {}).items():
             if isinstance(st, dict) and "per_seed" in st:
-                final.setdefault(renamed.get(k, k), [None] * len(points))[i] = st["per_seed"]
+                final.setdefault(k, [None] * len(points))[i] = st["per_seed"]
     final = {k: v for k, v in final.items() if all(x is not None for x in v)}
-    result = RunResult(exp.name, folder, config, _renamed_keys(exp, spec.get("sweep", {})),
-                       [_renamed_keys(exp, e.get("values", {})) for e in points] or [{}],
+    result = RunResult(exp.name, folder, config, dict(spec.get("sweep", {})),
+                       [dict(e.get("values", {})) for e in points] or [{}],
                        int(spec.get("seeds", 1)), {}, final, summary,
                        sorted(folder.glob("*.png")), dict(summary.get("result") or {}))
     return exp, result, spec
-
-
-def _renamed_keys(exp: Experiment, values: dict[str, Any]) -> dict[str, Any]:
-    """``{path: value}`` of a run folder (its sweep, a point's values) under today's paths
-    (:meth:`Experiment.renamed`)."""
-    return {exp.renamed(k): v for k, v in dict(values).items()}
 
 
 def _recorded_config(exp: Experiment, spec: dict[str, Any], folder: Path) -> Any:
@@ -377,36 +540,17 @@ def _recorded_config(exp: Experiment, spec: dict[str, Any], folder: Path) -> Any
     from vbl.params import ParamError
 
     defaults = config_to_dict(exp.default_config)
+    unknown = sorted(k for k in spec["config"] if k not in defaults)
+    if unknown:
+        raise EngineError(f"{folder} records parameters {exp.name} does not have "
+                          f"({', '.join(unknown[:4])}{', ...' if len(unknown) > 4 else ''}); "
+                          f"rerun it with today's code")
     sets = {k: tuple(v) if isinstance(v, list) else v
-            for k, v in _recorded_values(exp, spec).items() if defaults.get(k) != v}
+            for k, v in spec["config"].items() if defaults.get(k) != v}
     try:
         return apply_overrides(exp.default_config, sets)
     except ParamError as e:
         raise EngineError(f"{folder}: its config no longer validates: {e}") from e
-
-
-def _in_todays_terms(exp: Experiment, spec: dict[str, Any]) -> dict[str, Any]:
-    """The folder's recorded ``{path: value}`` after :attr:`Experiment.migrate` and
-    :attr:`Experiment.renamed_params` (paths the experiment no longer has stay)."""
-    recorded = dict(spec["config"])
-    if exp.migrate is not None:
-        recorded = exp.migrate(recorded)
-    out = {}
-    for path, value in recorded.items():
-        new = exp.renamed(path)
-        if new == path or new not in recorded:  # a recorded current path wins
-            out[new] = value
-    return out
-
-
-def _recorded_values(exp: Experiment, spec: dict[str, Any]) -> dict[str, Any]:
-    """The folder's parameter values that the experiment still has, with
-    :attr:`Experiment.legacy_values` for parameters it does not record."""
-    current = config_to_dict(exp.default_config)
-    legacy = config_to_dict_values(exp.legacy_values)
-    recorded = _in_todays_terms(exp, spec)
-    rec = {k: v for k, v in recorded.items() if k in current}
-    return {**{k: v for k, v in legacy.items() if k not in recorded}, **rec}
 
 
 def config_to_dict_values(values: Any) -> dict[str, Any]:
@@ -426,95 +570,91 @@ def _cli_value(v: Any) -> str:
     return str(v)
 
 
-def _matching_preset(exp: Experiment, rec: dict[str, Any], base: dict[str, Any],
-                     sweep: dict[str, Any]) -> str | None:
-    """The preset with the most values that the folder records, all of them (paths it
-    sweeps aside), one of them not the default; None if there is none."""
-    best, size = None, 0
-    for name, values in exp.presets.items():
-        vals = {k: v for k, v in config_to_dict_values(values).items() if k not in sweep}
-        if (vals and all(rec.get(k) == v for k, v in vals.items())
-                and any(base.get(k) != v for k, v in vals.items()) and len(vals) > size):
-            best, size = name, len(vals)
-    return best
-
-
-def run_command(exp: Experiment, spec: dict[str, Any]) -> tuple[str, list[str]]:
-    """The ``vbl run`` command that regenerates a run folder, rebuilt from its
-    ``config.json`` (``spec``): ``--quick`` when the folder holds every quick override
-    (for an experiment without any: its quick number of seeds),
-    ``--seeds``/``--seed`` when they differ from the experiment's, ``--preset`` for the
-    largest preset whose values the folder holds, ``--sweep`` for a sweep other than the
-    default one, ``--set`` for every other recorded value that differs from the default.
-    Returns ``(command, unrecorded)``: the parameters the folder does not record (and
-    :attr:`Experiment.legacy_values` does not give), for which the command takes today's
-    default. The command is checked: resolving it gives the folder's recorded values."""
+def run_command(exp: Experiment, spec: dict[str, Any]) -> str:
+    """The ``vbl run`` command that regenerates a run folder, from its ``config.json``
+    (``spec``): ``--quick`` and ``--preset`` as recorded, ``--seeds``/``--seed`` when they
+    differ from the experiment's, ``--sweep`` for a sweep other than the default one,
+    ``--set`` for every other recorded value that differs from what those give. The
+    command is checked: resolving it gives the folder's recorded values."""
     from vbl.engine.config import parse_assignment, parse_sweep
     from vbl.engine.runner import resolve
 
-    rec = _recorded_values(exp, spec)
+    rec = config_to_dict_values(spec["config"])
+    quick, preset = bool(spec.get("quick")), spec.get("preset")
     seeds, base_seed = int(spec.get("seeds", exp.seeds)), int(spec.get("base_seed", 0))
-    sweep = {k: list(v) for k, v in _renamed_keys(exp, spec.get("sweep", {})).items()}
-    quick_vals = config_to_dict_values(exp.quick)
-    quick_seeds = exp.quick_seeds or exp.seeds
-    # --quick: every quick override recorded (without any, the quick number of seeds)
-    quick = (all(rec.get(k) == v for k, v in quick_vals.items()) if quick_vals
-             else quick_seeds != exp.seeds and seeds == quick_seeds)
-    base = config_to_dict(exp.default_config)
-    base.update(quick_vals if quick else {})
+    sweep = {k: list(v) for k, v in spec.get("sweep", {}).items()}
+    default_sweep = {k: config_to_dict_values({"v": list(v)})["v"] for k, v in exp.sweep.items()}
+    base_cfg, *_ = resolve(exp, None, sweep, None, 0, quick, preset)
+    base = config_to_dict(base_cfg)
     args = ["vbl", "run", exp.name] + (["--quick"] if quick else [])
-    if seeds != (quick_seeds if quick else exp.seeds):
+    args += ["--preset", preset] if preset else []
+    if seeds != ((exp.quick_seeds or exp.seeds) if quick else exp.seeds):
         args += ["--seeds", str(seeds)]
     if base_seed:
         args += ["--seed", str(base_seed)]
-    default_sweep = {k: config_to_dict_values({"v": list(v)})["v"] for k, v in exp.sweep.items()}
     texts_sweep = [f"{k}={','.join(_cli_value(x) for x in v)}" for k, v in sweep.items()
                    if default_sweep.get(k) != v]
     texts_set = [f"{k}={_cli_value(rec[k])}" for k in default_sweep if k not in sweep]
     texts_set += [f"{k}={_cli_value(v)}" for k, v in rec.items()
                   if k not in sweep and k not in default_sweep and base.get(k) != v]
-    preset = _matching_preset(exp, rec, base, sweep)
-    if preset:
-        args += ["--preset", preset]
-        texts_set = [t for t in texts_set if t.split("=", 1)[0] not in exp.presets[preset]]
-    for t in texts_sweep:
-        args += ["--sweep", t]
-    for t in texts_set:
-        args += ["--set", t]
-    # check: the command resolves to the folder's recorded values
+    args += [a for t in texts_sweep for a in ("--sweep", t)]
+    args += [a for t in texts_set for a in ("--set", t)]
     cfg = exp.default_config
-    sets = exp.preset(preset, sweep)
-    sets.update(parse_assignment(t, cfg) for t in texts_set)
+    sets = dict(parse_assignment(t, cfg) for t in texts_set)
     sw = dict(parse_sweep(t, cfg) for t in texts_sweep)
     _, full_sweep, got_seeds, got = resolve(exp, sets, sw, seeds if "--seeds" in args else None,
-                                            base_seed, quick)
+                                            base_seed, quick, preset)
     # a swept path's recorded base value never reaches a learner: the sweep replaces it
     bad = [k for k, v in rec.items() if k not in sweep and got["config"].get(k) != v]
-    got_sweep = config_to_dict_values(full_sweep)
-    if bad or got_seeds != seeds or got_sweep != config_to_dict_values(sweep):
+    if bad or got_seeds != seeds or config_to_dict_values(full_sweep) != sweep:
         what = (f"{bad[0]} would be {got['config'].get(bad[0])!r}, not {rec[bad[0]]!r}"
                 if bad else "the sweep or seeds differ")
         raise EngineError(f"cannot rebuild the command of a {exp.name} run: {what}")
-    unrecorded = sorted(k for k in base if k not in rec)
-    return " ".join(shlex.quote(a) for a in args), unrecorded
+    return " ".join(shlex.quote(a) for a in args)
+
+
+def sibling_result(result: RunResult, folder_name: str) -> RunResult | None:
+    """The finished run folder ``folder_name`` beside ``result``'s (as ``vbl reproduce``
+    lays out its runs) as a RunResult; None when there is none or it cannot be read."""
+    folder = Path(result.out_dir).parent / folder_name
+    if not (folder / "summary.json").is_file():
+        return None
+    try:
+        return load_run(folder)[1]
+    except EngineError:
+        return None
+
+
+def run_folders(folders: list[str | Path]) -> list[Path]:
+    """Run folders in order, a ``vbl reproduce`` folder (one with ``reproduce.json``)
+    replaced by its runs in the order it ran them."""
+    from vbl.engine.results import read_json
+
+    out = []
+    for f in map(Path, folders):
+        manifest = f / REPRODUCE_MANIFEST
+        if manifest.is_file():
+            out += [f / r["folder"] for r in read_json(manifest)["runs"]]
+        else:
+            out.append(f)
+    return out
 
 
 def results_table(folders: list[str | Path], link_base: str | Path | None = None) -> str:
-    """``vbl report``: one Markdown table over run folders, a row per paper number (the
-    experiments' :attr:`~vbl.engine.Experiment.paper_rows`) with vbl's mean ± 95 %
-    interval, the seeds, a link to the run folder and the command that regenerates it
-    (shown on the first row of each run). Links are relative to ``link_base`` (default:
-    the current folder)."""
+    """``vbl report``: one Markdown table over run folders (a ``vbl reproduce`` folder
+    stands for its runs), a row per paper number (the experiments'
+    :attr:`~vbl.engine.Experiment.paper_rows`) with vbl's mean and 95 % interval, the
+    seeds, a link to the run folder and the command that regenerates it (shown on the first
+    row of each run). Links are relative to ``link_base`` (default: the current folder)."""
     base = Path(link_base if link_base is not None else ".").absolute()
-    lines = ["| paper result | paper | vbl (mean ± 95 % CI) | seeds | run | command |",
+    lines = ["| paper result | paper | vbl (mean, 95 % CI) | seeds | run | command |",
              "|---|---|---|---|---|---|"]
-    notes = []
-    for folder in folders:
+    for folder in run_folders(folders):
         exp, result, spec = load_run(folder)
         if exp.paper_rows is None:
             raise EngineError(f"experiment {exp.name} declares no paper rows "
                               f"(Experiment.paper_rows); {folder} cannot be reported")
-        command, unrecorded = run_command(exp, spec)
+        command = run_command(exp, spec)
         rows = exp.paper_rows(result)
         rel = Path(os.path.relpath(Path(folder).absolute(), base)).as_posix()
         link = (f"[{Path(folder).name}]({rel}/report.md)" if (Path(folder) / "report.md")
@@ -523,14 +663,4 @@ def results_table(folders: list[str | Path], link_base: str | Path | None = None
             first = i == 0
             lines.append(f"| {r.result} | {r.paper} | {r.ours} | {result.seeds if first else ''}"
                          f" | {link if first else ''} | {f'`{command}`' if first else ''} |")
-        if unrecorded:
-            notes.append(f"{Path(folder).name} does not record {', '.join(unrecorded)}: its "
-                         f"command takes today's default for these.")
-        current = config_to_dict(exp.default_config)
-        removed = {k: v for k, v in _in_todays_terms(exp, spec).items() if k not in current
-                   and k not in exp.renamed_params and not exp.removed_as_today(k, v)}
-        if removed:
-            notes.append(f"{Path(folder).name} ran with options vbl no longer has ("
-                         + ", ".join(f"{k}={v}" for k, v in removed.items())
-                         + "): its command runs today's code.")
-    return "\n".join(lines + ([""] + notes if notes else [])) + "\n"
+    return "\n".join(lines) + "\n"

@@ -23,13 +23,28 @@ from typing import Any
 
 from vbl.engine.config import EngineError
 
-__all__ = ["LOCK", "MARKER", "RunFolder", "open_run_folder", "record_files", "is_vbl_run",
-           "check_new_folder"]
+__all__ = ["RUN_FORMAT", "check_format", "LOCK", "MARKER", "RunFolder", "open_run_folder",
+           "record_files", "is_vbl_run", "check_new_folder"]
+
+RUN_FORMAT = 2
+"""Version of a run folder's layout and of what its ``config.json`` means (its ``format``
+field). vbl reads folders of this version only: a folder of another version is refused
+with one line naming both (rerun it with today's code; git keeps the code of older ones)."""
 
 LOCK = ".vbl-lock"
 MARKER = ".vbl-run"
 # Files the engine itself writes (a legacy folder without a marker is known by these).
 ENGINE_FILES = ("config.json", "metrics.jsonl", "summary.json", "checkpoints")
+
+
+def check_format(spec: dict[str, Any], folder: str | Path) -> None:
+    """Raise an EngineError unless the ``config.json`` content ``spec`` of ``folder`` has
+    format :data:`RUN_FORMAT` (folders written before formats were recorded count as 1)."""
+    found = spec.get("format", 1)
+    if found != RUN_FORMAT:
+        raise EngineError(f"{folder} is a run folder of format {found}; this vbl reads format "
+                          f"{RUN_FORMAT} only (rerun it with today's code, or use the vbl "
+                          f"version that wrote it)")
 
 
 def _read_marker(path: Path) -> dict[str, Any] | None:

@@ -27,7 +27,7 @@ from vbl.engine.experiment import Experiment, RunContext, RunResult
 from vbl.engine.jax_setup import COMPILER_OPTIONS, engine_precision
 from vbl.engine.memory import check_memory
 from vbl.engine.plots import plot_curves, plot_names
-from vbl.engine.progress import Progress, auto_quiet
+from vbl.engine.progress import STATUS_FILE, Progress, auto_quiet
 from vbl.engine.results import (
     MetricsLog,
     read_json,
@@ -35,7 +35,7 @@ from vbl.engine.results import (
     seed_stats,
     write_json,
 )
-from vbl.engine.runfolder import RunFolder, open_run_folder
+from vbl.engine.runfolder import RUN_FORMAT, RunFolder, check_format, open_run_folder
 from vbl.engine.sharding import batch_layout, learner_sharding, pad_index, put, to_host
 from vbl.engine.sweep import Group, SweepPlan, make_plan
 from vbl.params import ParamError
@@ -48,21 +48,22 @@ DEFAULT_LEARNER_BATCH = 4096  # most learners in one compiled call
 
 def resolve(experiment: Experiment, sets: Mapping[str, Any] | None = None,
             sweep: Mapping[str, Sequence[Any]] | None = None, seeds: int | None = None,
-            base_seed: int = 0, quick: bool = False) -> tuple[Any, dict, int, dict]:
-    """``(config, sweep, seeds, spec)``: defaults + quick overrides + ``sets``, validated;
-    ``spec`` is the JSON description whose fingerprint guards checkpoints.
+            base_seed: int = 0, quick: bool = False, preset: str | None = None
+            ) -> tuple[Any, dict, int, dict]:
+    """``(config, sweep, seeds, spec)``: defaults + quick overrides + the values of
+    ``preset`` + ``sets``, validated; ``spec`` is the JSON description (``config.json``)
+    whose fingerprint guards checkpoints; it records the run-folder format
+    :data:`~vbl.engine.runfolder.RUN_FORMAT` and the preset.
 
     The sweep is the experiment's default sweep with ``sweep`` replacing the paths it names;
     a path of the default sweep that ``sets`` fixes leaves the sweep (one value). A path
-    both in ``sets`` and in ``sweep`` is an error.
+    both in ``sets`` and in ``sweep`` is an error; a preset's path that ``sweep`` names
+    takes the sweep's values.
     """
-    for path in [*(sets or {}), *(sweep or {})]:
-        if experiment.renamed(path) != path:
-            raise ParamError(f"{path} is now called {experiment.renamed(path)} "
-                             f"(`vbl params {experiment.name}` lists every parameter)")
     config = experiment.default_config
     if quick:
         config = apply_overrides(config, experiment.quick)
+    config = apply_overrides(config, experiment.preset(preset, sweep or {}))
     config = apply_overrides(config, sets or {})
     both = sorted(set(sets or {}) & set(sweep or {}))
     if both:
@@ -73,19 +74,20 @@ def resolve(experiment: Experiment, sets: Mapping[str, Any] | None = None,
     full_sweep.update({p: list(v) for p, v in (sweep or {}).items()})
     if seeds is None:
         seeds = experiment.quick_seeds if (quick and experiment.quick_seeds) else experiment.seeds
-    spec = {"experiment": experiment.name, "config": config_to_dict(config),
-            "sweep": full_sweep, "seeds": seeds, "base_seed": base_seed}
+    spec = {"format": RUN_FORMAT, "experiment": experiment.name, "preset": preset,
+            "quick": bool(quick), "config": config_to_dict(config), "sweep": full_sweep,
+            "seeds": seeds, "base_seed": base_seed}
     spec["fingerprint"] = fingerprint(spec)
     return config, full_sweep, seeds, spec
 
 
 def describe_sweep(experiment: Experiment, sets: Mapping[str, Any] | None = None,
                    sweep: Mapping[str, Sequence[Any]] | None = None, seeds: int | None = None,
-                   quick: bool = False) -> tuple[int, int, str]:
+                   quick: bool = False, preset: str | None = None) -> tuple[int, int, str]:
     """``(points, seeds, text)``: what a run will sweep, said before it starts: every swept
     path with its values and where they come from (``--sweep`` or the experiment's default
     sweep, which ``--set PATH=V`` fixes), the number of points and seeds."""
-    _, full, seeds, _ = resolve(experiment, sets, sweep, seeds, 0, quick)
+    _, full, seeds, _ = resolve(experiment, sets, sweep, seeds, 0, quick, preset)
     points = math.prod(len(v) for v in full.values()) if full else 1
     head = (f"{experiment.name}: {points} sweep point{'s' * (points != 1)} x {seeds} "
             f"seed{'s' * (seeds != 1)} = {points * seeds} learners")
@@ -121,13 +123,14 @@ def run_experiment(experiment: Experiment, *, sets: Mapping[str, Any] | None = N
                    overwrite: bool = False, quick: bool = False, quiet: bool | None = None,
                    checkpoint_every: int = DEFAULT_CHECKPOINT_EVERY,
                    learner_batch: int = DEFAULT_LEARNER_BATCH, plots: bool = True,
-                   memory_check: bool = True) -> RunResult:
+                   memory_check: bool = True, preset: str | None = None) -> RunResult:
     """Run ``experiment`` over ``sweep`` x ``seeds`` and write its run folder.
 
     Args:
       sets: ``{dotted.path: value}`` overrides (validated). ``sweep``: ``{path: [values]}``
         (the grid is the product). ``seeds``: seeds per sweep point (default: the
         experiment's). ``base_seed``: see :func:`vbl.engine.sweep.learner_keys`.
+      preset: a name of ``experiment.presets`` (its values under ``sets``).
       out: run folder (default ``runs/<name>-<timestamp>``). ``resume``: continue from the
         folder's last checkpoint. ``overwrite``: replace a run folder vbl wrote.
       checkpoint_every: chunks between checkpoints. ``learner_batch``: most learners per
@@ -146,7 +149,8 @@ def run_experiment(experiment: Experiment, *, sets: Mapping[str, Any] | None = N
     primary = jax.process_index() == 0
     if jax.process_count() > 1 and out is None:
         raise EngineError("a multi-process run needs --out on a shared file system")
-    config, full_sweep, seeds, spec = resolve(experiment, sets, sweep, seeds, base_seed, quick)
+    config, full_sweep, seeds, spec = resolve(experiment, sets, sweep, seeds, base_seed, quick,
+                                              preset)
     plan = make_plan(experiment, config, full_sweep, seeds, base_seed) \
         if experiment.make_program is not None else None
     if plan is not None and memory_check:
@@ -177,6 +181,7 @@ def _check_config_json(run_dir: Path, spec: dict) -> bool:
         raise EngineError(f"cannot resume {run_dir}: its config.json is unreadable "
                           f"({type(e).__name__}: {e}); restore it, or start again with "
                           f"--overwrite / another --out") from None
+    check_format(old, run_dir)
     if old.get("fingerprint") != spec["fingerprint"]:
         oc = old.get("config") if isinstance(old.get("config"), dict) else {}
         diff = sorted(k for k in set(oc) | set(spec["config"])
@@ -230,7 +235,9 @@ def _run_in(folder, experiment, config, full_sweep, seeds, base_seed, spec, plan
                          summary, sorted(run_dir.glob("*.png")), dict(extra))
 
     start = (ckpts.latest_step() or 0) if resume else 0
-    progress = Progress(plan.total_steps, start, experiment.name, quiet)
+    folder.record(STATUS_FILE)
+    progress = Progress(plan.total_steps, start, experiment.name, quiet,
+                        status_dir=run_dir if primary else None)
     sharding = learner_sharding()
     truncate = resume and primary
     try:
@@ -369,12 +376,9 @@ def load_result(run_dir: Path, experiment: Experiment, config: Any, plan: SweepP
     npts, chunks = len(plan.points), max(g.num_chunks for g in plan.groups)
     curves: dict[str, np.ndarray] = {}
     final: dict[str, np.ndarray] = {}
-    renamed = dict(experiment.renamed_metrics)
     for r in rows:
         p = r["point"]
         for k, st in r["metrics"].items():
-            if k in renamed and renamed[k] not in r["metrics"]:
-                k = renamed[k]  # a row written under the metric's old name
             v = np.asarray(st["per_seed"], dtype=np.float64)
             if r["chunk"] == "final":
                 final.setdefault(k, np.full((npts,) + v.shape, np.nan))[p] = v

@@ -42,13 +42,29 @@ Conventions (those of brax's training wrappers, ``brax.envs.wrappers.training.wr
 
 from __future__ import annotations
 
+import contextlib
+import io
+from collections.abc import Iterator
 from typing import Any
 
 import jax
 import jax.numpy as jnp
-from brax.envs.base import Env, State
 
-__all__ = ["BraxAdapter", "set_difficulty", "get_difficulty", "with_difficulty"]
+__all__ = ["BraxAdapter", "set_difficulty", "get_difficulty", "with_difficulty",
+           "quiet_import"]
+
+
+@contextlib.contextmanager
+def quiet_import() -> Iterator[None]:
+    """Import brax inside this: brax imports mujoco, which prints "Failed to import warp"
+    on stdout when its optional GPU package warp is absent (the CPU install); that notice
+    would mix with vbl's own output."""
+    with contextlib.redirect_stdout(io.StringIO()):
+        yield
+
+
+with quiet_import():
+    from brax.envs.base import Env, State
 
 F32 = jnp.float32
 DIFFICULTY_FIELD = "start_difficulty"  #: env params field a curriculum drives

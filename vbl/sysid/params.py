@@ -9,18 +9,12 @@ from flax import struct
 
 from vbl.params import ParamError, param
 
-__all__ = ["CVAParams", "METHODS", "PARAM_COUNTS", "DTYPES", "LAG_RULES", "PREDICTOR_OPTIONS"]
+__all__ = ["CVAParams", "METHODS", "PARAM_COUNTS", "DTYPES", "LAG_RULES"]
 
 LAG_RULES = ("predictor", "paper")
 METHODS = ("projected", "paper")
 PARAM_COUNTS = ("larimore", "sippy")
 DTYPES = ("float64", "float32")
-
-
-PREDICTOR_OPTIONS = {"lag_min": 2, "lag_step": 3, "order_penalty": 3.0}
-"""Options of ``lag_rule='predictor'`` added after run folders of the paper-rule experiments
-were written; they have no effect under ``lag_rule='paper'``, so those folders read them at
-these values (``Experiment.legacy_values``)."""
 
 
 @struct.dataclass
