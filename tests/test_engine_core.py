@@ -163,7 +163,7 @@ def test_checkpoint_guards(tmp_path):
 def test_cli_errors_exit_nonzero(toy, tmp_path, capsys):
     from vbl.cli import main
 
-    assert main(["run", "no_such_thing"]) == 1
+    assert main(["run", "no_such_thing"]) == 2  # bad input
     err = capsys.readouterr().err  # names the registered experiments (others in this
     assert "unknown experiment 'no_such_thing'; valid: [" in err  # process may be too)
     assert "'toy_bandit'" in err

@@ -129,16 +129,16 @@ def test_run_writes_the_experiments_report_and_a_short_table(tmp_path):
     assert "greedy_is_best" in table and "regret" not in table  # the headline only
 
 
-@pytest.mark.parametrize("script, message", [
-    ("missing.py", "no experiment script"),
-    ("empty.py", "registers no experiment"),
-    ("broken.py", "failed to import: ZeroDivisionError"),
+@pytest.mark.parametrize("script, message, code", [
+    ("missing.py", "no experiment script", 2),  # bad input
+    ("empty.py", "registers no experiment", 1),
+    ("broken.py", "failed to import: ZeroDivisionError", 1),
 ])
-def test_run_script_errors_are_one_line(tmp_path, script, message):
+def test_run_script_errors_are_one_line(tmp_path, script, message, code):
     (tmp_path / "empty.py").write_text("x = 1\n")
     (tmp_path / "broken.py").write_text("1 / 0\n")
     r = _vbl(["run", script], tmp_path)
-    assert r.returncode != 0
+    assert r.returncode == code
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("vbl: error:") and message in lines[0], \
         r.stderr

@@ -104,3 +104,22 @@ def test_every_success_plot_keeps_its_bands_in_the_unit_interval(tmp_path, monke
     assert len(drawn) == 2 + 2 + 2 + 2
     for bounds in drawn:
         assert bounds.min() == 0.0 and bounds.max() == 1.0
+
+
+def test_status_file_phases_and_an_eta_that_leaves_out_the_compiling_chunk(tmp_path,
+                                                                          monkeypatch):
+    """The first chunk (compilation: 100 s here) does not enter the ETA: after chunks of
+    100, 2 and 2 s, 7 chunks left take 7 x 2 s."""
+    from vbl.engine import progress
+
+    clock = iter([0.0, 100.0, 100.0, 102.0, 102.0, 104.0, 104.0])
+    monkeypatch.setattr(progress.time, "perf_counter", lambda: next(clock))
+    p = progress.Progress(10, 0, "t", quiet=True, status_dir=tmp_path)
+    assert progress.read_status(tmp_path) == "compiling 0/10 chunks"
+    m = {"episodes": np.ones(2)}
+    p.update(m)
+    assert progress.read_status(tmp_path) == "training 1/10 chunks"
+    p.update(m)
+    p.update(m)
+    assert progress.read_status(tmp_path) == "training 3/10 chunks, ETA 14 s"
+    assert progress.read_status(tmp_path / "missing") == ""

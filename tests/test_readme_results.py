@@ -173,21 +173,21 @@ def test_report_commands_rebuild_the_recorded_config(tmp_path):
 
 
 def _unknown_experiment(p: Path) -> Path:
-    (p / "config.json").write_text('{"experiment": "nope", "config": {}}')
+    (p / "config.json").write_text('{"format": 2, "experiment": "nope", "config": {}}')
     (p / "summary.json").write_text("{}")
     return p
 
 
-@pytest.mark.parametrize("make, message", [
-    (lambda p: p, "is not a finished run folder"),
-    (lambda p: p / "missing", "is not a run folder"),
-    (_unknown_experiment, "unknown experiment 'nope'"),
+@pytest.mark.parametrize("make, message, code", [
+    (lambda p: p, "is not a finished run folder", 1),
+    (lambda p: p / "missing", "is not a run folder", 1),
+    (_unknown_experiment, "unknown experiment 'nope'", 2),
 ])
-def test_report_errors_are_one_line(tmp_path, capsys, make, message):
+def test_report_errors_are_one_line(tmp_path, capsys, make, message, code):
     from vbl.cli import main
 
     folder = make(tmp_path)
-    assert main(["report", str(folder)]) == 1
+    assert main(["report", str(folder)]) == code
     err = [x for x in capsys.readouterr().err.splitlines() if x.startswith("vbl:")]
     assert len(err) == 1 and err[0].startswith("vbl: error: ") and message in err[0], err
 

@@ -26,6 +26,9 @@ SUCCESS_METRICS = ("eval_success", "greedy_success", "success_rate", "train_succ
 """Per-chunk metrics the bar shows, the first one present, under its own name: the
 evaluation of the policy learned so far before training success (with exploration)."""
 
+BAR_FORMAT = "{desc}: {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]"
+"""tqdm's bar without its own rate and remaining time (they would count compilation)."""
+
 DEFAULT_COLUMNS = 100  #: bar width when the terminal reports no usable width
 MIN_COLUMNS = 40  #: narrower reported widths are taken as unusable (e.g. 0 in some IDEs)
 
@@ -57,8 +60,12 @@ class Progress:
             from tqdm.auto import tqdm
 
             width = bar_width()
-            self._bar = tqdm(total=total, initial=initial, desc=desc, unit="chunk",
-                             dynamic_ncols=width is None, ncols=width, file=sys.stderr)
+            # the first chunk includes compilation: the bar shows vbl's own ETA (from the
+            # chunks after it, as the status file) instead of tqdm's
+            self._bar = tqdm(total=total, initial=initial, desc=f"{desc} (compiling)",
+                             unit="chunk", dynamic_ncols=width is None, ncols=width,
+                             file=sys.stderr, bar_format=BAR_FORMAT)
+        self._desc = desc
         self._t = time.perf_counter()
 
     def update(self, metrics: dict[str, Any], seconds: float | None = None) -> None:
@@ -71,7 +78,11 @@ class Progress:
         self._write_status("training" if self._done < self._total else "finishing")
         if self._bar is None:
             return
+        self._bar.set_description_str(self._desc, refresh=False)
         post = {}
+        eta = self.eta()
+        if eta is not None:
+            post["ETA"] = f"{eta / 60:.0f} min" if eta >= 90 else f"{eta:.0f} s"
         if "episodes" in metrics and dt > 0:
             post["episodes/s"] = f"{float(np.sum(metrics['episodes'])) / dt:,.0f}"
         shown = next((m for m in SUCCESS_METRICS if m in metrics), None)
@@ -80,13 +91,18 @@ class Progress:
         self._bar.set_postfix(post, refresh=False)
         self._bar.update(1)
 
+    def eta(self) -> float | None:
+        """Seconds left at the mean time per chunk after the first chunk of this process
+        (which includes compilation); None before a second chunk."""
+        if self._t0 is None or self._done <= self._first:
+            return None
+        per_chunk = (time.perf_counter() - self._t0) / (self._done - self._first)
+        return round(per_chunk * (self._total - self._done), 1)
+
     def _write_status(self, phase: str) -> None:
         if self._status is None:
             return
-        eta = None
-        if self._t0 is not None and self._done > self._first:
-            per_chunk = (time.perf_counter() - self._t0) / (self._done - self._first)
-            eta = round(per_chunk * (self._total - self._done), 1)
+        eta = self.eta()
         tmp = self._status + ".tmp"
         try:
             with open(tmp, "w") as f:

@@ -16,6 +16,7 @@ from types import ModuleType
 
 from vbl.engine.config import EngineError
 from vbl.engine.experiment import Experiment
+from vbl.params import ParamError
 
 __all__ = ["register", "get", "all_experiments", "discover", "experiment_dirs",
            "import_errors", "load_script", "load_experiment_file", "is_script_path",
@@ -143,13 +144,13 @@ def load_experiment_file(path: str | Path) -> Experiment:
     """The one experiment the script ``path`` registers (``vbl run path/to/script.py``).
 
     Only that file is imported (not the other scripts of its folder, nor the built-in
-    experiments). Raises EngineError when the file is missing, fails to import, or registers
-    no experiment or several.
+    experiments). Raises ParamError when the file is missing, EngineError when it fails to
+    import or registers no experiment or several.
     """
     p = Path(path)
-    if not p.is_file():
-        raise EngineError(f"no experiment script {str(path)!r} (vbl run takes an experiment "
-                          f"name from `vbl list` or the path of a .py file)")
+    if not p.is_file():  # bad input: a ParamError (exit 2)
+        raise ParamError(f"no experiment script {str(path)!r} (vbl run takes an experiment "
+                         f"name from `vbl list` or the path of a .py file)")
     real = os.path.realpath(p)
     try:
         load_script(p)
@@ -174,8 +175,8 @@ def all_experiments() -> dict[str, Experiment]:
 
 
 def get(name: str) -> Experiment:
-    """The experiment called ``name`` (discovering scripts first); unknown names list the
-    valid ones."""
+    """The experiment called ``name`` (discovering scripts first); an unknown name is a
+    ParamError that lists the valid ones."""
     if name not in _REGISTRY:
         discover()
     if name not in _REGISTRY:
@@ -186,5 +187,5 @@ def get(name: str) -> Experiment:
         elif _IMPORT_ERRORS:
             msg += f" ({len(_IMPORT_ERRORS)} script(s) failed to import: " + ", ".join(
                 Path(p).name for p in _IMPORT_ERRORS) + ")"
-        raise EngineError(msg)
+        raise ParamError(msg)  # bad input: exit 2
     return _REGISTRY[name]
