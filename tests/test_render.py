@@ -5,6 +5,9 @@ object where the analytic camera puts it, occlusion by depth, sizes, dtypes, the
 from __future__ import annotations
 
 import functools
+import importlib.util
+import json
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -237,3 +240,31 @@ def test_render_is_pure_and_float32():
         img = render_camera(jnp.zeros(3), jnp.asarray([1.0, 0.0]), R, GC, WORLD.field, CAM,
                             RenderParams(width=16, height=15))
     assert img.dtype == jnp.float32
+
+
+def _load_benchmark():
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "render_throughput.py"
+    spec = importlib.util.spec_from_file_location("bench_render_throughput", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_render_throughput_benchmark_runs_tiny(tmp_path, capsys):
+    """benchmarks/render_throughput.py at its --tiny size (the analytic row is left out
+    here: its compilation is most of the time, and test_blobs compiles that camera), and
+    a working-set limit that skips every combination."""
+    bench = _load_benchmark()
+    out = tmp_path / "rt"
+    assert bench.main(["--tiny", "--rows", "render", "pixel features", "--out", str(out)]) == 0
+    result = json.loads(out.with_suffix(".json").read_text())
+    assert [r["row"] for r in result["rows"]] == ["render", "pixel features"]
+    assert all(r["frames_per_s"] > 0 and r["calls"] >= 1 for r in result["rows"])
+    md = out.with_suffix(".md").read_text()
+    assert "| 16x15 | 1 |" in md and "| - |" in md      # analytic column left empty
+    assert bench.main(["--tiny", "--max-gb", "0", "--out", str(out)]) == 0
+    result = json.loads(out.with_suffix(".json").read_text())
+    assert result["rows"] == [] and len(result["skipped"]) == 1
+    assert "Skipped" in out.with_suffix(".md").read_text()
+    assert bench.working_set_gb(1024, 512, 480) > bench.MAX_GB
+    capsys.readouterr()
