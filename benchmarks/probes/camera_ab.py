@@ -18,6 +18,10 @@ Not an experiment and not a benchmark (``vbl bench`` reads ``benchmarks/*.py`` o
 from the repository root:
 
     python benchmarks/probes/camera_ab.py --base 47bedbe [--batch 4096] [--reps 15]
+        [--scenes 100000] [--tiny]
+
+``--tiny`` (a smoke test: batch 8, 1 alternation, 64 scenes) checks that the probe runs;
+its timings mean little.
 
 Cost: about 5 CPU-minutes at the defaults (compilation of 6 programs). Cited by
 docs/vision.md ("Exactness and cost").
@@ -84,7 +88,8 @@ def camera_rows(base, batch: int, reps: int) -> list[str]:
 def env_step_rows(base, batch: int, reps: int) -> list[str]:
     env = ShootPassEnv("shoot")
     p = env.default_params
-    _, st0 = jax.vmap(env.reset, (0, None))(jax.random.split(jax.random.key(0), batch), p)
+    _, st0 = jax.jit(jax.vmap(env.reset, (0, None)))(jax.random.split(jax.random.key(0), batch),
+                                                      p)
 
     def make_run():
         """A new function per side: jax.jit caches the trace of a function it has seen."""
@@ -171,13 +176,17 @@ def agreement(base, n: int) -> list[str]:
             f" (px, flags)."]
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--base", required=True, help="git revision to compare with")
     ap.add_argument("--batch", type=int, default=4096)
     ap.add_argument("--reps", type=int, default=15, help="alternations of the two sides")
     ap.add_argument("--scenes", type=int, default=100_000, help="random scenes compared")
-    args = ap.parse_args()
+    ap.add_argument("--tiny", action="store_true",
+                    help="smoke-test size: batch 8, 1 alternation, 64 scenes")
+    args = ap.parse_args(argv)
+    if args.tiny:
+        args.batch, args.reps, args.scenes = 8, 1, 64
     base = load_old(args.base)
     load0 = os.getloadavg()[0]
     rows = camera_rows(base, args.batch, args.reps) + env_step_rows(base, args.batch,
@@ -192,7 +201,8 @@ def main() -> None:
     print("|---|---:|---:|---:|---:|---:|")
     print("\n".join(rows))
     print("\n".join(notes))
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

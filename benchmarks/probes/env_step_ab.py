@@ -13,7 +13,10 @@ Not an experiment and not a benchmark (``vbl bench`` reads ``benchmarks/*.py`` o
 from the repository root:
 
     python benchmarks/probes/env_step_ab.py --base 97abd1d [--head REV] [--batch 4096]
-        [--rounds 2]
+        [--rounds 2] [--env shooting] [--mode shared] [--tiny]
+
+``--tiny`` (a smoke test: ``shooting`` with shared parameters only, batch 8, 2 steps per
+call, 1 round) checks that the probe runs; its timings mean little.
 
 Cost: about 4 CPU-minutes at the defaults (compilation of 8 programs per round). Cited by
 docs/world.md ("Random numbers").
@@ -29,6 +32,8 @@ import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
+ENVS = ("shooting", "shoot_pass")
+MODES = ("shared", "batched")
 
 #: One process: time one env and one way of passing parameters; prints CPU us per step.
 CHILD = r"""
@@ -41,7 +46,7 @@ from vbl.envs.shoot_pass import ShootPassEnv
 from vbl.envs.shooting import ShootingEnv
 env = ShootingEnv() if envname == "shooting" else ShootPassEnv("shoot")
 p = env.default_params
-_, st0 = jax.vmap(env.reset, (0, None))(jax.random.split(jax.random.key(0), batch), p)
+_, st0 = jax.jit(jax.vmap(env.reset, (0, None)))(jax.random.split(jax.random.key(0), batch), p)
 axes = 0 if mode == "batched" else None
 pp = jax.tree.map(lambda x: jnp.broadcast_to(jnp.asarray(x), (batch, *np.shape(x))), p) \
     if mode == "batched" else p
@@ -78,7 +83,7 @@ def cpu_us(root: Path, env: str, mode: str, batch: int, steps: int) -> float:
     return float(out.stdout.strip().splitlines()[-1])
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--base", required=True, help="git revision to compare with")
     ap.add_argument("--head", default=None, help="git revision to measure (default: the "
@@ -86,8 +91,17 @@ def main() -> None:
     ap.add_argument("--batch", type=int, default=4096)
     ap.add_argument("--steps", type=int, default=100, help="steps per timed call")
     ap.add_argument("--rounds", type=int, default=2, help="alternations of the two sides")
-    args = ap.parse_args()
-    rows = [(e, m) for e in ("shooting", "shoot_pass") for m in ("shared", "batched")]
+    ap.add_argument("--env", choices=ENVS, action="append",
+                    help="env to measure (repeatable; default: both)")
+    ap.add_argument("--mode", choices=MODES, action="append",
+                    help="way of passing the parameters (repeatable; default: both)")
+    ap.add_argument("--tiny", action="store_true", help="smoke-test size: shooting, shared, "
+                    "batch 8, 2 steps per call, 1 round")
+    args = ap.parse_args(argv)
+    if args.tiny:
+        args.env, args.mode, args.batch, args.steps, args.rounds = (["shooting"], ["shared"],
+                                                                    8, 2, 1)
+    rows = [(e, m) for e in args.env or ENVS for m in args.mode or MODES]
     best = {}
     with tempfile.TemporaryDirectory() as tmp:
         base, head = Path(tmp) / "base", Path(tmp) / "head"
@@ -113,7 +127,8 @@ def main() -> None:
     for env, mode in rows:
         b, t = best[(env, mode, "base")], best[(env, mode, "this")]
         print(f"| {env} | {mode} | {b:.2f} | {t:.2f} | {t / b:.2f} |")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

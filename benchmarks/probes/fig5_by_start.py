@@ -13,6 +13,11 @@ Not an experiment (``vbl reproduce`` does not run it) and not a benchmark (``vbl
 reads ``benchmarks/*.py`` only). Run from the repository root:
 
     python benchmarks/probes/fig5_by_start.py [--seed 0] [--starts 512] [--refine]
+        [--episodes N] [--tiny]
+
+``--tiny`` (a smoke test: 16 episodes of 50 primitives per primitive, 32 starts, 1
+refinement iteration of 16 episodes with ``--refine``) checks that the probe runs; its
+numbers mean little.
 
 Cost: about 1 CPU-minute, under 2 with ``--refine`` (mostly compilation). Cited by
 docs/findings/fig5_action_based.md.
@@ -44,6 +49,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--starts", type=int, default=512)
     ap.add_argument("--refine", action="store_true", help="also refine the map (slow)")
+    ap.add_argument("--episodes", type=int, default=None, help="experience episodes per "
+                    "primitive (default: the experiment's)")
+    ap.add_argument("--tiny", action="store_true", help="smoke-test size: 16 episodes of 50 "
+                    "primitives per primitive, 32 starts, 1 small refinement iteration")
     args = ap.parse_args(argv)
 
     from vbl.engine.action_map_program import ENV as env
@@ -55,6 +64,12 @@ def main(argv: list[str] | None = None) -> int:
     from vbl.spaces.cell_refine import refine_cell_map, refined_policy_action
 
     c = get("fig5_action_based").default_config
+    if args.episodes is not None:
+        c = c.replace(collect=c.collect.replace(episodes_per_action=args.episodes))
+    if args.tiny:
+        args.starts = 32
+        c = c.replace(collect=c.collect.replace(episodes_per_action=16, horizon=50),
+                      refine=c.refine.replace(iterations=1, episodes=16, horizon=50))
     ep = c.env.replace(start_difficulty=float(c.baseline.train.eval_difficulty))
     feat = lambda o: sec2_features(o, c.features)  # noqa: E731
     k_col, k_build, k_eval = jax.random.split(jax.random.PRNGKey(args.seed), 3)
@@ -74,7 +89,7 @@ def main(argv: list[str] | None = None) -> int:
             policies["same map, refined"] = (
                 lambda o, _: refined_policy_action(cm, rm, feat(o)))
 
-        obs0 = np.asarray(fresh_starts(env, ep, k_eval, args.starts)[0])
+        obs0 = np.asarray(jax.jit(lambda k: fresh_starts(env, ep, k, args.starts)[0])(k_eval))
         kind = start_kind(obs0)
         names = ("ball left", "ball centred", "ball right", "ball lost left",
                  "ball lost right")

@@ -12,6 +12,10 @@ Not an experiment (``vbl reproduce`` does not run it) and not a benchmark (``vbl
 reads ``benchmarks/*.py`` only). Run from the repository root:
 
     python benchmarks/probes/grid_hand_table.py [--starts 256] [--seed 0] [--max-steps 300]
+        [--tiny]
+
+``--tiny`` (a smoke test: 64 starts, episodes of at most 30 primitives) checks that the
+probe runs; its numbers mean little.
 
 Cost: about a minute of CPU, mostly compilation. Cited by docs/findings/grid_shooting.md.
 """
@@ -63,7 +67,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--max-steps", type=int, default=None,
                     help="episode time limit in primitives (default: the experiment's, 1000)")
+    ap.add_argument("--tiny", action="store_true",
+                    help="smoke-test size: 64 starts, 30-primitive episodes")
     args = ap.parse_args(argv)
+    if args.tiny:
+        args.starts, args.max_steps = 64, 30
 
     from vbl.agents.qlearning import make_qlearning_runner
     from vbl.engine.baselines import TASK_DIFFICULTY, grid_agent, grid_env, grid_space

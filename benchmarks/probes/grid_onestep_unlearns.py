@@ -13,6 +13,10 @@ Not an experiment (``vbl reproduce`` does not run it) and not a benchmark (``vbl
 reads ``benchmarks/*.py`` only). Run from the repository root:
 
     python benchmarks/probes/grid_onestep_unlearns.py [--chunks 4] [--starts 128] [--seed 0]
+        [--chunk-steps 100] [--max-steps N] [--tiny]
+
+``--tiny`` (a smoke test: one chunk of 10 learner steps, 64 starts, episodes of at most 30
+primitives) checks that the probe runs; its numbers mean little.
 
 Cost: about two minutes of CPU, mostly compilation. Cited by
 docs/findings/grid_shooting.md.
@@ -35,7 +39,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--chunks", type=int, default=4, help="chunks of 100 learner steps")
     ap.add_argument("--starts", type=int, default=128, help="fresh starts (multiple of 64)")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--chunk-steps", type=int, default=100, help="learner steps per chunk")
+    ap.add_argument("--max-steps", type=int, default=None,
+                    help="episode time limit in primitives (default: the experiment's, 1000)")
+    ap.add_argument("--tiny", action="store_true", help="smoke-test size: 1 chunk of 10 "
+                    "learner steps, 64 starts, 30-primitive episodes")
     args = ap.parse_args(argv)
+    if args.tiny:
+        args.chunks, args.starts, args.chunk_steps, args.max_steps = 1, 64, 10, 30
 
     from vbl.agents.qlearning import make_qlearning_runner
     from vbl.engine.baselines import TASK_DIFFICULTY, grid_agent, grid_env, grid_space
@@ -49,10 +60,12 @@ def main(argv: list[str] | None = None) -> int:
     grid = grid_space()
     d = float(TASK_DIFFICULTY)
     env_params = grid_env().replace(start_difficulty=d)
+    if args.max_steps is not None:
+        env_params = env_params.replace(max_steps=args.max_steps)
     q0 = jnp.asarray(hand.hand_table(TWO_MOTOR_LABELS))
     a = grid_agent()
     base = a.replace(  # synchronous macro actions, 100 actions per chunk: the findings' setting
-        num_states=NUM_GRID_STATES, learning_rate=0.05, chunk_steps=100,
+        num_states=NUM_GRID_STATES, learning_rate=0.05, chunk_steps=args.chunk_steps,
         macro=a.macro.replace(mode="sync"),
         exploration=a.exploration.replace(schedule="constant", init_value=0.1),
         lem=a.lem.replace(initial_difficulty=d, max_difficulty=d))
@@ -66,17 +79,19 @@ def main(argv: list[str] | None = None) -> int:
           f"{base.chunk_steps} learner steps")
     k_train, k_eval = jax.random.split(jax.random.PRNGKey(args.seed))
     with engine_precision():
+        # the greedy evaluation does not depend on the update rule: one program for both
+        ev = jax.jit(make_qlearning_runner(ShootingEnv(), lambda o: grid_state(o, grid),
+                                           base).evaluate, static_argnums=(4,))
+
+        def greedy(q):
+            return np.mean([float(ev(k, q, base, env_params, hand.SYNC_EVAL_STEPS)[
+                "success_rate"]) for k in jax.random.split(k_eval, rounds)])
+
         for name, update in variants.items():
             p = base.replace(update=update)
             runner = make_qlearning_runner(ShootingEnv(), lambda o: grid_state(o, grid), p)
-            ev = jax.jit(runner.evaluate, static_argnums=(4,))
             run = jax.jit(runner.run_chunk)
-
-            def greedy(q, ev=ev, p=p):
-                return np.mean([float(ev(k, q, p, env_params, hand.SYNC_EVAL_STEPS)[
-                    "success_rate"]) for k in jax.random.split(k_eval, rounds)])
-
-            carry = runner.init(k_train, p, env_params).replace(q=q0)
+            carry = jax.jit(runner.init)(k_train, p, env_params).replace(q=q0)
             row = [greedy(carry.q)]
             for _ in range(args.chunks):
                 carry, _ = run(carry, p, env_params)

@@ -11,6 +11,7 @@ Usage::
 
     python benchmarks/probes/lag_rule_comparison.py            # every row (a few minutes)
     python benchmarks/probes/lag_rule_comparison.py --quick    # two rules, small sets
+    python benchmarks/probes/lag_rule_comparison.py --tiny     # smoke test: one rule, 8 draws
 """
 
 from __future__ import annotations
@@ -60,19 +61,22 @@ def recovery(params: CVAParams, draws: int, seed: int, noise: float) -> float:
     return float(np.mean(np.asarray(identify(u, y, params).n) == orders))
 
 
-def main(argv=None) -> None:
+def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="two rules on the two small sets")
+    ap.add_argument("--tiny", action="store_true",
+                    help="smoke test: the default rule on the 8-draw set")
     args = ap.parse_args(argv)
-    rules = dict(list(RULES.items())[:2]) if args.quick else RULES
-    sets = ({k: v for k, v in DRAW_SETS.items() if v[0] <= 100} if args.quick
-            else DRAW_SETS)
+    n_rules, max_draws = (1, 8) if args.tiny else (2, 100) if args.quick else (None, None)
+    rules = dict(list(RULES.items())[:n_rules])
+    sets = {k: v for k, v in DRAW_SETS.items() if max_draws is None or v[0] <= max_draws}
     print("| rule | " + " | ".join(sets) + " |")
     print("|---|" + "---|" * len(sets))
     for name, params in rules.items():
         cells = [f"{recovery(params, *spec):.1%}" for spec in sets.values()]
         print(f"| {name} | " + " | ".join(cells) + " |", flush=True)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

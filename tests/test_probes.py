@@ -1,0 +1,135 @@
+"""Every probe of ``benchmarks/probes`` runs at its ``--tiny`` size and prints the table it
+promises (so a probe cannot rot unnoticed when the library changes under it).
+
+The probes run in this process through their ``main(argv)`` (compiled programs come from the
+suite's compilation cache), except ``env_step_ab``, whose children are processes of their
+own. The numbers of a tiny run mean little: the checks are the output's shape and that its
+numbers are finite and in range.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import re
+from pathlib import Path
+
+import jax
+import pytest
+
+PROBES = Path(__file__).resolve().parents[1] / "benchmarks" / "probes"
+NUMBER = re.compile(r"-?\d+(?:\.\d+)?(?:e[+-]?\d+)?")
+
+
+def run_probe(name: str, argv: list[str], capsys) -> str:
+    """Load ``benchmarks/probes/<name>.py`` as a fresh module, run ``main(argv)`` (it must
+    return 0) and return what it printed."""
+    spec = importlib.util.spec_from_file_location(f"probe_{name}", PROBES / f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    capsys.readouterr()
+    assert mod.main(argv) == 0
+    return capsys.readouterr().out
+
+
+def table(out: str, first_cell: str | None = None) -> list[list[str]]:
+    """The cells of the Markdown table rows in ``out`` (header and rule skipped); with
+    ``first_cell``, the rows whose first cell starts with it."""
+    rows = [[c.strip() for c in line.strip().strip("|").split("|")]
+            for line in out.splitlines() if line.startswith("|")]
+    rows = [r for r in rows[1:] if not set("".join(r)) <= set("-:")]
+    return [r for r in rows if first_cell is None or r[0].startswith(first_cell)]
+
+
+def numbers(cell: str) -> list[float]:
+    return [float(x) for x in NUMBER.findall(cell)]
+
+
+def test_probe_files_all_tested():
+    """A new probe needs a test here."""
+    tested = {n.removeprefix("test_") for n in globals() if n.startswith("test_")}
+    assert {p.stem for p in PROBES.glob("*.py")} <= tested
+
+
+def test_ball_velocity_r2(capsys):
+    out = run_probe("ball_velocity_r2", ["--tiny"], capsys)
+    rows = table(out)
+    assert [r[0].split(" (")[0] for r in rows] == ["steps used", "current", "CVA", "oracle",
+                                                   "CVA, first 4", "raw history"]
+    assert all(len(r) == 5 for r in rows)  # 4 phases
+    assert all(int(c) >= 14 for c in rows[0][1:])  # enough steps for a 12-regressor fit
+    for r in rows[1:]:
+        for cell in r[1:]:
+            vals = numbers(cell)
+            assert len(vals) == 2 and all(math.isfinite(v) and v <= 1.0 for v in vals), r
+    assert all(min(numbers(c)) > 0.99 for c in rows[3][1:])  # the oracle holds the velocity
+
+
+@pytest.mark.slow  # ~40 s with a warm compilation cache: tracing 10 camera / env programs
+def test_camera_ab(capsys, monkeypatch):
+    # the probe switches the compilation cache off for processes it starts (it times
+    # compilation); this one's cache is already set, and the variable is restored after
+    monkeypatch.delenv("VBL_JAX_CACHE", raising=False)
+    out = run_probe("camera_ab", ["--base", "HEAD", "--tiny"], capsys)
+    rows = table(out)
+    assert [r[0] for r in rows] == ["section3 camera", "section2 camera", "two-robot env step"]
+    for r in rows:
+        vals = [v for c in r[1:] for v in numbers(c)]
+        assert len(vals) == 7 and all(math.isfinite(v) and v >= 0 for v in vals), r
+    assert "Section 3 on 64 random scenes" in out and "Section 2 on the same scenes" in out
+
+
+def test_env_step_ab(capsys, monkeypatch):
+    cache = jax.config.jax_compilation_cache_dir
+    if cache:  # the child processes compile through this process's cache
+        monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", cache)
+    out = run_probe("env_step_ab", ["--base", "HEAD", "--tiny"], capsys)
+    rows = table(out)
+    assert len(rows) == 1 and rows[0][:2] == ["shooting", "shared"]
+    vals = [float(c) for c in rows[0][2:]]
+    assert len(vals) == 3 and all(math.isfinite(v) and v > 0 for v in vals)
+
+
+def test_fig5_by_start(capsys):
+    out = run_probe("fig5_by_start", ["--tiny", "--refine"], capsys)
+    starts = table(out, "starts")
+    assert len(starts) == 1 and int(starts[0][1]) == 32
+    assert sum(int(c) for c in starts[0][2:]) == 32  # every start is of one kind
+    rows = table(out, "cell map") + table(out, "same map, refined")
+    assert len(rows) == 2
+    for r in rows:
+        assert len(r) == 7
+        vals = [float(c) for c in r[1:] if c != "-"]
+        assert vals and all(0.0 <= v <= 1.0 for v in vals), r
+
+
+def test_grid_hand_table(capsys):
+    out = run_probe("grid_hand_table", ["--tiny"], capsys)
+    found = re.findall(r"^(.*): success (\S+) \(64 starts\)$", out, re.M)
+    assert [n for n, _ in found] == ["hand-written table", "random policy (all-zero table)"]
+    assert all(0.0 <= float(v) <= 1.0 for _, v in found)
+
+
+def test_grid_onestep_unlearns(capsys):
+    out = run_probe("grid_onestep_unlearns", ["--tiny"], capsys)
+    found = re.findall(r"^(.*): greedy success per chunk (.*); greedy actions changed in "
+                       r"(\d+) of 319 states$", out, re.M)
+    assert len(found) == 2 and found[0][0] == "one-step Q-learning"
+    for _, curve, changed in found:
+        vals = [float(v) for v in curve.split(", ")]
+        assert len(vals) == 2 and all(0.0 <= v <= 1.0 for v in vals)  # start + 1 chunk
+        assert 0 <= int(changed) <= 319
+
+
+def test_lag_rule_comparison(capsys):
+    out = run_probe("lag_rule_comparison", ["--tiny"], capsys)
+    rows = table(out)
+    assert len(rows) == 1 and rows[0][0].endswith("(default)")
+    frac = numbers(rows[0][1])
+    assert len(frac) == 1 and 0.0 <= frac[0] <= 100.0
+
+
+@pytest.mark.parametrize("name", sorted(p.stem for p in PROBES.glob("*.py")))
+def test_probe_has_tiny_option(name):
+    """Every probe offers the size its test runs at."""
+    assert "--tiny" in (PROBES / f"{name}.py").read_text()
