@@ -18,7 +18,9 @@ import numpy as np
 import pytest
 
 from vbl.vision.blobs import (
+    MASK_OTHER,
     BlobParams,
+    blob_stats,
     colour_masks,
     rgb_to_hsv,
     section2_from_pixels,
@@ -92,15 +94,20 @@ def _program(width, height):
         bw = jnp.stack([ball[0], ball[1], jnp.asarray(r, jnp.float32)])
         bi = ball_image(to_camera(bw, camera_frame(pose, CAM)), r, CAM)
         box = jnp.stack([bi.u_lo, bi.u_hi, bi.v_lo, bi.v_hi])
+        yb = blob_stats(colour_masks(img3, BP)[MASK_OTHER], CAM)
+        ybox = jnp.where(yb.visible, jnp.stack([yb.u_lo, yb.u_hi, yb.v_lo, yb.v_hi]), 1e6)
         return (section2_from_pixels(img2, CAM, BP, a2[7:9]), a2,
-                section3_flat_from_pixels(img3, CAM, BP, a3[23:26]), a3, box)
+                section3_flat_from_pixels(img3, CAM, BP, a3[23:26]), a3, box, ybox)
 
     return jax.jit(jax.vmap(one))
 
 
 def run_scenes(kind: str, n: int, seed: int = 0, width: int = 512, height: int = 480):
     """Pixel and analytic features of ``n`` scenes of ``kind``: dict of NumPy arrays p2, a2
-    (n, 9), p3, a3 (n, 26), ball_box (n, 4) (the unoccluded analytic ball box)."""
+    (n, 9), p3, a3 (n, 26), ball_box (n, 4) (the unoccluded analytic ball box u_lo, u_hi,
+    v_lo, v_hi) and other_box (n, 4) (the box of the other robot's yellow pixel squares,
+    1e6 when none: the occluder box; the analytic Section 3 vector gives the robot's area
+    centroid, not its box's centre)."""
     s = random_scenes(n, kind, seed=seed, world=WORLD)
     prog = _program(width, height)
     outs = []
@@ -108,7 +115,7 @@ def run_scenes(kind: str, n: int, seed: int = 0, width: int = 512, height: int =
         sl = slice(i, i + CHUNK)
         outs.append([np.asarray(x) for x in prog(s["pose"][sl], s["ball"][sl],
                                                   s["other"][sl])])
-    keys = ("p2", "a2", "p3", "a3", "ball_box")
+    keys = ("p2", "a2", "p3", "a3", "ball_box", "other_box")
     return {k: np.concatenate([o[j] for o in outs]) for j, k in enumerate(keys)}
 
 
@@ -119,15 +126,11 @@ def _boxes_apart(a_lo, a_hi, b_lo, b_hi, gap):
     return np.any((a_hi + gap < b_lo) | (b_hi + gap < a_lo), axis=1)
 
 
-def _other_box(a3):
-    o = a3[:, 15:20]
-    c, half = o[:, :2], 0.5 * o[:, 2:4]
-    lo, hi = c - half, c + half
-    lost = a3[:, 22] == 0
-    return np.where(lost[:, None], 1e6, lo), np.where(lost[:, None], 1e6, hi)
+def _other_box(box):
+    return box[:, [0, 2]], box[:, [1, 3]]
 
 
-def _ball_box(box, a3=None):
+def _ball_box(box):
     lo, hi = box[:, [0, 2]], box[:, [1, 3]]
     empty = (hi[:, 0] <= lo[:, 0])
     return np.where(empty[:, None], -1e6, lo), np.where(empty[:, None], -1e6, hi)
@@ -162,7 +165,7 @@ def errors(r) -> dict[str, np.ndarray]:
     defined alike (see docs/render.md): name -> (k,) errors."""
     p2, a2, p3, a3 = r["p2"], r["a2"], r["p3"], r["a3"]
     blo, bhi = _ball_box(r["ball_box"])
-    olo, ohi = _other_box(a3)
+    olo, ohi = _other_box(r["other_box"])
     e = {}
     # Section 2: no other robot; the goal never hides the ball
     both = (p2[:, 5] > 0) & (a2[:, 5] > 0)
@@ -235,7 +238,7 @@ def flags_disagree(r) -> dict[str, np.ndarray]:
     least 2 px wide and high has a pixel; lost sides are the caller's hint."""
     p2, a2, p3, a3 = r["p2"], r["a2"], r["p3"], r["a3"]
     blo, bhi = _ball_box(r["ball_box"])
-    olo, ohi = _other_box(a3)
+    olo, ohi = _other_box(r["other_box"])
     bw, bh = (bhi - blo)[:, 0], (bhi - blo)[:, 1]
     out = {
         "s2 ball pixel without analytic ball": (p2[:, 5] > 0) & (a2[:, 5] == 0),
