@@ -106,9 +106,23 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _error(msg: str, code: int) -> int:
+    from vbl.engine.errors import final_line
+
     msg = "; ".join(x.strip() for x in str(msg).splitlines() if x.strip())
-    print(f"vbl: error: {msg}", file=sys.stderr)
+    final_line(msg, code)
     return code
+
+
+def _stdout_gone() -> int:
+    """stdout's reader left (``vbl params X | head``): no message, nothing more written to
+    stdout, exit 141 (128 + SIGPIPE, what a shell reports for a command killed by it)."""
+    try:
+        fd = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(fd, sys.stdout.fileno())
+        os.close(fd)
+    except (OSError, ValueError):
+        pass
+    return 141
 
 
 def _cmd_list() -> int:
@@ -245,7 +259,7 @@ def _dispatch(args) -> int:
         report, ok = reproduce(out, quick=args.quick, quiet=True if args.quiet else None,
                                resume=args.resume, overwrite=args.overwrite, names=args.only,
                                jobs=args.jobs)
-        print(f"report: {report}")
+        print(f"report: {report}", flush=True)
         return 0 if ok else _error(f"some experiments failed; see {report}", 1)
     if args.command == "bench":
         return _cmd_bench(args)
@@ -260,14 +274,20 @@ def _guarded(fn, *a, debug: bool = False) -> int:
     import traceback
 
     from vbl.engine.config import EngineError
-    from vbl.engine.errors import debug_requested, one_line
+    from vbl.engine.errors import debug_requested, one_line, stop_code, stop_message
     from vbl.params import ParamError
 
     debug = debug or debug_requested()
     try:
-        return fn(*a)
-    except KeyboardInterrupt:
-        return _error("interrupted", 130)
+        code = fn(*a)
+        sys.stdout.flush()  # a closed pipe shows here, not at exit
+        return code
+    except KeyboardInterrupt as e:  # SIGINT, or SIGTERM (Terminated)
+        return _error(stop_message(e), stop_code(e))
+    except BrokenPipeError as e:
+        if _is_stdout_pipe(e):
+            return _stdout_gone()
+        return _error(one_line(e), 1)
     except Exception as e:  # noqa: BLE001 - the command's last word on any failure
         if debug:
             traceback.print_exc()
@@ -278,12 +298,22 @@ def _guarded(fn, *a, debug: bool = False) -> int:
         return _error(one_line(e), 1)
 
 
+def _is_stdout_pipe(e: BrokenPipeError) -> bool:
+    """Whether the broken pipe is stdout's: a write to a pipe names no file (a file
+    operation that fails with EPIPE does)."""
+    return e.filename is None
+
+
 def _usable_cores() -> int:
     try:
         return len(os.sched_getaffinity(0))
     except (AttributeError, OSError):
         return os.cpu_count() or 1
 
+
+MAX_DEVICES_PER_CORE = 4
+"""``VBL_HOST_DEVICES`` is at most this many host devices per usable CPU core (more only
+makes XLA's start slower, by minutes at thousands of devices)."""
 
 COLLECTIVE_TIMEOUT_S = 3600
 """Seconds a host device waits for the others at a collective before XLA aborts the run
@@ -305,14 +335,17 @@ def use_all_cores() -> int:
     flags = os.environ.get("XLA_FLAGS", "")
     if "xla_force_host_platform_device_count" in flags:
         return 0
-    raw = os.environ.get("VBL_HOST_DEVICES", "").strip() or str(_usable_cores())
+    cores = _usable_cores()
+    raw = os.environ.get("VBL_HOST_DEVICES", "").strip() or str(cores)
+    most = MAX_DEVICES_PER_CORE * cores
     try:
         n = int(raw)
     except ValueError:
-        raise SystemExit(f"vbl: error: VBL_HOST_DEVICES={raw!r} must be an integer >= 1"
-                         ) from None
-    if n < 1:
-        raise SystemExit(f"vbl: error: VBL_HOST_DEVICES={raw!r} must be an integer >= 1")
+        n = 0
+    if not 1 <= n <= most:  # bad input: one line, exit 2
+        print(f"vbl: error: VBL_HOST_DEVICES={raw!r} must be an integer in [1, {most}] "
+              f"({MAX_DEVICES_PER_CORE} x the {cores} usable CPU cores)", file=sys.stderr)
+        raise SystemExit(2)
     if n == 1:
         return 0
     flags = f"{flags} --xla_force_host_platform_device_count={n}"
@@ -325,8 +358,12 @@ def use_all_cores() -> int:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``vbl`` console script; returns the exit code."""
     args = build_parser().parse_args(argv)
-    _quiet_xla()
-    return _guarded(_dispatch, args, debug=args.debug)
+
+    def go() -> int:
+        _quiet_xla()
+        return _dispatch(args)
+
+    return _guarded(go, debug=args.debug)
 
 
 def _quiet_xla() -> None:
@@ -343,8 +380,9 @@ def _end(code: int, argv: list[str]) -> int:
     """After a failure's ``vbl: error:`` line, nothing more reaches stderr (background
     threads of the checkpoint library can print at interpreter exit); ``--debug`` /
     ``VBL_DEBUG`` keep it."""
-    from vbl.engine.errors import debug_requested
+    from vbl.engine.errors import debug_requested, finish
 
+    finish(code)
     if code and not ("--debug" in argv or debug_requested()):
         sys.stderr.flush()
         fd = os.open(os.devnull, os.O_WRONLY)
@@ -353,11 +391,63 @@ def _end(code: int, argv: list[str]) -> int:
     return code
 
 
+_FALLBACK = {"±": "+-", "×": "x", "≈": "~", "≤": "<=", "≥": ">=", "—": "-", "–": "-",
+             "…": "...", "µ": "u", "²": "^2", "→": "->"}
+
+
+def _ascii_fallback(err: UnicodeEncodeError) -> tuple[str, int]:
+    """Codec error handler ``vbl-fallback``: ``±`` as ``+-`` (and a few more), any other
+    character the encoding lacks as ``?``."""
+    bad = err.object[err.start:err.end]
+    return "".join(_FALLBACK.get(ch, "?") for ch in bad), err.end
+
+
+def _safe_streams() -> None:
+    """stdout and stderr never fail on a character their encoding lacks
+    (``PYTHONIOENCODING=ascii``, a C locale): ``±`` is written ``+-``."""
+    import codecs
+
+    try:
+        codecs.lookup_error("vbl-fallback")
+    except LookupError:
+        codecs.register_error("vbl-fallback", _ascii_fallback)
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.reconfigure(errors="vbl-fallback")
+        except (AttributeError, ValueError, OSError):
+            pass
+
+
+def _home_for_caches() -> None:
+    """An empty or unset ``HOME`` would put the compilation cache (and the plotting
+    library's) under ``/.cache``: ``HOME`` becomes the user's home from the password
+    database, or, without one, the compilation cache is off and the plotting library's
+    settings go to a temporary folder."""
+    if os.environ.get("HOME", "").strip():
+        return
+    try:
+        import pwd
+
+        home = pwd.getpwuid(os.getuid()).pw_dir
+    except (ImportError, KeyError, OSError):
+        home = ""
+    if home and home != "/" and os.path.isdir(home):
+        os.environ["HOME"] = home
+        return
+    import tempfile
+
+    os.environ.setdefault("VBL_JAX_CACHE", "0")
+    os.environ.setdefault("MPLCONFIGDIR", tempfile.mkdtemp(prefix="vbl-mpl-"))
+
+
 def _quiet_process(argv: list[str]) -> None:
-    """Settings of a ``vbl`` process (not of ``main`` called in-process): XLA's log level
-    before JAX loads, and no library noise after a failure unless debugging."""
+    """Settings of a ``vbl`` process (not of ``main`` called in-process): output that
+    never fails on its encoding, XLA's log level before JAX loads, and no library noise
+    after a failure unless debugging."""
     from vbl.engine.errors import quiet_xla_env
 
+    _home_for_caches()
+    _safe_streams()
     quiet_xla_env()
     if "--debug" not in argv:
         from vbl.engine.errors import debug_requested, quiet_library_noise
@@ -368,6 +458,9 @@ def _quiet_process(argv: list[str]) -> None:
 
 def console_main() -> int:
     """The installed ``vbl`` command: :func:`use_all_cores`, then :func:`main`."""
+    from vbl.engine.errors import install_stop_handlers
+
+    install_stop_handlers()  # SIGINT and SIGTERM stop it with one line
     use_all_cores()
     _quiet_process(sys.argv[1:])
     return _end(main(), sys.argv[1:])
@@ -409,12 +502,15 @@ def main_for(experiment, argv: list[str] | None = None) -> None:
     _add_run_options(parser)
     args = parser.parse_args(argv)
     if argv is None:
+        from vbl.engine.errors import install_stop_handlers
+
         _rerun_with_quiet_xla()
+        install_stop_handlers()
     use_all_cores()
     _quiet_process(sys.argv[1:] if argv is None else argv)
-    _quiet_xla()
 
     def go() -> int:
+        _quiet_xla()
         _init_distributed(args)
         return _run(experiment, args)
 

@@ -111,10 +111,28 @@ def parse_sweep(text: str, config: Any) -> tuple[str, list[Any]]:
     path = path.strip()
     get_path(config, path)
     default = _field_default(config, path)
-    vals = [parse_value(v, default) for v in split_values(values)]
+    texts = split_values(values)
+    vals = [parse_value(v, default) for v in texts]
     if not vals or any(v == "" for v in vals):
         raise ParamError(f"sweep {text!r} has an empty value")
+    seen: dict[str, str] = {}
+    for t, v in zip(texts, vals, strict=True):
+        key = fingerprint({"v": _same_number(v)})  # 0.1 and 1e-1, 1 and 1.0 are one value
+        if key in seen:
+            raise ParamError(f"--sweep {path} has the value {v!r} twice ({seen[key]} and "
+                             f"{t}); give each value once")
+        seen[key] = t
     return path, vals
+
+
+def _same_number(v: Any) -> Any:
+    if isinstance(v, bool):
+        return v
+    if isinstance(v, int | float):
+        return float(v)
+    if isinstance(v, tuple | list):
+        return [_same_number(x) for x in v]
+    return v
 
 
 def set_value(config: Any, path: str, value: Any) -> Any:

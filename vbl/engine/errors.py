@@ -2,13 +2,21 @@
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import logging
 import os
 import re
+import signal
 import sys
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
 
-__all__ = ["one_line", "quiet_xla_env", "quiet_xla_log", "debug_requested", "quiet_library_noise"]
+__all__ = ["one_line", "quiet_xla_env", "quiet_xla_log", "debug_requested", "quiet_library_noise",
+           "Terminated", "STOP_GRACE_S", "stop_code", "stop_message", "install_stop_handlers",
+           "worker_stop_handlers", "on_forced_exit", "final_line", "finish"]
 
 _DISK = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
 
@@ -50,6 +58,11 @@ def one_line(e: BaseException) -> str:
             where = f" {x.filename}" if getattr(x, "filename", None) else ""
             return (f"cannot write{where}: {why}; free some space (or raise the file size "
                     f"limit), then continue the run with --resume")
+    for x in _chain(e):
+        if isinstance(x, OSError) and x.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
+            where = f" {x.filename}" if getattr(x, "filename", None) else ""
+            return (f"cannot write{where}: {x.strerror or os.strerror(x.errno)}; make the "
+                    f"folder writable or pick another --out")
     for x in _chain(e):
         if isinstance(x, MemoryError):
             return ("out of memory; use fewer --seeds, sweep values or environments "
@@ -95,6 +108,8 @@ def quiet_xla_log() -> None:
 def _unraisable(u) -> None:
     if isinstance(u.exc_value, RuntimeError) and str(u.exc_value) == "Event loop is closed":
         return
+    if isinstance(u.exc_value, KeyboardInterrupt):  # a stop swallowed by a callback: the
+        return  # stop watchdog ends the process with its one line
     sys.__unraisablehook__(u)
 
 
@@ -106,3 +121,145 @@ def quiet_library_noise() -> None:
     are dropped (other unraisable exceptions print as usual)."""
     logging.getLogger("absl").setLevel(logging.CRITICAL)
     sys.unraisablehook = _unraisable
+
+
+# ------------------------------------------------------------------ signals
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread as SIGINT's KeyboardInterrupt is (the ``vbl``
+    command handles both alike: exit 143 instead of 130)."""
+
+
+STOP_GRACE_S = 4.0
+"""Seconds the main thread has, after the first SIGINT or SIGTERM, to stop by itself; then
+a watchdog thread ends the process with the same one line (a compiled program or a
+library that swallows the interrupt cannot keep a ``vbl`` command running). A second
+signal ends it at once."""
+
+_state: dict[str, Any] = {"raised": False, "final": False, "signal": None}
+_hooks: list[Callable[[], None]] = []
+_exit_lock = threading.Lock()
+
+
+def stop_code(e: BaseException | int | None) -> int:
+    """The exit code of a stop: 143 for SIGTERM (:class:`Terminated`), 130 for SIGINT."""
+    if isinstance(e, int):
+        return 128 + e
+    return 143 if isinstance(e, Terminated) else 130
+
+
+def stop_message(e: BaseException | None = None) -> str:
+    text = str(e) if e is not None else ""
+    if text:
+        return text
+    return "terminated (SIGTERM)" if isinstance(e, Terminated) else "interrupted"
+
+
+def on_forced_exit(hook: Callable[[], None]) -> Callable[[], None]:
+    """Register ``hook`` (e.g. kill worker processes) to run before the watchdog ends the
+    process; returns a function that removes it."""
+    _hooks.append(hook)
+    return lambda: _hooks.remove(hook) if hook in _hooks else None
+
+
+def final_line(text: str, code: int) -> bool:
+    """Print the command's last ``vbl: error:`` line unless the watchdog already did;
+    returns whether it was printed."""
+    with _exit_lock:
+        if _state["final"]:
+            return False
+        _state["final"] = True
+        _state["code"] = code
+    print(f"vbl: error: {text}", file=sys.stderr, flush=True)
+    return True
+
+
+def finish(code: int) -> None:
+    """The command is done with exit ``code``: a signal from now on no longer raises (the
+    watchdog ends a process still running after it with this code)."""
+    with _exit_lock:
+        if not _state["final"]:
+            _state["final"] = True
+            _state["code"] = code
+
+
+def _handler(signum, frame) -> None:
+    if _state["raised"] or _state["final"]:  # the watchdog handles the rest
+        return
+    _state["raised"] = True
+    _state["signal"] = signum
+    raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+
+
+def _force_exit(signum: int, why: str) -> None:
+    for hook in list(_hooks):
+        with contextlib.suppress(Exception):
+            hook()
+    with _exit_lock:
+        code = _state.get("code") if _state["final"] else None
+        if code is None:
+            _state["final"] = True
+            code = 128 + signum
+            name = "terminated (SIGTERM)" if signum == signal.SIGTERM else "interrupted"
+            with contextlib.suppress(OSError):
+                os.write(2, f"vbl: error: {name} ({why})\n".encode())
+    os._exit(code)
+
+
+def _watch(sock) -> None:
+    first, count, deadline = None, 0, None
+    while True:
+        if deadline is not None:
+            sock.settimeout(max(0.0, deadline - time.monotonic()))
+        try:
+            data = sock.recv(64)
+        except TimeoutError:
+            _force_exit(first, f"stopped after {STOP_GRACE_S:g} s")
+            return
+        except OSError:
+            return
+        for b in data:
+            if b in (signal.SIGINT, signal.SIGTERM):
+                count += 1
+                first = first or b
+        if count >= 2:
+            _force_exit(first, "second signal")
+            return
+        if count == 1 and deadline is None:
+            deadline = time.monotonic() + STOP_GRACE_S
+
+
+def install_stop_handlers(watchdog: bool = True) -> None:
+    """SIGINT raises KeyboardInterrupt and SIGTERM :class:`Terminated` in the main thread
+    (the first signal only); with ``watchdog``, a thread ends the process
+    :data:`STOP_GRACE_S` seconds after the first signal, or at a second one, if it is still
+    running (after the :func:`on_forced_exit` hooks). Call from the main thread of a
+    ``vbl`` process (elsewhere it does nothing)."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+    signal.signal(signal.SIGINT, _handler)
+    signal.signal(signal.SIGTERM, _handler)
+    if not watchdog:
+        return
+    import socket
+
+    r, w = socket.socketpair()
+    w.setblocking(False)
+    signal.set_wakeup_fd(w.fileno(), warn_on_full_buffer=False)
+    _state["wakeup"] = (r, w)  # kept open for the process's life
+    threading.Thread(target=_watch, args=(r,), name="vbl-stop-watchdog", daemon=True).start()
+
+
+def worker_stop_handlers() -> None:
+    """In a worker process of ``vbl reproduce``: SIGINT ignored (the parent stops the
+    workers; Ctrl-C reaches the whole process group), SIGTERM raises :class:`Terminated`
+    so that the run unwinds (the parent kills a worker that has not ended soon after)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, _worker_handler)
+
+
+def _worker_handler(signum, frame) -> None:
+    if _state["raised"]:  # the first one was swallowed (by a library's callback): go now
+        os._exit(128 + signum)
+    _state["raised"] = True
+    raise Terminated()

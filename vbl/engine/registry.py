@@ -129,6 +129,11 @@ def load_script(path: str | Path) -> ModuleType:
         sys.modules[name] = module  # dataclasses and pickling look their module up
         try:
             spec.loader.exec_module(module)
+        except SystemExit as e:  # sys.exit() at import: an error, not the command's exit
+            sys.modules.pop(name, None)
+            raise EngineError(f"experiment script {path} exited while being imported "
+                              f"(sys.exit({e.code!r})); an experiment script registers "
+                              f"experiments, its __main__ block alone may exit") from None
         except Exception:
             sys.modules.pop(name, None)
             raise

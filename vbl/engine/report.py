@@ -5,6 +5,7 @@ reads committed run folders into one table of the paper's numbers beside vbl's."
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import shlex
@@ -58,6 +59,14 @@ def paper_experiments() -> dict[str, Experiment]:
     return {n: e for n, e in all_experiments().items() if e.paper_result}
 
 
+def _url(path: str | Path) -> str:
+    """A relative path as a Markdown link target: ``/``-separated and percent-encoded
+    (a space, parenthesis or ``#`` in a folder name would end or break the link)."""
+    from urllib.parse import quote
+
+    return quote(Path(path).as_posix(), safe="/")
+
+
 def _figure_path(f: str | Path, out_dir: Path) -> Path:
     """A report's figure path, absolute. A relative path is taken from the working directory
     when it exists there (experiments usually return run_dir / name with a relative
@@ -78,7 +87,7 @@ def run_report(exp: Experiment, result: RunResult) -> tuple[ReportSection, Path]
     try:
         section = exp.report(result) if exp.report is not None else default_section(result)
         figs = tuple(_figure_path(f, out_dir) for f in section.figures)
-        links = [f"![{f.stem}]({os.path.relpath(f, out_dir.absolute())})" for f in figs]
+        links = [f"![{f.stem}]({_url(os.path.relpath(f, out_dir.absolute()))})" for f in figs]
         path = out_dir / "report.md"
         path.write_text("\n".join([f"# {exp.name}", "", exp.description, "",
                                     section.markdown, "", *(f + "\n" for f in links)]) + "\n")
@@ -232,7 +241,70 @@ def _run_chain(jobs: list[Job], out: Path, quick: bool, resume: bool, overwrite:
 
     quiet_xla_log()
     use_compilation_cache()
-    return {j.folder: _run_one(j, out, quick, True, resume, overwrite) for j in jobs}
+    try:
+        return {j.folder: _run_one(j, out, quick, True, resume, overwrite) for j in jobs}
+    except KeyboardInterrupt:  # SIGTERM from the parent, the run unwound: end this worker
+        os._exit(143)  # at once (the parent's pool then starts no other)
+
+
+def _worker_init(out: Path) -> None:
+    """A reproduce worker: the parent stops it (SIGINT ignored, SIGTERM unwinds the run),
+    and it may write the runs of the reproduce folder ``out``, which the parent holds
+    locked."""
+    from vbl.engine.errors import debug_requested, quiet_library_noise, worker_stop_handlers
+    from vbl.engine.runfolder import allow_runs_under
+
+    worker_stop_handlers()
+    if not debug_requested():
+        quiet_library_noise()
+    allow_runs_under(out)
+
+
+WORKER_STOP_S = 1.5
+"""Seconds a worker has to end after SIGTERM when ``vbl reproduce`` stops, before it is
+killed (its run folder stays consistent either way: rows are appended whole, checkpoints
+are written then renamed)."""
+
+
+def _workers(pool) -> dict:
+    """The pool's ``{pid: process}``, the live dict its manager thread updates (the pool
+    drops its own reference at shutdown)."""
+    procs = getattr(pool, "_processes", None)
+    return procs if procs is not None else {}
+
+
+def _stop_workers(pool, workers: dict, futures) -> None:
+    """Cancel the queued ``futures`` of ``pool``, SIGTERM every worker process
+    (``workers``, from :func:`_workers`; a stopped worker exits at once, which breaks the
+    pool, so it starts no other), SIGKILL those still running after
+    :data:`WORKER_STOP_S`, then shut the pool down."""
+    for f in futures:
+        f.cancel()
+    deadline = time.monotonic() + WORKER_STOP_S
+    signalled: set[int] = set()
+    while True:  # the pool may have started a worker meanwhile: look again until none runs
+        procs = [p for p in list(workers.values()) if p.is_alive()]
+        if not procs:
+            break
+        for p in procs:
+            with contextlib.suppress(Exception):
+                if p.pid not in signalled:
+                    p.terminate()
+                    signalled.add(p.pid)
+                elif time.monotonic() >= deadline:
+                    p.kill()
+        time.sleep(0.05)
+    manager = getattr(pool, "_executor_manager_thread", None)
+    if manager is not None:
+        manager.join(2.0)  # it ends once it has seen the pool broken
+    with contextlib.suppress(Exception):
+        pool.shutdown(wait=False, cancel_futures=True)
+
+
+def _kill_workers(workers: dict) -> None:
+    for p in list(workers.values()):
+        with contextlib.suppress(Exception):
+            p.kill()
 
 
 def _chains(jobs: list[Job], exps: dict[str, Experiment]) -> list[list[Job]]:
@@ -269,12 +341,18 @@ def _run_parallel(jobs: list[Job], exps: dict[str, Experiment], workers: int, ou
     import multiprocessing
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
+    from vbl.engine.errors import on_forced_exit
+
     done: dict[str, dict] = {}
+    started = time.time()
     ctx = multiprocessing.get_context("spawn")  # jax is not fork-safe
     t0 = last = time.perf_counter()
     chains = _chains(jobs, exps)
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
-                             max_tasks_per_child=1) as pool:
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, max_tasks_per_child=1,
+                               initializer=_worker_init, initargs=(out,))
+    procs = _workers(pool)
+    forget = on_forced_exit(lambda: _kill_workers(procs))
+    try:
         futures = {pool.submit(_run_chain, c, out, quick, resume, overwrite): c
                    for c in chains}
         pending = set(futures)
@@ -284,10 +362,8 @@ def _run_parallel(jobs: list[Job], exps: dict[str, Experiment], workers: int, ou
                 try:
                     results = fut.result()
                 except Exception as e:  # noqa: BLE001 - a worker died (killed, out of memory)
-                    results = {j.folder: dict(status=f"failed: worker process died: {e!r}",
-                                              markdown="**failed** (worker process died)",
-                                              figures=[], seconds=float("nan"),
-                                              peak_rss_mb=float("nan")) for j in futures[fut]}
+                    results = {j.folder: _after_dead_worker(j, e, exps, out, quick, started)
+                               for j in futures[fut]}
                 for name, r in results.items():
                     done[name] = r
                     if not quiet:
@@ -299,7 +375,42 @@ def _run_parallel(jobs: list[Job], exps: dict[str, Experiment], workers: int, ou
                            if j.folder not in done]
                 print(_progress_line(out, running, len(done), len(jobs), t0), flush=True)
                 last = now
+    except BaseException as e:  # SIGINT / SIGTERM (or a failure here): stop every worker
+        _stop_workers(pool, procs, futures if "futures" in locals() else ())
+        if isinstance(e, KeyboardInterrupt):
+            raise type(e)(_stopped(e, out, len(done), len(jobs))) from None
+        raise
+    else:
+        pool.shutdown(wait=True)
+    finally:
+        forget()
     return done
+
+
+def _after_dead_worker(job: Job, e: BaseException, exps: dict[str, Experiment], out: Path,
+                       quick: bool, started: float) -> dict[str, Any]:
+    """A job whose worker died: a run that finished before (its ``summary.json`` written
+    since ``started``) is complete, so its report is rebuilt here (``--resume`` of a
+    finished run runs nothing); any other is failed."""
+    summary = out / job.folder / "summary.json"
+    try:
+        finished = summary.stat().st_mtime >= started - 1.0
+    except OSError:
+        finished = False
+    if finished:
+        r = _run_one(job, out, quick, True, True, False, exp=exps[job.name])
+        if r["status"] == "ok":
+            return r
+    return dict(status=f"failed: worker process died: {e!r}",
+                markdown="**failed** (worker process died)", figures=[],
+                seconds=float("nan"), peak_rss_mb=float("nan"))
+
+
+def _stopped(e: BaseException, out: Path, n_done: int, n_all: int) -> str:
+    from vbl.engine.errors import stop_message
+
+    return (f"{stop_message(e)}; {n_done} of {n_all} runs finished and are kept in {out}; "
+            f"continue with vbl reproduce --resume --out {out}")
 
 
 def _git_commit() -> str:
@@ -354,22 +465,40 @@ def reproduce(out: Path, *, quick: bool, quiet: bool | None, resume: bool = Fals
     Returns ``(report path, all succeeded)``. A failing run is reported and the others
     still run.
     """
-    from vbl.engine.results import write_json
-    from vbl.engine.runfolder import check_new_folder
+    from vbl.engine.runfolder import check_new_folder, lock_reproduce_folder
+    from vbl.params import ParamError
 
     exps = paper_experiments()
     if names:
         bad = [n for n in names if n not in exps]
-        if bad:
-            raise EngineError(f"unknown paper experiment(s) {bad}; valid: {sorted(exps)}")
+        if bad:  # bad input: exit 2
+            raise ParamError(f"unknown paper experiment(s) {bad}; valid: {sorted(exps)}")
         exps = {n: exps[n] for n in names}
     out = Path(out)
     if not (resume or overwrite):
         check_new_folder(out, resume=False, overwrite=False)  # raises clearly
+    created = not out.exists()
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise EngineError(f"cannot write to output folder {out}: {e.strerror or e}") from e
+    try:
+        lock = lock_reproduce_folder(out)  # for the reproduce's whole life
+    except BaseException:
+        if created:  # an empty folder it made (the lock file stays: never delete one)
+            with contextlib.suppress(OSError):
+                out.rmdir()
+        raise
+    try:
+        return _reproduce(exps, out, quick, quiet, resume, overwrite, jobs)
+    finally:
+        lock.release()
+
+
+def _reproduce(exps: dict[str, Experiment], out: Path, quick: bool, quiet: bool | None,
+               resume: bool, overwrite: bool, jobs: int | None) -> tuple[Path, bool]:
+    from vbl.engine.results import write_json
+
     todo = reproduce_jobs(exps)
     workers = default_jobs(len(todo)) if jobs is None else max(1, min(int(jobs), len(todo)))
     load_start, t_start = _load(), time.perf_counter()
@@ -379,8 +508,13 @@ def reproduce(out: Path, *, quick: bool, quiet: bool | None, resume: bool = Fals
     if workers > 1:
         done = _run_parallel(todo, exps, workers, out, quick, resume, overwrite, quiet)
     else:
-        done = {j.folder: _run_one(j, out, quick, quiet, resume, overwrite, exp=exps[j.name])
-                for j in todo}
+        done = {}
+        try:
+            for j in todo:
+                done[j.folder] = _run_one(j, out, quick, quiet, resume, overwrite,
+                                          exp=exps[j.name])
+        except KeyboardInterrupt as e:  # SIGINT / SIGTERM: the finished runs are kept
+            raise type(e)(_stopped(e, out, len(done), len(todo))) from None
     wall = time.perf_counter() - t_start
     manifest = {"quick": quick, "commit": _git_commit(), "machine": machine_description(),
                 "workers": workers, "wall_s": round(wall, 1),
@@ -403,7 +537,7 @@ def reproduce(out: Path, *, quick: bool, quiet: bool | None, resume: bool = Fals
         what = exp.description + (f" (preset `{j.preset}`)" if j.preset else "")
         rows.append(f"| {j.folder} | {what} | {r['status'].splitlines()[0]} | "
                     f"{r['seconds']:.0f} |")
-        figs = [f"![{Path(f).stem}]({Path(os.path.relpath(f, out.absolute())).as_posix()})"
+        figs = [f"![{Path(f).stem}]({_url(os.path.relpath(f, out.absolute()))})"
                 for f in r["figures"]]
         sections += [f"## {j.folder}", "", what, "", r["markdown"], "",
                      *(f + "\n" for f in figs), ""]
@@ -504,7 +638,7 @@ def load_run(folder: str | Path) -> tuple[Experiment, RunResult, dict[str, Any]]
     one that records parameters the experiment does not have, is an EngineError."""
     from vbl.engine.registry import get
     from vbl.engine.results import read_json
-    from vbl.engine.runfolder import check_format
+    from vbl.engine.runfolder import check_fingerprint, check_format
 
     folder = Path(folder)
     if not folder.is_dir():
@@ -520,6 +654,7 @@ def load_run(folder: str | Path) -> tuple[Experiment, RunResult, dict[str, Any]]
         raise EngineError(f"{folder}/config.json is not a vbl run's config")
     check_format(spec, folder)
     exp = get(spec["experiment"])
+    check_fingerprint(spec, folder, _originals(exp, spec, summary))
     config = _recorded_config(exp, spec, folder)
     points = summary.get("points", [])
     final: dict[str, Any] = {}
@@ -533,6 +668,25 @@ def load_run(folder: str | Path) -> tuple[Experiment, RunResult, dict[str, Any]]
                        int(spec.get("seeds", 1)), {}, final, summary,
                        sorted(folder.glob("*.png")), dict(summary.get("result") or {}))
     return exp, result, spec
+
+
+def _originals(exp: Experiment, spec: dict[str, Any], summary: Any) -> list[dict[str, Any]]:
+    """What a run folder's ``config.json`` is compared with when it no longer matches its
+    fingerprint: the experiment's defaults with the recorded ``--quick`` and preset, and
+    the recorded values with the seeds and sweep of ``summary.json``."""
+    from vbl.engine.runner import resolve
+
+    out = []
+    try:
+        out.append(resolve(exp, None, None, None, 0, bool(spec.get("quick")),
+                           spec.get("preset"))[3])
+    except Exception:  # noqa: BLE001 - an unknown preset: no defaults to compare with
+        pass
+    if isinstance(summary, dict):
+        got = {k: summary[k] for k in ("seeds", "sweep") if k in summary}
+        if got:
+            out.append({**{k: v for k, v in spec.items() if k != "fingerprint"}, **got})
+    return out
 
 
 def _recorded_config(exp: Experiment, spec: dict[str, Any], folder: Path) -> Any:
@@ -656,9 +810,10 @@ def results_table(folders: list[str | Path], link_base: str | Path | None = None
                               f"(Experiment.paper_rows); {folder} cannot be reported")
         command = run_command(exp, spec)
         rows = exp.paper_rows(result)
-        rel = Path(os.path.relpath(Path(folder).absolute(), base)).as_posix()
-        link = (f"[{Path(folder).name}]({rel}/report.md)" if (Path(folder) / "report.md")
-                .is_file() else f"[{Path(folder).name}]({rel}/)")
+        rel = _url(os.path.relpath(Path(folder).absolute(), base))
+        name = Path(folder).name.replace("[", "\\[").replace("]", "\\]")
+        link = (f"[{name}]({rel}/report.md)" if (Path(folder) / "report.md")
+                .is_file() else f"[{name}]({rel}/)")
         for i, r in enumerate(rows):
             first = i == 0
             lines.append(f"| {r.result} | {r.paper} | {r.ours} | {result.seeds if first else ''}"

@@ -3,7 +3,9 @@
 * ``.vbl-lock``: locked with ``fcntl.flock`` for the life of a run (the OS releases it when
   the process ends, however it ends), so a second writer is refused. The file holds the
   pid of the last run that took it and is never deleted (deleting a lock file lets two
-  processes lock two different files).
+  processes lock two different files). ``vbl reproduce`` locks its output folder the same
+  way (:func:`lock_reproduce_folder`) for its whole life: a second reproduce into it, or a
+  ``vbl run`` into one of its experiment folders from another process, is refused.
 * ``.vbl-run``: JSON ``{"vbl_run": 1, "experiment": name, "files": [...]}``, the top-level
   names vbl wrote. ``--overwrite`` only touches folders that carry it, and removes only
   those names (and their ``.tmp`` siblings); other files stay.
@@ -24,7 +26,8 @@ from typing import Any
 from vbl.engine.config import EngineError
 
 __all__ = ["RUN_FORMAT", "check_format", "LOCK", "MARKER", "RunFolder", "open_run_folder",
-           "record_files", "is_vbl_run", "check_new_folder"]
+           "record_files", "is_vbl_run", "check_new_folder", "lock_reproduce_folder",
+           "allow_runs_under", "check_fingerprint"]
 
 RUN_FORMAT = 2
 """Version of a run folder's layout and of what its ``config.json`` means (its ``format``
@@ -106,22 +109,35 @@ class RunFolder:
     """A locked run folder; :meth:`record` adds names to its marker, :meth:`release` unlocks
     (the OS unlocks too when the process ends)."""
 
-    def __init__(self, path: Path, fd: int | None):
+    def __init__(self, path: Path, fd: int | None, lock_fd: int | None = None):
         self.path = path
         self._fd = fd
+        self._lock_fd = lock_fd  # a lock without a marker (a reproduce folder)
 
     def record(self, *names: str | Path) -> None:
         if self._fd is not None:
             record_files(self.path, [str(n) for n in names])
 
     def release(self) -> None:
-        if self._fd is not None:
-            os.close(self._fd)  # closing the descriptor drops the flock
-            self._fd = None
+        for fd in (self._fd, self._lock_fd):
+            if fd is not None:
+                os.close(fd)  # closing the descriptor drops the flock
+        self._fd = self._lock_fd = None
 
 
-def _lock(path: Path) -> tuple[int, bool]:
-    """Open and flock ``path/.vbl-lock`` (non-blocking) and write our pid into it.
+def _holder(lock: Path) -> tuple[str, str]:
+    """``(pid, kind)`` written in a lock file ("?" when unknown; kind "run" or
+    "reproduce")."""
+    try:
+        words = lock.read_text().split()
+    except OSError:
+        words = []
+    return (words[0] if words else "?"), (words[1] if len(words) > 1 else "run")
+
+
+def _lock(path: Path, kind: str = "run") -> tuple[int, bool]:
+    """Open and flock ``path/.vbl-lock`` (non-blocking) and write our pid (and ``kind``,
+    for a reproduce) into it.
 
     Returns ``(fd, whether the lock file existed)``.
     """
@@ -137,21 +153,87 @@ def _lock(path: Path) -> tuple[int, bool]:
         os.close(fd)
         if e.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
             raise _cannot_write(path, e) from e
-        try:
-            pid = lock.read_text().strip() or "?"
-        except OSError:
-            pid = "?"
-        raise EngineError(f"run folder {path} is in use by another vbl run (pid {pid}); wait "
+        pid, holder = _holder(lock)
+        what = "folder" if kind == "reproduce" else "run folder"
+        raise EngineError(f"{what} {path} is in use by another vbl {holder} (pid {pid}); wait "
                           f"for it to end, or use another --out") from None
-    try:  # the pid is informative; writing it is also the folder's write test
+    try:  # the pid is informative; writing it and a probe file test the folder
         os.ftruncate(fd, 0)
-        os.write(fd, f"{os.getpid()}\n".encode())
+        os.write(fd, (f"{os.getpid()}" + (f" {kind}" if kind != "run" else "") + "\n").encode())
+        _probe(path)
     except OSError as e:
         os.close(fd)
         if not existed:
             lock.unlink(missing_ok=True)
         raise _cannot_write(path, e) from e
     return fd, existed
+
+
+def _probe(path: Path) -> None:
+    """Create and remove a file in ``path`` (a writable lock file in a folder that is not
+    writable passes the lock, not this)."""
+    probe = path / f".vbl-probe-{os.getpid()}"
+    fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    os.close(fd)
+    os.unlink(probe)
+
+
+_ALLOWED: set[str] = set()
+
+
+def allow_runs_under(path: str | Path) -> None:
+    """This process may write run folders inside ``path``, a folder that this process's
+    ``vbl reproduce`` (or its parent's) holds locked."""
+    _ALLOWED.add(os.path.realpath(path))
+
+
+def _check_parent(path: Path) -> None:
+    """Refuse a run folder inside a folder that a ``vbl reproduce`` of another process holds
+    locked (its experiment folders are its own)."""
+    parent = Path(os.path.realpath(path)).parent
+    lock = parent / LOCK
+    if str(parent) in _ALLOWED or not lock.is_file():
+        return
+    try:
+        fd = os.open(lock, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except OSError as e:
+        if e.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+            return
+        pid, kind = _holder(lock)
+        if kind == "reproduce":
+            raise EngineError(f"run folder {path} belongs to a vbl reproduce that is running "
+                              f"into {path.parent} (pid {pid}); wait for it to end, or use "
+                              f"another --out") from None
+    finally:
+        os.close(fd)  # also drops a shared lock taken
+
+
+def lock_reproduce_folder(path: Path) -> RunFolder:
+    """Lock ``path`` (a ``vbl reproduce`` output folder, which exists) for the caller's
+    life: a second reproduce, or a run into one of its folders from another process, is
+    refused. The folder's runs may be written by this process and its workers
+    (:func:`allow_runs_under`)."""
+    fd, _ = _lock(path, "reproduce")
+    allow_runs_under(path)
+    return RunFolder(path, None, fd)
+
+
+def _check_removable(path: Path, names: list[str]) -> None:
+    """Raise the OSError an ``--overwrite`` would meet half-way: every folder from which
+    :func:`_remove_listed` deletes must be writable (checked before anything is deleted)."""
+    for n in names:
+        if n in (LOCK, MARKER, "", ".", "..") or "/" in n or os.sep in n:
+            continue
+        for p in (path / n, path / (n + ".tmp")):
+            if not p.is_dir() or p.is_symlink():
+                continue
+            for d, _subdirs, _ in os.walk(p):
+                if not os.access(d, os.W_OK | os.X_OK):
+                    raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), d)
 
 
 def _undo(path: Path, created: bool, lock_existed: bool) -> None:
@@ -205,6 +287,7 @@ def open_run_folder(out: str | Path | None, name: str, *, resume: bool, overwrit
     path = Path(out) if out is not None else Path("runs") / f"{name}-{stamp}"
     if not primary:
         return RunFolder(path, None)
+    _check_parent(path)
     check_new_folder(path, resume=resume, overwrite=overwrite)
     created = not path.exists()
     try:
@@ -223,6 +306,7 @@ def open_run_folder(out: str | Path | None, name: str, *, resume: bool, overwrit
         check_new_folder(path, resume=resume, overwrite=overwrite)
         marker = _read_marker(path)
         if overwrite and marker is not None:
+            _check_removable(path, marker["files"])  # nothing deleted if it cannot finish
             _remove_listed(path, marker["files"])
             marker = None
         if marker is None:
@@ -250,3 +334,85 @@ def _remove_listed(path: Path, names: list[str]) -> None:
                 shutil.rmtree(p)
             elif p.exists() or p.is_symlink():
                 p.unlink()
+
+
+# ------------------------------------------------------------------ config.json verified
+
+_TOP = ("format", "experiment", "preset", "quick", "sweep", "seeds", "base_seed")
+
+
+def _flat(spec: dict[str, Any]) -> dict[str, Any]:
+    """``config.json``'s values by name: the top-level ones, then every parameter path."""
+    out = {k: spec.get(k) for k in _TOP if k in spec}
+    cfg = spec.get("config")
+    out.update(cfg if isinstance(cfg, dict) else {})
+    return out
+
+
+def _with(spec: dict[str, Any], key: str, value: Any) -> dict[str, Any]:
+    new = {k: v for k, v in spec.items() if k != "fingerprint"}
+    if key in _TOP:
+        new[key] = value
+    else:
+        new["config"] = dict(new.get("config") or {}, **{key: value})
+    return new
+
+
+def differing(a: dict[str, Any], b: dict[str, Any]) -> list[str]:
+    """The names whose values differ between two ``config.json`` contents (top-level
+    fields first, then parameter paths, sorted)."""
+    from vbl.engine.config import fingerprint
+
+    fa, fb = _flat(a), _flat(b)
+    same = lambda k: fingerprint({"v": fa.get(k)}) == fingerprint({"v": fb.get(k)})  # noqa: E731
+    top = [k for k in _TOP if (k in fa or k in fb) and not same(k)]
+    rest = sorted(k for k in set(fa) | set(fb) if k not in _TOP and not same(k))
+    return top + rest
+
+
+def _show(v: Any) -> str:
+    text = json.dumps(v)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def check_fingerprint(spec: dict[str, Any], folder: str | Path,
+                      originals: Iterable[dict[str, Any]] = ()) -> None:
+    """Raise an EngineError unless ``spec`` (a ``config.json``) still has the values its
+    fingerprint was computed from (a hand-edited file would otherwise describe a run that
+    never happened). The line names the differing parameters: exactly, when one of
+    ``originals`` (values the run may have had, e.g. those a ``--resume`` asks for) has the
+    recorded fingerprint; else the single value whose change back to one of
+    ``originals``' restores the fingerprint; else the values that differ from
+    ``originals``' first (the candidates)."""
+    from vbl.engine.config import fingerprint
+
+    recorded = spec.get("fingerprint")
+    body = {k: v for k, v in spec.items() if k != "fingerprint"}
+    if recorded == fingerprint(body):
+        return
+    where = f"{folder}/config.json"
+    fix = "restore it (git keeps committed runs), or rerun"
+    if not isinstance(recorded, str):
+        raise EngineError(f"{where} has no fingerprint; {fix}")
+    originals = [dict(o) for o in originals]
+    for o in originals:
+        if o.get("fingerprint", fingerprint({k: v for k, v in o.items()
+                                                if k != "fingerprint"})) == recorded:
+            names = differing(spec, o)
+            if names:
+                ro, rs = _flat(o), _flat(spec)
+                what = ", ".join(f"{k} is {_show(rs.get(k))}, the run had {_show(ro.get(k))}"
+                                 for k in names[:4]) + (", ..." if len(names) > 4 else "")
+                raise EngineError(f"{where} was changed after the run: {what}; {fix}")
+    for o in originals:
+        fo = _flat(o)
+        for k in differing(spec, o):
+            if fingerprint(_with(body, k, fo.get(k))) == recorded:
+                raise EngineError(f"{where} was changed after the run: {k} is "
+                                  f"{_show(_flat(spec).get(k))}, the run had "
+                                  f"{_show(fo.get(k))}; {fix}")
+    names = differing(spec, originals[0]) if originals else []
+    what = (f"; it differs from the defaults in {', '.join(names[:6])}"
+            f"{', ...' if len(names) > 6 else ''}" if names else "")
+    raise EngineError(f"{where} does not match its fingerprint: it was changed after the "
+                      f"run{what}; {fix}")

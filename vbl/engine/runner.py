@@ -35,7 +35,14 @@ from vbl.engine.results import (
     seed_stats,
     write_json,
 )
-from vbl.engine.runfolder import RUN_FORMAT, RunFolder, check_format, open_run_folder
+from vbl.engine.runfolder import (
+    RUN_FORMAT,
+    RunFolder,
+    check_fingerprint,
+    check_format,
+    differing,
+    open_run_folder,
+)
 from vbl.engine.sharding import batch_layout, learner_sharding, pad_index, put, to_host
 from vbl.engine.sweep import Group, SweepPlan, make_plan
 from vbl.params import ParamError
@@ -182,16 +189,29 @@ def _check_config_json(run_dir: Path, spec: dict) -> bool:
                           f"({type(e).__name__}: {e}); restore it, or start again with "
                           f"--overwrite / another --out") from None
     check_format(old, run_dir)
+    check_fingerprint(old, run_dir, [spec, *_defaults_of(old)])  # a hand-edited file
     if old.get("fingerprint") != spec["fingerprint"]:
-        oc = old.get("config") if isinstance(old.get("config"), dict) else {}
-        diff = sorted(k for k in set(oc) | set(spec["config"])
-                      if oc.get(k) != spec["config"].get(k))
-        other = [k for k in ("experiment", "sweep", "seeds", "base_seed")
-                 if old.get(k) != spec.get(k)]
+        diff = differing(old, spec)  # never empty: the fingerprints differ
+        shown = str(diff[:8] + (["..."] if len(diff) > 8 else [])) if diff else \
+            "its fingerprint only"
         raise EngineError(f"cannot resume {run_dir}: it was run with another config "
-                          f"(differs in {other + diff}); use the same options, or "
+                          f"(differs in {shown}); use the same options, or "
                           f"--overwrite / another --out")
     return True
+
+
+def _defaults_of(old: dict) -> list[dict]:
+    """The ``config.json`` of ``old``'s experiment at its defaults (with its ``--quick``,
+    preset, seeds and base seed): what an edited file is compared with; none when the
+    experiment or preset is unknown."""
+    from vbl.engine.registry import get
+
+    try:
+        exp = get(str(old.get("experiment")))
+        return [resolve(exp, None, None, None, 0, bool(old.get("quick")),
+                        old.get("preset"))[3]]
+    except Exception:  # noqa: BLE001 - only a hint for the error line
+        return []
 
 
 def _run_in(folder, experiment, config, full_sweep, seeds, base_seed, spec, plan, resume,
