@@ -122,4 +122,5 @@ def test_status_file_phases_and_an_eta_that_leaves_out_the_compiling_chunk(tmp_p
     p.update(m)
     p.update(m)
     assert progress.read_status(tmp_path) == "training 3/10 chunks, ETA 14 s"
-    assert progress.read_status(tmp_path / "missing") == ""
+    p.close()  # the run no longer runs: no status file is left behind
+    assert progress.read_status(tmp_path) == "" and not list(tmp_path.iterdir())

@@ -3,6 +3,7 @@ small status file in the run folder that ``vbl reproduce`` reads for its progres
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -16,7 +17,8 @@ __all__ = ["auto_quiet", "Progress", "bar_width", "SUCCESS_METRICS", "STATUS_FIL
            "read_status"]
 
 STATUS_FILE = ".vbl-progress"
-"""JSON ``{"phase", "done", "total", "eta_s"}`` in a run folder while it runs: phase
+"""JSON ``{"phase", "done", "total", "eta_s"}`` in a run folder while it runs (removed
+when the chunks end, or the run stops): phase
 "compiling" until the first chunk ends (it includes tracing and compilation), then
 "training" with chunks done and an ETA from the chunks after the first; "finishing" once
 the last chunk is done (final metrics, summary, plots)."""
@@ -113,8 +115,12 @@ class Progress:
             pass  # progress is best effort; the run's results do not depend on it
 
     def close(self) -> None:
+        """Close the bar and remove the status file (the run is no longer running)."""
         if self._bar is not None:
             self._bar.close()
+        if self._status is not None:
+            with contextlib.suppress(OSError):
+                os.remove(self._status)
 
 
 def read_status(run_dir: str | os.PathLike) -> str:

@@ -326,7 +326,7 @@ def _progress_line(out: Path, running: list[Job], n_done: int, n_all: int, t0: f
     for j in running:  # a queued job counts as running before its worker takes it
         st = read_status(out / j.folder)
         if st or (out / j.folder).exists():
-            parts.append(f"{j.folder} {st or 'starting'}")
+            parts.append(f"{j.folder} {st or 'running'}")
     elapsed = time.perf_counter() - t0
     return (f"vbl reproduce [{n_done}/{n_all} done, {elapsed // 60:.0f} min "
             f"{elapsed % 60:02.0f} s] " + ("; ".join(parts) if parts else "finishing"))
