@@ -50,15 +50,12 @@ def default_cva() -> CVAStateParams:
     """State-construction defaults for the two-robot task (docs/cva_learning.md, "Choices
     and why")."""
     # The ball's 8 leading canonical components (keep_beyond_order: its AIC order is 4,
-    # and components 5-8 carry its approach velocity, R^2 0.45 against 0.08 with 4;
-    # docs/findings/table2_shoot_pass.md, "What the CVA state carries (probe)"), the
-    # goal's and the other robot's 4 (with 2 their horizontal image position is poorly
-    # represented). No unfiltered lost-side flags. One k-means codebook per object
-    # (product VQ): ball 64 x goal 8 x other robot 8 = 4,096 states for both state
-    # vectors. 16 seeds: pass CVA 59.5 % vs current 22.4 %, shoot 16.8 vs 16.5 % (with
-    # 4 ball components on codes 16 x 8 x 8, 1,024 states: pass 42.7 vs 40.9 %, shoot
-    # 25.8 vs 40.9 %;
-    # docs/findings/table2_shoot_pass.md, "How the passing result came about").
+    # and components 5-8 carry its approach velocity: docs/findings/table2_shoot_pass.md,
+    # "What the CVA state carries (probe)"), the goal's and the other robot's 4 (with 2
+    # their horizontal image position is poorly represented). No unfiltered lost-side
+    # flags. One k-means codebook per object (product VQ): ball 64 x goal 8 x other
+    # robot 8 = 4,096 states for both state vectors (docs/findings/table2_shoot_pass.md,
+    # "How the passing result came about").
     return CVAStateParams(
         state="select", objects=("ball", "goal", "other"), n_used=4,
         n_used_objects=(8, 4, 4), keep_beyond_order=True, extra=(), collect_steps=3000,
