@@ -357,6 +357,9 @@ def use_all_cores() -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``vbl`` console script; returns the exit code."""
+    from vbl.engine.errors import new_command
+
+    new_command()
     args = build_parser().parse_args(argv)
 
     def go() -> int:

@@ -16,7 +16,7 @@ from typing import Any
 
 __all__ = ["one_line", "quiet_xla_env", "quiet_xla_log", "debug_requested", "quiet_library_noise",
            "Terminated", "STOP_GRACE_S", "stop_code", "stop_message", "install_stop_handlers",
-           "worker_stop_handlers", "on_forced_exit", "final_line", "finish"]
+           "worker_stop_handlers", "on_forced_exit", "new_command", "final_line", "finish"]
 
 _DISK = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
 
@@ -160,6 +160,14 @@ def on_forced_exit(hook: Callable[[], None]) -> Callable[[], None]:
     process; returns a function that removes it."""
     _hooks.append(hook)
     return lambda: _hooks.remove(hook) if hook in _hooks else None
+
+
+def new_command() -> None:
+    """A command starts in this process (``vbl.cli.main``, also when called in-process
+    again): no final line printed and no signal seen yet."""
+    with _exit_lock:
+        _state.update(raised=False, final=False, signal=None)
+        _state.pop("code", None)
 
 
 def final_line(text: str, code: int) -> bool:
