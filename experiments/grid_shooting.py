@@ -103,7 +103,7 @@ def report(res: RunResult) -> ReportSection:
     elif {"with LEM", "without LEM"} <= set(names):
         for lv in levels:
             verdict = lem_verdict(reach["with LEM"][lv][0], reach["without LEM"][lv][0],
-                                  runs["without LEM"])
+                                  runs["without LEM"], runs["with LEM"])
             md.append(f"* LEM reaches {lv:.0%} in fewer trials: {verdict}.")
     return ReportSection("\n".join(md), (fig,))
 

@@ -170,7 +170,11 @@ def test_lem_verdict_cases():
     assert lem_verdict(300.0, 200.0, 300.0).startswith("**no**")
     assert lem_verdict(100.0, np.inf, 300.0).startswith("yes")     # never reached in 300
     assert lem_verdict(400.0, np.inf, 300.0).startswith("**not shown**")
-    assert lem_verdict(np.inf, np.inf, 300.0).startswith("**no**")
+    # neither arm reaches the level within the run (a short run): not shown, never "no"
+    assert lem_verdict(np.inf, np.inf, 300.0, 700.0) == (
+        "**not shown** (neither arm reached it: with LEM not reached in 700, without not "
+        "reached in 300)")
+    assert lem_verdict(np.inf, 200.0, 300.0).startswith("**no**")  # only without LEM
 
 
 def test_trials_to_level_hand_computed():

@@ -75,17 +75,23 @@ def trials_to_levels(res: RunResult, point: int, levels: list[float], window: in
     return out
 
 
-def lem_verdict(t_on: float, t_off: float, n_off: float) -> str:
+def lem_verdict(t_on: float, t_off: float, n_off: float, n_on: float | None = None) -> str:
     """Does LEM reach a level in fewer trials? ``t_on``, ``t_off``: median trials to the
-    level with / without LEM (inf: the median seed never reached it); ``n_off``: trials the
-    run without LEM finished (mean over seeds)."""
-    if not np.isfinite(t_on):
-        return "**no** (not reached with LEM)"
-    if not np.isfinite(t_off) and n_off < t_on:
-        return (f"**not shown** (with LEM {t_on:.0f}; without LEM not reached, but it ran only "
-                f"{n_off:.0f} trials: run it longer)")
+    level with / without LEM (inf: the median seed never reached it); ``n_off``,
+    ``n_on``: trials the runs without / with LEM finished (mean over seeds). A level
+    neither arm reaches, or one that only the shorter arm has not reached yet, is "not
+    shown" (the run is too short to tell), never "no"."""
+    on = f"{t_on:.0f}" if np.isfinite(t_on) else "not reached" + (
+        f" in {n_on:.0f}" if n_on is not None else "")
     off = f"{t_off:.0f}" if np.isfinite(t_off) else f"not reached in {n_off:.0f}"
-    return f"{'yes' if t_on < t_off else '**no**'} (with LEM {t_on:.0f}, without {off})"
+    if not np.isfinite(t_on) and not np.isfinite(t_off):
+        return f"**not shown** (neither arm reached it: with LEM {on}, without {off})"
+    if not np.isfinite(t_on):
+        return f"**no** (with LEM {on}, without {off})"
+    if not np.isfinite(t_off) and n_off < t_on:
+        return (f"**not shown** (with LEM {on}; without LEM not reached, but it ran only "
+                f"{n_off:.0f} trials: run it longer)")
+    return f"{'yes' if t_on < t_off else '**no**'} (with LEM {on}, without {off})"
 
 
 def plot_success_vs_trials(res: RunResult, level: float, path: Path, title: str) -> Path:
