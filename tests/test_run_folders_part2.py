@@ -111,16 +111,33 @@ def copy(done: Path, name: str) -> Path:
 # ------------------------------------------------------------------ item 2: SIGTERM
 
 
+def checkpoint_steps(out: Path) -> int:
+    """The latest checkpointed step of a run folder (0 before the first); older steps are
+    deleted as new ones arrive, so a test waits for "at least", never for one step."""
+    return max((int(d.name) for d in (out / "checkpoints").glob("*") if d.name.isdigit()),
+               default=0)
+
+
+def wait_until(p: subprocess.Popen, done, timeout: float = TIMEOUT) -> None:
+    """Poll ``done()`` while ``p`` runs; on a timeout or an early exit, fail with its
+    stderr (after stopping it: reading a live process's pipe would block)."""
+    end = time.monotonic() + timeout
+    while not done():
+        if time.monotonic() > end or p.poll() is not None:
+            if p.poll() is None:
+                p.kill()
+            pytest.fail(f"vbl did not get there (exit {p.poll()}): "
+                        f"{p.communicate()[1][-3000:]}")
+        time.sleep(0.2)
+
+
 def test_sigterm_stops_a_run_like_sigint_and_resume_finishes_it(setup):
     tmp, env = setup
     out = tmp / "term"
     p = subprocess.Popen(vbl_cmd(*LONG, "--out", str(out)), env=env, cwd=REPO, text=True,
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     try:
-        end = time.monotonic() + TIMEOUT
-        while not (out / "checkpoints" / "6").is_dir():
-            assert time.monotonic() < end and p.poll() is None, p.stderr.read()[-3000:]
-            time.sleep(0.2)
+        wait_until(p, lambda: checkpoint_steps(out) >= 6)
         t0 = time.monotonic()
         p.send_signal(signal.SIGTERM)
         _, err = p.communicate(timeout=60)
@@ -137,10 +154,7 @@ def test_sigterm_stops_a_run_like_sigint_and_resume_finishes_it(setup):
     p = subprocess.Popen(vbl_cmd(*LONG, "--out", str(out), "--resume"), env=env, cwd=REPO,
                          text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     try:
-        end = time.monotonic() + TIMEOUT
-        while len(rows(out)) < len(steps) + 3:
-            assert time.monotonic() < end and p.poll() is None, p.stderr.read()[-3000:]
-            time.sleep(0.2)
+        wait_until(p, lambda: len(rows(out)) >= len(steps) + 3)
         p.send_signal(signal.SIGINT)
         _, err = p.communicate(timeout=60)
     finally:

@@ -20,7 +20,7 @@ from vbl.params import ParamError
 
 __all__ = ["register", "get", "all_experiments", "discover", "experiment_dirs",
            "import_errors", "load_script", "load_experiment_file", "is_script_path",
-           "source_folder"]
+           "source_folder", "source_file"]
 
 _REGISTRY: dict[str, Experiment] = {}
 _SOURCES: dict[str, str] = {}
@@ -42,6 +42,11 @@ def register(experiment: Experiment) -> Experiment:
     _REGISTRY[experiment.name] = experiment
     _SOURCES[experiment.name] = source
     return experiment
+
+
+def source_file(name: str) -> str | None:
+    """The script that registered experiment ``name`` (None: registered from other code)."""
+    return _SOURCES.get(name)
 
 
 def source_folder(name: str) -> Path:
