@@ -49,6 +49,7 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
 import vbl  # noqa: E402,F401
+from benchmarks.camera_throughput import make_runner  # noqa: E402
 from benchmarks.hardware import hardware_info  # noqa: E402
 from vbl.vision.blobs import BlobParams, section3_flat_from_pixels  # noqa: E402
 from vbl.vision.camera import CameraParams  # noqa: E402
@@ -61,8 +62,6 @@ from vbl.world import WorldParams, goal_corners  # noqa: E402
 SIZES = ((64, 60), (128, 120), (512, 480))
 BATCHES = (1, 4, 16, 64, 256, 1024)
 QUICK_BATCHES = (1, 16, 256)
-#: Heading change per call inside the timed scan, rad (defeats loop-invariant hoisting).
-TURN_PER_CALL = 1e-4
 #: Working set per pixel of a frame, bytes: the peak resident memory of the pixel
 #: features program grew by about 75 bytes per pixel from batch 8 to batch 32 at
 #: 512 x 480 (the uint8 image, the three float32 colour masks the blob features store,
@@ -109,27 +108,11 @@ def frame_fn(row: str, width: int, height: int):
         section3_features(p, b, r, gc, o, size, cam)))
 
 
-def make_runner(fn, calls: int):
-    """Compiled ``run(pose, ball, other) -> sum of all outputs`` over ``calls`` calls of
-    ``vmap(fn)``."""
-    batched = jax.vmap(fn)
-
-    def run(pose, ball, other):
-        def body(acc, i):
-            turn = jnp.stack([0.0, 0.0, TURN_PER_CALL]).astype(F32) * i.astype(F32)
-            return acc + jnp.sum(batched(pose + turn, ball, other + turn)), None
-
-        acc, _ = jax.lax.scan(body, jnp.zeros((), F32), jnp.arange(calls, dtype=jnp.int32))
-        return acc
-
-    return jax.jit(run)
-
-
 def time_row(row: str, width: int, height: int, s: dict, pixels: float, reps: int) -> dict:
     """Frames per second of one row at one size and batch (see the module docstring)."""
     batch = s["pose"].shape[0]
     calls = max(1, round(pixels / (batch * width * height)))
-    run = make_runner(frame_fn(row, width, height), calls)
+    run = make_runner(jax.vmap(frame_fn(row, width, height)), calls)
     args = (s["pose"], s["ball"], s["other"])
     t0 = time.perf_counter()
     jax.block_until_ready(run(*args))

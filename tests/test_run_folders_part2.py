@@ -131,6 +131,14 @@ def wait_until(p: subprocess.Popen, done, timeout: float = TIMEOUT) -> None:
         time.sleep(0.2)
 
 
+def stop(p: subprocess.Popen, sig: int) -> tuple[float, str]:
+    """Send ``sig`` to ``p``; (seconds until it exited, its stderr)."""
+    t0 = time.monotonic()
+    p.send_signal(sig)
+    _, err = p.communicate(timeout=60)
+    return time.monotonic() - t0, err
+
+
 def test_sigterm_stops_a_run_like_sigint_and_resume_finishes_it(setup):
     tmp, env = setup
     out = tmp / "term"
@@ -138,10 +146,7 @@ def test_sigterm_stops_a_run_like_sigint_and_resume_finishes_it(setup):
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     try:
         wait_until(p, lambda: checkpoint_steps(out) >= 6)
-        t0 = time.monotonic()
-        p.send_signal(signal.SIGTERM)
-        _, err = p.communicate(timeout=60)
-        took = time.monotonic() - t0
+        took, err = stop(p, signal.SIGTERM)
     finally:
         if p.poll() is None:
             p.kill()
@@ -180,10 +185,7 @@ def test_sigterm_stops_vbl_bench_and_leaves_nothing_behind(setup):
     try:
         assert p.stdout.readline().startswith("== slow")
         assert p.stdout.readline().startswith("started")
-        t0 = time.monotonic()
-        p.send_signal(signal.SIGTERM)
-        _, err = p.communicate(timeout=60)
-        took = time.monotonic() - t0
+        took, err = stop(p, signal.SIGTERM)
     finally:
         if p.poll() is None:
             p.kill()

@@ -113,14 +113,18 @@ class Progress:
             os.replace(tmp, self._status)
         except OSError:
             pass  # progress is best effort; the run's results do not depend on it
+        finally:  # left only when interrupted (a signal) before the replace
+            with contextlib.suppress(OSError):
+                os.remove(tmp)
 
     def close(self) -> None:
         """Close the bar and remove the status file (the run is no longer running)."""
         if self._bar is not None:
             self._bar.close()
         if self._status is not None:
-            with contextlib.suppress(OSError):
-                os.remove(self._status)
+            for path in (self._status, self._status + ".tmp"):
+                with contextlib.suppress(OSError):
+                    os.remove(path)
 
 
 def read_status(run_dir: str | os.PathLike) -> str:
