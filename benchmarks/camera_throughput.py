@@ -49,7 +49,7 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
 import vbl  # noqa: E402,F401
-from benchmarks.hardware import hardware_info  # noqa: E402
+from benchmarks.hardware import hardware_info, write_results  # noqa: E402
 from vbl.envs.shoot_pass import ShootPassEnv  # noqa: E402
 from vbl.envs.shooting import ShootingEnv  # noqa: E402
 from vbl.vision import features as new_features  # noqa: E402
@@ -249,11 +249,9 @@ def main(argv=None):
         result["cameras"][name] = rows
     result["load_end"] = os.getloadavg()[0]
     out = pathlib.Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.with_suffix(".json").write_text(json.dumps(result, indent=2))
     cmd = "python benchmarks/camera_throughput.py" + (" --quick" if args.quick else "")
     text = markdown(result, cmd)
-    out.with_suffix(".md").write_text(text)
+    write_results(out, result, text)
     print(text)
 
 

@@ -45,7 +45,7 @@ os.environ["VBL_JAX_CACHE"] = "0"  # time real compilations
 import jax  # noqa: E402
 
 import vbl  # noqa: E402,F401
-from benchmarks.hardware import hardware_info  # noqa: E402
+from benchmarks.hardware import hardware_info, write_results  # noqa: E402
 from vbl.engine import registry  # noqa: E402
 from vbl.engine.jax_setup import engine_precision  # noqa: E402
 from vbl.engine.runner import _compiled, resolve  # noqa: E402
@@ -157,13 +157,11 @@ def main(argv=None):
         by_name.setdefault(r["experiment"], []).append(r)
     result["rows"] = [r for name in sorted(by_name) for r in by_name[name]]
     result["load_end"] = os.getloadavg()[0]
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.with_suffix(".json").write_text(json.dumps(result, indent=2))
     cmd = "python benchmarks/compile_time.py" + (
         " --experiments " + " ".join(args.experiments) if args.experiments != names else "") + (
         " --merge" if args.merge else "")
     text = markdown(result, cmd)
-    out.with_suffix(".md").write_text(text)
+    write_results(out, result, text)
     print(text)
 
 

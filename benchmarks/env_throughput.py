@@ -26,7 +26,6 @@ Writes benchmarks/results/env_throughput.{json,md} (``--out`` elsewhere).
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import pathlib
 import sys
@@ -47,7 +46,7 @@ import jax.numpy as jnp  # noqa: E402
 
 import vbl  # noqa: E402,F401
 from benchmarks import numpy_env  # noqa: E402
-from benchmarks.hardware import hardware_info  # noqa: E402
+from benchmarks.hardware import hardware_info, write_results  # noqa: E402
 from tests.reference import world_np  # noqa: E402
 from tests.reference.camera_np import section2_features_np, section3_features_np  # noqa: E402
 from vbl.envs.shoot_pass import ShootPassEnv  # noqa: E402
@@ -257,12 +256,10 @@ def main(argv=None):
         result["envs"][name] = rows
     result["load_end"] = os.getloadavg()[0]
     out = pathlib.Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.with_suffix(".json").write_text(json.dumps(result, indent=2))
     cmd = "python benchmarks/env_throughput.py" + (" --quick" if args.quick else "") + (
         f" --devices {args.devices}" if args.devices > 1 else "")
     text = markdown(result, cmd)
-    out.with_suffix(".md").write_text(text)
+    write_results(out, result, text)
     print(text)
 
 

@@ -1,29 +1,21 @@
 """What the benchmarks report about the machine they ran on."""
 
+import json
 import os
-import platform
+import pathlib
 
 import jax
 
+from vbl.engine.machine import cpu_model, load_average
 
-def cpu_model() -> str:
-    """The CPU's model name from /proc/cpuinfo (or the platform's processor string)."""
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
+__all__ = ["cpu_model", "load_average", "hardware_info", "write_results"]
 
 
-def load_average() -> float | None:
-    """The 1-minute load average (the machines are shared: read numbers with it)."""
-    try:
-        return os.getloadavg()[0]
-    except OSError:
-        return None
+def write_results(out: pathlib.Path, result: dict, text: str) -> None:
+    """``out``.json (the result) and ``out``.md (its Markdown ``text``), the folder made."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.with_suffix(".json").write_text(json.dumps(result, indent=2))
+    out.with_suffix(".md").write_text(text)
 
 
 def hardware_info() -> dict:

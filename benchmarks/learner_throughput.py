@@ -50,7 +50,7 @@ import jax  # noqa: E402
 
 import vbl  # noqa: E402,F401
 from benchmarks.env_throughput import time_jax  # noqa: E402
-from benchmarks.hardware import hardware_info  # noqa: E402
+from benchmarks.hardware import hardware_info, write_results  # noqa: E402
 from vbl.engine import registry  # noqa: E402
 from vbl.engine.config import parse_assignment  # noqa: E402
 from vbl.engine.jax_setup import engine_precision  # noqa: E402
@@ -194,13 +194,11 @@ def main(argv=None):
         result["rows"].append(row)
     result["load_end"] = os.getloadavg()[0]
     out = pathlib.Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.with_suffix(".json").write_text(json.dumps(result, indent=2))
     cmd = "python benchmarks/learner_throughput.py" + (" --quick" if args.quick else "") + (
         f" --devices {args.devices}" if "--devices" in (argv or sys.argv) else "") + "".join(
         f" --set {s}" for s in args.sets)
     text = markdown(result, cmd)
-    out.with_suffix(".md").write_text(text)
+    write_results(out, result, text)
     print(text)
 
 

@@ -19,7 +19,6 @@ Writes benchmarks/results/ppo_throughput.{json,md} (``--out`` elsewhere).
 from __future__ import annotations
 
 import argparse
-import json
 import pathlib
 import sys
 import time
@@ -30,7 +29,7 @@ sys.path.insert(0, str(ROOT))
 import jax  # noqa: E402
 
 import vbl  # noqa: E402,F401
-from benchmarks.hardware import hardware_info  # noqa: E402
+from benchmarks.hardware import hardware_info, write_results  # noqa: E402
 from vbl.agents.ppo import network_size  # noqa: E402
 from vbl.agents.ppo_inputs import InputEnv, InputParams  # noqa: E402
 from vbl.agents.ppo_params import PPONetParams, PPOParams  # noqa: E402
@@ -121,10 +120,8 @@ def main(argv=None):
               f"steps/s, compile {row['compile_s']:.1f} s", flush=True)
         result["rows"].append(row)
     out = pathlib.Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.with_suffix(".json").write_text(json.dumps(result, indent=2))
     cmd = "python benchmarks/ppo_throughput.py" + (" --quick" if args.quick else "")
-    out.with_suffix(".md").write_text(markdown(result, cmd))
+    write_results(out, result, markdown(result, cmd))
     print(f"wrote {out}.json / .md")
 
 

@@ -32,7 +32,6 @@ Writes benchmarks/results/render_throughput.{json,md} (``--out`` elsewhere).
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import pathlib
 import sys
@@ -50,7 +49,7 @@ import jax.numpy as jnp  # noqa: E402
 
 import vbl  # noqa: E402,F401
 from benchmarks.camera_throughput import make_runner  # noqa: E402
-from benchmarks.hardware import hardware_info  # noqa: E402
+from benchmarks.hardware import hardware_info, write_results  # noqa: E402
 from vbl.vision.blobs import BlobParams, section3_flat_from_pixels  # noqa: E402
 from vbl.vision.camera import CameraParams  # noqa: E402
 from vbl.vision.features import flatten_section3, section3_features  # noqa: E402
@@ -200,11 +199,9 @@ def main(argv=None) -> int:
     result["rows"].sort(key=lambda r: (r["width"] * r["height"], r["batch"]))
     result["load_end"] = os.getloadavg()[0]
     out = pathlib.Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.with_suffix(".json").write_text(json.dumps(result, indent=2))
     cmd = "python benchmarks/render_throughput.py" + (" --quick" if args.quick else "")
     text = markdown(result, cmd)
-    out.with_suffix(".md").write_text(text)
+    write_results(out, result, text)
     print(text)
     return 0
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.engine_helpers import TOY, env_for, vbl_cmd
+from tests.engine_helpers import TOY, env_for, one_error_line, vbl_cmd, wait_until
 
 STOP_S = 5.0  #: the promise: stopped within this many seconds of the signal
 TIMEOUT = 300
@@ -52,19 +52,6 @@ def run(args, env) -> tuple[int, str, str]:
     p = subprocess.run(vbl_cmd(*args), env=env, text=True, capture_output=True,
                        timeout=TIMEOUT)
     return p.returncode, p.stdout, p.stderr
-
-
-def one_error_line(stderr: str) -> str:
-    lines = stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("vbl: error: "), stderr[-3000:]
-    return lines[0]
-
-
-def wait_for(cond, what: str, timeout: float = TIMEOUT) -> None:
-    end = time.monotonic() + timeout
-    while not cond():
-        assert time.monotonic() < end, f"{what} within {timeout} s"
-        time.sleep(0.2)
 
 
 def steps(folder: Path) -> list[int]:
@@ -115,8 +102,8 @@ def test_first_signal_stops_reproduce_within_5_s(env, tmp_path, jobs, sig):
     only = ["--only", "paper_fast", "--only", "paper_slow1"]  # --jobs 1: in this order
     p = start(["reproduce", "--quick", "--jobs", str(jobs), "--out", str(out), *only], env)
     try:
-        wait_for(lambda: len(steps(out / "paper_slow1")) >= 3 and
-                 (out / "paper_fast" / "summary.json").exists(), "both runs under way")
+        wait_until(lambda: len(steps(out / "paper_slow1")) >= 3 and
+                   (out / "paper_fast" / "summary.json").exists(), "both runs under way")
         children = workers_alive(p.pid)
         took, rc, _, err = stop(p, sig)
     finally:
@@ -141,7 +128,7 @@ def test_first_signal_stops_reproduce_within_5_s(env, tmp_path, jobs, sig):
     p = start(["reproduce", "--quick", "--jobs", "1", "--out", str(out), "--resume",
                "--only", "paper_slow1"], env)
     try:
-        wait_for(lambda: len(steps(out / "paper_slow1")) > len(before) + 2, "resumed rows")
+        wait_until(lambda: len(steps(out / "paper_slow1")) > len(before) + 2, "resumed rows")
         took, rc, _, err = stop(p, signal.SIGINT)
     finally:
         if p.poll() is None:
@@ -159,7 +146,7 @@ def test_one_reproduce_per_folder_and_no_run_into_its_folders(env, tmp_path):
     p = start(["reproduce", "--quick", "--jobs", "2", "--out", str(out), "--only",
                "paper_slow1", "--only", "paper_fast"], env)
     try:
-        wait_for(lambda: len(steps(out / "paper_slow1")) >= 2, "the reproduce under way")
+        wait_until(lambda: len(steps(out / "paper_slow1")) >= 2, "the reproduce under way")
         for args in (["reproduce", "--quick", "--out", str(out), "--resume"],
                      ["reproduce", "--quick", "--out", str(out), "--overwrite"]):
             rc, _, err = run(args, env)
@@ -168,7 +155,7 @@ def test_one_reproduce_per_folder_and_no_run_into_its_folders(env, tmp_path):
                           "--overwrite", "--quiet"], env)
         assert rc == 1 and "belongs to a vbl reproduce" in one_error_line(err), err
         assert p.poll() is None, "the reproduce stopped"
-        wait_for(lambda: (out / "paper_fast" / "summary.json").exists(), "paper_fast done")
+        wait_until(lambda: (out / "paper_fast" / "summary.json").exists(), "paper_fast done")
         _, rc, _, err = stop(p, signal.SIGTERM)
     finally:
         if p.poll() is None:

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.engine_helpers import REPO, TINY, env_for, experiments_dir, vbl_cmd
+from tests.engine_helpers import REPO, TINY, env_for, experiments_dir, one_error_line, vbl_cmd
 
 TIMEOUT = 300  # s per process (the test machine is shared)
 RUN = ["run", "toy_bandit", *TINY, "--seeds", "4", "--quiet"]
@@ -141,12 +141,6 @@ class Procs:
 
 def rows(run: Path) -> list[dict]:
     return [json.loads(x) for x in (run / "metrics.jsonl").read_text().splitlines()]
-
-
-def one_error_line(stderr: str) -> str:
-    lines = stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("vbl: error: "), stderr[-3000:]
-    return lines[0]
 
 
 def tree(path: Path) -> dict[str, bytes]:

@@ -22,7 +22,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.engine_helpers import REPO, TINY, TOY, env_for, experiments_dir, vbl_cmd
+from tests.engine_helpers import (
+    REPO,
+    TINY,
+    TOY,
+    env_for,
+    experiments_dir,
+    one_error_line,
+    vbl_cmd,
+    wait_until,
+)
 
 TIMEOUT = 300
 RUN = ["run", "toy_bandit", *TINY, "--seeds", "4", "--quiet"]
@@ -79,12 +88,6 @@ def run(args, env, cwd=REPO, timeout=TIMEOUT) -> tuple[int, str, str]:
     return p.returncode, p.stdout, p.stderr
 
 
-def one_error_line(stderr: str) -> str:
-    lines = stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("vbl: error: "), stderr[-3000:]
-    return lines[0]
-
-
 def rows(run_dir: Path) -> list[int]:
     return [json.loads(x)["step"] for x in (run_dir / "metrics.jsonl").read_text().splitlines()]
 
@@ -118,19 +121,6 @@ def checkpoint_steps(out: Path) -> int:
                default=0)
 
 
-def wait_until(p: subprocess.Popen, done, timeout: float = TIMEOUT) -> None:
-    """Poll ``done()`` while ``p`` runs; on a timeout or an early exit, fail with its
-    stderr (after stopping it: reading a live process's pipe would block)."""
-    end = time.monotonic() + timeout
-    while not done():
-        if time.monotonic() > end or p.poll() is not None:
-            if p.poll() is None:
-                p.kill()
-            pytest.fail(f"vbl did not get there (exit {p.poll()}): "
-                        f"{p.communicate()[1][-3000:]}")
-        time.sleep(0.2)
-
-
 def stop(p: subprocess.Popen, sig: int) -> tuple[float, str]:
     """Send ``sig`` to ``p``; (seconds until it exited, its stderr)."""
     t0 = time.monotonic()
@@ -145,7 +135,7 @@ def test_sigterm_stops_a_run_like_sigint_and_resume_finishes_it(setup):
     p = subprocess.Popen(vbl_cmd(*LONG, "--out", str(out)), env=env, cwd=REPO, text=True,
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     try:
-        wait_until(p, lambda: checkpoint_steps(out) >= 6)
+        wait_until(lambda: checkpoint_steps(out) >= 6, "checkpoint step 6", p)
         took, err = stop(p, signal.SIGTERM)
     finally:
         if p.poll() is None:
@@ -159,7 +149,7 @@ def test_sigterm_stops_a_run_like_sigint_and_resume_finishes_it(setup):
     p = subprocess.Popen(vbl_cmd(*LONG, "--out", str(out), "--resume"), env=env, cwd=REPO,
                          text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     try:
-        wait_until(p, lambda: len(rows(out)) >= len(steps) + 3)
+        wait_until(lambda: len(rows(out)) >= len(steps) + 3, "3 resumed rows", p)
         p.send_signal(signal.SIGINT)
         _, err = p.communicate(timeout=60)
     finally:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
@@ -41,3 +42,27 @@ def run_vbl(args: list[str], env: dict[str, str], timeout: float = 300
             ) -> subprocess.CompletedProcess:
     return subprocess.run(vbl_cmd(*args), env=env, cwd=REPO, capture_output=True, text=True,
                           timeout=timeout)
+
+
+def one_error_line(stderr: str) -> str:
+    """The one ``vbl: error:`` line a failing command prints (asserts there is exactly
+    one line)."""
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("vbl: error: "), stderr[-3000:]
+    return lines[0]
+
+
+def wait_until(done, what: str, proc: subprocess.Popen | None = None,
+               timeout: float = 300) -> None:
+    """Poll ``done()`` every 0.2 s; fail after ``timeout`` s, or when ``proc`` has exited,
+    with ``proc``'s stderr (after stopping it: reading a live process's pipe would block)."""
+    end = time.monotonic() + timeout
+    while not done():
+        if time.monotonic() > end or (proc is not None and proc.poll() is not None):
+            err = ""
+            if proc is not None:
+                if proc.poll() is None:
+                    proc.kill()
+                err = f" (exit {proc.poll()}): {proc.communicate()[1][-3000:]}"
+            raise AssertionError(f"{what} within {timeout} s{err}")
+        time.sleep(0.2)

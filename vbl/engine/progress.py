@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 __all__ = ["auto_quiet", "Progress", "bar_width", "SUCCESS_METRICS", "STATUS_FILE",
-           "read_status"]
+           "read_status", "eta_text"]
 
 STATUS_FILE = ".vbl-progress"
 """JSON ``{"phase", "done", "total", "eta_s"}`` in a run folder while it runs (removed
@@ -84,7 +84,7 @@ class Progress:
         post = {}
         eta = self.eta()
         if eta is not None:
-            post["ETA"] = f"{eta / 60:.0f} min" if eta >= 90 else f"{eta:.0f} s"
+            post["ETA"] = eta_text(eta)
         if "episodes" in metrics and dt > 0:
             post["episodes/s"] = f"{float(np.sum(metrics['episodes'])) / dt:,.0f}"
         shown = next((m for m in SUCCESS_METRICS if m in metrics), None)
@@ -127,6 +127,11 @@ class Progress:
                     os.remove(path)
 
 
+def eta_text(seconds: float) -> str:
+    """A remaining time as the bar and the progress lines show it: "42 s", "3 min"."""
+    return f"{seconds / 60:.0f} min" if seconds >= 90 else f"{seconds:.0f} s"
+
+
 def read_status(run_dir: str | os.PathLike) -> str:
     """The status file of a running run folder as short text, e.g. "training 12/400 chunks,
     ETA 3 min"; "" when there is none (not started, or not a chunked program)."""
@@ -138,5 +143,5 @@ def read_status(run_dir: str | os.PathLike) -> str:
     text = f"{st.get('phase')} {st.get('done')}/{st.get('total')} chunks"
     eta = st.get("eta_s")
     if isinstance(eta, int | float):
-        text += f", ETA {eta / 60:.0f} min" if eta >= 90 else f", ETA {eta:.0f} s"
+        text += f", ETA {eta_text(eta)}"
     return text

@@ -17,6 +17,7 @@ from typing import Any
 
 from vbl.engine.config import EngineError, config_to_dict
 from vbl.engine.experiment import Experiment, ReportSection, RunResult
+from vbl.engine.machine import load_average, machine_description
 from vbl.engine.registry import all_experiments, discover, import_errors
 from vbl.engine.runfolder import record_files
 from vbl.stats import mean_ci95, t_quantile_975
@@ -24,8 +25,7 @@ from vbl.stats import mean_ci95, t_quantile_975
 __all__ = ["default_section", "default_jobs", "reproduce", "reproduce_jobs", "Job",
            "paper_experiments", "run_report", "headline_table", "TABLE_COLUMNS", "load_run",
            "run_command", "run_folders", "sibling_result", "stat_cell", "seeds_cell",
-           "rate_cell", "RATE", "claim", "results_table", "REPRODUCE_MANIFEST",
-           "machine_description"]
+           "rate_cell", "RATE", "claim", "results_table", "REPRODUCE_MANIFEST"]
 
 TABLE_COLUMNS = 100  #: the width ``vbl run``'s terminal table keeps to
 
@@ -430,26 +430,10 @@ def _git_commit() -> str:
     return head + ("+dirty" if dirty else "")
 
 
-def machine_description() -> str:
-    """CPU model and core count of this machine, e.g. "Intel Xeon ... (2 cores)"."""
-    import platform
-
-    model = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{model} ({os.cpu_count()} cores)"
-
-
-def _load() -> float:
-    try:
-        return round(os.getloadavg()[0], 2)
-    except OSError:
-        return float("nan")
+def _load() -> float | None:
+    """The load average for the manifest, to 2 decimals (None where there is none)."""
+    load = load_average()
+    return None if load is None else round(load, 2)
 
 
 def reproduce(out: Path, *, quick: bool, quiet: bool | None, resume: bool = False,
@@ -654,7 +638,7 @@ def load_run(folder: str | Path) -> tuple[Experiment, RunResult, dict[str, Any]]
         raise EngineError(f"{folder}/config.json is not a vbl run's config")
     check_format(spec, folder)
     exp = get(spec["experiment"])
-    check_fingerprint(spec, folder, _originals(exp, spec, summary))
+    check_fingerprint(spec, folder, _originals(spec, summary))
     config = _recorded_config(exp, spec, folder)
     points = summary.get("points", [])
     final: dict[str, Any] = {}
@@ -670,18 +654,14 @@ def load_run(folder: str | Path) -> tuple[Experiment, RunResult, dict[str, Any]]
     return exp, result, spec
 
 
-def _originals(exp: Experiment, spec: dict[str, Any], summary: Any) -> list[dict[str, Any]]:
+def _originals(spec: dict[str, Any], summary: Any) -> list[dict[str, Any]]:
     """What a run folder's ``config.json`` is compared with when it no longer matches its
-    fingerprint: the experiment's defaults with the recorded ``--quick`` and preset, and
-    the recorded values with the seeds and sweep of ``summary.json``."""
-    from vbl.engine.runner import resolve
+    fingerprint: the experiment's defaults with the recorded ``--quick`` and preset
+    (:func:`~vbl.engine.runner.defaults_spec`), and the recorded values with the seeds and
+    sweep of ``summary.json``."""
+    from vbl.engine.runner import defaults_spec
 
-    out = []
-    try:
-        out.append(resolve(exp, None, None, None, 0, bool(spec.get("quick")),
-                           spec.get("preset"))[3])
-    except Exception:  # noqa: BLE001 - an unknown preset: no defaults to compare with
-        pass
+    out = defaults_spec(spec)
     if isinstance(summary, dict):
         got = {k: summary[k] for k in ("seeds", "sweep") if k in summary}
         if got:

@@ -47,7 +47,7 @@ from vbl.engine.sharding import batch_layout, learner_sharding, pad_index, put, 
 from vbl.engine.sweep import Group, SweepPlan, make_plan
 from vbl.params import ParamError
 
-__all__ = ["run_experiment", "resolve", "describe_sweep", "load_result"]
+__all__ = ["run_experiment", "resolve", "describe_sweep", "load_result", "defaults_spec"]
 
 DEFAULT_CHECKPOINT_EVERY = 10  # chunks between checkpoints (and one at the end of a group)
 DEFAULT_LEARNER_BATCH = 4096  # most learners in one compiled call
@@ -189,7 +189,7 @@ def _check_config_json(run_dir: Path, spec: dict) -> bool:
                           f"({type(e).__name__}: {e}); restore it, or start again with "
                           f"--overwrite / another --out") from None
     check_format(old, run_dir)
-    check_fingerprint(old, run_dir, [spec, *_defaults_of(old)])  # a hand-edited file
+    check_fingerprint(old, run_dir, [spec, *defaults_spec(old)])  # a hand-edited file
     if old.get("fingerprint") != spec["fingerprint"]:
         diff = differing(old, spec)  # never empty: the fingerprints differ
         shown = str(diff[:8] + (["..."] if len(diff) > 8 else [])) if diff else \
@@ -200,16 +200,16 @@ def _check_config_json(run_dir: Path, spec: dict) -> bool:
     return True
 
 
-def _defaults_of(old: dict) -> list[dict]:
-    """The ``config.json`` of ``old``'s experiment at its defaults (with its ``--quick``,
-    preset, seeds and base seed): what an edited file is compared with; none when the
-    experiment or preset is unknown."""
+def defaults_spec(spec: dict) -> list[dict]:
+    """The ``config.json`` of ``spec``'s experiment at its defaults (with the recorded
+    ``--quick`` and preset), one dict, to compare an edited ``config.json`` with; none when
+    the experiment or the preset is unknown."""
     from vbl.engine.registry import get
 
     try:
-        exp = get(str(old.get("experiment")))
-        return [resolve(exp, None, None, None, 0, bool(old.get("quick")),
-                        old.get("preset"))[3]]
+        exp = get(str(spec.get("experiment")))
+        return [resolve(exp, None, None, None, 0, bool(spec.get("quick")),
+                        spec.get("preset"))[3]]
     except Exception:  # noqa: BLE001 - only a hint for the error line
         return []
 
