@@ -2,10 +2,10 @@
 
 Each learner collects experience (each episode holds one primitive), grows its map of
 quantile cells backwards from the goal and refines the map's policy in closed loop, while
-the chunks train the grid baseline (:mod:`vbl.engine.baselines`) on the same env; ``final``
+the chunks train the grid baseline (:mod:`vbl.programs.baselines`) on the same env; ``final``
 evaluates both at start difficulty ``baseline.train.eval_difficulty``
-(:mod:`vbl.engine.action_map_program`). The report draws Figure 5 with the grid lines over
-it (:mod:`vbl.engine.map_figures`). Run: ``vbl run
+(:mod:`vbl.programs.action_map_program`). The report draws Figure 5 with the grid lines over
+it (:mod:`vbl.programs.map_figures`). Run: ``vbl run
 fig5_action_based --quick`` or ``python experiments/fig5_action_based.py``.
 """
 
@@ -17,18 +17,18 @@ import numpy as np
 from flax import struct
 
 from vbl.engine import Experiment, ReportSection, register
-from vbl.engine.action_map_program import (
+from vbl.engine.experiment import PaperRow
+from vbl.engine.report import RATE, claim, rate_cell, seeds_cell
+from vbl.envs.shooting import ShootingParams
+from vbl.params import section
+from vbl.programs.action_map_program import (
     MapEvalParams,
     experience_default,
     grid_learner_default,
     make_action_map_program,
 )
-from vbl.engine.baselines import GridLearner
-from vbl.engine.experiment import PaperRow
-from vbl.engine.map_figures import plot_fig5, plot_refined
-from vbl.engine.report import RATE, claim, rate_cell, seeds_cell
-from vbl.envs.shooting import ShootingParams
-from vbl.params import section
+from vbl.programs.baselines import GridLearner
+from vbl.programs.map_figures import plot_fig5, plot_refined
 from vbl.spaces.action_based import ExperienceParams, FeatureParams
 from vbl.spaces.action_cells import CellMapParams
 from vbl.spaces.cell_refine import RefineParams
@@ -69,7 +69,7 @@ def report(res) -> ReportSection:
                f"{ms('refined_states', '.1f')} (policy table: {ms('refined_units', '.0f')} "
                f"units) | {ms('refined_success')} |"]
     if "grid_success" in fin:
-        md += [f"| grid baseline (Q-learning, vbl.engine.baselines) | {NUM_GRID_STATES} | "
+        md += [f"| grid baseline (Q-learning, vbl.programs.baselines) | {NUM_GRID_STATES} | "
                f"{ms('grid_success')} |",
                f"| random policy (grid's macro actions) | | {ms('random_success')} |", "",
                f"The grid baseline is the preset grid_shooting trains (with LEM), trained for "

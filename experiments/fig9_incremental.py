@@ -12,12 +12,12 @@ from flax import struct
 
 from vbl.agents import segmentation_learner as sl
 from vbl.engine import Experiment, register
-from vbl.engine import segmentation_figures as figs
-from vbl.engine.baselines import GridLearner, grid_agent, grid_train
-from vbl.engine.segmentation_program import make_segmentation_program
 from vbl.envs.schedules import BallChangeParams
 from vbl.envs.shooting import ShootingParams
 from vbl.params import param, section
+from vbl.programs import segmentation_figures as figs
+from vbl.programs.baselines import GridLearner, grid_agent, grid_train
+from vbl.programs.segmentation_program import make_segmentation_program
 from vbl.spaces.action_based import FeatureParams
 
 
@@ -40,7 +40,7 @@ class Fig9Train:
 
 
 def _grid() -> GridLearner:
-    """vbl.engine.baselines' grid learner on Figure 9's env and final ball, 1 robot x 360
+    """vbl.programs.baselines' grid learner on Figure 9's env and final ball, 1 robot x 360
     chunks of 500 primitives: the on-line learner's experience (180,000 primitives per seed);
     evaluations at Figure 9's training start difficulty."""
     return GridLearner(agent=grid_agent().replace(num_envs=1), train=grid_train().replace(

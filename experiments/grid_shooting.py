@@ -4,7 +4,7 @@ Learning from Easy Missions (the earlier work the paper compares against, Figure
 Each learner trains one Q-table (319 states x 9 primitives; one action = repeat a primitive
 until the grid state changes, asynchronously: a learner step is one primitive of every
 robot) with ``agent.num_envs`` parallel robots and Peng's Q(lambda), from fully random
-starts within 100 s: the preset :mod:`vbl.engine.baselines` (measured choices:
+starts within 100 s: the preset :mod:`vbl.programs.baselines` (measured choices:
 docs/findings/grid_shooting.md). After every ``train.eval_every`` chunks the near-greedy
 policy is evaluated on fresh starts: the ``eval_success`` curve against training trials.
 The default sweep compares LEM off (``agent.lem.initial_difficulty`` = the cap: every
@@ -25,7 +25,11 @@ from flax import struct
 
 from vbl.agents.qlearning import QRunnerParams
 from vbl.engine import Experiment, ReportSection, RunResult, register
-from vbl.engine.baselines import (
+from vbl.engine.experiment import PaperRow
+from vbl.engine.report import claim, rate_cell
+from vbl.envs.shooting import ShootingParams
+from vbl.params import section
+from vbl.programs.baselines import (
     TASK_DIFFICULTY,
     grid_agent,
     grid_env,
@@ -33,7 +37,7 @@ from vbl.engine.baselines import (
     grid_space,
     grid_train,
 )
-from vbl.engine.curves import (
+from vbl.programs.curves import (
     LEM_PATH,
     CurveReportParams,
     curve_description,
@@ -42,11 +46,7 @@ from vbl.engine.curves import (
     plot_success_vs_trials,
     trials_to_levels,
 )
-from vbl.engine.experiment import PaperRow
-from vbl.engine.q_program import QTrainParams, curve_metric
-from vbl.engine.report import claim, rate_cell
-from vbl.envs.shooting import ShootingParams
-from vbl.params import section
+from vbl.programs.q_program import QTrainParams, curve_metric
 from vbl.spaces.grid import NUM_GRID_STATES, GridParams
 from vbl.stats import mean_ci95
 

@@ -1,7 +1,7 @@
 """brax PPO as a deep-RL comparator of the tabular learners (issue: which state does a
 learner need when other agents move?).
 
-Two experiments, each a vmapped PPO program (:mod:`vbl.engine.ppo_program`) with the
+Two experiments, each a vmapped PPO program (:mod:`vbl.programs.ppo_program`) with the
 categorical policy of :mod:`vbl.agents.ppo`:
 
 * ``ppo_comparator``: the two-robot task of Table 2 (shooter and passer) with three inputs,
@@ -14,7 +14,7 @@ categorical policy of :mod:`vbl.agents.ppo`:
   primitives); beside the grid baseline (the ``grid_shooting`` run of the same
   ``vbl reproduce``).
 
-Reports: :mod:`vbl.engine.ppo_report`. Run: ``vbl run ppo_comparator`` / ``vbl run
+Reports: :mod:`vbl.programs.ppo_report`. Run: ``vbl run ppo_comparator`` / ``vbl run
 ppo_shooting``, or ``--quick``.
 """
 
@@ -27,23 +27,23 @@ from flax import struct
 from vbl.agents.cva_state import CVAStateParams
 from vbl.agents.ppo_params import PPOParams
 from vbl.engine import Experiment, register
-from vbl.engine.cva_program import default_cva
-from vbl.engine.paper import TABLE2
-from vbl.engine.ppo_program import (
+from vbl.envs.shoot_pass import ShootPassParams
+from vbl.envs.shooting import ShootingParams
+from vbl.params import section
+from vbl.programs.cva_program import default_cva
+from vbl.programs.paper import TABLE2
+from vbl.programs.ppo_program import (
     InputChoice,
     PPORunParams,
     make_shoot_pass_program,
     make_shooting_program,
 )
-from vbl.engine.ppo_report import (
+from vbl.programs.ppo_report import (
     shoot_pass_rows,
     shoot_pass_section,
     shooting_rows,
     shooting_section,
 )
-from vbl.envs.shoot_pass import ShootPassParams
-from vbl.envs.shooting import ShootingParams
-from vbl.params import section
 
 QUICK_PPO = {"ppo.num_envs": 16, "ppo.batch_size": 16, "ppo.num_minibatches": 2,
              "ppo.steps_per_chunk": 2, "ppo.eval_envs": 8, "run.final_eval_envs": 16,

@@ -4,7 +4,7 @@ A learner moves with random (view-keeping) actions while it observes (a) the goa
 (b) a rolling ball (kicked now and then by a third party), (c) another robot doing a
 random walk, (d) another robot that moves to the ball (``vbl.envs.collect``). Each learner
 (one seed) collects one data set per row and identifies it with the CVA + AIC + lag rule of
-``vbl.sysid.identify`` inside its program (:mod:`vbl.engine.identification`; outputs in
+``vbl.sysid.identify`` inside its program (:mod:`vbl.programs.identification`; outputs in
 units of ``y_unit`` px, areas as sqrt(area), see ``docs/two_robot_task.md``); the engine
 vmaps the learners over seeds and sweep points. The report gives l, n, log det R and AIC,
 mean +- std over seeds, beside the paper's Table 1, and checks the qualitative claims.
@@ -22,7 +22,10 @@ from flax import struct
 
 from vbl.engine import Experiment, RunResult, register
 from vbl.engine.experiment import PaperRow
-from vbl.engine.identification import (
+from vbl.engine.report import claim
+from vbl.envs.collect import CollectParams
+from vbl.params import param, section
+from vbl.programs.identification import (
     OBJECT,
     TABLE1_ROWS,
     RowSetup,
@@ -36,10 +39,7 @@ from vbl.engine.identification import (
     slug,
     table1_scenarios,
 )
-from vbl.engine.paper import TABLE1
-from vbl.engine.report import claim
-from vbl.envs.collect import CollectParams
-from vbl.params import param, section
+from vbl.programs.paper import TABLE1
 from vbl.sysid.params import CVAParams
 
 

@@ -1,7 +1,7 @@
 """Table 2: shooting and passing success with current features vs CVA state vectors.
 
 Each learner (one seed) runs the Figure 11 pipeline in the two-robot env, then greedy
-evaluation chunks from fresh starts: :mod:`vbl.engine.cva_program` (its defaults are
+evaluation chunks from fresh starts: :mod:`vbl.programs.cva_program` (its defaults are
 measured choices: docs/cva_learning.md, "Choices and why"). The default sweep, task x state
 vector (4 rows of the table), is one compilation. Presets give the variants the README
 reports (``--preset monte_carlo``: Monte Carlo values, the best published shooting result).
@@ -17,7 +17,11 @@ from flax import struct
 from vbl.agents.cva_state import CVAStateParams
 from vbl.agents.qlearning import QRunnerParams
 from vbl.engine import Experiment, register
-from vbl.engine.cva_program import (
+from vbl.engine.experiment import PaperRow, ReportSection
+from vbl.engine.report import claim, rate_cell
+from vbl.envs.shoot_pass import ENV_TASKS, ShootPassParams
+from vbl.params import param, section
+from vbl.programs.cva_program import (
     POINT_KEYS,
     CVATrainParams,
     default_cva,
@@ -26,11 +30,7 @@ from vbl.engine.cva_program import (
     state_label,
     task_label,
 )
-from vbl.engine.experiment import PaperRow, ReportSection
-from vbl.engine.paper import TABLE2
-from vbl.engine.report import claim, rate_cell
-from vbl.envs.shoot_pass import ENV_TASKS, ShootPassParams
-from vbl.params import param, section
+from vbl.programs.paper import TABLE2
 
 
 @struct.dataclass

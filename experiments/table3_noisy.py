@@ -6,8 +6,8 @@ is tilted -20 deg instead of -26 deg, its motor is slower and its steering angle
 Each observer collects data as in Table 1 while the other robot moves to the ball, with
 image noise, ball-centroid eccentricity and tire slip on (``vbl.envs.noise.NOISE_ON``); the
 same scenarios without noise from the shooter are the reference
-(:func:`vbl.engine.identification.table3_scenarios`). Each learner (one seed) collects one
-data set per row and identifies it in its program (:mod:`vbl.engine.identification`).
+(:func:`vbl.programs.identification.table3_scenarios`). Each learner (one seed) collects one
+data set per row and identifies it in its program (:mod:`vbl.programs.identification`).
 Model swap: each learner also collects a held-out ball data set per observer; each
 observer's ball model (identified on its row's data set) predicts both held-out sets.
 
@@ -21,7 +21,12 @@ from flax import struct
 
 from vbl.engine import Experiment, RunResult, register
 from vbl.engine.experiment import PaperRow
-from vbl.engine.identification import (
+from vbl.engine.report import claim, seeds_cell
+from vbl.envs.collect import CollectParams
+from vbl.envs.noise import NOISE_ON, NoiseParams
+from vbl.envs.shoot_pass import ShootPassParams
+from vbl.params import param, section
+from vbl.programs.identification import (
     RowSetup,
     check_scenarios,
     claims_markdown,
@@ -33,12 +38,7 @@ from vbl.engine.identification import (
     swap_markdown,
     table3_scenarios,
 )
-from vbl.engine.paper import TABLE3
-from vbl.engine.report import claim, seeds_cell
-from vbl.envs.collect import CollectParams
-from vbl.envs.noise import NOISE_ON, NoiseParams
-from vbl.envs.shoot_pass import ShootPassParams
-from vbl.params import param, section
+from vbl.programs.paper import TABLE3
 from vbl.sysid.params import CVAParams
 
 ROWS = {"shooter_ball": ("from the shooter", "ball"), "shooter_goal": ("from the shooter", "goal"),

@@ -39,7 +39,7 @@ def test_bad_collection_settings_raise_clear_errors():
 
 def test_fig5_and_fig9_compare_with_grid_shootings_own_config():
     """The grid baseline of Figures 5 and 9 is grid_shooting's default config (the preset of
-    vbl.engine.baselines), except the evaluation's start difficulty, pinned to 0.1
+    vbl.programs.baselines), except the evaluation's start difficulty, pinned to 0.1
     (grid_shooting's own task is fully random starts), and, for Figure 9, the budget (robots,
     chunks: equal experience) and a curve point every chunk; Figure 9 evaluates at its
     training episodes' difficulty."""

@@ -10,7 +10,7 @@ from reference.cva_np import cva_reference
 from reference.sysid_systems import simulate_batch
 
 from vbl.agents.cva_state import identify_object
-from vbl.engine.identification import identify_one
+from vbl.programs.identification import identify_one
 from vbl.sysid import CVAParams, identify
 from vbl.sysid.cva import first_argmin, fit_lags, n_identifiable
 

@@ -203,7 +203,7 @@ def _tree_digest(d: Path) -> dict[str, str]:
 
 
 def test_q_program_names_its_success_curves_by_what_they_measure():
-    from vbl.engine.q_program import curve_metric
+    from vbl.programs.q_program import curve_metric
 
     assert curve_metric({"eval_success": 1, "train_success": 0}) == "eval_success"
     assert curve_metric({"train_success": 0}) == "train_success"

@@ -1,4 +1,4 @@
-"""The Q-learning engine program (`vbl.engine.q_program`) and the grid_shooting experiment.
+"""The Q-learning engine program (`vbl.programs.q_program`) and the grid_shooting experiment.
 
 * Fast: `make_q_program` runs through the engine on a tiny chain task with a start
   difficulty (LEM off / on in one compiled group, 2 seeds): metrics are written with the
@@ -26,8 +26,8 @@ import vbl  # noqa: F401
 from tests import toy_worlds
 from vbl.agents import QRunnerParams
 from vbl.engine import Experiment, discover, get, run_experiment
-from vbl.engine.q_program import QTrainParams, make_q_program
 from vbl.params import ParamError, param, section
+from vbl.programs.q_program import QTrainParams, make_q_program
 from vbl.stats import first_crossing
 
 # ------------------------------------------------------------------ a chain with a start difficulty
@@ -164,7 +164,7 @@ def test_grid_report_renders(chain_result):
 
 
 def test_lem_verdict_cases():
-    from vbl.engine.curves import lem_verdict
+    from vbl.programs.curves import lem_verdict
 
     assert lem_verdict(100.0, 200.0, 300.0).startswith("yes")
     assert lem_verdict(300.0, 200.0, 300.0).startswith("**no**")

@@ -146,12 +146,12 @@ class RecordingEnv:
 
 @pytest.mark.slow  # compile-bound: about 65 s on 2 quiet cores
 def test_final_evaluation_draws_from_its_own_stream(monkeypatch):
-    """The grid_shooting program (``vbl.engine.baselines.grid_program``) with the engine's
+    """The grid_shooting program (``vbl.programs.baselines.grid_program``) with the engine's
     per-seed training and final keys: the final evaluation's env keys are disjoint from
     every training env key, its fresh starts are none of training's first starts, and the
     final evaluation is a function of the final key only (the same with the training
     carry's key replaced, different with another final key)."""
-    from vbl.engine import baselines
+    from vbl.programs import baselines
 
     gs = load_script(ROOT / "experiments" / "grid_shooting.py")
     cfg = apply_overrides(gs.EXPERIMENT.default_config, TINY)

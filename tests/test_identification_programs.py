@@ -1,4 +1,4 @@
-"""Tables 1 and 3 as engine programs (vbl.engine.identification): a sweep over a traced
+"""Tables 1 and 3 as engine programs (vbl.programs.identification): a sweep over a traced
 parameter is one program, and the per-seed numbers of a run equal ``vbl.sysid.identify`` on
 the same data sets, collected again outside the program with ``collect_one`` and the
 documented keys (learner key ``k``: scenario ``s`` from ``fold_in(k, s)``)."""
@@ -12,13 +12,13 @@ import pytest
 
 from vbl.engine import get, run_experiment
 from vbl.engine.config import traced_dtype
-from vbl.engine.identification import OBJECT, TABLE1_ROWS, slug, table1_scenarios
 from vbl.engine.jax_setup import engine_precision
 from vbl.engine.runner import resolve
 from vbl.engine.sweep import learner_keys, make_plan
 from vbl.envs.collect import FOCUS, CollectData, collect_one, id_outputs
 from vbl.envs.other_agents import BEHAVIOURS
 from vbl.params import replace_path
+from vbl.programs.identification import OBJECT, TABLE1_ROWS, slug, table1_scenarios
 from vbl.sysid import identify
 
 SMALL = {"collect.num_steps": 200, "ident.lag_max": 2}  # N >= 161 for the goal at l <= 2
@@ -118,7 +118,7 @@ def _pred_logdet_reference(model, u, y) -> float:
 def test_table3_swap_test_equals_a_numpy_reference(tmp_path):
     """Each observer's ball model (identify on its row's data set) predicts both observers'
     held-out data sets (scenarios 8 and 9: the rows, then the held-out sets)."""
-    from vbl.engine.identification import table3_scenarios
+    from vbl.programs.identification import table3_scenarios
 
     res = run_experiment(get("table3_noisy"), sets=SMALL, seeds=SEEDS, base_seed=BASE_SEED,
                          out=tmp_path / "run", quiet=True, plots=False)

@@ -1,5 +1,6 @@
 """Imports only go down: base modules -> world -> vision -> envs -> spaces / sysid -> agents
--> engine -> cli. Checked on the source (every import statement, also inside functions)."""
+-> programs -> cli, and the generic engine sits beside that chain, below the programs: it
+knows no soccer. Checked on the source (every import statement, also inside functions)."""
 
 from __future__ import annotations
 
@@ -10,9 +11,11 @@ PACKAGE = Path(__file__).resolve().parents[1] / "vbl"
 
 LAYERS = {
     "draws": 0, "params": 0, "stats": 0,  # base modules of the package's top level
-    "world": 1, "vision": 2, "envs": 3, "spaces": 4, "sysid": 4, "agents": 5, "engine": 6,
-    "cli": 7,
+    "world": 1, "vision": 2, "envs": 3, "spaces": 4, "sysid": 4, "agents": 5, "programs": 7,
+    "cli": 8,
+    "engine": 6,  # below the programs; test_engine_knows_no_soccer keeps it off the chain
 }
+SOCCER = ("world", "vision", "envs", "spaces", "sysid", "agents", "programs")
 
 
 def _layer(module: str) -> str | None:
@@ -53,3 +56,12 @@ def test_imports_only_go_down():
                 bad.append(f"{path.relative_to(PACKAGE.parent)}:{line} ({mine}) imports "
                            f"{module} ({other})")
     assert not bad, "upward or sideways imports:\n" + "\n".join(bad)
+
+
+def test_engine_knows_no_soccer():
+    """vbl.engine (runs, sweeps, checkpoints, reports) imports none of the soccer layers, so a
+    user's own learner runs through it without the paper's code."""
+    bad = [f"{path.relative_to(PACKAGE.parent)}:{line} imports {module}"
+           for path in sorted((PACKAGE / "engine").rglob("*.py"))
+           for line, module in _imports(path) if _layer(module) in SOCCER]
+    assert not bad, "the engine imports soccer code:\n" + "\n".join(bad)

@@ -1,4 +1,4 @@
-"""Figure 5's map serialisation and figures (vbl.engine.map_figures), and the run folders
+"""Figure 5's map serialisation and figures (vbl.programs.map_figures), and the run folders
 and presets of fig5_action_based: a map survives its trip through a run's ``final``
 arrays (it classifies every point as the original does), the slice holds the features
 Figure 5 names, and the committed run folders rebuild to the README's preset commands."""
@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 from toy_worlds import line_world_collector
 
-from vbl.engine.map_figures import map_arrays, map_of, slice_features
+from vbl.programs.map_figures import map_arrays, map_of, slice_features
 from vbl.spaces.action_cells import (
     CellMapParams,
     build_cell_map,

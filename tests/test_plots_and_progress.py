@@ -79,7 +79,7 @@ def test_every_success_plot_keeps_its_bands_in_the_unit_interval(tmp_path, monke
     matplotlib.use("Agg", force=True)
     import matplotlib.axes
 
-    from vbl.engine import curves, ppo_report
+    from vbl.programs import curves, ppo_report
 
     drawn = []
     real = matplotlib.axes.Axes.fill_between

@@ -1,4 +1,4 @@
-"""The PPO comparator's report (vbl.engine.ppo_report) on a synthetic run: every row of the
+"""The PPO comparator's report (vbl.programs.ppo_report) on a synthetic run: every row of the
 two-robot sweep gets its cells, and the verdicts follow hand-computed Welch intervals."""
 
 import re
@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 
 from vbl.engine.experiment import RunResult
-from vbl.engine.paper import TABLE2
-from vbl.engine.ppo_report import diff_verdict, shoot_pass_section
+from vbl.programs.paper import TABLE2
+from vbl.programs.ppo_report import diff_verdict, shoot_pass_section
 
 
 def test_diff_verdict_matches_a_hand_computed_welch_interval():

@@ -97,7 +97,7 @@ def test_init_under_the_engines_64_bit_scope_warns_nothing():
 import jax
 from vbl.engine.config import stack_traced
 from vbl.engine.jax_setup import engine_precision
-from vbl.engine.ppo_program import make_shooting_program
+from vbl.programs.ppo_program import make_shooting_program
 from vbl.engine.registry import get
 cfg = get("ppo_shooting").default_config
 with engine_precision():

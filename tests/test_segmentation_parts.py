@@ -16,16 +16,16 @@ from vbl.agents.segmentation_learner import per_trial
 from vbl.agents.steering import steer_action
 from vbl.engine import Program
 from vbl.engine.nested import run_program
-from vbl.engine.segmentation_figures import (
+from vbl.envs.schedules import BallChangeParams, ball_radius_at, ball_radius_params
+from vbl.envs.shooting import ShootingParams
+from vbl.params import ParamError, validate
+from vbl.programs.segmentation_figures import (
     change_report,
     change_rows,
     change_window,
     plot_fig8,
     plot_fig9,
 )
-from vbl.envs.schedules import BallChangeParams, ball_radius_at, ball_radius_params
-from vbl.envs.shooting import ShootingParams
-from vbl.params import ParamError, validate
 from vbl.vision.features import (
     SEC2_BALL_LOST_SIDE,
     SEC2_BALL_POS,

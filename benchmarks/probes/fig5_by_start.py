@@ -55,10 +55,10 @@ def main(argv: list[str] | None = None) -> int:
                     "primitives per primitive, 32 starts, 1 small refinement iteration")
     args = ap.parse_args(argv)
 
-    from vbl.engine.action_map_program import ENV as env
     from vbl.engine.jax_setup import engine_precision
     from vbl.engine.registry import get
     from vbl.envs.rollout import fresh_starts, rollout, stateless
+    from vbl.programs.action_map_program import ENV as env
     from vbl.spaces.action_based import collect_experience, sec2_features
     from vbl.spaces.action_cells import build_cell_map, cell_policy_action, num_cell_states
     from vbl.spaces.cell_refine import refine_cell_map, refined_policy_action

@@ -74,8 +74,8 @@ def main(argv: list[str] | None = None) -> int:
         args.starts, args.max_steps = 64, 30
 
     from vbl.agents.qlearning import make_qlearning_runner
-    from vbl.engine.baselines import TASK_DIFFICULTY, grid_agent, grid_env, grid_space
     from vbl.envs.shooting import ShootingEnv
+    from vbl.programs.baselines import TASK_DIFFICULTY, grid_agent, grid_env, grid_space
     from vbl.spaces.grid import NUM_GRID_STATES, grid_state
     from vbl.world.robots import TWO_MOTOR_LABELS
 

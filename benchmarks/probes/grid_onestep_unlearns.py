@@ -49,10 +49,10 @@ def main(argv: list[str] | None = None) -> int:
         args.chunks, args.starts, args.chunk_steps, args.max_steps = 1, 64, 10, 30
 
     from vbl.agents.qlearning import make_qlearning_runner
-    from vbl.engine.baselines import TASK_DIFFICULTY, grid_agent, grid_env, grid_space
     from vbl.engine.jax_setup import engine_precision
     from vbl.engine.registry import load_script
     from vbl.envs.shooting import ShootingEnv
+    from vbl.programs.baselines import TASK_DIFFICULTY, grid_agent, grid_env, grid_space
     from vbl.spaces.grid import NUM_GRID_STATES, grid_state
     from vbl.world.robots import TWO_MOTOR_LABELS
 

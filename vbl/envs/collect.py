@@ -309,7 +309,7 @@ def _stack(canon: list[CollectParams]) -> CollectParams:
 def collect_scenarios(key: jax.Array, scenarios: list[CollectParams]) -> CollectData:
     """One data set per scenario (leading (S,) axis): scenario ``s`` is
     ``collect_one(fold_in(key, s), scenarios[s])`` (pure; jit/vmap-able: one learner's data
-    sets inside an engine program, :mod:`vbl.engine.identification`).
+    sets inside an engine program, :mod:`vbl.programs.identification`).
 
     The scenarios may hold traced values and differ in any of them and in
     ``other_behaviour`` / ``focus`` (traced ids: one trace of :func:`collect_one` serves

@@ -1,4 +1,4 @@
-"""Report sections and figures of the PPO comparator (:mod:`vbl.engine.ppo_program`).
+"""Report sections and figures of the PPO comparator (:mod:`vbl.programs.ppo_program`).
 
 * :func:`shoot_pass_section`: the two-robot task (Table 2's): one row per task and input,
   PPO without and with the curriculum beside the tabular learner and the paper, and
@@ -6,7 +6,7 @@
   advantage (Welch 95 % intervals over seeds);
 * :func:`shooting_section`: the shooting task of Section 2 beside the grid baseline;
 * :func:`rerender`: rewrite a finished run folder's ``report.md`` (curves rebuilt from
-  its ``metrics.jsonl``): ``python -m vbl.engine.ppo_report RUN_DIR``.
+  its ``metrics.jsonl``): ``python -m vbl.programs.ppo_report RUN_DIR``.
 
 Success rates are in % (``final["greedy_success_rate"]`` x 100); every interval comes
 from :mod:`vbl.stats` (one seed: the mean alone, no interval).
@@ -22,11 +22,11 @@ from typing import Any
 import numpy as np
 
 from vbl.agents.ppo_inputs import INPUTS
-from vbl.engine.curves import LEM_PATH
 from vbl.engine.experiment import PaperRow, ReportSection, RunResult
-from vbl.engine.paper import TABLE2
 from vbl.engine.plots import band
 from vbl.engine.report import rate_cell, seeds_cell, sibling_result
+from vbl.programs.curves import LEM_PATH
+from vbl.programs.paper import TABLE2
 from vbl.stats import mean_ci95, seeds_to_resolve, welch_ci95
 
 __all__ = ["TASKS", "point_keys", "diff_verdict", "shoot_pass_section", "shooting_section",
@@ -142,7 +142,7 @@ def grid_cells(res: RunResult) -> dict[bool, tuple[str, str]]:
 def shoot_pass_section(res: RunResult, paper: Mapping[str, Mapping[str, float]]
                        ) -> ReportSection:
     """The two-robot comparison beside the tabular learner (:func:`tabular_cells`) and the
-    paper's % (``paper[task][input]``, :data:`vbl.engine.paper.TABLE2`)."""
+    paper's % (``paper[task][input]``, :data:`vbl.programs.paper.TABLE2`)."""
     tabular = tabular_cells(res)
     keys, sr = point_keys(res), _pct(res)
     by = dict(zip(keys, sr, strict=True))

@@ -19,11 +19,11 @@ import jax
 import jax.numpy as jnp
 
 from vbl.agents import segmentation_learner as sl
-from vbl.engine.baselines import grid_program
 from vbl.engine.experiment import Program
 from vbl.engine.nested import run_program
 from vbl.envs.schedules import ball_radius_params
 from vbl.envs.shooting import ShootingEnv
+from vbl.programs.baselines import grid_program
 from vbl.spaces.action_based import sec2_features
 
 __all__ = ["make_segmentation_program"]
@@ -33,7 +33,7 @@ F32, ENV = jnp.float32, ShootingEnv()
 
 def make_segmentation_program(cfg) -> Program:
     """Per chunk ``updates_per_chunk`` structure updates of one learner; ``final``: its
-    evaluation and per-trial records (read by :mod:`vbl.engine.segmentation_figures`)."""
+    evaluation and per-trial records (read by :mod:`vbl.programs.segmentation_figures`)."""
     n_tr, dim, tr = cfg.train.num_trials, cfg.features.dim, cfg.train
     feat = lambda c: lambda o: sec2_features(o, c.features)  # noqa: E731
     env_at = lambda c, t: ball_radius_params(c.env, t, c.change)  # noqa: E731

@@ -15,9 +15,9 @@ from flax import struct
 from vbl.agents.exploration import ScheduleParams
 from vbl.agents.qlearning import QRunnerParams
 from vbl.agents.traces import TraceParams
-from vbl.engine.q_program import QTrainParams, make_q_program
 from vbl.envs.shooting import ShootingEnv, ShootingParams
 from vbl.params import section
+from vbl.programs.q_program import QTrainParams, make_q_program
 from vbl.spaces.grid import NUM_GRID_STATES, GridParams, grid_state
 
 __all__ = ["GridBaseline", "GridLearner", "grid_program", "grid_env", "grid_space", "grid_agent",

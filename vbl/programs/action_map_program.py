@@ -4,7 +4,7 @@ Each learner (one seed) collects experience in parallel shooting environments (e
 episode holds one primitive, :func:`vbl.spaces.action_based.collect_experience`), grows
 its cell map backwards from the goal (:mod:`vbl.spaces.action_cells`) and refines the
 map's policy in closed loop (:mod:`vbl.spaces.cell_refine`), all in ``init``. The chunks
-train the grid baseline of :mod:`vbl.engine.baselines` (its preset: Q-learning on the
+train the grid baseline of :mod:`vbl.programs.baselines` (its preset: Q-learning on the
 319-state grid, macro actions, LEM) on the same env. ``final`` evaluates the map's
 policy (and the refined one) on fresh starts at ``baseline.train.eval_difficulty`` and takes
 the grid's own final evaluation (greedy and random policy) at the same difficulty.
@@ -12,7 +12,7 @@ the grid's own final evaluation (greedy and random policy) at the same difficult
 A config for :func:`make_action_map_program` has the sections ``env``
 (:class:`~vbl.envs.shooting.ShootingParams`), ``features``, ``collect``
 (:class:`~vbl.spaces.action_based.ExperienceParams`), ``cells``, ``refine``, ``baseline``
-(:class:`~vbl.engine.baselines.GridLearner`: :func:`grid_learner_default`) and ``eval``
+(:class:`~vbl.programs.baselines.GridLearner`: :func:`grid_learner_default`) and ``eval``
 (:class:`MapEvalParams`).
 """
 
@@ -24,12 +24,12 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from vbl.engine.baselines import GridLearner, grid_program, grid_train
 from vbl.engine.experiment import Program
-from vbl.engine.map_figures import map_arrays
 from vbl.envs.rollout import rollout, stateless
 from vbl.envs.shooting import ShootingEnv
 from vbl.params import ParamError, param, validate
+from vbl.programs.baselines import GridLearner, grid_program, grid_train
+from vbl.programs.map_figures import map_arrays
 from vbl.spaces.action_based import (
     ExperienceParams,
     collect_experience,

@@ -1,5 +1,5 @@
 """Engine programs of brax PPO on vbl's tasks (the ``ppo_comparator`` and ``ppo_shooting``
-experiments; their report tables and figures: :mod:`vbl.engine.ppo_report`).
+experiments; their report tables and figures: :mod:`vbl.programs.ppo_report`).
 
 * :func:`make_shooting_program`: the shooting task of Section 2 (9 features, 9 primitives)
   through :class:`vbl.envs.brax_adapter.BraxAdapter`, with or without the curriculum

@@ -11,8 +11,8 @@ from flax import struct
 
 from vbl.engine.experiment import RunResult
 from vbl.engine.plots import LINESTYLES, band
-from vbl.engine.q_program import curve_metric
 from vbl.params import ParamError, param
+from vbl.programs.q_program import curve_metric
 from vbl.stats import first_crossing
 
 __all__ = ["CurveReportParams", "lem_label", "trials_to_levels", "lem_verdict",

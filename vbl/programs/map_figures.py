@@ -1,7 +1,7 @@
 """Figure 5's map from a run's ``final`` arrays, and its figures.
 
 :func:`map_of` rebuilds one learner's :class:`~vbl.spaces.action_cells.CellMap` from the
-arrays :func:`vbl.engine.action_map_program.make_action_map_program` returns;
+arrays :func:`vbl.programs.action_map_program.make_action_map_program` returns;
 :func:`plot_fig5` draws it on Figure 5's slice (ball size x1 along the columns, goal size
 x3 along the rows, ball and goal centred, goal frontal, both objects seen) with the grid
 baseline's boundaries over it, :func:`plot_refined` draws the refined policy on the same
