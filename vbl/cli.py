@@ -99,6 +99,24 @@ def build_parser() -> argparse.ArgumentParser:
                         "updates the committed results)")
     p.add_argument("names", nargs="*", help="benchmark names (default: all)")
     _add_debug(p, argparse.SUPPRESS)
+    p = sub.add_parser("render", help="a video (GIF or MP4) of a run folder's policy: camera "
+                       "view, top view, the learner's state and action (docs/render.md)")
+    p.add_argument("folder", metavar="RUN_FOLDER", help="a finished run folder (vbl run --out)")
+    p.add_argument("--episodes", type=int, default=2, metavar="N",
+                   help="episodes, one after the other (default 2)")
+    p.add_argument("--out", required=True, metavar="FILE", help="FILE.gif or FILE.mp4")
+    p.add_argument("--policy", default="learned", metavar="learned|random",
+                   help="the run's final Q table (needs its checkpoints/) or the uniformly "
+                        "random policy (default learned)")
+    p.add_argument("--point", type=int, default=0,
+                   help="sweep point of the run (index, default 0)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the run (index, default 0)")
+    p.add_argument("--key", type=int, default=0, help="PRNG seed of the episodes' starts")
+    p.add_argument("--height", type=int, default=None, metavar="PX",
+                   help="frame height (default 128)")
+    p.add_argument("--max-steps", type=int, default=None, metavar="T",
+                   help="most primitives (frames) per episode (default 200)")
+    _add_debug(p, argparse.SUPPRESS)
     p = sub.add_parser("params", help="the parameter table of an experiment (Markdown)")
     p.add_argument("experiment", help="experiment name, or path/to/script.py")
     _add_debug(p, argparse.SUPPRESS)
@@ -232,6 +250,25 @@ def _cmd_report(args) -> int:
     return 0
 
 
+def _cmd_render(args) -> int:
+    """``vbl render``: bad input (not a finished run folder, a policy that cannot be
+    rebuilt, a bad extension or count) is one line and exit 2."""
+    from vbl.engine.config import EngineError
+    from vbl.params import validate
+    from vbl.programs.video import VideoParams, render_run
+
+    sets = {k: v for k, v in (("height", args.height), ("max_steps", args.max_steps))
+            if v is not None}
+    vp = validate(VideoParams().replace(**sets))  # a ParamError exits 2
+    try:
+        n, (h, w) = render_run(args.folder, args.out, args.episodes, args.policy, args.point,
+                               args.seed, args.key, vp)
+    except EngineError as e:
+        return _error(str(e), 2)
+    print(f"video: {args.out} ({n} frames, {w} x {h} px)")
+    return 0
+
+
 def _dispatch(args) -> int:
     if args.command == "list":
         return _cmd_list()
@@ -265,6 +302,8 @@ def _dispatch(args) -> int:
         return _cmd_bench(args)
     if args.command == "report":
         return _cmd_report(args)
+    if args.command == "render":
+        return _cmd_render(args)
     raise AssertionError(args.command)
 
 

@@ -1,0 +1,374 @@
+"""Episode videos of a run folder's policy: ``vbl render`` (docs/render.md, "Videos").
+
+A frame shows, side by side, the learner's camera image and the top view of the field
+(:func:`vbl.vision.render.render_world`) and a panel with the learner's discrete state (a
+cell in a grid of all states), its state vector (bars: the CVA state of Table 2, the
+Section 2 features of the grid learner) and the primitive in force (boxes, one per action,
+labelled); a caption names the episode, the time and the action.
+
+* **Policies.** ``learned``: the final Q table of one learner of the run (one sweep point,
+  one seed), restored from the run folder's last checkpoint (``checkpoints/``, which every
+  ``vbl run`` writes at the end of a run), on the learner's own state space (grid cells;
+  CVA models and codebooks). ``random``: the all-zero table with random tie-breaking in the
+  same action space (the ``random_success`` policy of the programs); it needs no
+  checkpoint (a CVA learner's models and codebooks are rebuilt from the run's config and
+  the learner's key, as its run built them).
+* **Rollout.** The learner's env under its macro-action wrapper
+  (:class:`vbl.envs.macro.MacroWrapper`, as the Q runner steps it), ``episodes`` fresh
+  starts in parallel (``vmap``), each a ``lax.scan`` of ``max_steps`` steps; a frame per
+  primitive of the first episode (steps after it ended are dropped). Actions are
+  epsilon-greedy on the table: the evaluation epsilon of the experiment (grid:
+  ``train.eval_epsilon``, near-greedy; Table 2: 0, greedy).
+* **Frames** are rendered in JAX, ``vmap`` over time steps in batches (``lax.map``); only
+  the caption text (Pillow) and the file writing (imageio: GIF, or MP4 through
+  imageio-ffmpeg) loop over frames.
+
+Which experiments render: :data:`RENDERABLE`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from vbl.agents.cva_state import make_cva_learner
+from vbl.agents.exploration import select_action
+from vbl.engine.checkpoint import Checkpoints
+from vbl.engine.config import EngineError
+from vbl.engine.report import load_run
+from vbl.engine.sweep import make_plan
+from vbl.envs.macro import MacroWrapper, macro_env_params
+from vbl.envs.shoot_pass import ShootPassEnv
+from vbl.envs.shooting import ShootingEnv
+from vbl.params import param, validate
+from vbl.spaces.grid import NUM_GOAL_STATES, grid_state
+from vbl.spaces.macro_action import stop_key
+from vbl.vision.render import RenderParams, render_world, to_uint8
+
+__all__ = ["VideoParams", "Policy", "RENDERABLE", "POLICIES", "EXTENSIONS", "load_policy",
+           "trajectories", "render_frames", "write_video", "render_run"]
+
+F32 = jnp.float32
+POLICIES = ("learned", "random")
+EXTENSIONS = (".gif", ".mp4")
+PAPER_WIDTH, PAPER_HEIGHT = 512, 480  #: the paper's camera image (its aspect ratio is kept)
+TOP_WIDTH, TOP_HEIGHT = 320, 192      #: the top view's aspect ratio (RenderParams defaults)
+
+PANEL_BG = (0.12, 0.12, 0.14)     #: info panel background
+CELL_RGB = (0.35, 0.35, 0.40)     #: state grid: a cell
+STATE_RGB = (1.0, 0.85, 0.1)      #: state grid: the current state's cell
+BAR_POS_RGB = (0.3, 0.75, 1.0)    #: a positive state component
+BAR_NEG_RGB = (1.0, 0.45, 0.3)    #: a negative state component
+ACTION_RGB = (0.3, 0.9, 0.4)      #: the primitive in force
+ACTION_OFF_RGB = (0.3, 0.3, 0.33)  #: the other primitives
+CAPTION_RGB = (255, 255, 255)     #: caption text
+
+
+@struct.dataclass
+class VideoParams:
+    """Size, length and speed of a ``vbl render`` video."""
+
+    height: int = param(128, doc="frame height; the camera image keeps the paper's 512 x 480 "
+                        "aspect and the top view its 320 x 192 one", unit="px", static=True,
+                        ge=32, le=960)
+    max_steps: int = param(200, doc="most primitives (frames) shown per episode", unit="step",
+                           static=True, ge=1)
+    fps: float = param(10.0, doc="frames per second of the file (10: real time, one "
+                       "0.1 s primitive per frame)", gt=0.0, le=100.0)
+    batch: int = param(32, doc="frames rendered per vmapped batch (memory: about 80 bytes "
+                       "per pixel of a batch)", static=True, ge=1)
+    panel_frac: float = param(0.6, doc="width of the info panel as a fraction of the frame "
+                              "height", gt=0.0, le=2.0)
+    caption: int = param(14, doc="height of the caption strip under the images", unit="px",
+                         static=True, ge=0)
+
+
+class Policy(NamedTuple):
+    """Everything a rollout and its frames need (built by :func:`load_policy`)."""
+
+    env: Any                 #: gymnax-style env (auto-reset) the learner acts in
+    env_params: Any
+    state_fn: Callable       #: obs -> int32 discrete state
+    vector_fn: Callable      #: obs -> (d,) float32 state vector shown as bars
+    macro: Any               #: MacroActionParams of the learner
+    discount: float
+    q: jax.Array             #: (S, A) float32 (zeros: the random policy)
+    epsilon: float
+    world: Any               #: WorldParams of the env
+    camera_fn: Callable      #: env_params -> CameraParams of the learner
+    me_fn: Callable          #: env_params -> () int32 the learner's robot index
+    labels: tuple[str, ...]  #: primitive names
+    grid_cols: int           #: columns of the state grid panel
+    title: str               #: what is shown (experiment, point, seed, policy)
+
+
+def _find_world(state: Any) -> Any:
+    """The ``WorldState`` inside nested wrapper states (``.inner`` chains)."""
+    while not hasattr(state, "world"):
+        state = state.inner
+    return state.world
+
+
+# ---------------------------------------------------------------------------- run folders
+
+def _grid_policy(cfg: Any, q, title: str) -> Policy:
+    env = ShootingEnv()
+    ep = cfg.env.replace(start_difficulty=float(cfg.train.eval_difficulty))
+    return Policy(env, ep, lambda o: grid_state(o, cfg.grid), lambda o: o,
+                  cfg.agent.macro, float(cfg.agent.discount), q,
+                  float(cfg.train.eval_epsilon), cfg.env.world, lambda p: p.camera,
+                  lambda p: jnp.int32(0), tuple(env.action_labels), NUM_GOAL_STATES, title)
+
+
+def _cva_policy(cfg: Any, q, fparams, title: str) -> Policy:
+    env = ShootPassEnv(cfg.task)
+    lrn = make_cva_learner(env, cfg.cva, cfg.q, m=2)
+    inner = fparams.inner.inner  # QuantizeParams -> HistoryParams -> ShootPassParams
+    cols = int(np.ceil(np.sqrt(lrn.num_states)))
+    return Policy(lrn.env, fparams, lambda o: o["index"], lambda o: o["state"],
+                  cfg.q.macro, float(cfg.q.discount), q, 0.0, inner.world,
+                  lambda p: env.learner_camera(p.inner.inner),
+                  lambda p: env.roles(p.inner.inner)[0], tuple(env.action_labels), cols,
+                  title)
+
+
+def _cva_prepared(cfg: Any, key) -> Any:
+    """The CVA learner's filtered-env params (models, codebooks) as its run built them
+    (``Program.init``'s first key)."""
+    lrn = make_cva_learner(ShootPassEnv(cfg.task), cfg.cva, cfg.q, m=2)
+    return jax.jit(lambda k: lrn.prepare(k, cfg.cva, cfg.env))(jax.random.split(key, 3)[0])
+
+
+#: experiment name -> kind of learner its program trains ("grid": make_q_program on the
+#: grid states; "cva": the Table 2 CVA program)
+RENDERABLE = {"grid_shooting": "grid", "table2_shoot_pass": "cva"}
+
+
+def _final_carry(folder: Path, spec: dict, plan, group, learner: int) -> Any:
+    """Learner ``learner`` of ``group``'s carry at the end of its run (the run's last
+    checkpoint of that group)."""
+    where = folder / "checkpoints"
+    step = group.step_offset + group.num_chunks
+    if not where.is_dir():
+        raise EngineError(f"{folder} keeps no checkpoints/ (the final Q tables): rerun it, or "
+                          f"render --policy random")
+    ck = Checkpoints(where, spec["fingerprint"])
+    try:
+        if step not in ck._mngr.all_steps():
+            raise EngineError(f"{folder}/checkpoints has no checkpoint of the end of the "
+                              f"run (step {step}); rerun it, or render --policy random")
+        n = group.num_learners
+        shape = jax.eval_shape(jax.vmap(group.program.init),
+                               jax.ShapeDtypeStruct((n, 2), np.uint32),
+                               jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype),
+                                            group.configs))
+        like = jax.tree.map(lambda s: np.zeros(s.shape, s.dtype), shape)
+        carry, _ = ck.restore(step, like)
+    finally:
+        ck.close()
+    return jax.tree.map(lambda x: jnp.asarray(x[learner]), carry)
+
+
+def load_policy(folder: str | Path, policy: str = "learned", point: int = 0,
+                seed: int = 0) -> Policy:
+    """The ``policy`` ("learned" or "random") of sweep point ``point``, seed ``seed`` of the
+    finished run folder ``folder``; EngineError (one line) when it cannot be built."""
+    if policy not in POLICIES:
+        raise EngineError(f"--policy must be one of {list(POLICIES)}, got {policy!r}")
+    folder = Path(folder)
+    exp, res, spec = load_run(folder)
+    kind = RENDERABLE.get(exp.name)
+    if kind is None:
+        raise EngineError(f"{folder} is a run of {exp.name}, whose policy vbl render cannot "
+                          f"rebuild (renderable: {', '.join(sorted(RENDERABLE))})")
+    plan = make_plan(exp, res.config, spec.get("sweep", {}), int(spec.get("seeds", 1)),
+                     int(spec.get("base_seed", 0)))
+    if not 0 <= point < len(plan.points):
+        raise EngineError(f"--point must be in [0, {len(plan.points) - 1}] (the run's sweep "
+                          f"points), got {point}")
+    if not 0 <= seed < plan.seeds:
+        raise EngineError(f"--seed must be in [0, {plan.seeds - 1}] (the run's seeds), "
+                          f"got {seed}")
+    group = next(g for g in plan.groups if point in g.point_ids)
+    cfg = group.point_configs[group.point_ids.index(point)]
+    values = ", ".join(f"{k}={v}" for k, v in plan.points[point].items())
+    title = f"{exp.name}{' ' + values if values else ''}, seed {seed}, {policy}"
+    if policy == "learned":
+        carry = _final_carry(folder, spec, plan, group,
+                             group.point_ids.index(point) * plan.seeds + seed)
+    if kind == "grid":
+        q = carry.q if policy == "learned" else jnp.zeros((cfg.agent.num_states,
+                                                           cfg.agent.num_actions), F32)
+        return _grid_policy(cfg, q, title)
+    if policy == "learned":
+        return _cva_policy(cfg, carry.runner.q, carry.fparams, title)
+    fp = _cva_prepared(cfg, jnp.asarray(plan.init_keys[seed]))
+    s = make_cva_learner(ShootPassEnv(cfg.task), cfg.cva, cfg.q, m=2).num_states
+    return _cva_policy(cfg, jnp.zeros((s, cfg.q.num_actions), F32), fp, title)
+
+
+# ---------------------------------------------------------------------------- rollout
+
+def trajectories(pol: Policy, key: jax.Array, episodes: int, max_steps: int) -> dict:
+    """``episodes`` fresh starts (vmap), ``max_steps`` primitives each (``lax.scan``) under
+    the learner's macro-action wrapper. Returns per episode and step (leading axes
+    ``(episodes, max_steps)``): ``robots``, ``ball`` (the world before the step),
+    ``index`` (discrete state), ``vector`` (state vector), ``action`` (primitive in force),
+    ``alive`` (the step belongs to the first episode), ``done`` (the episode ended at this
+    step), ``success`` (it scored at this step),
+    ``camera`` and ``me`` (the learner's camera and robot)."""
+    wrapper = MacroWrapper(pol.env, pol.state_fn, pol.macro, stop_key(pol.macro.stop_on))
+    wp = macro_env_params(pol.env_params, pol.macro, pol.discount)
+
+    def one(k):
+        k0, k1 = jax.random.split(k)
+        obs, st = wrapper.reset(k0, wp)
+
+        def body(carry, kt):
+            st, obs, alive = carry
+            ka, ks = jax.random.split(kt)
+            a = select_action(ka, pol.q[st.index], pol.epsilon, "epsilon_greedy")
+            obs2, st2, _, term, trunc, info = wrapper.step(ks, st, a, wp)
+            world = _find_world(st.inner)
+            rec = dict(robots=world.robots, ball=world.ball, index=st.index,
+                       vector=jnp.asarray(pol.vector_fn(obs), F32).reshape(-1),
+                       action=info["macro"]["action"], alive=alive,
+                       done=alive & (term | trunc),
+                       success=alive & jnp.asarray(info["success"], bool))
+            return (st2, obs2, alive & ~(term | trunc)), rec
+
+        _, recs = jax.lax.scan(body, (st, obs, jnp.ones((), bool)),
+                               jax.random.split(k1, max_steps))
+        return recs
+
+    out = jax.jit(jax.vmap(one))(jax.random.split(key, episodes))
+    out["camera"] = pol.camera_fn(pol.env_params)
+    out["me"] = pol.me_fn(pol.env_params)
+    return out
+
+
+# ---------------------------------------------------------------------------- frames
+
+def _sizes(vp: VideoParams) -> tuple[int, int, int]:
+    """(camera width, top width, panel width) at frame height ``vp.height``."""
+    h = vp.height
+    return (round(h * PAPER_WIDTH / PAPER_HEIGHT), round(h * TOP_WIDTH / TOP_HEIGHT),
+            max(8, round(h * vp.panel_frac)))
+
+
+def _panel(index, vector, scale, action, num_states: int, cols: int, num_actions: int,
+           h: int, w: int) -> jax.Array:
+    """(h, w, 3) info panel: the state grid (top half), the state vector's bars (each
+    component divided by ``scale``, its largest magnitude in the video), the action boxes
+    (bottom strip)."""
+    rows = -(-num_states // cols)
+    y = (jnp.arange(h, dtype=F32)[:, None] + 0.5) / h
+    x = (jnp.arange(w, dtype=F32)[None, :] + 0.5) / w
+    img = jnp.broadcast_to(jnp.asarray(PANEL_BG, F32), (h, w, 3))
+    # state grid in the top half: cell (r, c) of state r * cols + c
+    gy = y / 0.5
+    r, c = jnp.floor(gy * rows), jnp.floor(x * cols)
+    in_grid = (gy < 1.0) & (r * cols + c < num_states)
+    here = in_grid & (r == index // cols) & (c == index % cols)
+    img = jnp.where(in_grid[..., None], jnp.asarray(CELL_RGB, F32), img)
+    # the current cell is drawn at least 3 px wide and tall so that it shows in any grid
+    near = (jnp.abs(r - index // cols) * (h * 0.5 / rows) < 1.5) & (
+        jnp.abs(c - index % cols) * (w / cols) < 1.5) & in_grid
+    img = jnp.where((here | near)[..., None], jnp.asarray(STATE_RGB, F32), img)
+    # bars between 0.55 and 0.85 of the height, zero line at 0.7
+    d = vector.shape[0]
+    v = jnp.clip(vector / jnp.maximum(scale, 1e-9), -1.0, 1.0)
+    k = jnp.clip(jnp.floor(x * d).astype(jnp.int32), 0, d - 1)
+    vk = v[k]
+    top = 0.7 - 0.15 * jnp.maximum(vk, 0.0)
+    bottom = 0.7 - 0.15 * jnp.minimum(vk, 0.0)
+    bar = (y >= top) & (y <= bottom) & ((x * d - k) < 0.8)
+    img = jnp.where((bar & (vk >= 0))[..., None], jnp.asarray(BAR_POS_RGB, F32), img)
+    img = jnp.where((bar & (vk < 0))[..., None], jnp.asarray(BAR_NEG_RGB, F32), img)
+    # action boxes between 0.9 and 1.0 of the height
+    ka = jnp.floor(x * num_actions).astype(jnp.int32)
+    box = (y >= 0.9) & ((x * num_actions - ka) < 0.85)
+    on = jnp.where((ka == action)[..., None], jnp.asarray(ACTION_RGB, F32),
+                   jnp.asarray(ACTION_OFF_RGB, F32))
+    return jnp.where(box[..., None], on, img)
+
+
+def render_frames(pol: Policy, traj: dict, vp: VideoParams) -> np.ndarray:
+    """(frames, H, W, 3) uint8: the alive steps of every episode, in order (episode 0's
+    first), each camera | top view | panel (without the caption)."""
+    vp = validate(vp)
+    cam_w, top_w, panel_w = _sizes(vp)
+    rp = RenderParams(width=cam_w, height=vp.height, top_width=top_w, top_height=vp.height)
+    alive = np.asarray(traj["alive"])
+    sel = np.nonzero(alive.reshape(-1))[0]
+    flat = {k: jnp.asarray(np.asarray(traj[k]).reshape((-1,) + np.shape(traj[k])[2:])[sel])
+            for k in ("robots", "ball", "index", "vector", "action")}
+    scale = jnp.max(jnp.abs(flat["vector"]), axis=0)
+    num_states, num_actions = pol.q.shape
+    cam, me = traj["camera"], traj["me"]
+
+    def frame(x):
+        img, top = render_world(x["robots"], x["ball"], pol.world, cam, rp, me=me)
+        panel = _panel(x["index"], x["vector"], scale, x["action"], num_states,
+                       pol.grid_cols, num_actions, vp.height, panel_w)
+        return to_uint8(jnp.concatenate([img, top, panel], axis=1))
+
+    return np.asarray(jax.jit(lambda xs: jax.lax.map(frame, xs, batch_size=vp.batch))(flat))
+
+
+def _captions(pol: Policy, traj: dict, dt: float) -> list[str]:
+    alive, action = np.asarray(traj["alive"]), np.asarray(traj["action"])
+    index, success = np.asarray(traj["index"]), np.asarray(traj["success"])
+    done = np.asarray(traj["done"])
+    out = []
+    for e in range(alive.shape[0]):
+        n = int(alive[e].sum())
+        for t in range(n):
+            end = " GOAL" if success[e, t] else " end" if done[e, t] else ""
+            out.append(f"episode {e + 1}  {t * dt:4.1f} s  state {int(index[e, t])}  "
+                       f"action {pol.labels[int(action[e, t])]}{end}")
+    return out
+
+
+def write_video(frames: np.ndarray, captions: list[str], out: Path, vp: VideoParams) -> None:
+    """Write ``frames`` with a caption strip each to ``out`` (.gif or .mp4, imageio)."""
+    import imageio.v2 as imageio
+    from PIL import Image, ImageDraw
+
+    kw = dict(fps=float(vp.fps)) if out.suffix == ".mp4" else dict(
+        duration=1.0 / float(vp.fps), loop=0)
+    if out.suffix == ".mp4":
+        kw.update(macro_block_size=1)
+    with imageio.get_writer(out, **kw) as w:
+        for f, text in zip(frames, captions, strict=True):
+            strip = Image.new("RGB", (f.shape[1], vp.caption), (0, 0, 0))
+            if vp.caption:
+                ImageDraw.Draw(strip).text((2, 1), text, fill=CAPTION_RGB)
+            w.append_data(np.concatenate([f, np.asarray(strip)], axis=0))
+
+
+def render_run(folder: str | Path, out: str | Path, episodes: int, policy: str = "learned",
+               point: int = 0, seed: int = 0, key: int = 0,
+               vp: VideoParams | None = None) -> tuple[int, tuple[int, int]]:
+    """``vbl render``: write ``episodes`` episodes of a run folder's policy to ``out``.
+    Returns (frames, (height, width)). EngineError (one line) for bad input."""
+    vp = validate(VideoParams() if vp is None else vp)
+    out = Path(out)
+    if out.suffix.lower() not in EXTENSIONS:
+        raise EngineError(f"--out must end in {' or '.join(EXTENSIONS)}, got {out.name!r}")
+    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
+        raise EngineError(f"--episodes must be an int >= 1, got {episodes!r}")
+    if not out.parent.is_dir():
+        raise EngineError(f"cannot write {out}: no folder {out.parent}")
+    pol = load_policy(folder, policy, point, seed)
+    traj = trajectories(pol, jax.random.PRNGKey(key), episodes, vp.max_steps)
+    frames = render_frames(pol, traj, vp)
+    dt = float(pol.world.action_dt)
+    write_video(frames, _captions(pol, traj, dt), out, vp)
+    return frames.shape[0], (frames.shape[1] + vp.caption, frames.shape[2])
