@@ -261,11 +261,11 @@ def _cmd_render(args) -> int:
             if v is not None}
     vp = validate(VideoParams().replace(**sets))  # a ParamError exits 2
     try:
-        n, (h, w) = render_run(args.folder, args.out, args.episodes, args.policy, args.point,
-                               args.seed, args.key, vp)
+        v = render_run(args.folder, args.out, args.episodes, args.policy, args.point,
+                       args.seed, args.key, vp)
     except EngineError as e:
         return _error(str(e), 2)
-    print(f"video: {args.out} ({n} frames, {w} x {h} px)")
+    print(f"video: {args.out} ({v.frames} frames, {v.width} x {v.height} px)")
     return 0
 
 

@@ -41,6 +41,7 @@ from vbl.agents.cva_state import make_cva_learner
 from vbl.agents.exploration import select_action
 from vbl.engine.checkpoint import Checkpoints
 from vbl.engine.config import EngineError
+from vbl.engine.jax_setup import engine_precision
 from vbl.engine.report import load_run
 from vbl.engine.sweep import make_plan
 from vbl.envs.macro import MacroWrapper, macro_env_params
@@ -52,7 +53,7 @@ from vbl.spaces.macro_action import stop_key
 from vbl.vision.render import RenderParams, render_world, to_uint8
 
 __all__ = ["VideoParams", "Policy", "RENDERABLE", "POLICIES", "EXTENSIONS", "load_policy",
-           "trajectories", "render_frames", "write_video", "render_run"]
+           "trajectories", "render_frames", "write_video", "render_run", "Video"]
 
 F32 = jnp.float32
 POLICIES = ("learned", "random")
@@ -85,8 +86,9 @@ class VideoParams:
                        "per pixel of a batch)", static=True, ge=1)
     panel_frac: float = param(0.6, doc="width of the info panel as a fraction of the frame "
                               "height", gt=0.0, le=2.0)
-    caption: int = param(14, doc="height of the caption strip under the images", unit="px",
-                         static=True, ge=0)
+    caption: int = param(14, doc="height of the caption strip under the images (episode, "
+                         "time, state, action: no two frames are alike, so a GIF keeps every "
+                         "frame)", unit="px", static=True, ge=10, le=40)
 
 
 class Policy(NamedTuple):
@@ -226,14 +228,14 @@ def trajectories(pol: Policy, key: jax.Array, episodes: int, max_steps: int) -> 
     wrapper = MacroWrapper(pol.env, pol.state_fn, pol.macro, stop_key(pol.macro.stop_on))
     wp = macro_env_params(pol.env_params, pol.macro, pol.discount)
 
-    def one(k):
+    def one(k, wp, q):
         k0, k1 = jax.random.split(k)
         obs, st = wrapper.reset(k0, wp)
 
         def body(carry, kt):
             st, obs, alive = carry
             ka, ks = jax.random.split(kt)
-            a = select_action(ka, pol.q[st.index], pol.epsilon, "epsilon_greedy")
+            a = select_action(ka, q[st.index], pol.epsilon, "epsilon_greedy")
             obs2, st2, _, term, trunc, info = wrapper.step(ks, st, a, wp)
             world = _find_world(st.inner)
             rec = dict(robots=world.robots, ball=world.ball, index=st.index,
@@ -247,7 +249,9 @@ def trajectories(pol: Policy, key: jax.Array, episodes: int, max_steps: int) -> 
                                jax.random.split(k1, max_steps))
         return recs
 
-    out = jax.jit(jax.vmap(one))(jax.random.split(key, episodes))
+    # the params are arguments (traced, as in the engine's programs), not constants
+    out = jax.jit(jax.vmap(one, in_axes=(0, None, None)))(jax.random.split(key, episodes),
+                                                          wp, pol.q)
     out["camera"] = pol.camera_fn(pol.env_params)
     out["me"] = pol.me_fn(pol.env_params)
     return out
@@ -330,7 +334,7 @@ def _captions(pol: Policy, traj: dict, dt: float) -> list[str]:
     for e in range(alive.shape[0]):
         n = int(alive[e].sum())
         for t in range(n):
-            end = " GOAL" if success[e, t] else " end" if done[e, t] else ""
+            end = "  GOAL" if success[e, t] else "  (ends)" if done[e, t] else ""
             out.append(f"episode {e + 1}  {t * dt:4.1f} s  state {int(index[e, t])}  "
                        f"action {pol.labels[int(action[e, t])]}{end}")
     return out
@@ -348,16 +352,25 @@ def write_video(frames: np.ndarray, captions: list[str], out: Path, vp: VideoPar
     with imageio.get_writer(out, **kw) as w:
         for f, text in zip(frames, captions, strict=True):
             strip = Image.new("RGB", (f.shape[1], vp.caption), (0, 0, 0))
-            if vp.caption:
-                ImageDraw.Draw(strip).text((2, 1), text, fill=CAPTION_RGB)
+            ImageDraw.Draw(strip).text((2, 1), text, fill=CAPTION_RGB)
             w.append_data(np.concatenate([f, np.asarray(strip)], axis=0))
+
+
+class Video(NamedTuple):
+    """What :func:`render_run` wrote: ``frames`` (count), ``height`` x ``width`` px, and the
+    rollout (:func:`trajectories`) the frames show."""
+
+    frames: int
+    height: int
+    width: int
+    traj: dict
 
 
 def render_run(folder: str | Path, out: str | Path, episodes: int, policy: str = "learned",
                point: int = 0, seed: int = 0, key: int = 0,
-               vp: VideoParams | None = None) -> tuple[int, tuple[int, int]]:
-    """``vbl render``: write ``episodes`` episodes of a run folder's policy to ``out``.
-    Returns (frames, (height, width)). EngineError (one line) for bad input."""
+               vp: VideoParams | None = None) -> Video:
+    """``vbl render``: write ``episodes`` episodes of a run folder's policy to ``out``, in the
+    engine's precision (the run's own numerics). EngineError (one line) for bad input."""
     vp = validate(VideoParams() if vp is None else vp)
     out = Path(out)
     if out.suffix.lower() not in EXTENSIONS:
@@ -366,9 +379,9 @@ def render_run(folder: str | Path, out: str | Path, episodes: int, policy: str =
         raise EngineError(f"--episodes must be an int >= 1, got {episodes!r}")
     if not out.parent.is_dir():
         raise EngineError(f"cannot write {out}: no folder {out.parent}")
-    pol = load_policy(folder, policy, point, seed)
-    traj = trajectories(pol, jax.random.PRNGKey(key), episodes, vp.max_steps)
-    frames = render_frames(pol, traj, vp)
-    dt = float(pol.world.action_dt)
-    write_video(frames, _captions(pol, traj, dt), out, vp)
-    return frames.shape[0], (frames.shape[1] + vp.caption, frames.shape[2])
+    with engine_precision():
+        pol = load_policy(folder, policy, point, seed)
+        traj = trajectories(pol, jax.random.PRNGKey(key), episodes, vp.max_steps)
+        frames = render_frames(pol, traj, vp)
+    write_video(frames, _captions(pol, traj, float(pol.world.action_dt)), out, vp)
+    return Video(frames.shape[0], frames.shape[1] + vp.caption, frames.shape[2], traj)
