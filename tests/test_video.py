@@ -84,6 +84,20 @@ def test_learned_gif_frames_size_and_actions(grid_run, tmp_path):
     assert frames.shape[:3] == (v.frames, VP.height + VP.caption, cam_w + top_w + panel_w)
     assert (v.height, v.width) == frames.shape[1:3]
     assert np.abs(np.diff(frames[..., :3].astype(int), axis=0)).max(axis=(1, 2, 3)).min() > 0
+    from PIL import Image
+
+    with Image.open(out) as im:  # real time: 1 / fps s per frame
+        im.seek(1)
+        assert im.info["duration"] == pytest.approx(1000 / VP.fps)
+
+
+def test_mp4(grid_run, tmp_path):
+    out = tmp_path / "v.mp4"
+    v = render_run(grid_run, out, 1, "learned", point=1, vp=VP)
+    r = imageio.get_reader(out)
+    assert r.count_frames() == v.frames
+    assert tuple(r.get_meta_data()["size"]) == (v.width, v.height)
+    assert v.width % 2 == 0 and v.height % 2 == 0
 
 
 def test_random_policy_needs_no_checkpoint(tmp_path):

@@ -28,6 +28,7 @@ Which experiments render: :data:`RENDERABLE`.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -69,6 +70,7 @@ BAR_NEG_RGB = (1.0, 0.45, 0.3)    #: a negative state component
 ACTION_RGB = (0.3, 0.9, 0.4)      #: the primitive in force
 ACTION_OFF_RGB = (0.3, 0.3, 0.33)  #: the other primitives
 CAPTION_RGB = (255, 255, 255)     #: caption text
+MP4_BLOCK = 2  #: an MP4's width and height are padded to a multiple of this (H.264, yuv420p)
 
 
 @struct.dataclass
@@ -341,19 +343,27 @@ def _captions(pol: Policy, traj: dict, dt: float) -> list[str]:
 
 
 def write_video(frames: np.ndarray, captions: list[str], out: Path, vp: VideoParams) -> None:
-    """Write ``frames`` with a caption strip each to ``out`` (.gif or .mp4, imageio)."""
+    """Write ``frames`` with a caption strip each to ``out`` (.gif or .mp4, imageio; an MP4's
+    sizes are padded to even with black)."""
     import imageio.v2 as imageio
     from PIL import Image, ImageDraw
 
-    kw = dict(fps=float(vp.fps)) if out.suffix == ".mp4" else dict(
-        duration=1.0 / float(vp.fps), loop=0)
-    if out.suffix == ".mp4":
-        kw.update(macro_block_size=1)
-    with imageio.get_writer(out, **kw) as w:
+    kw = dict(fps=float(vp.fps)) if out.suffix.lower() == ".mp4" else dict(
+        duration=1000.0 / float(vp.fps), loop=0)  # GIF (Pillow): ms per frame
+    even = out.suffix.lower() == ".mp4"  # H.264 in yuv420p needs even sizes: pad with black
+    if even:
+        kw.update(macro_block_size=MP4_BLOCK)
+    with warnings.catch_warnings(), imageio.get_writer(out, **kw) as w:
+        # imageio-ffmpeg starts ffmpeg with fork + exec at once, which is safe
+        warnings.filterwarnings("ignore", "os.fork", RuntimeWarning)
         for f, text in zip(frames, captions, strict=True):
             strip = Image.new("RGB", (f.shape[1], vp.caption), (0, 0, 0))
             ImageDraw.Draw(strip).text((2, 1), text, fill=CAPTION_RGB)
-            w.append_data(np.concatenate([f, np.asarray(strip)], axis=0))
+            img = np.concatenate([f, np.asarray(strip)], axis=0)
+            if even:
+                img = np.pad(img, ((0, -img.shape[0] % MP4_BLOCK),
+                                   (0, -img.shape[1] % MP4_BLOCK), (0, 0)))
+            w.append_data(img)
 
 
 class Video(NamedTuple):
@@ -384,4 +394,7 @@ def render_run(folder: str | Path, out: str | Path, episodes: int, policy: str =
         traj = trajectories(pol, jax.random.PRNGKey(key), episodes, vp.max_steps)
         frames = render_frames(pol, traj, vp)
     write_video(frames, _captions(pol, traj, float(pol.world.action_dt)), out, vp)
-    return Video(frames.shape[0], frames.shape[1] + vp.caption, frames.shape[2], traj)
+    h, w = frames.shape[1] + vp.caption, frames.shape[2]
+    if out.suffix.lower() == ".mp4":
+        h, w = h + -h % MP4_BLOCK, w + -w % MP4_BLOCK
+    return Video(frames.shape[0], h, w, traj)
