@@ -91,6 +91,7 @@ def test_learned_gif_frames_size_and_actions(grid_run, tmp_path):
         assert im.info["duration"] == pytest.approx(1000 / VP.fps)
 
 
+@pytest.mark.filterwarnings("ignore:os.fork:RuntimeWarning")  # the reader starts ffmpeg
 def test_mp4(grid_run, tmp_path):
     out = tmp_path / "v.mp4"
     v = render_run(grid_run, out, 1, "learned", point=1, vp=VP)
@@ -159,10 +160,11 @@ def test_bad_input_is_one_line_exit_2(case, grid_run, tmp_path, capsys):
     assert want in line, line
 
 
-def test_committed_run_without_checkpoints_says_so():
+def test_committed_run_without_checkpoints_says_so(tmp_path):
     """The committed run folders keep results, not checkpoints: one line, exit 2."""
     folder = REPO / "docs" / "results" / "reproduce" / "grid_shooting"
     r = subprocess.run([sys.executable, "-m", "vbl.cli", "render", str(folder), "--out",
-                        "x.gif"], cwd=REPO, capture_output=True, text=True, timeout=300)
+                        str(tmp_path / "x.gif")], cwd=REPO, capture_output=True, text=True,
+                       timeout=300)
     line = one_error_line(r.stderr)
     assert r.returncode == 2 and "--policy random" in line, line

@@ -265,7 +265,7 @@ def _cmd_render(args) -> int:
                        args.seed, args.key, vp)
     except EngineError as e:
         return _error(str(e), 2)
-    print(f"video: {args.out} ({v.frames} frames, {v.width} x {v.height} px)")
+    print(f"video: {args.out} ({v.frames} frames, {v.width} x {v.height} px; {v.title})")
     return 0
 
 

@@ -142,11 +142,13 @@ def _cva_policy(cfg: Any, q, fparams, title: str) -> Policy:
                   title)
 
 
-def _cva_prepared(cfg: Any, key) -> Any:
-    """The CVA learner's filtered-env params (models, codebooks) as its run built them
-    (``Program.init``'s first key)."""
+def _cva_prepared(cfg: Any, traced: Any, key) -> Any:
+    """The CVA learner's filtered-env params (models, codebooks) as its run built them:
+    ``Program.init``'s first key, the learner's traced config ``traced`` (the engine's
+    per-learner config arrays)."""
     lrn = make_cva_learner(ShootPassEnv(cfg.task), cfg.cva, cfg.q, m=2)
-    return jax.jit(lambda k: lrn.prepare(k, cfg.cva, cfg.env))(jax.random.split(key, 3)[0])
+    return jax.jit(lambda k, c: lrn.prepare(k, c.cva, c.env))(jax.random.split(key, 3)[0],
+                                                               traced)
 
 
 #: experiment name -> kind of learner its program trains ("grid": make_q_program on the
@@ -154,7 +156,7 @@ def _cva_prepared(cfg: Any, key) -> Any:
 RENDERABLE = {"grid_shooting": "grid", "table2_shoot_pass": "cva"}
 
 
-def _final_carry(folder: Path, spec: dict, plan, group, learner: int) -> Any:
+def _final_carry(folder: Path, spec: dict, group, learner: int) -> Any:
     """Learner ``learner`` of ``group``'s carry at the end of its run (the run's last
     checkpoint of that group)."""
     where = folder / "checkpoints"
@@ -202,17 +204,18 @@ def load_policy(folder: str | Path, policy: str = "learned", point: int = 0,
     group = next(g for g in plan.groups if point in g.point_ids)
     cfg = group.point_configs[group.point_ids.index(point)]
     values = ", ".join(f"{k}={v}" for k, v in plan.points[point].items())
-    title = f"{exp.name}{' ' + values if values else ''}, seed {seed}, {policy}"
+    title = f"{exp.name}{' ' + values if values else ''}, seed {seed}, {policy} policy"
+    j = group.point_ids.index(point) * plan.seeds + seed  # the learner in the group
     if policy == "learned":
-        carry = _final_carry(folder, spec, plan, group,
-                             group.point_ids.index(point) * plan.seeds + seed)
+        carry = _final_carry(folder, spec, group, j)
     if kind == "grid":
         q = carry.q if policy == "learned" else jnp.zeros((cfg.agent.num_states,
                                                            cfg.agent.num_actions), F32)
         return _grid_policy(cfg, q, title)
     if policy == "learned":
         return _cva_policy(cfg, carry.runner.q, carry.fparams, title)
-    fp = _cva_prepared(cfg, jnp.asarray(plan.init_keys[seed]))
+    traced = jax.tree.map(lambda x: jnp.asarray(x[j]), group.configs)
+    fp = _cva_prepared(cfg, traced, jnp.asarray(plan.init_keys[seed]))
     s = make_cva_learner(ShootPassEnv(cfg.task), cfg.cva, cfg.q, m=2).num_states
     return _cva_policy(cfg, jnp.zeros((s, cfg.q.num_actions), F32), fp, title)
 
@@ -367,13 +370,14 @@ def write_video(frames: np.ndarray, captions: list[str], out: Path, vp: VideoPar
 
 
 class Video(NamedTuple):
-    """What :func:`render_run` wrote: ``frames`` (count), ``height`` x ``width`` px, and the
-    rollout (:func:`trajectories`) the frames show."""
+    """What :func:`render_run` wrote: ``frames`` (count), ``height`` x ``width`` px, the
+    rollout (:func:`trajectories`) the frames show and what they show (``title``)."""
 
     frames: int
     height: int
     width: int
     traj: dict
+    title: str  #: experiment, sweep point, seed, policy
 
 
 def render_run(folder: str | Path, out: str | Path, episodes: int, policy: str = "learned",
@@ -397,4 +401,4 @@ def render_run(folder: str | Path, out: str | Path, episodes: int, policy: str =
     h, w = frames.shape[1] + vp.caption, frames.shape[2]
     if out.suffix.lower() == ".mp4":
         h, w = h + -h % MP4_BLOCK, w + -w % MP4_BLOCK
-    return Video(frames.shape[0], h, w, traj)
+    return Video(frames.shape[0], h, w, traj, pol.title)
