@@ -168,3 +168,24 @@ def test_committed_run_without_checkpoints_says_so(tmp_path):
                        timeout=300)
     line = one_error_line(r.stderr)
     assert r.returncode == 2 and "--policy random" in line, line
+
+
+@pytest.mark.slow
+def test_table2_random_policy_films_the_learner(tmp_path):
+    """Table 2 (pass task, CVA state): the CVA models and codebooks are rebuilt from the
+    run's config; the learner is the passer (robot 1), its state indices are codebook
+    cells and its state vector is the one the quantiser sees."""
+    folder = tmp_path / "t2"
+    _, config, _ = _fake_run(folder, "table2_shoot_pass", {"cva.collect_steps": 1500})
+    vp = VideoParams(height=48, max_steps=30)
+    v = render_run(folder, tmp_path / "t.gif", 1, "random", point=3, vp=vp)
+    assert len(imageio.mimread(tmp_path / "t.gif")) == v.frames >= 1
+    assert int(v.traj["me"]) == 1
+    alive = np.asarray(v.traj["alive"])
+    idx = np.asarray(v.traj["index"])[alive]
+    assert np.all((idx >= 0) & (idx < np.prod(config.cva.quantizer.group_codes)))
+    from vbl.agents.cva_state import state_dim
+    from vbl.envs.shoot_pass import ShootPassEnv
+
+    d = state_dim(ShootPassEnv(config.task), config.cva)  # what the quantiser sees
+    assert np.asarray(v.traj["vector"]).shape[-1] == d
