@@ -1,4 +1,5 @@
-"""The ``vbl`` command: list, run, reproduce, report, bench, params (see docs/engine.md)."""
+"""The ``vbl`` command: list, run, reproduce, report, bench, params (see docs/engine.md),
+render (docs/render.md)."""
 
 from __future__ import annotations
 

@@ -164,11 +164,11 @@ def _final_carry(folder: Path, spec: dict, group, learner: int) -> Any:
     if not where.is_dir():
         raise EngineError(f"{folder} keeps no checkpoints/ (the final Q tables): rerun it, or "
                           f"render --policy random")
+    if not (where / str(step)).is_dir():  # orbax names a step's folder by the step
+        raise EngineError(f"{folder}/checkpoints has no checkpoint of the end of the run "
+                          f"(step {step}); rerun it, or render --policy random")
     ck = Checkpoints(where, spec["fingerprint"])
     try:
-        if step not in ck._mngr.all_steps():
-            raise EngineError(f"{folder}/checkpoints has no checkpoint of the end of the "
-                              f"run (step {step}); rerun it, or render --policy random")
         n = group.num_learners
         shape = jax.eval_shape(jax.vmap(group.program.init),
                                jax.ShapeDtypeStruct((n, 2), np.uint32),
