@@ -35,7 +35,6 @@ PENDING = {
     "vbl/envs/shoot_pass.py",
     "vbl/programs/cva_program.py",
     "vbl/programs/q_program.py",
-    "vbl/params.py",
 }
 PENDING_DIRS = ("vbl/vision/", "vbl/world/")
 
