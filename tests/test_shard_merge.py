@@ -251,3 +251,20 @@ def test_coordinator_auto_detects_slurm(runs, tmp_path):
     assert [p.returncode for p in procs] == [0, 0], errs
     assert json.loads((tmp_path / "mp" / "summary.json").read_text())["processes"] == 2
     assert rows(tmp_path / "mp") == rows(tmp / "whole")
+
+
+def test_shards_partition_the_learners():
+    """For every L and N <= L: the parts cover 0..L-1 once, in order, sizes differing by at
+    most one; within a group, the members are the group's learners in the part."""
+    from vbl.engine.sweep import Shard, _members
+
+    for total in range(1, 40):
+        for n in range(1, total + 1):
+            ranges = [Shard(i, n).learner_range(total) for i in range(1, n + 1)]
+            assert [x for lo, hi in ranges for x in range(lo, hi)] == list(range(total))
+            sizes = {hi - lo for lo, hi in ranges}
+            assert max(sizes) - min(sizes) <= 1 and min(sizes) >= 1
+    seeds, ids = 3, [0, 2, 3]  # a group of points 0, 2, 3 (point 1 is another group's)
+    got = _members(ids, seeds, 4, 10)  # learners 4..9: point 1 seeds 1-2, 2 all, 3 seed 0
+    assert got == [(2, 0, 3), (3, 0, 1)]
+    assert _members(ids, seeds, 3, 6) == []

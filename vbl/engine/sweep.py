@@ -74,6 +74,12 @@ class Shard:
     index: int
     count: int
 
+    def __post_init__(self) -> None:
+        ok = all(isinstance(v, int) and not isinstance(v, bool) for v in (self.index, self.count))
+        if not ok or not 1 <= self.index <= self.count:
+            raise ParamError(f"--shard {self.index}/{self.count}: the part I of I/N must be in "
+                             f"1..N")
+
     def __str__(self) -> str:
         return f"{self.index}/{self.count}"
 
@@ -86,13 +92,10 @@ class Shard:
 
 def parse_shard(text: Any) -> Shard:
     """``"i/N"`` (1 <= i <= N) -> :class:`Shard`; ParamError otherwise."""
-    parts = str(text).split("/")
     try:
-        i, n = (int(x) for x in parts)
+        i, n = (int(x) for x in str(text).split("/"))
     except ValueError:
         raise ParamError(f"--shard takes I/N (part I of N, 1 <= I <= N), got {text!r}") from None
-    if not 1 <= i <= n:
-        raise ParamError(f"--shard {text}: the part I of I/N must be in 1..N")
     return Shard(i, n)
 
 
@@ -101,7 +104,8 @@ class Group:
     """Points sharing static values: one program, one compilation.
 
     :attr:`point_configs` holds one validated config per point and :attr:`configs` stacks
-    their traced leaves (``[points * seeds, ...]`` NumPy arrays); both are built on first
+    their traced leaves for the learners that run (``[num_learners, ...]`` NumPy arrays,
+    point-major as :attr:`members`); both are built on first
     use, so that a plan can be checked (memory, from :attr:`first_config`) before a large
     sweep is validated point by point or anything large is allocated. ``point_ids``
     indexes ``points``, the plan's points. ``members`` lists the group's learners that
