@@ -183,7 +183,8 @@ def _run(experiment, args) -> int:
                                              args.preset)
         if shard is not None and shard.count <= points * seeds:
             lo, hi = shard.learner_range(points * seeds)
-            text += (f"\n  shard {shard}: learners {lo}-{hi - 1} of 0-{points * seeds - 1} "
+            part = f"learner {lo}" if hi - lo == 1 else f"learners {lo}-{hi - 1}"
+            text += (f"\n  shard {shard}: {part} of 0-{points * seeds - 1} "
                      f"(learner = point x {seeds} + seed)")
         print(text, flush=True)
     t0 = time.perf_counter()
@@ -196,7 +197,8 @@ def _run(experiment, args) -> int:
                             memory_check=not args.no_memory_check, preset=args.preset,
                             shard=shard)
     if primary and shard is not None:
-        print(f"{experiment.name}: shard {shard} ({result.summary['learners']} learners) done "
+        n = result.summary["learners"]
+        print(f"{experiment.name}: shard {shard} ({n} learner{'s' * (n != 1)}) done "
               f"in {time.perf_counter() - t0:.1f} s, in {result.out_dir}; when all "
               f"{shard.count} are done: vbl merge SHARD_DIR... --out DIR")
     elif primary:
