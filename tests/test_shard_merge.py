@@ -90,6 +90,14 @@ def test_merged_shards_equal_the_whole_run(runs, n):
     assert summary["learners"] == 6 and sum(s["learners"] for s in summary["shards"]) == 6
 
 
+def test_report_of_one_shard_asks_for_the_merge(runs, capsys):
+    tmp, shards = runs
+    capsys.readouterr()
+    assert vbl("report", shards[2][0]) == 1  # like any folder that is not a finished run
+    assert "part 1/2 of a sharded run: merge its parts first" in one_error_line(
+        capsys.readouterr().err)
+
+
 def test_each_shard_holds_its_seeds_of_the_whole_run(runs):
     """Learner = point x seeds + seed; shard i of N holds learners [(i-1)L/N, iL/N)."""
     tmp, shards = runs
@@ -176,7 +184,7 @@ def test_bad_shard_sets_are_one_line_exit_2(runs, toy, tmp_path, capsys, monkeyp
     assert vbl(*RUN, "--seed", "1", "--shard", "2/2", "--out", tmp_path / "seed1") == 0
     cases.append(([two[0], tmp_path / "seed1"], "shards of different runs (they differ in "
                                                 "base_seed)"))
-    monkeypatch.setattr("vbl.engine.report._git_commit", lambda: "0123abc")
+    monkeypatch.setattr("vbl.engine.machine.git_commit", lambda: "0123abc")
     assert vbl(*RUN, "--shard", "2/2", "--out", tmp_path / "commit") == 0
     cases.append(([two[0], tmp_path / "commit"], "from commit 0123abc"))
     capsys.readouterr()

@@ -180,7 +180,7 @@ def _experiment_config(folder: Path) -> tuple[Experiment, Any]:
     from vbl.engine.report import load_run
 
     try:
-        exp, result, _ = load_run(folder)
+        exp, result, _ = load_run(folder, shard_ok=True)
     except EngineError as e:
         raise ParamError(str(e)) from None
     return exp, result.config

@@ -17,7 +17,7 @@ from typing import Any
 
 from vbl.engine.config import EngineError, config_to_dict
 from vbl.engine.experiment import Experiment, ReportSection, RunResult
-from vbl.engine.machine import load_average, machine_description
+from vbl.engine.machine import git_commit, load_average, machine_description
 from vbl.engine.registry import all_experiments, discover, import_errors
 from vbl.engine.runfolder import record_files
 from vbl.stats import mean_ci95, t_quantile_975
@@ -447,23 +447,6 @@ def _stopped(e: BaseException, out: Path, n_done: int, n_all: int) -> str:
             f"continue with vbl reproduce --resume --out {out}")
 
 
-def _git_commit() -> str:
-    """``HEAD`` of the source tree vbl runs from (``+dirty`` with uncommitted changes to
-    tracked files), or "unknown" outside a git checkout."""
-    import subprocess
-
-    root = Path(__file__).resolve().parents[2]
-    try:
-        head = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], check=True,
-                              capture_output=True, text=True, timeout=10).stdout.strip()
-        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain",
-                                "--untracked-files=no"], check=True, capture_output=True,
-                               text=True, timeout=10).stdout.strip()
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
-    return head + ("+dirty" if dirty else "")
-
-
 def _load() -> float | None:
     """The load average for the manifest, to 2 decimals (None where there is none)."""
     load = load_average()
@@ -534,7 +517,7 @@ def _reproduce(exps: dict[str, Experiment], out: Path, quick: bool, quiet: bool 
         except KeyboardInterrupt as e:  # SIGINT / SIGTERM: the finished runs are kept
             raise type(e)(_stopped(e, out, len(done), len(todo))) from None
     wall = time.perf_counter() - t_start
-    manifest = {"quick": quick, "commit": _git_commit(), "machine": machine_description(),
+    manifest = {"quick": quick, "commit": git_commit(), "machine": machine_description(),
                 "workers": workers, "wall_s": round(wall, 1),
                 "load_average": [load_start, _load()],
                 "runs": [{"experiment": j.name, "preset": j.preset, "folder": j.folder,
@@ -648,12 +631,14 @@ def claim(a: Any, b: Any, paired: bool = False, fmt: str = ".3g") -> str:
     return f"not resolved at {n} seeds ({diff}{more})"
 
 
-def load_run(folder: str | Path) -> tuple[Experiment, RunResult, dict[str, Any]]:
+def load_run(folder: str | Path, shard_ok: bool = False
+             ) -> tuple[Experiment, RunResult, dict[str, Any]]:
     """``(experiment, RunResult, config.json)`` of a finished run folder. The result is
     rebuilt from ``config.json`` and ``summary.json``: ``final`` holds the per-seed values
     (``[points, seeds]``), ``curves`` is empty, ``config`` is the experiment's default
     config with the folder's recorded values. A folder of another run-folder format, or
-    one that records parameters the experiment does not have, is an EngineError."""
+    one that records parameters the experiment does not have, is an EngineError, and so is
+    one shard of a run (``vbl run --shard``) unless ``shard_ok`` (``vbl merge`` reads them)."""
     from vbl.engine.registry import get
     from vbl.engine.results import read_json
     from vbl.engine.runfolder import check_fingerprint, check_format
@@ -671,6 +656,10 @@ def load_run(folder: str | Path) -> tuple[Experiment, RunResult, dict[str, Any]]
     if not isinstance(spec, dict) or "experiment" not in spec or "config" not in spec:
         raise EngineError(f"{folder}/config.json is not a vbl run's config")
     check_format(spec, folder)
+    if "shard" in spec and not shard_ok:
+        part = spec["shard"]
+        raise EngineError(f"{folder} is part {part.get('index')}/{part.get('count')} of a "
+                          "sharded run: merge its parts first (vbl merge FOLDER... --out X)")
     exp = get(spec["experiment"])
     check_fingerprint(spec, folder, _originals(spec, summary))
     config = _recorded_config(exp, spec, folder)

@@ -197,10 +197,10 @@ def shard_spec(spec: dict, shard: Shard) -> dict:
     """``spec`` (a whole run's ``config.json``) with ``shard``: ``{"index", "count",
     "commit"}`` (the git commit of the code, as ``vbl reproduce`` records it) and its own
     fingerprint, so a shard resumes only as the same part from the same code."""
-    from vbl.engine.report import _git_commit
+    from vbl.engine.machine import git_commit
 
     out = {k: v for k, v in spec.items() if k != "fingerprint"}
-    out["shard"] = {"index": shard.index, "count": shard.count, "commit": _git_commit()}
+    out["shard"] = {"index": shard.index, "count": shard.count, "commit": git_commit()}
     out["fingerprint"] = fingerprint(out)
     return out
 
