@@ -27,12 +27,6 @@ BRANCH_NODES = (ast.If, ast.IfExp, ast.For, ast.AsyncFor, ast.While, ast.Try, as
 # change's files): their offenders do not fail the shape test. Remove a file from this set
 # once its change has landed.
 PENDING = {
-    "vbl/engine/runner.py",
-    "vbl/engine/sweep.py",
-    "vbl/engine/distributed.py",
-    "vbl/cli.py",
-    "vbl/envs/shooting.py",
-    "vbl/envs/shoot_pass.py",
     "vbl/programs/cva_program.py",
     "vbl/programs/q_program.py",
 }
