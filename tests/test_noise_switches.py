@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 import vbl  # noqa: F401
-from vbl.draws import normal, uniform01
+from vbl.draws import normal
 from vbl.engine.config import is_static
 from vbl.envs.noise import NOISE_ON
 from vbl.envs.shoot_pass import ShootPassEnv
@@ -187,7 +187,7 @@ def test_shoot_pass_blocks_are_the_whole_layouts_words(task):
     w = _bits(key, sum(n.values()))
     obs, nst, _, terminated, truncated, _ = jax.jit(env.step)(key, st, a, p)
     assert bool(terminated | truncated)
-    fresh = env._fresh(uniform01(w[7:21]), p)
+    fresh = env._fresh(w[7:21], p)
     _assert_close(nst, fresh, 1e-6)
     _assert_close(obs, env.get_obs(fresh, p, normal(w[21:])), 1e-4)
 

@@ -1,5 +1,5 @@
-"""The ``vbl`` command: list, run, reproduce, report, bench, params (see docs/engine.md),
-render (docs/render.md)."""
+"""The ``vbl`` command: list, run, merge, reproduce, report, bench, params (see
+docs/engine.md), render (docs/render.md)."""
 
 from __future__ import annotations
 
@@ -50,8 +50,14 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
                                      f"(default {DEFAULT_CHECKPOINT_EVERY})")
     p.add_argument("--learner-batch", type=int, default=DEFAULT_LEARNER_BATCH, metavar="B",
                    help=f"most learners per compiled call (default {DEFAULT_LEARNER_BATCH})")
-    p.add_argument("--coordinator", default=None, metavar="HOST:PORT",
-                   help="multi-process coordinator (or VBL_COORDINATOR)")
+    p.add_argument("--shard", default=None, metavar="I/N",
+                   help="run only part I of N of the learners (seeds x sweep points, the "
+                        "keys of the whole run) into this run folder; `vbl merge` joins the "
+                        "N folders")
+    p.add_argument("--coordinator", default=None, metavar="HOST:PORT|auto",
+                   help="multi-process coordinator (or VBL_COORDINATOR); auto: JAX detects "
+                        "it and the process count and id (SLURM, Open MPI, Kubernetes, "
+                        "Cloud TPU)")
     p.add_argument("--num-processes", type=int, default=None,
                    help="number of processes (or VBL_NUM_PROCESSES)")
     p.add_argument("--process-id", type=int, default=None,
@@ -72,6 +78,12 @@ def build_parser() -> argparse.ArgumentParser:
                        "of an experiment script)")
     p.add_argument("experiment", help="experiment name, or path/to/script.py")
     _add_run_options(p)
+    p = sub.add_parser("merge", help="join the run folders of a run's shards (vbl run "
+                       "--shard I/N) into one run folder, as the whole run writes it")
+    p.add_argument("folders", nargs="+", metavar="SHARD_DIR", help="the N shards' run folders")
+    p.add_argument("--out", required=True, metavar="DIR", help="the merged run folder")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing run folder")
+    _add_debug(p, argparse.SUPPRESS)
     p = sub.add_parser("reproduce", help="run every paper experiment and write report.md")
     p.add_argument("--quick", action="store_true")
     p.add_argument("--out", default=None, help="folder (default runs/reproduce-<time>)")
@@ -166,10 +178,9 @@ def _cmd_list() -> int:
 
 
 def _run(experiment, args) -> int:
-    from vbl.engine.config import EngineError, parse_assignment, parse_sweep
-    from vbl.engine.errors import one_line
-    from vbl.engine.report import headline_table, run_report
+    from vbl.engine.config import parse_assignment, parse_sweep
     from vbl.engine.runner import describe_sweep, run_experiment
+    from vbl.engine.sweep import parse_shard
     from vbl.params import ParamError
 
     cfg = experiment.default_config
@@ -181,12 +192,19 @@ def _run(experiment, args) -> int:
             raise ParamError(f"--sweep {path} is given twice; give all its values in one "
                              f"--sweep {path}=V1,V2,...")
         sweep[path] = values
+    shard = parse_shard(args.shard) if args.shard is not None else None
     import jax
 
     primary = jax.process_index() == 0
     if primary:
-        print(describe_sweep(experiment, sets, sweep, args.seeds, args.quick, args.preset)[2],
-              flush=True)
+        points, seeds, text = describe_sweep(experiment, sets, sweep, args.seeds, args.quick,
+                                             args.preset)
+        if shard is not None and shard.count <= points * seeds:
+            lo, hi = shard.learner_range(points * seeds)
+            part = f"learner {lo}" if hi - lo == 1 else f"learners {lo}-{hi - 1}"
+            text += (f"\n  shard {shard}: {part} of 0-{points * seeds - 1} "
+                     f"(learner = point x {seeds} + seed)")
+        print(text, flush=True)
     t0 = time.perf_counter()
     result = run_experiment(experiment, sets=sets, sweep=sweep, seeds=args.seeds,
                             base_seed=args.seed, out=args.out, resume=args.resume,
@@ -194,16 +212,40 @@ def _run(experiment, args) -> int:
                             quiet=True if args.quiet else None,
                             checkpoint_every=args.checkpoint_every,
                             learner_batch=args.learner_batch,
-                            memory_check=not args.no_memory_check, preset=args.preset)
-    if primary:
-        try:
-            _, report = run_report(experiment, result)
-        except Exception as e:  # noqa: BLE001 - the results are written; say so
-            raise EngineError(f"the run finished (results in {result.out_dir}) but its "
-                              f"report failed: {one_line(e)}") from e
-        print(headline_table(result, experiment))
-        print(f"\n{experiment.name}: {time.perf_counter() - t0:.1f} s, results in "
-              f"{result.out_dir} (report: {report.name}, every metric: summary.json)")
+                            memory_check=not args.no_memory_check, preset=args.preset,
+                            shard=shard)
+    if primary and shard is not None:
+        n = result.summary["learners"]
+        print(f"{experiment.name}: shard {shard} ({n} learner{'s' * (n != 1)}) done "
+              f"in {time.perf_counter() - t0:.1f} s, in {result.out_dir}; when all "
+              f"{shard.count} are done: vbl merge SHARD_DIR... --out DIR")
+    elif primary:
+        _report(experiment, result, "run", t0)
+    return 0
+
+
+def _report(experiment, result, what: str, t0: float) -> None:
+    """Write the run folder's report.md and print the headline table."""
+    from vbl.engine.config import EngineError
+    from vbl.engine.errors import one_line
+    from vbl.engine.report import headline_table, run_report
+
+    try:
+        _, report = run_report(experiment, result)
+    except Exception as e:  # noqa: BLE001 - the results are written; say so
+        raise EngineError(f"the {what} finished (results in {result.out_dir}) but its "
+                          f"report failed: {one_line(e)}") from e
+    print(headline_table(result, experiment))
+    print(f"\n{experiment.name}: {time.perf_counter() - t0:.1f} s, results in "
+          f"{result.out_dir} (report: {report.name}, every metric: summary.json)")
+
+
+def _cmd_merge(args) -> int:
+    from vbl.engine.merge import merge_runs
+
+    t0 = time.perf_counter()
+    experiment, result = merge_runs(args.folders, args.out, overwrite=args.overwrite)
+    _report(experiment, result, "merge", t0)
     return 0
 
 
@@ -299,6 +341,8 @@ def _dispatch(args) -> int:
                                jobs=args.jobs)
         print(f"report: {report}", flush=True)
         return 0 if ok else _error(f"some experiments failed; see {report}", 1)
+    if args.command == "merge":
+        return _cmd_merge(args)
     if args.command == "bench":
         return _cmd_bench(args)
     if args.command == "report":

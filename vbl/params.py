@@ -125,26 +125,38 @@ def _check_bounds(path: str, value: Any, meta: dict) -> None:
                              f" ({meta.get('doc', '')})")
 
 
+def _dtype_kind(value: Any) -> str:
+    """NumPy dtype kind of an array-like value ("" for plain Python values)."""
+    return np.asarray(value).dtype.kind if hasattr(value, "dtype") else ""
+
+
+def _is_bool(value: Any) -> bool:
+    return isinstance(value, bool | np.bool_) or _dtype_kind(value) == "b"
+
+
+def _is_int(value: Any) -> bool:
+    return (isinstance(value, int | np.integer) and not isinstance(value, bool)
+            or _dtype_kind(value) in ("i", "u"))
+
+
+def _is_number(value: Any) -> bool:
+    return (isinstance(value, int | float | np.integer | np.floating)
+            and not isinstance(value, bool) or _dtype_kind(value) in ("i", "u", "f"))
+
+
+_TYPE_RULES = ((bool, _is_bool), (int, _is_int), (float, _is_number),
+               (str, lambda v: isinstance(v, str)),
+               (tuple, lambda v: isinstance(v, tuple | list) or hasattr(v, "shape")))
+"""(type of the default, accepted values), first match wins (bool before int: a bool is an
+int to Python)."""
+
+
 def _check_type(path: str, value: Any, default: Any) -> None:
     """Static fields keep their default's Python type; traced ones may be numbers or arrays."""
     if default is dataclasses.MISSING or default is None:
         return
-    if isinstance(default, bool):
-        ok = isinstance(value, bool | np.bool_) or (hasattr(value, "dtype") and value.dtype == bool)
-    elif isinstance(default, int):
-        ok = (isinstance(value, int | np.integer) and not isinstance(value, bool)) or (
-            hasattr(value, "dtype") and np.asarray(value).dtype.kind in "iu")
-    elif isinstance(default, float):
-        ok = (isinstance(value, int | float | np.integer | np.floating)
-              and not isinstance(value, bool)) or (
-            hasattr(value, "dtype") and np.asarray(value).dtype.kind in "iuf")
-    elif isinstance(default, str):
-        ok = isinstance(value, str)
-    elif isinstance(default, tuple):
-        ok = isinstance(value, tuple | list) or hasattr(value, "shape")
-    else:
-        ok = True
-    if not ok:
+    accepts = next((rule for kind, rule in _TYPE_RULES if isinstance(default, kind)), None)
+    if accepts is not None and not accepts(value):
         raise ParamError(f"{path}={value!r} has type {type(value).__name__}; "
                          f"expected {type(default).__name__}")
 

@@ -94,6 +94,8 @@ def _optimizer(p: PPOParams) -> optax.GradientTransformation:
                        optax.adam(learning_rate=p.learning_rate))
 
 
+# shape: a factory of closures over the static fields of p; its length is the learner's
+# nested step functions (init, training step, evaluation, train, train_chunk), each short.
 def make_ppo_learner(make_env: Callable[[Any, jax.Array], Any], obs_size: int,
                      num_actions: int, p: PPOParams, task_difficulty: float = 1.0
                      ) -> PPOLearner:

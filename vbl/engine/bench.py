@@ -91,7 +91,8 @@ def _learner(r: dict) -> tuple[float, str]:
 
 def _camera(r: dict) -> tuple[float, str]:
     ratio = r["cameras"]["section3"]["cpu_ratio"]
-    return 1.0 / ratio, "x less CPU per Section 3 camera call than the earlier camera"
+    return 1.0 / ratio, ("x less CPU per Section 3 camera call than the polygon-clipping "
+                         "reference camera")
 
 
 def _compile(r: dict) -> tuple[float, str]:

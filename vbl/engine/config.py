@@ -177,12 +177,7 @@ def check_dtypes(config: Any) -> None:
     """
     statics = set(static_paths(config))
     for path, f, value in iter_params(config):
-        default = None if f.default is dataclasses.MISSING else f.default
-        if isinstance(default, tuple) and default and all(_numbers(x) for x in default):
-            if not isinstance(value, tuple | list) or not all(
-                    _numbers(x) and not isinstance(x, bool) for x in value):
-                raise ParamError(f"{path}={value!r} must be a tuple of numbers, like its "
-                                 f"default {default!r}")
+        _check_number_tuple(path, f, value)
         if isinstance(value, str | bool | np.bool_) or value is None:
             continue
         try:
@@ -194,26 +189,47 @@ def check_dtypes(config: Any) -> None:
             raise ParamError(f"{path}={value!r} is too large: ints must lie in [{lo}, {hi}]")
         traced = path not in statics
         if a.dtype.kind in "iu":
-            lo, hi = INT32 if traced else INT64
-            if a.size and (int(a.min()) < lo or int(a.max()) > hi):
-                kind = "a traced int (int32 in the program)" if traced else "an int"
-                raise ParamError(f"{path}={value!r} does not fit {kind}: allowed "
-                                 f"[{lo}, {hi}]")
+            _check_int_fits(path, value, a, traced)
         elif a.dtype.kind == "f" and traced:
-            finite = np.isfinite(a)
-            if np.any(finite & (np.abs(np.where(finite, a, 0.0)) > _F32_MAX)):
-                raise ParamError(f"{path}={value!r} does not fit float32 (traced floats are "
-                                 f"float32 in the program: |x| <= {_F32_MAX:.7g})")
-            as32 = a.astype(np.float32)
-            try:
-                _check_bounds(path, as32, dict(f.metadata))
-            except ParamError:
-                m = f.metadata
-                bounds = ", ".join(f"{sym} {m[k]}" for k, sym in (("ge", ">="), ("gt", ">"),
-                                   ("le", "<="), ("lt", "<")) if m.get(k) is not None)
-                raise ParamError(f"{path}={value!r} rounds to {as32.tolist()!r} in float32 "
-                                 f"(the program's dtype), outside its range ({bounds})"
-                                 ) from None
+            _check_float32(path, f, value, a)
+
+
+def _check_number_tuple(path: str, f: dataclasses.Field, value: Any) -> None:
+    """A field whose default is a tuple of numbers holds a tuple (or list) of numbers."""
+    default = None if f.default is dataclasses.MISSING else f.default
+    if isinstance(default, tuple) and default and all(_numbers(x) for x in default):
+        if not isinstance(value, tuple | list) or not all(
+                _numbers(x) and not isinstance(x, bool) for x in value):
+            raise ParamError(f"{path}={value!r} must be a tuple of numbers, like its "
+                             f"default {default!r}")
+
+
+def _check_int_fits(path: str, value: Any, a: np.ndarray, traced: bool) -> None:
+    """Ints ``a`` fit int32 when ``traced``, else int64."""
+    lo, hi = INT32 if traced else INT64
+    if a.size and (int(a.min()) < lo or int(a.max()) > hi):
+        kind = "a traced int (int32 in the program)" if traced else "an int"
+        raise ParamError(f"{path}={value!r} does not fit {kind}: allowed "
+                         f"[{lo}, {hi}]")
+
+
+def _check_float32(path: str, f: dataclasses.Field, value: Any, a: np.ndarray) -> None:
+    """Traced floats ``a`` stay finite in float32 and keep the field's bounds after the
+    cast."""
+    finite = np.isfinite(a)
+    if np.any(finite & (np.abs(np.where(finite, a, 0.0)) > _F32_MAX)):
+        raise ParamError(f"{path}={value!r} does not fit float32 (traced floats are "
+                         f"float32 in the program: |x| <= {_F32_MAX:.7g})")
+    as32 = a.astype(np.float32)
+    try:
+        _check_bounds(path, as32, dict(f.metadata))
+    except ParamError:
+        m = f.metadata
+        bounds = ", ".join(f"{sym} {m[k]}" for k, sym in (("ge", ">="), ("gt", ">"),
+                           ("le", "<="), ("lt", "<")) if m.get(k) is not None)
+        raise ParamError(f"{path}={value!r} rounds to {as32.tolist()!r} in float32 "
+                         f"(the program's dtype), outside its range ({bounds})"
+                         ) from None
 
 
 def is_static(config: Any, path: str) -> bool:

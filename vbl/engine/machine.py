@@ -6,7 +6,7 @@ from __future__ import annotations
 import os
 import platform
 
-__all__ = ["cpu_model", "load_average", "machine_description"]
+__all__ = ["cpu_model", "load_average", "machine_description", "git_commit"]
 
 
 def cpu_model() -> str:
@@ -32,3 +32,21 @@ def load_average() -> float | None:
 def machine_description() -> str:
     """CPU model and core count, e.g. "Intel Xeon ... (2 cores)"."""
     return f"{cpu_model()} ({os.cpu_count()} cores)"
+
+
+def git_commit() -> str:
+    """``HEAD`` of the source tree vbl runs from (``+dirty`` with uncommitted changes to
+    tracked files), or "unknown" outside a git checkout."""
+    import subprocess
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    try:
+        head = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], check=True,
+                              capture_output=True, text=True, timeout=10).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain",
+                                "--untracked-files=no"], check=True, capture_output=True,
+                               text=True, timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return head + ("+dirty" if dirty else "")

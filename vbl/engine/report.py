@@ -17,7 +17,7 @@ from typing import Any
 
 from vbl.engine.config import EngineError, config_to_dict
 from vbl.engine.experiment import Experiment, ReportSection, RunResult
-from vbl.engine.machine import load_average, machine_description
+from vbl.engine.machine import git_commit, load_average, machine_description
 from vbl.engine.registry import all_experiments, discover, import_errors
 from vbl.engine.runfolder import record_files
 from vbl.stats import mean_ci95, t_quantile_975
@@ -114,53 +114,87 @@ def headline_table(result: RunResult, exp: Experiment | None = None,
     ``summary.json``."""
     points = result.summary.get("points", [])
     if not points:
-        res = result.summary.get("result")
-        if res is None:
-            return ""
-        keys = list(res) if isinstance(res, dict) else []
-        text = "result keys: " + ", ".join(keys) if keys else "result: " + str(res)
-        return text if len(text) <= width else text[:width - 3] + "..."
+        return _result_line(result.summary.get("result"), width)
+    labels = _point_labels(points)
+    cols, left = _fit_columns(labels, _headline_names(points[0], exp), points, width)
+    seeds = result.summary.get("seeds", result.seeds)
+    note = f"mean ± 95% interval over {seeds} seeds"
+    if left:
+        note += f"; {len(left)} more metric{'s' * (len(left) != 1)} in summary.json"
+    return "\n".join(_aligned(cols, len(points)) + [note])
 
-    def scalar(st):
-        return isinstance(st, dict) and isinstance(st.get("mean"), int | float)
 
-    def lookup(entry, name):
-        st = entry.get("final", {}).get(name)
-        return st if st is not None else entry.get("last_chunk", {}).get(name)
+def _result_line(res: Any, width: int) -> str:
+    """The headline of a run without sweep points: its result's keys (a dict) or the result
+    itself, cut to ``width`` columns; empty without a result."""
+    if res is None:
+        return ""
+    keys = list(res) if isinstance(res, dict) else []
+    text = "result keys: " + ", ".join(keys) if keys else "result: " + str(res)
+    return text if len(text) <= width else text[:width - 3] + "..."
 
-    first = points[0]
+
+def _scalar(st: Any) -> bool:
+    return isinstance(st, dict) and isinstance(st.get("mean"), int | float)
+
+
+def _lookup(entry: dict[str, Any], name: str) -> Any:
+    """A point's statistic of metric ``name``: the ``final`` one, else the last chunk's."""
+    st = entry.get("final", {}).get(name)
+    return st if st is not None else entry.get("last_chunk", {}).get(name)
+
+
+def _headline_names(first: dict[str, Any], exp: Experiment | None) -> list[str]:
+    """The metrics a headline table shows, in order: the experiment's
+    :attr:`~vbl.engine.Experiment.headline` ones the first point has as scalars, or by
+    default the scalar ``final`` metrics then the last chunk's (but ``episodes``)."""
     if exp is not None and exp.headline:
-        names = [n for n in exp.headline if scalar(lookup(first, n))]
-    else:
-        names = [n for n, st in first.get("final", {}).items() if scalar(st)]
-        names += [n for n, st in first.get("last_chunk", {}).items()
-                  if scalar(st) and n not in names and n != "episodes"]
+        return [n for n in exp.headline if _scalar(_lookup(first, n))]
+    names = [n for n, st in first.get("final", {}).items() if _scalar(st)]
+    names += [n for n, st in first.get("last_chunk", {}).items()
+              if _scalar(st) and n not in names and n != "episodes"]
+    return names
+
+
+def _point_labels(points: list[dict[str, Any]]) -> list[str]:
+    """Each point's swept values (``path=value, ...``), with the last part of each path only
+    when a full label would be longer than 40 characters."""
     full = [", ".join(f"{k}={v}" for k, v in e["values"].items()) or "default config"
             for e in points]
     short = [", ".join(f"{k.rsplit('.', 1)[-1]}={v}" for k, v in e["values"].items())
              or "default config" for e in points]
-    labels = full if max(map(len, full)) <= 40 else short
+    return full if max(map(len, full)) <= 40 else short
+
+
+def _fit_columns(labels: list[str], names: list[str], points: list[dict[str, Any]],
+                 width: int) -> tuple[list[tuple[str, list[str]]], list[str]]:
+    """``([(heading, cells)], metrics left out)``: the point column, then each metric's
+    column while the table stays within ``width`` columns (a metric too wide is left out,
+    a narrower one after it may still fit)."""
     cols = [("point", labels)]
     used = max(len("point"), *map(len, labels))
     left = []
     for n in names:
-        cells = [_cell(lookup(e, n) or {}) for e in points]
+        cells = [_cell(_lookup(e, n) or {}) for e in points]
         w = max(len(n), *map(len, cells))
         if used + 3 + w > width:
             left.append(n)
             continue
         cols.append((n, cells))
         used += 3 + w
+    return cols, left
+
+
+def _aligned(cols: list[tuple[str, list[str]]], n_rows: int) -> list[str]:
+    """The lines of a plain-text table: headings, a rule, ``n_rows`` rows; columns padded to
+    their widest cell and joined by `` | ``, trailing spaces cut."""
     widths = [max(len(h), *map(len, c)) for h, c in cols]
-    fmt = lambda row: " | ".join(  # noqa: E731
-        x.ljust(w) for x, w in zip(row, widths, strict=True)).rstrip()
-    lines = [fmt([h for h, _ in cols]), "-+-".join("-" * w for w in widths)]
-    lines += [fmt([c[i] for _, c in cols]) for i in range(len(points))]
-    seeds = result.summary.get("seeds", result.seeds)
-    note = f"mean ± 95% interval over {seeds} seeds"
-    if left:
-        note += f"; {len(left)} more metric{'s' * (len(left) != 1)} in summary.json"
-    return "\n".join(lines + [note])
+
+    def line(row: list[str]) -> str:
+        return " | ".join(x.ljust(w) for x, w in zip(row, widths, strict=True)).rstrip()
+
+    return ([line([h for h, _ in cols]), "-+-".join("-" * w for w in widths)]
+            + [line([c[i] for _, c in cols]) for i in range(n_rows)])
 
 
 REPRODUCE_MANIFEST = "reproduce.json"
@@ -413,23 +447,6 @@ def _stopped(e: BaseException, out: Path, n_done: int, n_all: int) -> str:
             f"continue with vbl reproduce --resume --out {out}")
 
 
-def _git_commit() -> str:
-    """``HEAD`` of the source tree vbl runs from (``+dirty`` with uncommitted changes to
-    tracked files), or "unknown" outside a git checkout."""
-    import subprocess
-
-    root = Path(__file__).resolve().parents[2]
-    try:
-        head = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], check=True,
-                              capture_output=True, text=True, timeout=10).stdout.strip()
-        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain",
-                                "--untracked-files=no"], check=True, capture_output=True,
-                               text=True, timeout=10).stdout.strip()
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
-    return head + ("+dirty" if dirty else "")
-
-
 def _load() -> float | None:
     """The load average for the manifest, to 2 decimals (None where there is none)."""
     load = load_average()
@@ -500,7 +517,7 @@ def _reproduce(exps: dict[str, Experiment], out: Path, quick: bool, quiet: bool 
         except KeyboardInterrupt as e:  # SIGINT / SIGTERM: the finished runs are kept
             raise type(e)(_stopped(e, out, len(done), len(todo))) from None
     wall = time.perf_counter() - t_start
-    manifest = {"quick": quick, "commit": _git_commit(), "machine": machine_description(),
+    manifest = {"quick": quick, "commit": git_commit(), "machine": machine_description(),
                 "workers": workers, "wall_s": round(wall, 1),
                 "load_average": [load_start, _load()],
                 "runs": [{"experiment": j.name, "preset": j.preset, "folder": j.folder,
@@ -614,12 +631,14 @@ def claim(a: Any, b: Any, paired: bool = False, fmt: str = ".3g") -> str:
     return f"not resolved at {n} seeds ({diff}{more})"
 
 
-def load_run(folder: str | Path) -> tuple[Experiment, RunResult, dict[str, Any]]:
+def load_run(folder: str | Path, shard_ok: bool = False
+             ) -> tuple[Experiment, RunResult, dict[str, Any]]:
     """``(experiment, RunResult, config.json)`` of a finished run folder. The result is
     rebuilt from ``config.json`` and ``summary.json``: ``final`` holds the per-seed values
     (``[points, seeds]``), ``curves`` is empty, ``config`` is the experiment's default
     config with the folder's recorded values. A folder of another run-folder format, or
-    one that records parameters the experiment does not have, is an EngineError."""
+    one that records parameters the experiment does not have, is an EngineError, and so is
+    one shard of a run (``vbl run --shard``) unless ``shard_ok`` (``vbl merge`` reads them)."""
     from vbl.engine.registry import get
     from vbl.engine.results import read_json
     from vbl.engine.runfolder import check_fingerprint, check_format
@@ -637,6 +656,10 @@ def load_run(folder: str | Path) -> tuple[Experiment, RunResult, dict[str, Any]]
     if not isinstance(spec, dict) or "experiment" not in spec or "config" not in spec:
         raise EngineError(f"{folder}/config.json is not a vbl run's config")
     check_format(spec, folder)
+    if "shard" in spec and not shard_ok:
+        part = spec["shard"]
+        raise EngineError(f"{folder} is part {part.get('index')}/{part.get('count')} of a "
+                          "sharded run: merge its parts first (vbl merge FOLDER... --out X)")
     exp = get(spec["experiment"])
     check_fingerprint(spec, folder, _originals(spec, summary))
     config = _recorded_config(exp, spec, folder)
@@ -710,41 +733,70 @@ def run_command(exp: Experiment, spec: dict[str, Any]) -> str:
     differ from the experiment's, ``--sweep`` for a sweep other than the default one,
     ``--set`` for every other recorded value that differs from what those give. The
     command is checked: resolving it gives the folder's recorded values."""
-    from vbl.engine.config import parse_assignment, parse_sweep
-    from vbl.engine.runner import resolve
-
     rec = config_to_dict_values(spec["config"])
     quick, preset = bool(spec.get("quick")), spec.get("preset")
     seeds, base_seed = int(spec.get("seeds", exp.seeds)), int(spec.get("base_seed", 0))
     sweep = {k: list(v) for k, v in spec.get("sweep", {}).items()}
-    default_sweep = {k: config_to_dict_values({"v": list(v)})["v"] for k, v in exp.sweep.items()}
-    base_cfg, *_ = resolve(exp, None, sweep, None, 0, quick, preset)
-    base = config_to_dict(base_cfg)
+    texts_sweep, texts_set = _sweep_and_set_texts(exp, rec, sweep, quick, preset)
+    args = _run_flags(exp, quick, preset, seeds, base_seed)
+    args += [a for t in texts_sweep for a in ("--sweep", t)]
+    args += [a for t in texts_set for a in ("--set", t)]
+    _check_command(exp, rec, sweep, texts_sweep, texts_set,
+                   seeds if "--seeds" in args else None, seeds, base_seed, quick, preset)
+    return " ".join(shlex.quote(a) for a in args)
+
+
+def _run_flags(exp: Experiment, quick: bool, preset: str | None, seeds: int,
+               base_seed: int) -> list[str]:
+    """``vbl run NAME`` with ``--quick``, ``--preset``, and ``--seeds`` / ``--seed`` where
+    they differ from the experiment's (quick) defaults."""
     args = ["vbl", "run", exp.name] + (["--quick"] if quick else [])
     args += ["--preset", preset] if preset else []
     if seeds != ((exp.quick_seeds or exp.seeds) if quick else exp.seeds):
         args += ["--seeds", str(seeds)]
     if base_seed:
         args += ["--seed", str(base_seed)]
+    return args
+
+
+def _sweep_and_set_texts(exp: Experiment, rec: dict[str, Any], sweep: dict[str, list],
+                         quick: bool, preset: str | None) -> tuple[list[str], list[str]]:
+    """``(--sweep texts, --set texts)`` of a recorded config ``rec`` and ``sweep``: a
+    ``--sweep`` per swept path whose values differ from the default sweep's, a ``--set`` per
+    default-swept path the run did not sweep, and per other value that differs from what
+    ``--quick`` and the preset give."""
+    from vbl.engine.runner import resolve
+
+    default_sweep = {k: config_to_dict_values({"v": list(v)})["v"] for k, v in exp.sweep.items()}
+    base_cfg, *_ = resolve(exp, None, sweep, None, 0, quick, preset)
+    base = config_to_dict(base_cfg)
     texts_sweep = [f"{k}={','.join(_cli_value(x) for x in v)}" for k, v in sweep.items()
                    if default_sweep.get(k) != v]
     texts_set = [f"{k}={_cli_value(rec[k])}" for k in default_sweep if k not in sweep]
     texts_set += [f"{k}={_cli_value(v)}" for k, v in rec.items()
                   if k not in sweep and k not in default_sweep and base.get(k) != v]
-    args += [a for t in texts_sweep for a in ("--sweep", t)]
-    args += [a for t in texts_set for a in ("--set", t)]
+    return texts_sweep, texts_set
+
+
+def _check_command(exp: Experiment, rec: dict[str, Any], sweep: dict[str, list],
+                   texts_sweep: list[str], texts_set: list[str], seeds_arg: int | None,
+                   seeds: int, base_seed: int, quick: bool, preset: str | None) -> None:
+    """Resolve the command's ``--sweep`` and ``--set`` texts (with ``seeds_arg`` as
+    ``--seeds``) as ``vbl run`` would; an EngineError unless that gives the recorded
+    values ``rec``, ``sweep`` and ``seeds``."""
+    from vbl.engine.config import parse_assignment, parse_sweep
+    from vbl.engine.runner import resolve
+
     cfg = exp.default_config
     sets = dict(parse_assignment(t, cfg) for t in texts_set)
     sw = dict(parse_sweep(t, cfg) for t in texts_sweep)
-    _, full_sweep, got_seeds, got = resolve(exp, sets, sw, seeds if "--seeds" in args else None,
-                                            base_seed, quick, preset)
+    _, full_sweep, got_seeds, got = resolve(exp, sets, sw, seeds_arg, base_seed, quick, preset)
     # a swept path's recorded base value never reaches a learner: the sweep replaces it
     bad = [k for k, v in rec.items() if k not in sweep and got["config"].get(k) != v]
     if bad or got_seeds != seeds or config_to_dict_values(full_sweep) != sweep:
         what = (f"{bad[0]} would be {got['config'].get(bad[0])!r}, not {rec[bad[0]]!r}"
                 if bad else "the sweep or seeds differ")
         raise EngineError(f"cannot rebuild the command of a {exp.name} run: {what}")
-    return " ".join(shlex.quote(a) for a in args)
 
 
 def sibling_result(result: RunResult, folder_name: str) -> RunResult | None:

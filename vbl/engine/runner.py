@@ -8,6 +8,7 @@ import functools
 import math
 import time
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -44,10 +45,11 @@ from vbl.engine.runfolder import (
     open_run_folder,
 )
 from vbl.engine.sharding import batch_layout, learner_sharding, pad_index, put, to_host
-from vbl.engine.sweep import Group, SweepPlan, make_plan
+from vbl.engine.sweep import Group, Shard, SweepPlan, make_plan, parse_shard
 from vbl.params import ParamError
 
-__all__ = ["run_experiment", "resolve", "describe_sweep", "load_result", "defaults_spec"]
+__all__ = ["run_experiment", "resolve", "describe_sweep", "load_result", "defaults_spec",
+           "shard_spec", "whole_spec"]
 
 DEFAULT_CHECKPOINT_EVERY = 10  # chunks between checkpoints (and one at the end of a group)
 DEFAULT_LEARNER_BATCH = 4096  # most learners in one compiled call
@@ -130,7 +132,8 @@ def run_experiment(experiment: Experiment, *, sets: Mapping[str, Any] | None = N
                    overwrite: bool = False, quick: bool = False, quiet: bool | None = None,
                    checkpoint_every: int = DEFAULT_CHECKPOINT_EVERY,
                    learner_batch: int = DEFAULT_LEARNER_BATCH, plots: bool = True,
-                   memory_check: bool = True, preset: str | None = None) -> RunResult:
+                   memory_check: bool = True, preset: str | None = None,
+                   shard: Shard | str | None = None) -> RunResult:
     """Run ``experiment`` over ``sweep`` x ``seeds`` and write its run folder.
 
     Args:
@@ -144,21 +147,29 @@ def run_experiment(experiment: Experiment, *, sets: Mapping[str, Any] | None = N
         compiled call (larger grids run in several batches; same results).
       memory_check: refuse a run whose memory estimate exceeds the memory available
         (:mod:`vbl.engine.memory`).
+      shard: ``"i/N"`` (or a :class:`~vbl.engine.sweep.Shard`): run only the i-th of N
+        parts of the learners, with the keys of the whole run; its folder holds metric
+        rows for :func:`vbl.engine.merge.merge_runs` and no report.
     Everything is checked (values, memory, folder) before the folder is written; the folder
     is locked while the run writes it (:mod:`vbl.engine.runfolder`).
-    Returns: a :class:`RunResult` (curves/final as NumPy arrays, on process 0).
+    Returns: a :class:`RunResult` (curves/final as NumPy arrays, on process 0; empty for a
+    shard).
     Raises: ParamError (bad overrides), EngineError / CheckpointError (folder, checkpoint,
     memory).
     """
-    for name, v in (("checkpoint_every", checkpoint_every), ("learner_batch", learner_batch)):
-        if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= INT32[1]:
-            raise ParamError(f"{name} must be an int in [1, {INT32[1]}], got {v!r}")
+    _check_chunking(checkpoint_every, learner_batch)
     primary = jax.process_index() == 0
     if jax.process_count() > 1 and out is None:
         raise EngineError("a multi-process run needs --out on a shared file system")
     config, full_sweep, seeds, spec = resolve(experiment, sets, sweep, seeds, base_seed, quick,
                                               preset)
-    plan = make_plan(experiment, config, full_sweep, seeds, base_seed) \
+    if shard is not None:
+        shard = shard if isinstance(shard, Shard) else parse_shard(shard)
+        if experiment.make_program is None:
+            raise ParamError(f"{experiment.name} runs its own loop (Experiment.run): --shard "
+                             f"needs an experiment with make_program")
+        spec = shard_spec(spec, shard)
+    plan = make_plan(experiment, config, full_sweep, seeds, base_seed, shard) \
         if experiment.make_program is not None else None
     if plan is not None and memory_check:
         check_memory(plan)
@@ -168,11 +179,63 @@ def run_experiment(experiment: Experiment, *, sets: Mapping[str, Any] | None = N
 
     folder = open_run_folder(out, experiment.name, resume=resume, overwrite=overwrite,
                              primary=primary)
+    run = _Run(folder, experiment, config, full_sweep, seeds, base_seed, spec, plan, resume,
+               quick, quiet, checkpoint_every, learner_batch, plots, primary)
     try:
-        return _run_in(folder, experiment, config, full_sweep, seeds, base_seed, spec, plan,
-                       resume, quick, quiet, checkpoint_every, learner_batch, plots, primary)
+        return _run_in(run)
     finally:
         folder.release()
+
+
+def _check_chunking(checkpoint_every: Any, learner_batch: Any) -> None:
+    for name, v in (("checkpoint_every", checkpoint_every), ("learner_batch", learner_batch)):
+        if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= INT32[1]:
+            raise ParamError(f"{name} must be an int in [1, {INT32[1]}], got {v!r}")
+
+
+def shard_spec(spec: dict, shard: Shard) -> dict:
+    """``spec`` (a whole run's ``config.json``) with ``shard``: ``{"index", "count",
+    "commit"}`` (the git commit of the code, as ``vbl reproduce`` records it) and its own
+    fingerprint, so a shard resumes only as the same part from the same code."""
+    from vbl.engine.machine import git_commit
+
+    out = {k: v for k, v in spec.items() if k != "fingerprint"}
+    out["shard"] = {"index": shard.index, "count": shard.count, "commit": git_commit()}
+    out["fingerprint"] = fingerprint(out)
+    return out
+
+
+def whole_spec(spec: dict) -> dict:
+    """The ``config.json`` of the whole run a shard's ``spec`` is part of."""
+    out = {k: v for k, v in spec.items() if k not in ("shard", "fingerprint")}
+    out["fingerprint"] = fingerprint(out)
+    return out
+
+
+@dataclass(frozen=True)
+class _Run:
+    """What a run needs once its config is resolved, its plan built and its folder open
+    (``plan`` is None for an experiment's own loop, ``Experiment.run``)."""
+
+    folder: RunFolder
+    experiment: Experiment
+    config: Any
+    sweep: dict
+    seeds: int
+    base_seed: int
+    spec: dict
+    plan: SweepPlan | None
+    resume: bool
+    quick: bool
+    quiet: bool
+    checkpoint_every: int
+    learner_batch: int
+    plots: bool
+    primary: bool
+
+    @property
+    def path(self) -> Path:
+        return self.folder.path
 
 
 def _check_config_json(run_dir: Path, spec: dict) -> bool:
@@ -191,13 +254,22 @@ def _check_config_json(run_dir: Path, spec: dict) -> bool:
     check_format(old, run_dir)
     check_fingerprint(old, run_dir, [spec, *defaults_spec(old)])  # a hand-edited file
     if old.get("fingerprint") != spec["fingerprint"]:
-        diff = differing(old, spec)  # never empty: the fingerprints differ
+        diff = differing(old, spec)
         shown = str(diff[:8] + (["..."] if len(diff) > 8 else [])) if diff else \
             "its fingerprint only"
+        if not diff and old.get("shard") != spec.get("shard"):
+            shown = f"its shard: {_shard_text(old)}, this run {_shard_text(spec)}"
         raise EngineError(f"cannot resume {run_dir}: it was run with another config "
                           f"(differs in {shown}); use the same options, or "
                           f"--overwrite / another --out")
     return True
+
+
+def _shard_text(spec: dict) -> str:
+    sh = spec.get("shard")
+    if not isinstance(sh, dict):
+        return "no shard"
+    return f"part {sh.get('index')}/{sh.get('count')} from commit {sh.get('commit')}"
 
 
 def defaults_spec(spec: dict) -> list[dict]:
@@ -214,58 +286,78 @@ def defaults_spec(spec: dict) -> list[dict]:
         return []
 
 
-def _run_in(folder, experiment, config, full_sweep, seeds, base_seed, spec, plan, resume,
-            quick, quiet, checkpoint_every, learner_batch, plots, primary) -> RunResult:
-    run_dir = folder.path
-    cfg_path = run_dir / "config.json"
-    has_config = resume and primary and _check_config_json(run_dir, spec)
-    ckpts = None
-    if plan is not None:
-        ckpts = Checkpoints(run_dir / "checkpoints", spec["fingerprint"])
-        folder.record("checkpoints")
-        if resume and not has_config and ckpts.latest_step() is not None:
-            ckpts.check_meta(ckpts.latest_step())  # before config.json is written
-    if primary and not has_config:
-        folder.record("config.json")
-        write_json(cfg_path, spec)
-    _sync("vbl-run-dir")
-    folder.record("metrics.jsonl")
-    log = MetricsLog(run_dir / "metrics.jsonl", enabled=primary)
+def _run_in(run: _Run) -> RunResult:
+    """Write ``config.json`` (checked on resume), then run the chunks and summarise (or
+    the experiment's own loop)."""
+    ckpts = _start_folder(run)
+    run.folder.record("metrics.jsonl")
+    log = MetricsLog(run.path / "metrics.jsonl", enabled=run.primary)
     t_start = time.perf_counter()
+    if run.plan is None:
+        return _run_own_loop(run, log, t_start)
+    start = _train(run, ckpts, log)
+    return _summarise(run, start, time.perf_counter() - t_start)
 
-    if plan is None:  # escape hatch
-        if primary and not resume:
-            (run_dir / "metrics.jsonl").unlink(missing_ok=True)
 
-        def log_fn(step, metrics):
-            log.append([{"step": int(step), "metrics": dict(metrics)}])
+def _start_folder(run: _Run) -> Checkpoints | None:
+    """Check (on resume) and write ``config.json``; the checkpoints of a planned run."""
+    has_config = run.resume and run.primary and _check_config_json(run.path, run.spec)
+    ckpts = None
+    if run.plan is not None:
+        ckpts = Checkpoints(run.path / "checkpoints", run.spec["fingerprint"])
+        run.folder.record("checkpoints")
+        if run.resume and not has_config and ckpts.latest_step() is not None:
+            ckpts.check_meta(ckpts.latest_step())  # before config.json is written
+    if run.primary and not has_config:
+        run.folder.record("config.json")
+        write_json(run.path / "config.json", run.spec)
+    _sync("vbl-run-dir")
+    return ckpts
 
-        before = {p.name for p in run_dir.iterdir()}
-        ctx = RunContext(config, seeds, base_seed, run_dir, quick, log_fn, quiet)
-        try:
-            extra = experiment.run(ctx) or {}
-        finally:
-            folder.record(*({p.name for p in run_dir.iterdir()} - before))
-        summary = {"experiment": experiment.name, "fingerprint": spec["fingerprint"],
-                   "result": extra, "wall_time_s": time.perf_counter() - t_start}
-        if primary:
-            folder.record("summary.json")
-            write_json(run_dir / "summary.json", summary)
-        return RunResult(experiment.name, run_dir, config, full_sweep, [{}], seeds, {}, {},
-                         summary, sorted(run_dir.glob("*.png")), dict(extra))
 
-    start = (ckpts.latest_step() or 0) if resume else 0
-    folder.record(STATUS_FILE)
-    progress = Progress(plan.total_steps, start, experiment.name, quiet,
-                        status_dir=run_dir if primary else None)
+def _run_own_loop(run: _Run, log: MetricsLog, t_start: float) -> RunResult:
+    """The escape hatch: ``Experiment.run`` writes what it likes; its return value goes
+    to ``summary.json``."""
+    run_dir, primary = run.path, run.primary
+    if primary and not run.resume:
+        (run_dir / "metrics.jsonl").unlink(missing_ok=True)
+
+    def log_fn(step, metrics):
+        log.append([{"step": int(step), "metrics": dict(metrics)}])
+
+    before = {p.name for p in run_dir.iterdir()}
+    ctx = RunContext(run.config, run.seeds, run.base_seed, run_dir, run.quick, log_fn,
+                     run.quiet)
+    try:
+        extra = run.experiment.run(ctx) or {}
+    finally:
+        run.folder.record(*({p.name for p in run_dir.iterdir()} - before))
+    summary = {"experiment": run.experiment.name, "fingerprint": run.spec["fingerprint"],
+               "result": extra, "wall_time_s": time.perf_counter() - t_start}
+    if primary:
+        run.folder.record("summary.json")
+        write_json(run_dir / "summary.json", summary)
+    return RunResult(run.experiment.name, run_dir, run.config, run.sweep, [{}], run.seeds,
+                     {}, {}, summary, sorted(run_dir.glob("*.png")), dict(extra))
+
+
+def _train(run: _Run, ckpts: Checkpoints, log: MetricsLog) -> int:
+    """Run every group's chunks from the last checkpoint (on resume); return the global
+    step the run started from."""
+    plan = run.plan
+    start = (ckpts.latest_step() or 0) if run.resume else 0
+    run.folder.record(STATUS_FILE)
+    total, done = _steps_to_run(plan, start)
+    progress = Progress(total, done, run.experiment.name, run.quiet,
+                        status_dir=run.path if run.primary else None)
     sharding = learner_sharding()
-    truncate = resume and primary
+    truncate = run.resume and run.primary
     try:
         for group in plan.groups:
-            if group.step_offset + group.num_chunks <= start:
+            if group.step_offset + group.num_chunks <= start or not group.num_learners:
                 continue
-            _run_group(plan, group, sharding, ckpts, log, progress, start, checkpoint_every,
-                       learner_batch, truncate)
+            _run_group(plan, group, sharding, ckpts, log, progress, start,
+                       run.checkpoint_every, run.learner_batch, truncate)
             truncate = False  # once, before the first new row
     except BaseException:
         progress.close()
@@ -274,16 +366,36 @@ def _run_in(folder, experiment, config, full_sweep, seeds, base_seed, spec, plan
         raise
     progress.close()
     ckpts.close()
-    wall = time.perf_counter() - t_start
+    return start
+
+
+def _steps_to_run(plan: SweepPlan, start: int) -> tuple[int, int]:
+    """``(steps, steps done)`` of the groups that have learners (a shard's may not), the
+    run resuming from global step ``start``."""
+    groups = [g for g in plan.groups if g.num_learners]
+    return (sum(g.num_chunks for g in groups),
+            sum(min(g.num_chunks, max(0, start - g.step_offset)) for g in groups))
+
+
+def _summarise(run: _Run, start: int, wall: float) -> RunResult:
+    """``summary.json`` (and the plots) from ``metrics.jsonl``; a shard's only says what
+    ran."""
+    plan = run.plan
     _sync("vbl-run-done")
-    result = load_result(run_dir, experiment, config, plan, plots=plots and primary,
-                         folder=folder)
-    result.summary.update(wall_time_s=wall, resumed_from_step=start,
-                          learners=plan.num_learners, devices=jax.device_count(),
-                          processes=jax.process_count())
-    if primary:
-        folder.record("summary.json")
-        write_json(run_dir / "summary.json", result.summary)
+    how = {"wall_time_s": wall, "resumed_from_step": start, "learners": plan.num_learners,
+           "devices": jax.device_count(), "processes": jax.process_count()}
+    if plan.shard is not None:
+        summary = {"experiment": run.experiment.name, "shard": run.spec["shard"],
+                   "chunks": plan.total_steps, **how}
+        result = RunResult(run.experiment.name, run.path, run.config, plan.sweep, plan.points,
+                           plan.seeds, {}, {}, summary, [])
+    else:
+        result = load_result(run.path, run.experiment, run.config, plan,
+                             plots=run.plots and run.primary, folder=run.folder)
+        result.summary.update(how)
+    if run.primary:
+        run.folder.record("summary.json")
+        write_json(run.path / "summary.json", result.summary)
     return result
 
 
@@ -297,9 +409,8 @@ def _run_group(plan: SweepPlan, group: Group, sharding, ckpts: Checkpoints, log:
     n = group.num_learners
     nb, size = batch_layout(n, len(sharding.mesh.devices.flat), learner_batch)
     idx = pad_index(n, nb * size)
-    reps = len(group.point_ids)
-    init_keys = np.tile(plan.init_keys, (reps, 1))
-    final_keys = np.tile(plan.final_keys, (reps, 1))
+    init_keys = group.select(plan.init_keys)
+    final_keys = group.select(plan.final_keys)
 
     def batches(tree):  # host tree [n, ...] -> per-batch device trees [size, ...]
         padded = jax.tree.map(lambda x: np.asarray(x)[idx], tree)
@@ -373,13 +484,18 @@ def _compiled(prog, sharding) -> tuple:
 
 def _rows(plan: SweepPlan, group: Group, step: int, chunk: int | str,
           metrics: dict[str, np.ndarray]) -> list[dict[str, Any]]:
-    s = plan.seeds
-    rows = []
-    for j, p in enumerate(group.point_ids):
-        rows.append({"step": step, "group": group.index, "chunk": chunk, "point": p,
-                     "values": plan.points[p],
-                     "metrics": {k: seed_stats(np.asarray(v)[j * s:(j + 1) * s])
-                                 for k, v in metrics.items()}})
+    """One row per point of ``group.members``: the statistics over its seeds that ran (a
+    shard's rows also say which, ``"seeds": [first, end]``)."""
+    rows, at = [], 0
+    for p, lo, hi in group.members:
+        row: dict[str, Any] = {"step": step, "group": group.index, "chunk": chunk, "point": p}
+        if plan.shard is not None:
+            row["seeds"] = [lo, hi]
+        row["values"] = plan.points[p]
+        row["metrics"] = {k: seed_stats(np.asarray(v)[at:at + hi - lo])
+                          for k, v in metrics.items()}
+        rows.append(row)
+        at += hi - lo
     return rows
 
 

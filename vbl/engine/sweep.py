@@ -4,6 +4,11 @@ A *point* is one combination of sweep values (``{path: value}``). Points that sh
 static values form a *group*: one ``make_program`` call and one compilation. Inside a group
 the learners are ``(point, seed)`` pairs in point-major order, learner ``i`` = point
 ``i // seeds``, seed ``i % seeds``.
+
+A *shard* ``i/N`` of a plan holds the ``i``-th of ``N`` contiguous parts of the plan's
+learners in global order (learner ``point * seeds + seed``); its groups keep their step
+offsets and run only their learners in the shard (:attr:`Group.members`), with the keys
+and configs the unsharded run gives them.
 """
 
 from __future__ import annotations
@@ -22,8 +27,8 @@ from vbl.engine.config import INT32, apply_overrides, set_value, stack_traced
 from vbl.engine.experiment import Experiment, Program
 from vbl.params import ParamError, get_path, static_paths
 
-__all__ = ["Group", "SweepPlan", "make_plan", "learner_keys", "program_for", "MAX_POINTS",
-           "MAX_SEED"]
+__all__ = ["Group", "SweepPlan", "Shard", "make_plan", "learner_keys", "program_for",
+           "parse_shard", "MAX_POINTS", "MAX_SEED"]
 
 MAX_POINTS = 1_000_000  #: most sweep points (the product of the sweep's value counts)
 MAX_SEED = INT32[1]  #: largest --seed and --seeds (keys are folded from int32 seeds)
@@ -62,15 +67,50 @@ def learner_keys(base_seed: int, seeds: int) -> tuple[np.ndarray, np.ndarray]:
             np.asarray(fold(k_final, idx), dtype=np.uint32))
 
 
+@dataclass(frozen=True)
+class Shard:
+    """Part ``index`` (1-based) of ``count`` of a plan's learners."""
+
+    index: int
+    count: int
+
+    def __post_init__(self) -> None:
+        ok = all(isinstance(v, int) and not isinstance(v, bool) for v in (self.index, self.count))
+        if not ok or not 1 <= self.index <= self.count:
+            raise ParamError(f"--shard {self.index}/{self.count}: the part I of I/N must be in "
+                             f"1..N")
+
+    def __str__(self) -> str:
+        return f"{self.index}/{self.count}"
+
+    def learner_range(self, num_learners: int) -> tuple[int, int]:
+        """``[lo, hi)`` of the global learner indices in this part (sizes differ by at
+        most one)."""
+        return ((self.index - 1) * num_learners // self.count,
+                self.index * num_learners // self.count)
+
+
+def parse_shard(text: Any) -> Shard:
+    """``"i/N"`` (1 <= i <= N) -> :class:`Shard`; ParamError otherwise."""
+    try:
+        i, n = (int(x) for x in str(text).split("/"))
+    except ValueError:
+        raise ParamError(f"--shard takes I/N (part I of N, 1 <= I <= N), got {text!r}") from None
+    return Shard(i, n)
+
+
 @dataclass
 class Group:
     """Points sharing static values: one program, one compilation.
 
     :attr:`point_configs` holds one validated config per point and :attr:`configs` stacks
-    their traced leaves (``[points * seeds, ...]`` NumPy arrays); both are built on first
+    their traced leaves for the learners that run (``[num_learners, ...]`` NumPy arrays,
+    point-major as :attr:`members`); both are built on first
     use, so that a plan can be checked (memory, from :attr:`first_config`) before a large
     sweep is validated point by point or anything large is allocated. ``point_ids``
-    indexes ``points``, the plan's points.
+    indexes ``points``, the plan's points. ``members`` lists the group's learners that
+    run, as ``(point, first seed, end seed)`` in the group's order: every seed of every
+    point, or a shard's part.
     """
 
     index: int
@@ -81,6 +121,7 @@ class Group:
     points: list[dict[str, Any]]
     step_offset: int
     seeds: int
+    members: list[tuple[int, int, int]]
 
     @property
     def first_config(self) -> Any:
@@ -99,11 +140,26 @@ class Group:
 
     @property
     def num_learners(self) -> int:
-        return len(self.point_ids) * self.seeds
+        return sum(hi - lo for _, lo, hi in self.members)
+
+    @functools.cached_property
+    def learner_index(self) -> np.ndarray:
+        """Positions of the members' learners among all ``points x seeds`` of the group."""
+        pos = {p: j for j, p in enumerate(self.point_ids)}
+        return np.concatenate([np.arange(pos[p] * self.seeds + lo, pos[p] * self.seeds + hi)
+                               for p, lo, hi in self.members] or [np.zeros(0, np.int64)])
+
+    def select(self, per_seed: np.ndarray) -> np.ndarray:
+        """The members' rows of ``per_seed`` (``[seeds, ...]``, e.g. the plan's keys)."""
+        return np.tile(per_seed, (len(self.point_ids),) + (1,) * (per_seed.ndim - 1))[
+            self.learner_index]
 
     @functools.cached_property
     def configs(self) -> Any:
-        return stack_traced(self.point_configs, self.seeds)
+        stacked = stack_traced(self.point_configs, self.seeds)
+        if self.num_learners == len(self.point_ids) * self.seeds:
+            return stacked
+        return jax.tree.map(lambda x: x[self.learner_index], stacked)
 
 
 @dataclass
@@ -114,14 +170,17 @@ class SweepPlan:
     seeds: int
     base_seed: int
     groups: list[Group]
+    shard: Shard | None = None
 
     @property
     def total_steps(self) -> int:
+        """Steps (chunks) of the whole plan; a shard's groups keep their step offsets."""
         return sum(g.num_chunks for g in self.groups)
 
     @property
     def num_learners(self) -> int:
-        return len(self.points) * self.seeds
+        """Learners that run (a shard's part of ``points x seeds``)."""
+        return sum(g.num_learners for g in self.groups)
 
     @functools.cached_property
     def _keys(self) -> tuple[np.ndarray, np.ndarray]:
@@ -151,11 +210,24 @@ def check_counts(seeds: Any, base_seed: Any) -> None:
         raise ParamError(f"the base seed must be an int in [0, {MAX_SEED}], got {base_seed!r}")
 
 
+def _members(point_ids: list[int], seeds: int, lo: int, hi: int) -> list[tuple[int, int, int]]:
+    """``(point, first seed, end seed)`` of the learners ``[lo, hi)`` (global order) among
+    ``point_ids``'s."""
+    out = []
+    for p in point_ids:
+        a, b = max(lo, p * seeds), min(hi, (p + 1) * seeds)
+        if a < b:
+            out.append((p, a - p * seeds, b - p * seeds))
+    return out
+
+
 def make_plan(experiment: Experiment, config: Any, sweep: Mapping[str, Sequence[Any]],
-              seeds: int, base_seed: int = 0) -> SweepPlan:
+              seeds: int, base_seed: int = 0, shard: Shard | None = None) -> SweepPlan:
     """Validate every sweep value and build the groups (calls ``make_program`` per group).
     Each point's config (validated whole) and the per-learner arrays (keys, stacked
-    configs) are built on first use: :meth:`SweepPlan.validate` builds the configs."""
+    configs) are built on first use: :meth:`SweepPlan.validate` builds the configs. With
+    ``shard``, only its part of the learners runs (ParamError when a part would be
+    empty)."""
     check_counts(seeds, base_seed)
     sweep = {p: list(v) for p, v in sweep.items()}
     for path, values in sweep.items():
@@ -177,11 +249,18 @@ def make_plan(experiment: Experiment, config: Any, sweep: Mapping[str, Sequence[
     for i, pt in enumerate(points):
         key = tuple((p, repr(v)) for p, v in pt.items() if p in statics)
         by_static.setdefault(key, []).append(i)
+    total = len(points) * seeds
+    if shard is not None and shard.count > total:
+        raise ParamError(f"--shard {shard}: at most {total} parts (this run has {len(points)} "
+                         f"sweep point{'s' * (len(points) != 1)} x {seeds} seed"
+                         f"{'s' * (seeds != 1)} = {total} learners)")
+    lo, hi = shard.learner_range(total) if shard is not None else (0, total)
     groups, offset = [], 0
     for gi, ids in enumerate(by_static.values()):
         static_values = {p: v for p, v in points[ids[0]].items() if p in statics}
         base = apply_overrides(config, static_values)
         program = program_for(experiment, base)
-        groups.append(Group(gi, static_values, ids, base, program, points, offset, seeds))
+        groups.append(Group(gi, static_values, ids, base, program, points, offset, seeds,
+                            _members(ids, seeds, lo, hi)))
         offset += program.num_chunks
-    return SweepPlan(config, sweep, points, seeds, base_seed, groups)
+    return SweepPlan(config, sweep, points, seeds, base_seed, groups, shard)

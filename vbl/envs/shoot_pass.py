@@ -43,31 +43,26 @@ API::
     obs, state = env.reset(key, params)
     obs, state, reward, terminated, truncated, info = env.step(key, state, action, params)
 
-Random numbers: each call of ``reset``, ``step_env`` or ``step`` hashes its key once
-(:func:`vbl.draws.draw_blocks`) and slices every draw it needs from those bits: tire slip,
-kick aim, rolling eccentricity, the start draw after an episode ends and the pixel noise.
-The static switches ``params.noise_on`` (:class:`ShootPassNoiseOn`) say which noise
-sources are drawn at all; a source that is off costs nothing and leaves the others' draws
-unchanged. Validation refuses a std above 0 with its switch off; inside ``jit`` with
-traced parameters that is not checked, so set the switch together with the std.
+The API (``reset``, ``step`` with auto-reset, ``step_env`` without, ``reset_state`` /
+``step_state``), the random layout of a call (one hash per call), the noise switches and
+the input checks are :class:`vbl.envs.base.TaskEnv`'s. A transition draws tire slip, kick
+aim and rolling eccentricity; the static switches ``params.noise_on``
+(:class:`ShootPassNoiseOn`) say which of them and the pixel noise are drawn at all.
 
-``step`` auto-resets; ``info``: ``success``, ``episode_done``, ``episode_length``,
+``info``: ``success``, ``episode_done``, ``episode_length``,
 ``u`` (2,) float32 of the learner's action, ``touched`` (learner touched the ball this
 episode), ``kicked`` (the ball was kicked this episode), ``goal``.
 """
 
 from __future__ import annotations
 
-import dataclasses
-from typing import Any
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from vbl.draws import check_switched_off, draw_blocks, normals, uniform01
-from vbl.envs.checks import check_action_index
+from vbl.draws import check_switched_off, uniform01
+from vbl.envs.base import NoiseOn, TaskEnv
 from vbl.envs.noise import (
     NoiseParams,
     advance_phase,
@@ -84,15 +79,16 @@ from vbl.envs.other_agents import (
     act,
     init_memory,
 )
-from vbl.params import ParamError, param, section, validate
+from vbl.params import ParamError, param, section
 from vbl.vision.camera import CameraParams
 from vbl.vision.features import SEC3_NOISE_DIM
 from vbl.world.params import FourWheelParams, WorldParams
 from vbl.world.physics import WorldState, goal_corners, world_step, wrap_angle
 from vbl.world.robots import FOUR_WHEEL_LABELS, FOUR_WHEEL_U
 
-__all__ = ["TASKS", "ENV_TASKS", "OBS_SLICES", "OBS_DIM", "SHOOTER", "PASSER", "StartParams",
-           "ShootPassNoiseOn", "ShootPassParams", "ShootPassState", "ShootPassEnv",
+__all__ = ["TASKS", "ENV_TASKS", "OBS_SLICES", "OBS_DIM", "SHOOTER", "PASSER",
+           "ShootPassStartParams", "ShootPassNoiseOn", "ShootPassParams", "ShootPassState",
+           "ShootPassEnv",
            "apply_kicks", "EASY_SHOOT", "EASY_PASS", "observe", "default_world"]
 
 F32 = jnp.float32
@@ -109,7 +105,6 @@ FRESH_DRAWS = START_DRAWS + MEMORY_DRAWS  #: uniforms of a fresh episode (start 
 #: standard normals of one transition, three blocks: tire slip (2 robots x 2), kick aim (2),
 #: eccentric rolling (1)
 SLIP_NORMALS, AIM_NORMALS, WOBBLE_NORMALS = 4, 2, 1
-TRANSITION_NORMALS = SLIP_NORMALS + AIM_NORMALS + WOBBLE_NORMALS
 SHOOTER, PASSER = 0, 1
 _ = float("nan")
 #: Easy value of each start uniform (start_difficulty 0; nan = no easy value, the draw is
@@ -136,7 +131,7 @@ def default_world() -> WorldParams:
 
 
 @struct.dataclass
-class StartParams:
+class ShootPassStartParams:
     """Start distribution (both tasks share the geometry; ``pass_*`` only for "pass").
 
     The shooter stands in front of the goal; the passer stands ``pass_dist`` away from it,
@@ -190,22 +185,14 @@ class StartParams:
 
 
 @struct.dataclass
-class ShootPassNoiseOn:
-    """Static switches of the task's random noise sources (the centroid eccentricity draws
-    nothing and has none). A source that is off draws no random numbers and computes
-    nothing (its std must then be 0); one that is on draws them
-    whatever its std, so a sweep over the std (0 included) is one compiled program. The
-    draws of a source are the same whichever other sources are on
-    (:func:`vbl.draws.draw_blocks`)."""
+class ShootPassNoiseOn(NoiseOn):
+    """Static switches of the task's random noise sources: :class:`NoiseOn`'s and two of
+    this task's (the centroid eccentricity draws nothing and has none)."""
 
-    slip: bool = param(False, doc="tire slip is drawn (world.robot.slip_std, "
-                       "noise.slip_std; off: both must be 0)", static=True)
     aim: bool = param(True, doc="the scripted passer's kick aim error is drawn "
                       "(other.aim_noise_deg; off: it must be 0)", static=True)
     wobble: bool = param(False, doc="the rolling ball's random turns are drawn "
                          "(noise.ecc_turn_std; off: it must be 0)", static=True)
-    pixel: bool = param(False, doc="pixel noise is drawn (noise.image_std and both cameras'"
-                        " pixel_noise_std; off: all must be 0)", static=True)
 
 
 @struct.dataclass
@@ -224,7 +211,7 @@ class ShootPassParams:
             "body for all robots, so inside this env both robots use world.four_wheel")
     noise: NoiseParams = section(NoiseParams, doc="Section 3.4.2 noise model (default off)")
     other: OtherAgentParams = section(OtherAgentParams, doc="the scripted robot")
-    start: StartParams = section(StartParams, doc="start distribution")
+    start: ShootPassStartParams = section(ShootPassStartParams, doc="start distribution")
     shooter_kick_speed: float = param(2.0, doc="ball speed of a shooter kick (along its "
                                       "heading)", unit="m/s", ge=0.0)
     passer_kick_speed: float = param(1.6, doc="ball speed of a learning passer's kick (along "
@@ -307,10 +294,6 @@ class ShootPassState:
     phase: jax.Array
 
 
-def _is_traced(tree: Any) -> bool:
-    return any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(tree))
-
-
 def apply_kicks(eps: jax.Array, world: WorldState, touch: jax.Array, actions: jax.Array,
                 speeds: jax.Array, aim_at: jax.Array, aim_noise: jax.Array,
                 cone_deg: jax.Array) -> tuple[WorldState, jax.Array]:
@@ -373,13 +356,12 @@ def observe(world: WorldState, me: int, cam: CameraParams, world_params: WorldPa
     return flat.at[OBS_SLICES["ball"]].set(ball)
 
 
-class ShootPassEnv:
-    """Two-robot task: ``task="shoot"`` (learner = shooter) or ``"pass"`` (learner = passer).
-
-    Args:
-      task: "shoot" or "pass".
-      params: default parameters (validated); ``None`` uses the defaults.
-    """
+class ShootPassEnv(TaskEnv, params=ShootPassParams, state=ShootPassState,
+                   fresh_words=FRESH_DRAWS, pixel_noise_dim=SEC3_NOISE_DIM,
+                   option=("task", ENV_TASKS)):
+    """Two-robot task: ``task="shoot"`` (learner = shooter), ``"pass"`` (learner = passer)
+    or ``"select"`` (the traced ``params.task_pass`` picks); ``params``: see
+    :class:`~vbl.envs.base.TaskEnv`."""
 
     num_actions = 7
     action_labels = FOUR_WHEEL_LABELS
@@ -387,43 +369,13 @@ class ShootPassEnv:
     observation_shape = (OBS_DIM,)
 
     def __init__(self, task: str = "shoot", params: ShootPassParams | None = None):
-        if task not in ENV_TASKS:
-            raise ValueError(f"task={task!r} is not allowed; choose one of {list(ENV_TASKS)}")
-        self.task = task
+        super().__init__(task, params)
         #: the learner's robot index for a fixed task (None for "select": see roles())
         self.learner = {"shoot": SHOOTER, "pass": PASSER}.get(task)
-        self._default_params = self.validate(ShootPassParams() if params is None else params)
-
-    @property
-    def default_params(self) -> ShootPassParams:
-        return self._default_params
 
     @property
     def name(self) -> str:
         return f"ShootPass-{self.task}"
-
-    # ------------------------------------------------------------------ checks
-    def validate(self, params: ShootPassParams) -> ShootPassParams:
-        """Check parameter types, bounds and consistency; raise ParamError. Returns params."""
-        if not isinstance(params, ShootPassParams):
-            raise ParamError(f"params must be ShootPassParams, got {type(params).__name__}")
-        validate(params)  # fields and every section's check() rule
-        return params
-
-    def check_action(self, action: Any) -> None:
-        """Raise ValueError unless ``action`` is a () integer in [0, 7)."""
-        check_action_index(action, self.num_actions, self.name, self.action_labels)
-
-    def _check_inputs(self, state, action, params):
-        if not _is_traced((action, state)):
-            self.check_action(action)
-            if not isinstance(state, ShootPassState):
-                raise ValueError(f"state must be ShootPassState, got {type(state).__name__}")
-            if np.shape(state.world.robots) != (2, 3):
-                raise ValueError(f"state.world.robots has shape {np.shape(state.world.robots)};"
-                                 " expected (2, 3) (one env; vmap for a batch)")
-        if not _is_traced(params):
-            self.validate(params)
 
     # ------------------------------------------------------------------ roles
     def is_pass(self, params: ShootPassParams) -> jax.Array:
@@ -440,7 +392,7 @@ class ShootPassEnv:
 
     # ------------------------------------------------------------------ start
     def sample_start(self, key: jax.Array, params: ShootPassParams) -> WorldState:
-        """Draw the start world state of this task (see :class:`StartParams`)."""
+        """Draw the start world state of this task (see :class:`ShootPassStartParams`)."""
         return self.start_from_uniform(jax.random.uniform(key, (START_DRAWS,), F32), params)
 
     def eased_uniform(self, u: jax.Array, params: ShootPassParams) -> jax.Array:
@@ -511,8 +463,9 @@ class ShootPassEnv:
         return WorldState(robots=robots, ball=ball.astype(F32), ball_vel=vel.astype(F32),
                           scored=jnp.zeros((), bool), ball_out=jnp.zeros((), bool))
 
-    def _fresh(self, u: jax.Array, params: ShootPassParams) -> ShootPassState:
-        """A fresh episode's state from ``u``, (FRESH_DRAWS,) uniform draws in [0, 1)."""
+    def _fresh(self, words: jax.Array, params: ShootPassParams) -> ShootPassState:
+        """A fresh episode's state from (FRESH_DRAWS,) uint32 random words."""
+        u = uniform01(words)
         return ShootPassState(world=self.start_from_uniform(u[:START_DRAWS], params),
                               step=jnp.zeros((), I32),
                               memory=init_memory(u[START_DRAWS:], params.other),
@@ -537,39 +490,12 @@ class ShootPassEnv:
         return observe(state.world, me, self.learner_camera(params), params.world,
                        params.noise, params.robot_height, state.phase, eps)
 
-    def reset_state(self, key: jax.Array, params: ShootPassParams | None = None
-                    ) -> tuple[ShootPassState, jax.Array | None]:
-        """:meth:`reset` without the observation: (state, eps), where ``get_obs(state,
-        params, eps)`` is the obs :meth:`reset` returns (``eps``: the pixel noise's
-        (SEC3_NOISE_DIM,) standard normals, None when off). A loop that observes inside its
-        body (:func:`vbl.agents.cva_state.collect`) then holds the camera once."""
-        params = self._default_params if params is None else params
-        if not _is_traced(params):
-            self.validate(params)
-        fresh, pixel = draw_blocks(key, FRESH_DRAWS,
-                                   (SEC3_NOISE_DIM, params.noise_on.pixel))
-        return self._fresh(uniform01(fresh), params), normals(pixel)
-
-    def reset(self, key: jax.Array, params: ShootPassParams | None = None
-              ) -> tuple[jax.Array, ShootPassState]:
-        """Fresh episode: (obs (26,) float32, state)."""
-        params = self._default_params if params is None else params
-        state, eps = self.reset_state(key, params)
-        return self.get_obs(state, params, eps), state
-
     # ------------------------------------------------------------------ dynamics
-    def _draw_transition(self, key, params: ShootPassParams, fresh: bool):
-        """One hash of ``key``: the transition's standard normals (tire slip (4,), kick aim
-        (2,), eccentric rolling (1,); None where ``params.noise_on`` switches the source
-        off), then (``fresh``; else None and no words) the uniforms of a fresh episode, then
-        the pixel noise (None when off)."""
+    def transition_blocks(self, params: ShootPassParams) -> tuple[tuple[int, bool], ...]:
+        """The transition's draw blocks: tire slip (4,), kick aim (2,), eccentric rolling
+        (1,)."""
         on = params.noise_on
-        blocks = draw_blocks(key, (SLIP_NORMALS, on.slip), (AIM_NORMALS, on.aim),
-                             (WOBBLE_NORMALS, on.wobble), (FRESH_DRAWS if fresh else 0, fresh),
-                             (SEC3_NOISE_DIM, on.pixel))
-        slip, aim, wobble, u, pixel = blocks
-        return ((normals(slip), normals(aim), normals(wobble)),
-                None if u is None else uniform01(u), normals(pixel))
+        return (SLIP_NORMALS, on.slip), (AIM_NORMALS, on.aim), (WOBBLE_NORMALS, on.wobble)
 
     def _transition(self, eps, state: ShootPassState, action, params: ShootPassParams):
         """One primitive; ``eps``: standard normals (tire slip (4,), kick aim (2,), eccentric
@@ -634,46 +560,3 @@ class ShootPassEnv:
         nstate = ShootPassState(world=world, step=step, memory=memory, touched=touched,
                                 kicked=kicked, phase=phase)
         return nstate, reward, terminated, truncated, info
-
-    def step_env(self, key: jax.Array, state: ShootPassState, action: jax.Array,
-                 params: ShootPassParams | None = None):
-        """One primitive without auto-reset: (obs, state, reward, terminated, truncated, info)."""
-        params = self._default_params if params is None else params
-        self._check_inputs(state, action, params)
-        eps, _, pixel = self._draw_transition(key, params, fresh=False)
-        state, reward, terminated, truncated, info = self._transition(eps, state, action,
-                                                                      params)
-        obs = self.get_obs(state, params, pixel)
-        return obs, state, reward, terminated, truncated, info
-
-    def step_state(self, key: jax.Array, state: ShootPassState, action: jax.Array,
-                   params: ShootPassParams | None = None):
-        """:meth:`step` without the observation: (state, eps, reward, terminated,
-        truncated, info), where ``get_obs(state, params, eps)`` is the obs :meth:`step`
-        returns (see :meth:`reset_state`)."""
-        params = self._default_params if params is None else params
-        self._check_inputs(state, action, params)
-        eps, u, pixel = self._draw_transition(key, params, fresh=True)
-        nstate, reward, terminated, truncated, info = self._transition(eps, state, action,
-                                                                      params)
-        done = info["episode_done"]
-        fresh = self._fresh(u, params)
-        nstate = jax.tree_util.tree_map(lambda a, b: jnp.where(done, a, b), fresh, nstate)
-        return nstate, pixel, reward, terminated, truncated, info
-
-    def step(self, key: jax.Array, state: ShootPassState, action: jax.Array,
-             params: ShootPassParams | None = None):
-        """One primitive with auto-reset (fresh start draw when the episode ended).
-
-        Returns (obs (26,) float32, state, reward () float32, terminated () bool,
-        truncated () bool, info); obs/state are the new episode's after a reset, while
-        reward/terminated/truncated/info describe the finished step.
-        """
-        params = self._default_params if params is None else params
-        nstate, pixel, reward, terminated, truncated, info = self.step_state(key, state, action,
-                                                                            params)
-        return self.get_obs(nstate, params, pixel), nstate, reward, terminated, truncated, info
-
-    def __repr__(self) -> str:
-        fields = [f.name for f in dataclasses.fields(ShootPassParams)]
-        return f"ShootPassEnv(task={self.task!r}, params={fields})"

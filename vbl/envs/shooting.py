@@ -25,44 +25,39 @@ API::
     state, eps = env.reset_state(key, params)   # the same without the observation:
     obs = env.get_obs(state, params, eps)       # reset == get_obs(reset_state)
 
-``step`` auto-resets with a fresh start draw; ``step_env`` does not. ``reset_state`` /
-``step_state`` are ``reset`` / ``step`` without the observation (the dynamics, the
-auto-reset and every random draw; ``eps`` are the pixel noise's normals), so a loop that
-observes inside its body (:func:`vbl.agents.cva_state.collect`, the brax adapter) holds
-the camera once in its compiled program. Tire slip (``world.robot.slip_std``) and pixel noise
-(``camera.pixel_noise_std``) are drawn only when switched on in the static
-``params.noise_on`` (:class:`ShootingNoiseOn`; off by default, and a std above 0 with its
-switch off is refused by validation, which ``jit`` with traced parameters skips).
+The API (``reset``, ``step`` with auto-reset, ``step_env`` without, their
+observation-free forms ``reset_state`` / ``step_state``), the random layout of a call, the
+noise switches and the input checks are :class:`vbl.envs.base.TaskEnv`'s. Noise sources:
+tire slip (``world.robot.slip_std``) and pixel noise (``camera.pixel_noise_std``), each drawn
+only when switched on in the static ``params.noise_on`` (:class:`vbl.envs.base.NoiseOn`, off
+by default).
 
 ``info``: ``success`` (goal this step), ``ball_out``, ``episode_done``, ``episode_length``
 (primitives in the episode that just ended or is running, before the reset).
 
 Errors: the constructor and :meth:`ShootingEnv.validate` check parameters
-(:class:`vbl.params.ParamError`); ``reset``/``step`` called outside ``jit`` with
-concrete values also check the parameters and the action (ValueError naming the
-allowed range). Inside ``jit``/``vmap`` the checks are skipped (values are traced).
+(:class:`vbl.params.ParamError`; ``world.robot_kinds`` must be the env's ``robot_kind``);
+``reset``/``step`` outside ``jit`` also check the action and the state (ValueError).
 """
 
 from __future__ import annotations
-
-import dataclasses
-from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from vbl.draws import check_switched_off, draw_blocks, normals
-from vbl.envs.checks import check_action_index
-from vbl.params import ParamError, param, section, validate
+from vbl.draws import check_switched_off
+from vbl.envs.base import NoiseOn, TaskEnv
+from vbl.params import ParamError, param, section
 from vbl.vision.camera import CameraParams
 from vbl.vision.features import SEC2_DIM, SEC2_NOISE_DIM, section2_features
 from vbl.world.params import ROBOT_KINDS, WorldParams
 from vbl.world.physics import WorldState, goal_corners, world_step, wrap_angle
 from vbl.world.robots import action_labels, num_actions
 
-__all__ = ["StartParams", "ShootingNoiseOn", "ShootingParams", "ShootingState", "ShootingEnv"]
+__all__ = ["ShootingStartParams", "ShootingParams", "ShootingState",
+           "ShootingEnv"]
 
 F32 = jnp.float32
 #: Random draws of this env (slices of one hash per call, :class:`vbl.draws.Words`).
@@ -71,7 +66,7 @@ SLIP_NORMALS = 2  #: standard normals of one transition's tire slip (one robot)
 
 
 @struct.dataclass
-class StartParams:
+class ShootingStartParams:
     """Start distribution of the shooting task (see the module docstring)."""
 
     margin: float = param(0.3, doc="full draw: distance of robot and ball centres from the "
@@ -90,33 +85,19 @@ class StartParams:
 
 
 @struct.dataclass
-class ShootingNoiseOn:
-    """Static switches of the task's random noise sources. A source that is off draws no
-    random numbers and computes nothing (its std must then be 0); one that is on draws them
-    whatever its std, so a sweep over the std (0 included) is one compiled program. The
-    draws of a source are the same whichever other sources are on
-    (:func:`vbl.draws.draw_blocks`)."""
-
-    slip: bool = param(False, doc="tire slip is drawn (world.robot.slip_std; off: it must "
-                       "be 0)", static=True)
-    pixel: bool = param(False, doc="pixel noise is drawn (camera.pixel_noise_std; off: it "
-                        "must be 0)", static=True)
-
-
-@struct.dataclass
 class ShootingParams:
     """Parameters of the shooting task."""
 
     world: WorldParams = section(WorldParams, doc="physics")
     camera: CameraParams = section(CameraParams, doc="robot camera")
-    start: StartParams = section(StartParams, doc="start distribution")
+    start: ShootingStartParams = section(ShootingStartParams, doc="start distribution")
     start_difficulty: float = param(1.0, doc="start distribution: 0 easy (near the goal, "
                                     "ball in front), 1 full random; interpolated between",
                                     ge=0.0, le=1.0)
     max_steps: int = param(300, doc="time limit: action primitives per episode (each "
                            "world.action_dt long; the library default 300 is 30 s)",
                            unit="primitives", static=True, ge=1)
-    noise_on: ShootingNoiseOn = section(ShootingNoiseOn, doc="static switches of the random "
+    noise_on: NoiseOn = section(NoiseOn, doc="static switches of the random "
                                         "noise sources")
 
     def check(self) -> None:
@@ -143,33 +124,22 @@ def _uniform16(words: jax.Array) -> jax.Array:
     return halves.astype(F32) * np.float32(2.0 / 65536) - 1.0
 
 
-def _is_traced(tree: Any) -> bool:
-    return any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(tree))
+class ShootingEnv(TaskEnv, params=ShootingParams, state=ShootingState, fresh_words=START_WORDS,
+                  pixel_noise_dim=SEC2_NOISE_DIM, option=("robot_kind", ROBOT_KINDS)):
+    """Shooting task: drive the ball into the goal (Section 2). ``robot_kind``:
+    "two_motor" (Section 2, 9 actions, default) or "four_wheel" (7 actions); ``params``: see
+    :class:`~vbl.envs.base.TaskEnv`."""
 
-
-class ShootingEnv:
-    """Shooting task: drive the ball into the goal (Section 2).
-
-    Args:
-      robot_kind: "two_motor" (Section 2, 9 actions, default) or "four_wheel" (7 actions).
-      params: default parameters (validated); ``None`` uses the defaults.
-    """
+    observation_shape = (SEC2_DIM,)
 
     def __init__(self, robot_kind: str = "two_motor", params: ShootingParams | None = None):
-        if robot_kind not in ROBOT_KINDS:
-            raise ValueError(f"robot_kind={robot_kind!r} is not allowed; choose one of "
-                             f"{list(ROBOT_KINDS)}")
-        self.robot_kind = robot_kind
-        if params is None:
-            params = ShootingParams()
-            params = params.replace(world=params.world.replace(robot_kinds=(robot_kind,)))
-        self._default_params = self.validate(params)
+        super().__init__(robot_kind, params)
+
+    def defaults(self) -> ShootingParams:
+        params = ShootingParams()
+        return params.replace(world=params.world.replace(robot_kinds=(self.robot_kind,)))
 
     # ------------------------------------------------------------------ metadata
-    @property
-    def default_params(self) -> ShootingParams:
-        return self._default_params
-
     @property
     def num_actions(self) -> int:
         """Number of discrete action primitives (9 two-motor, 7 four-wheel)."""
@@ -180,35 +150,14 @@ class ShootingEnv:
         return action_labels(self.robot_kind)
 
     @property
-    def observation_shape(self) -> tuple[int, ...]:
-        return (SEC2_DIM,)
-
-    @property
     def name(self) -> str:
         return "Shooting-" + self.robot_kind
 
     # ------------------------------------------------------------------ checks
-    def validate(self, params: ShootingParams) -> ShootingParams:
-        """Check parameter types, bounds and consistency; raise ParamError. Returns params."""
-        if not isinstance(params, ShootingParams):
-            raise ParamError(f"params must be ShootingParams, got {type(params).__name__}")
-        validate(params)  # fields and every section's check() rule
+    def check_params(self, params: ShootingParams) -> None:
         if params.world.robot_kinds != (self.robot_kind,):
             raise ParamError(f"world.robot_kinds={params.world.robot_kinds!r} must be "
                              f"({self.robot_kind!r},) for this {self.name} env")
-        return params
-
-    def check_action(self, action: Any) -> None:
-        """Raise ValueError unless ``action`` is a () integer in [0, num_actions)."""
-        check_action_index(action, self.num_actions, self.name, self.action_labels)
-
-    def _check_state(self, state: ShootingState) -> None:
-        if not isinstance(state, ShootingState):
-            raise ValueError(f"state must be ShootingState, got {type(state).__name__}")
-        if np.shape(state.world.robots) != (1, 3) or np.shape(state.world.ball) != (2,):
-            raise ValueError(f"state has robots {np.shape(state.world.robots)} / ball "
-                             f"{np.shape(state.world.ball)}; expected (1, 3) / (2,) (one env; "
-                             "vmap for a batch)")
 
     # ------------------------------------------------------------------ core
     def sample_start(self, key: jax.Array, params: ShootingParams) -> WorldState:
@@ -263,30 +212,19 @@ class ShootingEnv:
                                  jnp.asarray(params.world.ball.radius, F32),
                                  goal_corners(params.world), params.camera, eps)
 
-    def reset_state(self, key: jax.Array, params: ShootingParams | None = None
-                    ) -> tuple[ShootingState, jax.Array | None]:
-        """:meth:`reset` without the observation: (state, eps), where ``get_obs(state,
-        params, eps)`` is the obs :meth:`reset` returns (``eps``: the pixel noise's
-        (SEC2_NOISE_DIM,) standard normals, None when off). A loop that observes inside its
-        body then holds the camera once in its compiled program."""
-        params = self._default_params if params is None else params
-        if not _is_traced(params):
-            self.validate(params)
-        start, pixel = draw_blocks(key, START_WORDS, (SEC2_NOISE_DIM, params.noise_on.pixel))
-        state = ShootingState(world=self.start_from_words(start, params),
-                              step=jnp.zeros((), jnp.int32))
-        return state, normals(pixel)
+    def transition_blocks(self, params: ShootingParams) -> tuple[tuple[int, bool], ...]:
+        """The transition's draw blocks: tire slip (SLIP_NORMALS,)."""
+        return ((SLIP_NORMALS, params.noise_on.slip),)
 
-    def reset(self, key: jax.Array, params: ShootingParams | None = None
-              ) -> tuple[jax.Array, ShootingState]:
-        """Fresh episode: (obs (9,) float32, state)."""
-        params = self._default_params if params is None else params
-        state, eps = self.reset_state(key, params)
-        return self.get_obs(state, params, eps), state
+    def _fresh(self, words: jax.Array, params: ShootingParams) -> ShootingState:
+        """A fresh episode's state from (START_WORDS,) uint32 random words."""
+        return ShootingState(world=self.start_from_words(words, params),
+                             step=jnp.zeros((), jnp.int32))
 
-    def _transition(self, slip_eps, state: ShootingState, action, params: ShootingParams):
-        """One primitive; ``slip_eps``: (SLIP_NORMALS,) float32 standard normals of the tire
-        slip, or None (slip off)."""
+    def _transition(self, eps, state: ShootingState, action, params: ShootingParams):
+        """One primitive; ``eps``: (tire slip,), (SLIP_NORMALS,) float32 standard normals or
+        None (slip off)."""
+        (slip_eps,) = eps
         world, events = world_step(state.world, jnp.reshape(action, (1,)).astype(jnp.int32),
                                    params.world, slip_eps=None if slip_eps is None else
                                    jnp.reshape(slip_eps, (1, 2)))
@@ -297,61 +235,3 @@ class ShootingEnv:
         info = dict(success=events.goal, ball_out=events.ball_out,
                     episode_done=terminated | truncated, episode_length=step)
         return ShootingState(world=world, step=step), reward, terminated, truncated, info
-
-    def _check_inputs(self, state, action, params):
-        if not _is_traced((action, state)):
-            self.check_action(action)
-            self._check_state(state)
-        if not _is_traced(params):
-            self.validate(params)
-
-    def step_env(self, key: jax.Array, state: ShootingState, action: jax.Array,
-                 params: ShootingParams | None = None):
-        """One primitive without auto-reset: (obs, state, reward, terminated, truncated, info)."""
-        params = self._default_params if params is None else params
-        self._check_inputs(state, action, params)
-        on = params.noise_on
-        slip, pixel = draw_blocks(key, (SLIP_NORMALS, on.slip), (SEC2_NOISE_DIM, on.pixel))
-        state, reward, terminated, truncated, info = self._transition(
-            normals(slip), state, action, params)
-        obs = self.get_obs(state, params, normals(pixel))
-        return obs, state, reward, terminated, truncated, info
-
-    def step_state(self, key: jax.Array, state: ShootingState, action: jax.Array,
-                   params: ShootingParams | None = None):
-        """:meth:`step` without the observation: (state, eps, reward, terminated,
-        truncated, info), where ``get_obs(state, params, eps)`` is the obs :meth:`step`
-        returns (see :meth:`reset_state`). The auto-reset selects the state, so the
-        observation is computed once, from the selected state."""
-        params = self._default_params if params is None else params
-        self._check_inputs(state, action, params)
-        on = params.noise_on
-        slip, start, pixel = draw_blocks(key, (SLIP_NORMALS, on.slip), START_WORDS,
-                                         (SEC2_NOISE_DIM, on.pixel))
-        nstate, reward, terminated, truncated, info = self._transition(
-            normals(slip), state, action, params)
-        done = info["episode_done"]
-        fresh = ShootingState(world=self.start_from_words(start, params),
-                              step=jnp.zeros((), jnp.int32))
-        nstate = jax.tree_util.tree_map(lambda a, b: jnp.where(done, a, b), fresh, nstate)
-        return nstate, normals(pixel), reward, terminated, truncated, info
-
-    def step(self, key: jax.Array, state: ShootingState, action: jax.Array,
-             params: ShootingParams | None = None):
-        """One primitive with auto-reset (fresh start draw when the episode ended).
-
-        Returns (obs (9,) float32, state, reward () float32, terminated () bool,
-        truncated () bool, info dict); obs is the first observation of the new episode
-        when it reset, while reward/terminated/truncated/info describe the finished step.
-        The key is hashed once: tire slip, the start draw and the pixel noise are blocks of
-        those bits (:func:`vbl.draws.draw_blocks`; a noise source switched off in
-        ``params.noise_on`` is not drawn).
-        """
-        params = self._default_params if params is None else params
-        nstate, eps, reward, terminated, truncated, info = self.step_state(key, state, action,
-                                                                          params)
-        return self.get_obs(nstate, params, eps), nstate, reward, terminated, truncated, info
-
-    def __repr__(self) -> str:
-        fields = [f.name for f in dataclasses.fields(ShootingParams)]
-        return f"ShootingEnv(robot_kind={self.robot_kind!r}, params={fields})"

@@ -194,6 +194,9 @@ def _check(exp: Experience, p: CellMapParams) -> None:
     check_cells(p, exp.x.shape[-1], exp.x.shape[2] - 1)
 
 
+# shape: one traced program without branches (straight-line array code around one
+# while_loop over the growth iterations); its stages share the (A, N, T) arrays and the
+# closures over them (first_target, back, body), which named steps would pass around.
 def build_cell_map(exp: Experience, p: CellMapParams) -> CellMap:
     """Grow the cell states backwards from the goal (module docstring). Jit-able with
     ``p`` closed over (traced thresholds may be vmapped); :func:`make_cell_builder` checks

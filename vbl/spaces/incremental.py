@@ -365,6 +365,9 @@ def _greedy_value(tsum, tcnt, min_count, crossfit):
 
 
 
+# shape: one traced program without branches (statistics, split candidates, merge
+# partners, one batched residual computation, the choice); its stages share the same
+# dozen arrays, so named steps would pass them around rather than shorten the logic.
 def structure_update(seg: Segmentation, buf: Buffer, q: jax.Array, p: SegmentationParams
                      ) -> tuple[Segmentation, jax.Array, jax.Array, jax.Array, jax.Array]:
     """Refit the local models from the buffer; split one box, or else merge two.

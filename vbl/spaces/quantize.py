@@ -181,8 +181,8 @@ def nearest(d: jax.Array) -> jax.Array:
     as ``jnp.argmin`` (the first minimum; a row with NaN: its first NaN).
 
     Two plain reductions (the minimum, then the first index that attains it) instead of
-    one over (value, index) pairs, which XLA's CPU backend does not vectorise: 2.4x faster
-    for 2,048 x 64 distances of 8-D codes. ``d`` is materialised once
+    one over (value, index) pairs, which XLA's CPU backend does not vectorise
+    (docs/findings/learner_cost.md, "Nearest code"). ``d`` is materialised once
     (``optimization_barrier``), so both reductions read the same values (a copy of its
     computation fused into each could round differently and miss the minimum).
     """

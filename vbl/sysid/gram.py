@@ -16,8 +16,8 @@ __all__ = ["lag_products", "block_toeplitz", "hankel_gram", "BLOCK"]
 
 #: Samples per row of the blocked record in :func:`lag_products`: the ``w`` products of
 #: ``(d x ne) (ne x d)``, whose ``d x d`` outputs keep XLA's CPU matrix product far from its
-#: speed, become one product with ``(w/BLOCK + 1) BLOCK d x BLOCK d`` outputs (measured at
-#: N = 500, d = 6, w = 18: 0.16 ms per record at 3-9 against 0.25 ms for ``w`` products).
+#: speed, become one product with ``(w/BLOCK + 1) BLOCK d x BLOCK d`` outputs (the block
+#: sizes measured: docs/findings/cva_cost.md, "Kept by measurement").
 BLOCK = 6
 
 

@@ -39,8 +39,8 @@ class CVAParams:
     lag_max: int = param(6, doc="largest lag the lag rule tries", static=True, ge=1)
     lag_step: int = param(3, doc="lag_rule='predictor' only: the lags tried are lag_max, "
                           "lag_max - lag_step, ... down to lag_min (default l = 6, 3: "
-                          "neighbouring lags carry nearly the same order evidence; measured "
-                          "within 0.7 points of every l = 2..6 at 0.6x the cost)",
+                          "neighbouring lags carry nearly the same order evidence: see the "
+                          "order recovery measured in docs/sysid.md)",
                           static=True, ge=1)
     order_penalty: float = param(3.0, doc="lag_rule='predictor' only: penalty per parameter "
                                  "of lambda(n) in the pooled order criterion (3: AIC3; "

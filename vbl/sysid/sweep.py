@@ -63,8 +63,8 @@ __all__ = ["fit_one", "fit_batch", "fit_select_one", "fit_select_batch", "predic
 #: a chunk, chunks in sequence, :func:`vbl.sysid.batching.in_chunks`): small enough for a
 #: chunk's working set to stay in the cache (the cost per identification is the same at 1,024
 #: and 4,096 data sets, ``benchmarks/cva_throughput.py``), large enough to amortise the
-#: per-operation overhead of the vmapped program (at a fixed l = 3, 0.152 ms CPU per
-#: identification in chunks of 64 against 0.162 in chunks of 32 or 128).
+#: per-operation overhead of the vmapped program (the chunk sizes measured:
+#: docs/findings/cva_cost.md, "Kept by measurement").
 CHUNK = 64
 
 

@@ -1,0 +1,137 @@
+"""The env base (vbl.envs.base.TaskEnv) on a toy task whose every number is known: a
+counter episode of EPISODE steps whose fresh state is read from the random words, so the
+auto-reset and the random layout are checked against jax.random.bits directly."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from flax import struct
+
+from vbl.draws import uniform01
+from vbl.envs.base import NoiseOn, TaskEnv
+from vbl.params import ParamError, param, section
+from vbl.world.params import WorldParams
+from vbl.world.physics import WorldState
+
+EPISODE = 3
+FRESH = 3  # words of a fresh episode: the robot pose
+SLIP = 2  # words of a transition's slip block
+
+
+@struct.dataclass
+class ToyParams:
+    world: WorldParams = section(WorldParams, doc="physics")
+    noise_on: NoiseOn = section(NoiseOn, doc="switches")
+    max_steps: int = param(EPISODE, doc="episode length", static=True, ge=1)
+
+
+@struct.dataclass
+class ToyState:
+    world: WorldState
+    step: jax.Array
+
+
+class ToyEnv(TaskEnv, params=ToyParams, state=ToyState, fresh_words=FRESH, pixel_noise_dim=1,
+             option=("kind", ("a", "b"))):
+    name = "Toy"
+    num_actions = 2
+    action_labels = ("stay", "go")
+    observation_shape = (4,)
+
+    def __init__(self, kind="a", params=None):
+        super().__init__(kind, params)
+
+    def transition_blocks(self, params):
+        return ((SLIP, params.noise_on.slip),)
+
+    def _fresh(self, words, params):
+        z = jnp.zeros(2, jnp.float32)
+        world = WorldState(robots=uniform01(words).reshape(1, 3), ball=z, ball_vel=z,
+                           scored=jnp.zeros((), bool), ball_out=jnp.zeros((), bool))
+        return ToyState(world=world, step=jnp.zeros((), jnp.int32))
+
+    def _transition(self, eps, state, action, params):
+        assert eps == (None,)  # slip is off: its block is not drawn
+        step = state.step + 1
+        done = step >= params.max_steps
+        info = dict(episode_done=done, episode_length=step)
+        return (state.replace(step=step), jnp.asarray(action, jnp.float32), done,
+                jnp.zeros((), bool), info)
+
+    def get_obs(self, state, params, eps=None):
+        return jnp.append(state.world.robots[0], state.step.astype(jnp.float32))
+
+
+def _fresh_pose(key, start, total):
+    """The fresh pose from the words [start, start + FRESH) of the call's layout."""
+    return np.asarray(uniform01(jax.random.bits(key, (total,), jnp.uint32)[start:start + FRESH]))
+
+
+def test_reset_draws_the_first_words_and_observes_its_state():
+    env = ToyEnv()
+    key = jax.random.key(1)
+    obs, state = env.reset(key)
+    np.testing.assert_array_equal(state.world.robots[0], _fresh_pose(key, 0, FRESH + 1))
+    np.testing.assert_array_equal(obs, [*np.asarray(state.world.robots[0]), 0.0])
+    s2, eps = env.reset_state(key)
+    assert eps is None  # pixel noise off
+    np.testing.assert_array_equal(env.get_obs(s2, env.default_params), obs)
+
+
+def test_step_auto_resets_at_the_episode_end_with_the_fresh_words_after_the_transition():
+    env = ToyEnv()
+    _, state = env.reset(jax.random.key(0))
+    step = jax.jit(env.step)
+    for t in range(1, EPISODE + 1):
+        key = jax.random.key(10 + t)
+        obs, nstate, reward, terminated, truncated, info = step(key, state, jnp.int32(1))
+        assert float(reward) == 1.0 and int(info["episode_length"]) == t
+        assert bool(terminated) == (t == EPISODE) and not bool(truncated)
+        if t < EPISODE:  # same episode: the counter moves, the pose stays
+            assert int(nstate.step) == t
+            np.testing.assert_array_equal(nstate.world.robots, state.world.robots)
+        else:  # reset: a fresh episode from the words after the slip block
+            assert int(nstate.step) == 0
+            np.testing.assert_array_equal(nstate.world.robots[0],
+                                          _fresh_pose(key, SLIP, SLIP + FRESH + 1))
+        np.testing.assert_array_equal(obs, env.get_obs(nstate, env.default_params))
+        state = nstate
+
+
+def test_step_env_does_not_reset():
+    env = ToyEnv()
+    _, state = env.reset(jax.random.key(0))
+    state = state.replace(step=jnp.int32(EPISODE - 1))
+    _, nstate, _, terminated, *_ = env.step_env(jax.random.key(3), state, jnp.int32(0))
+    assert bool(terminated) and int(nstate.step) == EPISODE
+    np.testing.assert_array_equal(nstate.world.robots, state.world.robots)
+
+
+def test_checks_outside_jit_and_none_inside():
+    env = ToyEnv("b")
+    assert repr(env) == "ToyEnv(kind='b', params=['world', 'noise_on', 'max_steps'])"
+    _, state = env.reset(jax.random.key(0))
+    key = jax.random.key(1)
+    with pytest.raises(ValueError, match=r"\[0, 1\] \(stay, go\)"):
+        env.step(key, state, jnp.int32(2))
+    with pytest.raises(ValueError, match="ToyState"):
+        env.step(key, state.world, jnp.int32(0))
+    bad = state.replace(world=state.world.replace(robots=jnp.zeros((2, 3))))
+    with pytest.raises(ValueError, match=r"expected \(1, 3\) / \(2,\)"):
+        env.step(key, bad, jnp.int32(0))
+    with pytest.raises(ParamError, match="ToyParams"):
+        env.reset(key, WorldParams())
+    with pytest.raises(ParamError, match="slip_std"):
+        env.validate(ToyParams(world=WorldParams().replace(
+            robot=WorldParams().robot.replace(slip_std=-1.0))))
+    with pytest.raises(ValueError, match=r"kind='c' is not allowed; choose one of \['a', 'b'\]"):
+        ToyEnv("c")
+    # traced action out of range: no check inside jit
+    jax.jit(env.step)(key, state, jnp.int32(5))
+
+
+def test_a_task_must_declare_its_parts():
+    with pytest.raises(TypeError):
+        class Incomplete(TaskEnv, params=ToyParams, state=ToyState):  # noqa: F841
+            pass
