@@ -67,6 +67,28 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
     _add_debug(p, argparse.SUPPRESS)
 
 
+def _add_render(sub) -> None:
+    """The ``vbl render`` subcommand (docs/render.md, "Videos")."""
+    p = sub.add_parser("render", help="a video (GIF or MP4) of a run folder's policy: camera "
+                       "view, top view, the learner's state and action (docs/render.md)")
+    p.add_argument("folder", metavar="RUN_FOLDER", help="a finished run folder (vbl run --out)")
+    p.add_argument("--episodes", type=int, default=2, metavar="N",
+                   help="episodes, one after the other (default 2)")
+    p.add_argument("--out", required=True, metavar="FILE", help="FILE.gif or FILE.mp4")
+    p.add_argument("--policy", default="learned", metavar="learned|random",
+                   help="the run's final Q table (needs its checkpoints/) or the uniformly "
+                        "random policy (default learned)")
+    p.add_argument("--point", type=int, default=0,
+                   help="sweep point of the run (index, default 0)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the run (index, default 0)")
+    p.add_argument("--key", type=int, default=0, help="PRNG seed of the episodes' starts")
+    p.add_argument("--height", type=int, default=None, metavar="PX",
+                   help="frame height (default 128)")
+    p.add_argument("--max-steps", type=int, default=None, metavar="T",
+                   help="most primitives (frames) per episode (default 200)")
+    _add_debug(p, argparse.SUPPRESS)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="vbl", description="vbl: vmapped, sharded, checkpointed "
                      "robot-learning experiments")
@@ -112,24 +134,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "updates the committed results)")
     p.add_argument("names", nargs="*", help="benchmark names (default: all)")
     _add_debug(p, argparse.SUPPRESS)
-    p = sub.add_parser("render", help="a video (GIF or MP4) of a run folder's policy: camera "
-                       "view, top view, the learner's state and action (docs/render.md)")
-    p.add_argument("folder", metavar="RUN_FOLDER", help="a finished run folder (vbl run --out)")
-    p.add_argument("--episodes", type=int, default=2, metavar="N",
-                   help="episodes, one after the other (default 2)")
-    p.add_argument("--out", required=True, metavar="FILE", help="FILE.gif or FILE.mp4")
-    p.add_argument("--policy", default="learned", metavar="learned|random",
-                   help="the run's final Q table (needs its checkpoints/) or the uniformly "
-                        "random policy (default learned)")
-    p.add_argument("--point", type=int, default=0,
-                   help="sweep point of the run (index, default 0)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the run (index, default 0)")
-    p.add_argument("--key", type=int, default=0, help="PRNG seed of the episodes' starts")
-    p.add_argument("--height", type=int, default=None, metavar="PX",
-                   help="frame height (default 128)")
-    p.add_argument("--max-steps", type=int, default=None, metavar="T",
-                   help="most primitives (frames) per episode (default 200)")
-    _add_debug(p, argparse.SUPPRESS)
+    _add_render(sub)
     p = sub.add_parser("params", help="the parameter table of an experiment (Markdown)")
     p.add_argument("experiment", help="experiment name, or path/to/script.py")
     _add_debug(p, argparse.SUPPRESS)
@@ -341,15 +346,9 @@ def _dispatch(args) -> int:
                                jobs=args.jobs)
         print(f"report: {report}", flush=True)
         return 0 if ok else _error(f"some experiments failed; see {report}", 1)
-    if args.command == "merge":
-        return _cmd_merge(args)
-    if args.command == "bench":
-        return _cmd_bench(args)
-    if args.command == "report":
-        return _cmd_report(args)
-    if args.command == "render":
-        return _cmd_render(args)
-    raise AssertionError(args.command)
+    commands = {"merge": _cmd_merge, "bench": _cmd_bench, "report": _cmd_report,
+                "render": _cmd_render}
+    return commands[args.command](args)
 
 
 def _guarded(fn, *a, debug: bool = False) -> int:
