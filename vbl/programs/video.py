@@ -3,8 +3,8 @@
 A frame shows, side by side, the learner's camera image and the top view of the field
 (:func:`vbl.vision.render.render_world`) and a panel with the learner's discrete state (a
 cell in a grid of all states), its state vector (bars: the CVA state of Table 2, the
-Section 2 features of the grid learner) and the primitive in force (boxes, one per action,
-labelled); a caption names the episode, the time and the action.
+Section 2 features of the grid learner) and the primitive in force (boxes, one per
+primitive); a caption names the episode, the time, the state index and the action.
 
 * **Policies.** ``learned``: the final Q table of one learner of the run (one sweep point,
   one seed), restored from the run folder's last checkpoint (``checkpoints/``, which every
