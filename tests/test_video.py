@@ -161,8 +161,9 @@ def test_bad_input_is_one_line_exit_2(case, grid_run, tmp_path, capsys):
 
 
 def test_committed_run_without_checkpoints_says_so(tmp_path):
-    """The committed run folders keep results, not checkpoints: one line, exit 2."""
-    folder = REPO / "docs" / "results" / "reproduce" / "grid_shooting"
+    """Committed run folders keep results and, but for grid_shooting's, no checkpoints:
+    the learned policy of such a folder is one line, exit 2."""
+    folder = REPO / "docs" / "results" / "reproduce" / "table2_shoot_pass"
     r = subprocess.run([sys.executable, "-m", "vbl.cli", "render", str(folder), "--out",
                         str(tmp_path / "x.gif")], cwd=REPO, capture_output=True, text=True,
                        timeout=300)
