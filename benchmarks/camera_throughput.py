@@ -1,5 +1,5 @@
 """Camera throughput: CPU time per call per env of the Section 2 and Section 3 cameras,
-the current ``vbl/vision/features.py`` against an earlier version in the same run.
+the current ``vbl.vision`` against an earlier single-module camera in the same run.
 
 The earlier version is read from git (``--old-rev``, default: the last commit with the
 face-by-face polygon clipping camera) and loaded as a module beside the current one. Both
@@ -49,10 +49,10 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
 import vbl  # noqa: E402,F401
+import vbl.vision as new_features  # noqa: E402
 from benchmarks.hardware import hardware_info, write_results  # noqa: E402
 from vbl.envs.shoot_pass import ShootPassEnv  # noqa: E402
 from vbl.envs.shooting import ShootingEnv  # noqa: E402
-from vbl.vision import features as new_features  # noqa: E402
 from vbl.world.physics import goal_corners  # noqa: E402
 
 #: Last commit whose camera clips each box face and each goal occluder polygon separately.
@@ -68,7 +68,7 @@ SCANS = {4: "goal segments: near clip, projection, image clip (4 steps)",
 
 
 def load_old(rev: str) -> types.ModuleType:
-    """``vbl/vision/features.py`` at git revision ``rev`` as a module."""
+    """The single-module camera ``vbl/vision/features.py`` at git revision ``rev`` as a module."""
     src = subprocess.run(["git", "show", f"{rev}:vbl/vision/features.py"], cwd=ROOT,
                          check=True, capture_output=True, text=True).stdout
     mod = types.ModuleType("vbl_features_old")

@@ -4,7 +4,7 @@ Benchmark baseline only (not a test oracle): what a straightforward CPU implemen
 of the same model would do, one environment and one step at a time, in closed form.
 
 * world: ``tests/reference/world_np.step_world`` (scalar Python/``math``, closed form);
-* features: the closed-form Section 2 camera model of ``vbl/vision/features.py``
+* features: the closed-form Section 2 camera model of ``vbl/vision/section2.py``
   (sphere image ellipse clipped to the image, goal posts near-clipped, projected and
   clipped to the image, ball occluding the posts) written with scalar ``math`` — unlike
   the deliberately brute-force oracle ``tests/reference/camera_np.py``, which samples the
@@ -94,7 +94,7 @@ def _clip_rect(p0, p1, lo, hi):
 
 
 def section2_np(pose, ball, radius, corners, cam) -> np.ndarray:
-    """Section 2 features (9,) float64 of one camera (layout of ``vbl.vision.features``)."""
+    """Section 2 features (9,) float64 of one camera (layout of ``vbl.vision.section2``)."""
     x, y, th = pose
     tau = math.radians(cam.tilt_deg)
     ct, st, ca, sa = math.cos(th), math.sin(th), math.cos(tau), math.sin(tau)

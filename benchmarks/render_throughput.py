@@ -1,6 +1,6 @@
 """Render throughput: camera images per second from ``vbl.vision.render`` and pixel
 features per second (render + ``vbl.vision.blobs``), beside the analytic features of
-``vbl.vision.features`` on the same scenes, at several image sizes and batch sizes.
+``vbl.vision.section3`` on the same scenes, at several image sizes and batch sizes.
 
 Scenes: :func:`vbl.vision.scenes.random_scenes`, the kinds in turn (close, far, cut by the
 borders, occluded, lost), the other robot drawn as the Section 3 camera's box. Each timed
@@ -52,9 +52,9 @@ from benchmarks.camera_throughput import make_runner  # noqa: E402
 from benchmarks.hardware import hardware_info, write_results  # noqa: E402
 from vbl.vision.blobs import BlobParams, section3_flat_from_pixels  # noqa: E402
 from vbl.vision.camera import CameraParams  # noqa: E402
-from vbl.vision.features import flatten_section3, section3_features  # noqa: E402
 from vbl.vision.render import RenderParams, render_camera, to_uint8  # noqa: E402
 from vbl.vision.scenes import OTHER_HEIGHT, SCENE_KINDS, random_scenes  # noqa: E402
+from vbl.vision.section3 import flatten_section3, section3_features  # noqa: E402
 from vbl.world import WorldParams, goal_corners  # noqa: E402
 
 #: Image sizes (width, height): the learners' small images and the paper's 512 x 480.

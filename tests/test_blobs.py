@@ -1,8 +1,8 @@
 """Colour-blob features from rendered pixels (vbl.vision.blobs) against the analytic camera
-(vbl.vision.features) on random scenes of every kind of vbl.vision.scenes: close, far, cut
-by the left / right / bottom border, the goal cut by the image border, the ball behind the
-other robot, objects out of view. The bounds and why they hold: docs/render.md
-("Accuracy against the analytic features").
+(vbl.vision.section2, vbl.vision.section3) on random scenes of every kind of
+vbl.vision.scenes: close, far, cut by the left / right / bottom border, the goal cut by the
+image border, the ball behind the other robot, objects out of view. The bounds and why they
+hold: docs/render.md ("Accuracy against the analytic features").
 
 CI runs ``SCENES_FAST`` scenes per kind at 512 x 480; ``-m slow`` runs ``SCENES_SLOW`` per
 kind (8 kinds: 1,024 scenes).
@@ -28,16 +28,11 @@ from vbl.vision.blobs import (
     track_lost_side,
 )
 from vbl.vision.camera import CameraParams, camera_frame, to_camera
-from vbl.vision.features import (
-    SEC2_DIM,
-    SEC3_DIM,
-    ball_image,
-    flatten_section3,
-    section2_features,
-    section3_features,
-)
+from vbl.vision.projection import ball_image
 from vbl.vision.render import RenderParams, render_camera, to_uint8
 from vbl.vision.scenes import OTHER_HEIGHT, SCENE_KINDS, random_scenes
+from vbl.vision.section2 import SEC2_DIM, section2_features
+from vbl.vision.section3 import SEC3_DIM, flatten_section3, section3_features
 from vbl.world import WorldParams, goal_corners
 
 SCENES_FAST = 16

@@ -10,7 +10,8 @@ import pytest
 import vbl  # noqa: F401
 from tests.reference.camera_np import section2_features_np, section3_features_np
 from vbl.vision import CameraParams, flatten_section3, section2_features, section3_features
-from vbl.vision import features as F
+from vbl.vision import section2 as S2
+from vbl.vision import section3 as S3
 
 CAM = CameraParams()
 R = 0.11
@@ -41,7 +42,7 @@ def s2(pose, ball, cam=CAM, radius=R, goal=GOAL, eps=None):
 
 def normals(seed, n):
     """(n, SEC2_NOISE_DIM) standard normal pixel-noise draws."""
-    return jax.random.normal(jax.random.key(seed), (n, F.SEC2_NOISE_DIM), jnp.float32)
+    return jax.random.normal(jax.random.key(seed), (n, S2.SEC2_NOISE_DIM), jnp.float32)
 
 
 def s3(pose, ball, other, cam=CAM, size=SIZE):
@@ -58,9 +59,9 @@ def test_ball_on_optical_axis():
     d = math.hypot(g, CAM.height - R)
     ball = [CAM.forward_offset + g, 0.0]
     x = s2([0, 0, 0], ball)
-    np.testing.assert_allclose(x[F.SEC2_BALL_SIZE], 2 * FU * R / math.sqrt(d * d - R * R),
+    np.testing.assert_allclose(x[S2.SEC2_BALL_SIZE], 2 * FU * R / math.sqrt(d * d - R * R),
                                rtol=1e-5)
-    assert abs(x[F.SEC2_BALL_POS]) < 1e-3 and x[F.SEC2_BALL_VISIBLE] == 1
+    assert abs(x[S2.SEC2_BALL_POS]) < 1e-3 and x[S2.SEC2_BALL_VISIBLE] == 1
     y = s3([0, 0, 0], ball, [-3, 0, 0])
     np.testing.assert_allclose(y[:4], [0, 0, 2 * FU * R / math.sqrt(d * d - R * R),
                                        2 * FV * R / math.sqrt(d * d - R * R)],
@@ -90,22 +91,22 @@ def test_ball_partial_at_right_border_level_camera():
     ball = [d * math.cos(phi_c), -d * math.sin(phi_c)]
     x = s2([0, 0, 0], ball, cam=cam)
     u_left = FU * math.tan(phi_c - math.asin(R / d))
-    assert x[F.SEC2_BALL_VISIBLE] == 1
+    assert x[S2.SEC2_BALL_VISIBLE] == 1
     np.testing.assert_allclose(x[0], 256 - u_left, rtol=1e-4)
     np.testing.assert_allclose(x[1], 0.5 * (256 + u_left), rtol=1e-5)
     # moving it further right: lost to the right
     phi = half + 1.2 * math.asin(R / d)
     x = s2([0, 0, 0], [d * math.cos(phi), -d * math.sin(phi)], cam=cam)
-    assert x[F.SEC2_BALL_VISIBLE] == 0 and x[F.SEC2_BALL_LOST_SIDE] == 1 and x[0] == 0
+    assert x[S2.SEC2_BALL_VISIBLE] == 0 and x[S2.SEC2_BALL_LOST_SIDE] == 1 and x[0] == 0
 
 
 def test_goal_frontal_and_mirrored():
     x = s2([0, 0, 0], [1, 0])
-    assert x[F.SEC2_GOAL_VISIBLE] == 1
-    assert abs(x[F.SEC2_GOAL_POS]) < 1e-3 and abs(x[F.SEC2_GOAL_ORIENT]) < 1e-5
+    assert x[S2.SEC2_GOAL_VISIBLE] == 1
+    assert abs(x[S2.SEC2_GOAL_POS]) < 1e-3 and abs(x[S2.SEC2_GOAL_ORIENT]) < 1e-5
     a = s2([1.0, 0.8, -0.3], [2.0, 0.3])
     b = s2([1.0, -0.8, 0.3], [2.0, -0.3])
-    assert a[F.SEC2_GOAL_ORIENT] > 0.02                 # left post nearer: taller
+    assert a[S2.SEC2_GOAL_ORIENT] > 0.02                 # left post nearer: taller
     np.testing.assert_allclose(a[[1, 3, 4]], -b[[1, 3, 4]], atol=1e-3)
     np.testing.assert_allclose(a[[0, 2]], b[[0, 2]], rtol=1e-5)
 
@@ -115,7 +116,7 @@ def test_goal_image_height_level_camera():
     cam = CameraParams(height=0.25, tilt_deg=0.0, forward_offset=0.0)
     dd = 3.0
     x = s2([HL - dd, 0, 0], [-3, 0], cam=cam)
-    np.testing.assert_allclose(x[F.SEC2_GOAL_SIZE], FV * 0.5 / dd, rtol=1e-5)
+    np.testing.assert_allclose(x[S2.SEC2_GOAL_SIZE], FV * 0.5 / dd, rtol=1e-5)
     y = s3([HL - dd, 0, 0], [-3, 0], [-3, 1, 0], cam=cam)
     w, h = FU * 1.5 / dd, FV * 0.5 / dd
     np.testing.assert_allclose(y[4:12], [-w / 2, -h / 2, -w / 2, h / 2, w / 2, h / 2,
@@ -134,22 +135,22 @@ def test_other_robot_front_face_level_camera():
 
 def test_lost_behind_and_outside():
     x = s2([0, 0.5, math.pi], [1, 0.8])   # facing -x: +y is on the camera's right
-    assert x[F.SEC2_BALL_VISIBLE] == 0 and x[F.SEC2_BALL_LOST_SIDE] == 1
-    assert x[F.SEC2_GOAL_VISIBLE] == 0 and x[F.SEC2_GOAL_LOST_SIDE] == -1
+    assert x[S2.SEC2_BALL_VISIBLE] == 0 and x[S2.SEC2_BALL_LOST_SIDE] == 1
+    assert x[S2.SEC2_GOAL_VISIBLE] == 0 and x[S2.SEC2_GOAL_LOST_SIDE] == -1
     np.testing.assert_array_equal(x[:5], 0)
     x = s2([0, 0, 0], [0.5, -1.5])         # 72 deg to the right
-    assert x[F.SEC2_BALL_VISIBLE] == 0 and x[F.SEC2_BALL_LOST_SIDE] == 1
+    assert x[S2.SEC2_BALL_VISIBLE] == 0 and x[S2.SEC2_BALL_LOST_SIDE] == 1
     x = s2([0, 0, 1.4], [0.5, -1.5])       # goal far to the right of the view
-    assert x[F.SEC2_GOAL_VISIBLE] == 0 and x[F.SEC2_GOAL_LOST_SIDE] == 1
+    assert x[S2.SEC2_GOAL_VISIBLE] == 0 and x[S2.SEC2_GOAL_LOST_SIDE] == 1
 
 
 def test_goal_partial_view_and_ranges():
     x = s2([3.6, 0, 0], [0, 0])            # close: both posts outside the image
-    assert x[F.SEC2_GOAL_VISIBLE] == 1 and abs(x[F.SEC2_GOAL_POS]) < 1e-3
-    assert 0 < x[F.SEC2_GOAL_SIZE] <= 480
+    assert x[S2.SEC2_GOAL_VISIBLE] == 1 and abs(x[S2.SEC2_GOAL_POS]) < 1e-3
+    assert 0 < x[S2.SEC2_GOAL_SIZE] <= 480
     x = s2([2.0, 1.2, -0.2], [0, 0])       # left post cut by the left border
-    assert x[F.SEC2_GOAL_VISIBLE] == 1 and -256 <= x[F.SEC2_GOAL_POS] <= 256
-    assert -1 <= x[F.SEC2_GOAL_ORIENT] <= 1
+    assert x[S2.SEC2_GOAL_VISIBLE] == 1 and -256 <= x[S2.SEC2_GOAL_POS] <= 256
+    assert -1 <= x[S2.SEC2_GOAL_ORIENT] <= 1
 
 
 def test_ball_occludes_post():
@@ -157,7 +158,7 @@ def test_ball_occludes_post():
     free = s2(pose, [0, -2])
     hidden = s2(pose, [3.6, 0.75])         # ball in front of the left post's foot
     # left end loses its lower part: x5 = (hl - hr) / x3 falls
-    assert hidden[F.SEC2_GOAL_ORIENT] < free[F.SEC2_GOAL_ORIENT] - 0.05
+    assert hidden[S2.SEC2_GOAL_ORIENT] < free[S2.SEC2_GOAL_ORIENT] - 0.05
     behind = s2([2.0, 0.75, 0.0], [4.3, 0.75])   # ball inside the goal: no occlusion
     np.testing.assert_allclose(behind[2:5], free[2:5], atol=1e-4)
 
@@ -219,7 +220,7 @@ def test_vmap_equals_loop_and_dtypes():
     b2 = sec2_batch(poses, balls, R, f32(GOAL), CAM, normals(0, 8))
     b3 = sec3_batch(poses, balls, others)
     assert b2.dtype == jnp.float32 and b3.dtype == jnp.float32
-    assert b2.shape == (8, F.SEC2_DIM) and b3.shape == (8, F.SEC3_DIM)
+    assert b2.shape == (8, S2.SEC2_DIM) and b3.shape == (8, S3.SEC3_DIM)
     for i in range(8):
         np.testing.assert_allclose(np.asarray(b2[i]), s2(poses[i], balls[i]), atol=1e-3)
         np.testing.assert_allclose(np.asarray(b3[i]), s3(poses[i], balls[i], others[i]),
@@ -239,9 +240,9 @@ def test_pixel_noise():
     n = 4000
     xs = np.asarray(sec2_batch(jnp.tile(f32(pose), (n, 1)), jnp.tile(f32(ball), (n, 1)), R,
                                f32(GOAL), cam, normals(1, n)))
-    for idx, want in ((F.SEC2_BALL_SIZE, std), (F.SEC2_BALL_POS, std),
-                      (F.SEC2_GOAL_POS, std / math.sqrt(2)),
-                      (F.SEC2_GOAL_SIZE, std / math.sqrt(2))):
+    for idx, want in ((S2.SEC2_BALL_SIZE, std), (S2.SEC2_BALL_POS, std),
+                      (S2.SEC2_GOAL_POS, std / math.sqrt(2)),
+                      (S2.SEC2_GOAL_SIZE, std / math.sqrt(2))):
         np.testing.assert_allclose(xs[:, idx].std(), want, rtol=0.06)
         np.testing.assert_allclose(xs[:, idx].mean(), exact[idx], atol=4 * want / 60)
     np.testing.assert_array_equal(xs[:, 5:], np.broadcast_to(exact[5:], xs[:, 5:].shape))

@@ -16,7 +16,7 @@ import pytest
 
 from vbl.vision.blobs import MASK_BALL, MASK_GOAL, MASK_OTHER, BlobParams, colour_masks
 from vbl.vision.camera import CameraParams, camera_frame, project_points, to_camera
-from vbl.vision.features import ball_image, flatten_section3, section3_features
+from vbl.vision.projection import ball_image
 from vbl.vision.render import (
     BALL_RGB,
     FLOOR_RGB,
@@ -30,6 +30,7 @@ from vbl.vision.render import (
     to_uint8,
 )
 from vbl.vision.scenes import OTHER_HEIGHT, SCENE_KINDS, random_scenes
+from vbl.vision.section3 import flatten_section3, section3_features
 from vbl.world import WorldParams, goal_corners
 
 WORLD = WorldParams()

@@ -26,7 +26,7 @@ from vbl.programs.segmentation_figures import (
     plot_fig8,
     plot_fig9,
 )
-from vbl.vision.features import (
+from vbl.vision.section2 import (
     SEC2_BALL_LOST_SIDE,
     SEC2_BALL_POS,
     SEC2_BALL_VISIBLE,

@@ -21,7 +21,7 @@ from vbl.envs.shoot_pass import (
 )
 from vbl.params import ParamError
 from vbl.vision.camera import CameraParams
-from vbl.vision.features import flatten_section3, section3_features
+from vbl.vision.section3 import flatten_section3, section3_features
 from vbl.world.physics import goal_corners, make_state
 from vbl.world.robots import FOUR_WHEEL_LABELS
 

@@ -1,4 +1,4 @@
-"""Green's theorem on clamped boundaries (vbl.vision.features) and the Section 3 camera's
+"""Green's theorem on clamped boundaries (vbl.vision.section3) and the Section 3 camera's
 edge cases, against independent truth: the NumPy reference's Sutherland-Hodgman
 clipping and shoelace formula (``tests/reference/camera_np``)."""
 
@@ -19,7 +19,7 @@ from tests.reference.camera_np import (
     to_cam_np,
 )
 from vbl.vision import CameraParams, flatten_section3, section3_features
-from vbl.vision import features as F
+from vbl.vision import section3 as S3
 
 CAM = CameraParams()
 R = 0.11
@@ -48,7 +48,7 @@ def f32(x):
     return jnp.asarray(x, jnp.float32)
 
 
-chain_in_rects = jax.jit(F._chain_in_rects)
+chain_in_rects = jax.jit(S3._chain_in_rects)
 sec3_batch = jax.jit(jax.vmap(lambda p, b, o: flatten_section3(section3_features(
     p, b, R, f32(GOAL), o, f32(SIZE), CAM))))
 

@@ -1,7 +1,7 @@
 """Probe: the camera of this checkout against the camera of an earlier commit, same run.
 
-What it measures, for ``vbl/vision/features.py`` at ``--base REV`` (read with ``git show``
-and loaded beside the current module) and for the working tree:
+What it measures, for the single-module camera ``vbl/vision/features.py`` at ``--base REV``
+(read with ``git show`` and loaded beside the current package) and for the working tree:
 
 * each camera alone (Section 3 on ``ShootPassEnv("shoot")`` start states, Section 2 on
   ``ShootingEnv`` start states, batch ``--batch``): CPU us per call per env, the two
@@ -44,9 +44,10 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
+import vbl.vision as this_features  # noqa: E402
 from benchmarks.camera_throughput import camera_fn, load_old, make_runner, scenes  # noqa: E402
 from vbl.envs.shoot_pass import ShootPassEnv  # noqa: E402
-from vbl.vision import features as this_features  # noqa: E402
+from vbl.vision import section3  # noqa: E402
 from vbl.vision.camera import CameraParams  # noqa: E402
 
 F32 = jnp.float32
@@ -104,19 +105,19 @@ def env_step_rows(base, batch: int, reps: int) -> list[str]:
             return jax.lax.scan(body, (st, 0.0), jnp.arange(CALLS))[0][1]
         return run
 
-    saved = (this_features.section3_features, this_features.flatten_section3)
+    saved = (section3.section3_features, section3.flatten_section3)
     runs, comp = {}, {}
     for side, mod in (("base", base), ("this", this_features)):
         # the env imports the camera when it traces its step: swap it for the base side
-        this_features.section3_features = mod.section3_features
-        this_features.flatten_section3 = mod.flatten_section3
+        section3.section3_features = mod.section3_features
+        section3.flatten_section3 = mod.flatten_section3
         try:
             runs[side] = jax.jit(make_run())
             t0 = time.perf_counter()
             jax.block_until_ready(runs[side](st0, jax.random.key(1)))
             comp[side] = time.perf_counter() - t0
         finally:
-            this_features.section3_features, this_features.flatten_section3 = saved
+            section3.section3_features, section3.flatten_section3 = saved
     cpu = {side: [] for side in runs}
     for r in range(reps):
         for side, f in runs.items():

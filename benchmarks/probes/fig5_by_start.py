@@ -35,7 +35,7 @@ BAND_PX = 20.0
 
 def start_kind(obs: np.ndarray) -> np.ndarray:
     """0 ball left, 1 centred, 2 right (seen; +-BAND_PX), 3 lost left, 4 lost right."""
-    from vbl.vision.features import SEC2_BALL_LOST_SIDE, SEC2_BALL_POS, SEC2_BALL_VISIBLE
+    from vbl.vision.section2 import SEC2_BALL_LOST_SIDE, SEC2_BALL_POS, SEC2_BALL_VISIBLE
 
     x2 = obs[:, SEC2_BALL_POS]
     seen = obs[:, SEC2_BALL_VISIBLE] > 0.5

@@ -13,7 +13,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from vbl.vision.features import SEC2_BALL_LOST_SIDE, SEC2_BALL_POS, SEC2_BALL_VISIBLE
+from vbl.vision.section2 import SEC2_BALL_LOST_SIDE, SEC2_BALL_POS, SEC2_BALL_VISIBLE
 
 __all__ = ["steer_action"]
 

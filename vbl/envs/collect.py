@@ -46,7 +46,7 @@ from vbl.envs.other_agents import (
 from vbl.envs.shoot_pass import OBS_SLICES, default_world, observe
 from vbl.params import ParamError, param, section, validate
 from vbl.vision.camera import CameraParams
-from vbl.vision.features import SEC3_NOISE_DIM
+from vbl.vision.section3 import SEC3_NOISE_DIM
 from vbl.world.params import WorldParams
 from vbl.world.physics import WorldState, world_step, wrap_angle
 from vbl.world.robots import FOUR_WHEEL_U

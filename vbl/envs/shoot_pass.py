@@ -81,7 +81,7 @@ from vbl.envs.other_agents import (
 )
 from vbl.params import ParamError, param, section
 from vbl.vision.camera import CameraParams
-from vbl.vision.features import SEC3_NOISE_DIM
+from vbl.vision.section3 import SEC3_NOISE_DIM
 from vbl.world.params import FourWheelParams, WorldParams
 from vbl.world.physics import WorldState, goal_corners, world_step, wrap_angle
 from vbl.world.robots import FOUR_WHEEL_LABELS, FOUR_WHEEL_U
@@ -340,7 +340,7 @@ def observe(world: WorldState, me: int, cam: CameraParams, world_params: WorldPa
     ``cam``: that robot's camera (before noise); ``phase``: the ball's rolling phase, rad;
     ``eps``: (SEC3_NOISE_DIM,) float32 standard normals of the pixel noise (None: exact
     features)."""
-    from vbl.vision.features import flatten_section3, section3_features
+    from vbl.vision.section3 import flatten_section3, section3_features
 
     other = 1 - me
     cam = noisy_camera(cam, noise)

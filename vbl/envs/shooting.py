@@ -2,7 +2,7 @@
 
 One robot (two-motor by default), a ball and the goal in the +x end wall. The
 robot sees the Section 2 feature vector (9,) float32 of its camera
-(:func:`vbl.vision.features.section2_features`). Reward 1.0 when the ball enters
+(:func:`vbl.vision.section2.section2_features`). Reward 1.0 when the ball enters
 the goal, else 0. An episode ends on a goal (terminated), the ball leaving the
 field (terminated; only possible with ``world.field.walls=False``), or after
 ``max_steps`` primitives (truncated).
@@ -51,7 +51,7 @@ from vbl.draws import check_switched_off
 from vbl.envs.base import NoiseOn, TaskEnv
 from vbl.params import ParamError, param, section
 from vbl.vision.camera import CameraParams
-from vbl.vision.features import SEC2_DIM, SEC2_NOISE_DIM, section2_features
+from vbl.vision.section2 import SEC2_DIM, SEC2_NOISE_DIM, section2_features
 from vbl.world.params import ROBOT_KINDS, WorldParams
 from vbl.world.physics import WorldState, goal_corners, world_step, wrap_angle
 from vbl.world.robots import action_labels, num_actions

@@ -47,7 +47,7 @@ NUM_GOAL_STATES = 29  #: 3 positions x 3 sizes x 3 orientations + lost left + lo
 NUM_GRID_STATES = NUM_BALL_STATES * NUM_GOAL_STATES  #: 319
 
 # Section-2 observation indices (docs/architecture.md, "Observation layouts";
-# vbl.vision.features.SEC2_*).
+# vbl.vision.section2.SEC2_*).
 _X1_BALL_DIAM, _X2_BALL_POS, _X3_GOAL_SIZE, _X4_GOAL_POS, _X5_GOAL_ORIENT = 0, 1, 2, 3, 4
 _BALL_VIS, _GOAL_VIS, _BALL_SIDE, _GOAL_SIDE = 5, 6, 7, 8
 _OBS_DIM = 9

@@ -3,19 +3,18 @@
 Public API: :class:`CameraParams`, :func:`project_points` (``vbl.vision.camera``);
 :func:`section2_features`, :func:`section3_features`, :class:`Section3Obs`,
 :func:`flatten_section3`, :func:`check_inputs` and the ``SEC2_*`` / ``SEC3_*`` constants
-(``vbl.vision.features``). See ``docs/vision.md``.
+(``vbl.vision.section2``, ``vbl.vision.section3``; the ball and goal images both build on:
+``vbl.vision.projection``). See ``docs/vision.md``.
 """
 
 from vbl.vision.camera import CameraParams, project_points
-from vbl.vision.features import (
-    SEC2_DIM,
+from vbl.vision.section2 import SEC2_DIM, check_inputs, section2_features
+from vbl.vision.section3 import (
     SEC3_BALL_DIM,
     SEC3_GOAL_DIM,
     SEC3_OTHER_DIM,
     Section3Obs,
-    check_inputs,
     flatten_section3,
-    section2_features,
     section3_features,
 )
 

@@ -1,5 +1,5 @@
 """Colour-blob image features from pixels (pure JAX, float32): RGB -> HSV -> per-colour
-masks -> the Section 2 and Section 3 feature vectors of :mod:`vbl.vision.features`.
+masks -> the Section 2 and Section 3 feature vectors of :mod:`vbl.vision.section3`.
 
 The outputs have exactly the analytic functions' layouts (``SEC2_*`` indices; the flat
 Section 3 vector ball 4, goal 11, other 5, visible 3, lost side 3), in the analytic
@@ -17,8 +17,8 @@ from flax import struct
 
 from vbl.params import param
 from vbl.vision.camera import F32, CameraParams, focal_lengths
-from vbl.vision.features import Section3Obs, _opaque_one, _stored, flatten_section3
 from vbl.vision.render import pixel_grid
+from vbl.vision.section3 import Section3Obs, _opaque_one, _stored, flatten_section3
 
 __all__ = ["BlobParams", "Blob", "rgb_to_hsv", "colour_masks", "blob_stats",
            "goal_ends", "section2_from_pixels", "section3_from_pixels",
@@ -82,7 +82,7 @@ def colour_masks(img, bp: BlobParams):
         dh = jnp.abs(jnp.mod(h - hue + 180.0, 360.0) - 180.0)
         out.append(coloured & (dh <= bp.hue_tol))
     masks = jnp.stack(out).astype(F32)
-    # stored once (see vbl.vision.features._stored): otherwise XLA recomputes the masks,
+    # stored once (see vbl.vision.section3._stored): otherwise XLA recomputes the masks,
     # and a renderer fused into the same program, inside every reduction that reads them
     return _stored(masks, _opaque_one(jnp.sum(masks[:, 0, 0]))) > 0.5
 
@@ -250,7 +250,7 @@ def section2_from_pixels(img, cam: CameraParams, bp: BlobParams,
 def section3_from_pixels(img, cam: CameraParams, bp: BlobParams,
                          lost_side=None) -> Section3Obs:
     """Section 3 observation from an image (H, W, 3) (the layout of
-    :func:`vbl.vision.features.section3_features`).
+    :func:`vbl.vision.section3.section3_features`).
 
     ball (4) = centre u, v and width, height of the red pixels' bounding box; goal (11) =
     the ends' points left-bottom, left-top, right-top, right-bottom (:func:`goal_ends`),
@@ -280,5 +280,5 @@ def section3_from_pixels(img, cam: CameraParams, bp: BlobParams,
 def section3_flat_from_pixels(img, cam: CameraParams, bp: BlobParams,
                               lost_side=None) -> jnp.ndarray:
     """(26,) float32: :func:`section3_from_pixels` flattened as
-    :func:`vbl.vision.features.flatten_section3`."""
+    :func:`vbl.vision.section3.flatten_section3`."""
     return flatten_section3(section3_from_pixels(img, cam, bp, lost_side))

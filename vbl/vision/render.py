@@ -2,7 +2,7 @@
 
 The camera image is ray cast: one ray per pixel centre, from the camera model of
 :mod:`vbl.vision.camera` (the same pose, tilt, field of view and near plane the analytic
-features of :mod:`vbl.vision.features` use), intersected with the floor, the four walls,
+features of :mod:`vbl.vision.projection` use), intersected with the floor, the four walls,
 the goal mouth, the ball (a sphere) and the other robot (the box ``[length, width,
 height]`` the analytic Section 3 camera sees); the nearest hit beyond the near plane
 gives the pixel its colour. Every array operation works on whole images (``(H, W)``
