@@ -15,10 +15,13 @@ the **passer**. One of them is the learner, the other is scripted
 
 Kicks (:func:`apply_kicks`): a robot that touches the ball while driving forward
 (``v > 0``) with the ball within ``kick_cone_deg`` of its heading kicks it: the ball's
-velocity is set to the robot's kick speed along its heading (the learner; the shooter at
-``shooter_kick_speed``, a learning passer at ``passer_kick_speed``), or, for the scripted
-passer, at ``other.kick_speed`` towards the shooter's centre with ``other.aim_noise_deg``
-of Gaussian aim error. Without a kick the world's contact physics applies (a push).
+velocity follows the kick law along its heading (:func:`vbl.world.physics.kick_velocity`:
+the ball's velocity before the step plus an impulse along the heading, restitution
+``world.ball.kick_restitution``; a resting ball leaves at the kick speed: the
+shooter's ``shooter_kick_speed``, a learning passer's ``passer_kick_speed``), or, for the
+scripted passer, it is set to ``other.kick_speed`` towards the shooter's centre with
+``other.aim_noise_deg`` of Gaussian aim error. Without a kick the world's contact physics
+applies (a push).
 
 Observation: the learner's Section 3 features (26,) float32 of its own camera
 (``flatten_section3`` of ``section3_features``), with the Section 3.4.2 noise model
@@ -83,7 +86,13 @@ from vbl.params import ParamError, param, section
 from vbl.vision.camera import CameraParams
 from vbl.vision.features import SEC3_NOISE_DIM
 from vbl.world.params import FourWheelParams, WorldParams
-from vbl.world.physics import WorldState, goal_corners, world_step, wrap_angle
+from vbl.world.physics import (
+    WorldState,
+    goal_corners,
+    kick_velocity,
+    world_step,
+    wrap_angle,
+)
 from vbl.world.robots import FOUR_WHEEL_LABELS, FOUR_WHEEL_U
 
 __all__ = ["TASKS", "ENV_TASKS", "OBS_SLICES", "OBS_DIM", "SHOOTER", "PASSER",
@@ -296,12 +305,16 @@ class ShootPassState:
 
 def apply_kicks(eps: jax.Array, world: WorldState, touch: jax.Array, actions: jax.Array,
                 speeds: jax.Array, aim_at: jax.Array, aim_noise: jax.Array,
-                cone_deg: jax.Array) -> tuple[WorldState, jax.Array]:
+                cone_deg: jax.Array, *, incoming: jax.Array,
+                restitution: jax.Array) -> tuple[WorldState, jax.Array]:
     """Kicks after a world step.
 
     touch: (R,) bool (robot touched the ball this step); actions: (R,) int32;
     speeds: (R,) float32 kick speeds (m/s; 0 = this robot never kicks);
-    aim_at: (R,) int32, -1 = kick along the own heading, j >= 0 = towards robot j's centre;
+    aim_at: (R,) int32, -1 = kick along the own heading by the kick law
+    (:func:`vbl.world.physics.kick_velocity` of the ``incoming`` ball velocity (2,), the one
+    before the step, with ``restitution``; a resting ball leaves at the kick speed),
+    j >= 0 = a pass at the kick speed towards robot j's centre;
     aim_noise: (R,) float32 std of the kick direction, rad; eps: (R,) float32 standard
     normals (the aim error in units of ``aim_noise``) or None (no aim error); cone_deg: ()
     half-angle, deg.
@@ -325,7 +338,10 @@ def apply_kicks(eps: jax.Array, world: WorldState, touch: jax.Array, actions: ja
             ang = ang + noise[i]
         k = touch[i] & (v_sign[i] > 0) & (jnp.abs(bearing) <= cone) & (speeds[i] > 0) \
             & ~world.scored
-        vel = jnp.where(k, speeds[i] * jnp.stack([jnp.cos(ang), jnp.sin(ang)]), vel)
+        unit = jnp.stack([jnp.cos(ang), jnp.sin(ang)])
+        kicked_vel = jnp.where(aim_at[i] >= 0, speeds[i] * unit,
+                               kick_velocity(incoming, unit, speeds[i], restitution))
+        vel = jnp.where(k, kicked_vel, vel)
         kicked.append(k)
     return world.replace(ball_vel=vel.astype(F32)), jnp.stack(kicked)
 
@@ -528,7 +544,9 @@ class ShootPassEnv(TaskEnv, params=ShootPassParams, state=ShootPassState,
         aim_noise = jnp.where(is_pass, jnp.zeros(2, F32), jnp.stack([
             jnp.zeros((), F32), jnp.deg2rad(jnp.asarray(params.other.aim_noise_deg, F32))]))
         world, kicks = apply_kicks(aim_eps, world, events.touch, actions, speeds, aim_at,
-                                   aim_noise, params.kick_cone_deg)
+                                   aim_noise, params.kick_cone_deg,
+                                   incoming=state.world.ball_vel,
+                                   restitution=params.world.ball.kick_restitution)
         # eccentric rolling (noise model)
         rb = jnp.asarray(params.world.ball.radius, F32)
         if wobble_eps is not None:
