@@ -22,34 +22,33 @@ def test_oracle_adds_the_true_velocity_in_the_learners_frame(task):
     env = BallVelocityOracle(base)
     p = base.default_params
     me = 0 if task == "shoot" else 1
-    reset = jax.jit(env.reset)
-    step = jax.jit(env.step)
-    seen_moving = unseen = 0
-    for i in range(12):
-        obs, st = reset(jax.random.PRNGKey(i), p)
-        for t in range(25):
-            obs, st, *_ = step(jax.random.PRNGKey(100 * i + t), st, jnp.int32(1), p)
-            base_obs = base.get_obs(st, p, None)
-            obs = np.asarray(obs)
-            assert obs.shape == (OBS_DIM + 2,)
-            # the wrapped env's features, two slots later after the ball's
-            base_obs = np.asarray(base_obs)
-            close = dict(rtol=1e-4, atol=1e-2)  # px; jitted vs eager camera arithmetic
-            np.testing.assert_allclose(obs[:4], base_obs[:4], **close)
-            np.testing.assert_allclose(obs[6:], base_obs[6 - 2:], **close)
-            for k, sl in env.obs_slices.items():  # every object keeps its features
-                if k != "ball":
-                    np.testing.assert_allclose(obs[sl], base_obs[OBS_SLICES[k]], **close)
-            th = float(st.world.robots[me, 2])
-            v = np.asarray(st.world.ball_vel, np.float64)
-            fwd, lat = np.cos(th) * v[0] + np.sin(th) * v[1], -np.sin(th) * v[0] + np.cos(th) * v[1]
-            if float(base_obs[OBS_SLICES["visible"].start]) > 0.5:
-                np.testing.assert_allclose(obs[4:6], [fwd, lat], atol=1e-5)
-                seen_moving += np.hypot(fwd, lat) > 0.1
-            else:
-                np.testing.assert_array_equal(obs[4:6], 0.0)
-                unseen += 1
-    assert seen_moving > 10  # the check saw a rolling ball in view
+
+    def run(key):  # 25 forward steps of one env: (oracle obs, the wrapped env's obs, state)
+        _, st = env.reset(key, p)
+
+        def body(st, k):
+            obs, st, *_ = env.step(k, st, jnp.int32(1), p)
+            return st, (obs, base.get_obs(st, p, None), st.world)
+
+        return jax.lax.scan(body, st, jax.random.split(key, 25))[1]
+
+    obs, base_obs, world = jax.jit(jax.vmap(run))(jax.random.split(jax.random.PRNGKey(0), 12))
+    obs, base_obs = np.asarray(obs).reshape(-1, OBS_DIM + 2), np.asarray(base_obs).reshape(
+        -1, OBS_DIM)
+    # the wrapped env's features, two slots later after the ball's
+    np.testing.assert_array_equal(obs[:, :4], base_obs[:, :4])
+    np.testing.assert_array_equal(obs[:, 6:], base_obs[:, 4:])
+    for k, sl in env.obs_slices.items():  # every object keeps its features
+        if k != "ball":
+            np.testing.assert_array_equal(obs[:, sl], base_obs[:, OBS_SLICES[k]])
+    th = np.asarray(world.robots, np.float64).reshape(-1, 2, 3)[:, me, 2]
+    v = np.asarray(world.ball_vel, np.float64).reshape(-1, 2)
+    fwd = np.cos(th) * v[:, 0] + np.sin(th) * v[:, 1]
+    lat = -np.sin(th) * v[:, 0] + np.cos(th) * v[:, 1]
+    seen = base_obs[:, OBS_SLICES["visible"].start] > 0.5
+    np.testing.assert_allclose(obs[seen, 4:6], np.stack([fwd, lat], 1)[seen], atol=1e-5)
+    np.testing.assert_array_equal(obs[~seen, 4:6], 0.0)
+    assert np.sum(seen & (np.hypot(fwd, lat) > 0.1)) > 10  # it saw a rolling ball in view
 
 
 def test_report_gives_the_oracle_verdict():
