@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import vbl  # noqa: F401
+from tests.reference import world_np
 from vbl.envs.noise import NoiseParams, eccentric_centroid, noisy_camera, perturb_ball_velocity
 from vbl.envs.other_agents import OtherAgentParams, act, init_memory
 from vbl.envs.shoot_pass import (
@@ -173,17 +174,30 @@ def test_kicks_reference():
     aim = jnp.array([-1, -1], jnp.int32)
     zero = jnp.zeros(2, jnp.float32)
     k = jnp.zeros(2, jnp.float32)  # aim errors (standard normals; the aim noise is 0 here)
-    w2, kicked = apply_kicks(k, w, touch, jnp.array([1, 0], jnp.int32), speeds, aim, zero, 30.0)
+    still = dict(incoming=jnp.zeros(2, jnp.float32), restitution=0.5)  # a resting ball
+    w2, kicked = apply_kicks(k, w, touch, jnp.array([1, 0], jnp.int32), speeds, aim, zero, 30.0,
+                            **still)
     np.testing.assert_allclose(w2.ball_vel, [2.0, 0.0], atol=1e-6)
     assert kicked.tolist() == [True, False]
     # driving backwards or ball behind: no kick
-    w3, kicked = apply_kicks(k, w, touch, jnp.array([4, 0], jnp.int32), speeds, aim, zero, 30.0)
+    w3, kicked = apply_kicks(k, w, touch, jnp.array([4, 0], jnp.int32), speeds, aim, zero, 30.0,
+                             **still)
     assert not kicked.any() and np.allclose(w3.ball_vel, 0)
     # aimed kick towards robot 1 at (2, 2) from the ball at (0.3, 0)
     w4, _ = apply_kicks(k, w, touch, jnp.array([1, 0], jnp.int32), speeds,
-                        jnp.array([1, -1], jnp.int32), zero, 30.0)
+                        jnp.array([1, -1], jnp.int32), zero, 30.0, **still)
     d = np.array([1.7, 2.0]) / np.linalg.norm([1.7, 2.0])
     np.testing.assert_allclose(w4.ball_vel, 2.0 * d, atol=1e-5)
+    # a rolling ball: the heading kick adds to the incoming velocity (the reference's bounce
+    # off a moving face), the aimed pass ignores it
+    v_in = np.array([-1.0, 0.6], np.float32)
+    rolling = dict(incoming=jnp.asarray(v_in), restitution=0.5)
+    w5, _ = apply_kicks(k, w, touch, jnp.array([1, 0], jnp.int32), speeds, aim, zero, 30.0,
+                        **rolling)
+    np.testing.assert_allclose(w5.ball_vel, world_np.kick_np(v_in, 0.0, 2.0, 0.5), atol=1e-6)
+    w6, _ = apply_kicks(k, w, touch, jnp.array([1, 0], jnp.int32), speeds,
+                        jnp.array([1, -1], jnp.int32), zero, 30.0, **rolling)
+    np.testing.assert_allclose(w6.ball_vel, 2.0 * d, atol=1e-5)
 
 
 def test_scripted_behaviours():
@@ -369,3 +383,30 @@ def test_easy_starts_are_easier():
     se = np.sqrt(0.25 * 2 / n)  # largest binomial standard error of a difference
     assert shoot_easy - shoot_full > 4 * se, r
     assert pass_easy - pass_full > 4 * se, r
+
+
+def test_pass_at_the_start_of_a_shoot_episode():
+    """start.shoot_pass_at_start: the ball leaves the passer at a speed in the range, on a
+    line that passes the shooter's centre within the aim range, and the passer has kicked."""
+    env = ShootPassEnv("shoot")
+    p = env.default_params
+    sp = p.start.replace(shoot_pass_at_start=True)
+    p = p.replace(start=sp)
+    states = jax.jit(jax.vmap(lambda k: env.reset(k, p)[1]))(
+        jax.random.split(jax.random.PRNGKey(5), 256))
+    v = np.asarray(states.world.ball_vel, np.float64)
+    speed = np.linalg.norm(v, axis=1)
+    assert np.all(speed >= sp.shoot_pass_speed_min - 1e-5)
+    assert np.all(speed <= sp.shoot_pass_speed_max + 1e-5)
+    assert speed.std() > 0.1  # drawn, not one value
+    # the distance of the shooter's centre from the ball's line of motion (the aim offset
+    # across the pass line, up to the angle between the pass line and the aim line)
+    d = np.asarray(states.world.robots[:, 0, :2] - states.world.ball, np.float64)
+    across = np.abs(d[:, 0] * v[:, 1] - d[:, 1] * v[:, 0]) / speed
+    assert across.max() <= sp.shoot_pass_aim_lateral + 1e-4
+    assert across.max() > 0.5 * sp.shoot_pass_aim_lateral
+    assert np.all(np.sum(d * v, axis=1) > 0)  # rolling towards the shooter
+    assert np.all(np.asarray(states.kicked)) and np.all(np.asarray(states.memory.kicked))
+    # the default start: the ball lies still
+    still = jax.jit(lambda k: env.reset(k, env.default_params)[1])(jax.random.PRNGKey(5))
+    assert float(jnp.linalg.norm(still.world.ball_vel)) == 0.0 and not bool(still.kicked)

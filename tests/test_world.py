@@ -17,6 +17,7 @@ from vbl.world import (
     WorldParams,
     check_actions,
     goal_corners,
+    kick_velocity,
     make_state,
     num_actions,
     world_step,
@@ -187,6 +188,40 @@ def test_kick_impulse_from_robot_velocity():
     np.testing.assert_allclose(traj.ball_vel[-1], [(1 + P.ball.kick_restitution) * v, 0.0],
                                atol=1e-6)
     assert bool(ev.touch[0, 0])
+
+
+def test_kick_velocity_matches_numpy_reference():
+    """The kick law against the reference's bounce off a moving face, on random incoming
+    velocities (head-on, across, receding), headings, kick speeds and restitutions."""
+    rng = np.random.default_rng(7)
+    n = 200
+    vel = rng.uniform(-2.0, 2.0, (n, 2)).astype(np.float32)
+    th = rng.uniform(-np.pi, np.pi, n).astype(np.float32)
+    k = rng.uniform(0.0, 2.5, n).astype(np.float32)
+    e = rng.uniform(0.0, 1.0, n).astype(np.float32)
+    heading = np.stack([np.cos(th), np.sin(th)], axis=1)
+    got = np.asarray(jax.jit(jax.vmap(kick_velocity))(vel, heading, k, e))
+    want = np.array([world_np.kick_np(vel[i].astype(float), float(th[i]), float(k[i]),
+                                      float(e[i])) for i in range(n)])
+    np.testing.assert_allclose(got, want, atol=2e-6)
+    assert got.dtype == np.float32
+
+
+def test_kick_velocity_analytic_cases():
+    e = P.ball.kick_restitution
+    h = np.array([1.0, 0.0], np.float32)
+
+    def kick(v, k=2.0):
+        return np.asarray(kick_velocity(np.asarray(v, np.float32), h, k, e))
+
+    np.testing.assert_allclose(kick([0.0, 0.0]), [2.0, 0.0], atol=1e-6)  # resting ball
+    np.testing.assert_allclose(kick([-1.2, 0.0]), [2.0 + e * 1.2, 0.0], atol=1e-6)  # head-on
+    np.testing.assert_allclose(kick([0.0, 1.0]), [2.0, 1.0], atol=1e-6)  # across: kept
+    np.testing.assert_allclose(kick([3.0, 0.5]), [3.0, 0.5], atol=1e-6)  # faster than face
+    # the impulse is along the heading only, and never pulls the ball back
+    v = np.array([-0.7, 0.4], np.float32)
+    np.testing.assert_allclose((kick(v) - v)[1], 0.0, atol=1e-7)
+    assert (kick(v) - v)[0] > 0
 
 
 def test_never_through_a_wall_at_high_speed():

@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-__all__ = ["wrap", "commands", "step_world", "goal_corners_np", "run_episode"]
+__all__ = ["wrap", "commands", "step_world", "goal_corners_np", "run_episode", "kick_np"]
 
 # action index -> (left motor, right motor); index = 3 * (left + 1) + (right + 1)
 TWO_MOTOR = {3 * (lm + 1) + (rm + 1): (lm, rm) for lm in (-1, 0, 1) for rm in (-1, 0, 1)}
@@ -42,6 +42,22 @@ def commands(kind, action, p, noise=(0.0, 0.0)):
     v = v_cmd * p.four_wheel.speed * (1 + s * noise[0])
     delta = phi * math.radians(p.four_wheel.max_steer_deg) * (1 + s * noise[1])
     return v, 2 * v * math.tan(delta) / p.four_wheel.wheelbase
+
+
+def kick_np(vel, heading: float, kick_speed: float, e: float) -> tuple[float, float]:
+    """Ball velocity after a kick (docs/world.md, "Kicks"), in the frame of the kicking
+    face: the face moves along the heading angle at ``kick_speed / (1 + e)``; the ball's
+    velocity relative to the face, split into the component along the heading and the one
+    across it; if the ball approaches the face, the along component is reversed and scaled
+    by ``e``; back to the ground frame."""
+    c, s = math.cos(heading), math.sin(heading)
+    face = kick_speed / (1 + e)
+    along = vel[0] * c + vel[1] * s - face  # relative to the face
+    across = -vel[0] * s + vel[1] * c
+    if along < 0:
+        along = -e * along
+    along += face
+    return along * c - across * s, along * s + across * c
 
 
 def goal_corners_np(p) -> np.ndarray:

@@ -15,10 +15,13 @@ the **passer**. One of them is the learner, the other is scripted
 
 Kicks (:func:`apply_kicks`): a robot that touches the ball while driving forward
 (``v > 0``) with the ball within ``kick_cone_deg`` of its heading kicks it: the ball's
-velocity is set to the robot's kick speed along its heading (the learner; the shooter at
-``shooter_kick_speed``, a learning passer at ``passer_kick_speed``), or, for the scripted
-passer, at ``other.kick_speed`` towards the shooter's centre with ``other.aim_noise_deg``
-of Gaussian aim error. Without a kick the world's contact physics applies (a push).
+velocity follows the kick law along its heading (:func:`vbl.world.physics.kick_velocity`:
+the ball's velocity before the step plus an impulse along the heading, restitution
+``world.ball.kick_restitution``; a resting ball leaves at the kick speed: the
+shooter's ``shooter_kick_speed``, a learning passer's ``passer_kick_speed``), or, for the
+scripted passer, it is set to ``other.kick_speed`` towards the shooter's centre with
+``other.aim_noise_deg`` of Gaussian aim error. Without a kick the world's contact physics
+applies (a push).
 
 Observation: the learner's Section 3 features (26,) float32 of its own camera
 (``flatten_section3`` of ``section3_features``), with the Section 3.4.2 noise model
@@ -83,7 +86,13 @@ from vbl.params import ParamError, param, section
 from vbl.vision.camera import CameraParams
 from vbl.vision.section3 import SEC3_NOISE_DIM
 from vbl.world.params import FourWheelParams, WorldParams
-from vbl.world.physics import WorldState, goal_corners, world_step, wrap_angle
+from vbl.world.physics import (
+    WorldState,
+    goal_corners,
+    kick_velocity,
+    world_step,
+    wrap_angle,
+)
 from vbl.world.robots import FOUR_WHEEL_LABELS, FOUR_WHEEL_U
 
 __all__ = ["TASKS", "ENV_TASKS", "OBS_SLICES", "OBS_DIM", "SHOOTER", "PASSER",
@@ -180,6 +189,19 @@ class ShootPassStartParams:
     pass_ball_dir_jitter_deg: float = param(30.0, doc="pass: uniform +- jitter of the ball "
                                             "direction around 'towards the passer'",
                                             unit="deg", ge=0.0, le=180.0)
+    shoot_pass_at_start: bool = param(False, doc="shoot: the episode starts with the pass "
+                                      "(the ball leaves the passer rolling towards the aim "
+                                      "point, the passer has kicked) instead of a still ball "
+                                      "the scripted passer first drives to")
+    shoot_pass_speed_min: float = param(1.0, doc="shoot, pass at the start: ball speed, lower "
+                                        "end", unit="m/s", ge=0.0)
+    shoot_pass_speed_max: float = param(1.8, doc="shoot, pass at the start: ball speed, upper "
+                                        "end", unit="m/s", ge=0.0)
+    shoot_pass_aim_lateral: float = param(0.3, doc="shoot, pass at the start: the aim point is "
+                                          "the shooter's centre moved uniformly +- this across "
+                                          "the pass line (0.31 m = robot + ball radius: beyond "
+                                          "it the ball passes beside a standing shooter)",
+                                          unit="m", ge=0.0)
     margin: float = param(0.05, doc="robots and ball start at least this far from the walls "
                           "(beyond their radius)", unit="m", ge=0.0)
 
@@ -260,7 +282,8 @@ class ShootPassParams:
                        ("pass_angle_min_deg", "pass_angle_max_deg"),
                        ("ball_gap_min", "ball_gap_max"),
                        ("pass_ball_gap_min", "pass_ball_gap_max"),
-                       ("pass_ball_speed_min", "pass_ball_speed_max")):
+                       ("pass_ball_speed_min", "pass_ball_speed_max"),
+                       ("shoot_pass_speed_min", "shoot_pass_speed_max")):
             if np.any(np.asarray(getattr(s, lo)) > np.asarray(getattr(s, hi))):
                 raise ParamError(f"start.{lo}={getattr(s, lo)} must be <= start.{hi}="
                                  f"{getattr(s, hi)}")
@@ -296,12 +319,16 @@ class ShootPassState:
 
 def apply_kicks(eps: jax.Array, world: WorldState, touch: jax.Array, actions: jax.Array,
                 speeds: jax.Array, aim_at: jax.Array, aim_noise: jax.Array,
-                cone_deg: jax.Array) -> tuple[WorldState, jax.Array]:
+                cone_deg: jax.Array, *, incoming: jax.Array,
+                restitution: jax.Array) -> tuple[WorldState, jax.Array]:
     """Kicks after a world step.
 
     touch: (R,) bool (robot touched the ball this step); actions: (R,) int32;
     speeds: (R,) float32 kick speeds (m/s; 0 = this robot never kicks);
-    aim_at: (R,) int32, -1 = kick along the own heading, j >= 0 = towards robot j's centre;
+    aim_at: (R,) int32, -1 = kick along the own heading by the kick law
+    (:func:`vbl.world.physics.kick_velocity` of the ``incoming`` ball velocity (2,), the one
+    before the step, with ``restitution``; a resting ball leaves at the kick speed),
+    j >= 0 = a pass at the kick speed towards robot j's centre;
     aim_noise: (R,) float32 std of the kick direction, rad; eps: (R,) float32 standard
     normals (the aim error in units of ``aim_noise``) or None (no aim error); cone_deg: ()
     half-angle, deg.
@@ -325,7 +352,10 @@ def apply_kicks(eps: jax.Array, world: WorldState, touch: jax.Array, actions: ja
             ang = ang + noise[i]
         k = touch[i] & (v_sign[i] > 0) & (jnp.abs(bearing) <= cone) & (speeds[i] > 0) \
             & ~world.scored
-        vel = jnp.where(k, speeds[i] * jnp.stack([jnp.cos(ang), jnp.sin(ang)]), vel)
+        unit = jnp.stack([jnp.cos(ang), jnp.sin(ang)])
+        kicked_vel = jnp.where(aim_at[i] >= 0, speeds[i] * unit,
+                               kick_velocity(incoming, unit, speeds[i], restitution))
+        vel = jnp.where(k, kicked_vel, vel)
         kicked.append(k)
     return world.replace(ball_vel=vel.astype(F32)), jnp.stack(kicked)
 
@@ -455,8 +485,14 @@ class ShootPassEnv(TaskEnv, params=ShootPassParams, state=ShootPassState,
         d_ang = to_passer + jnp.deg2rad(jnp.asarray(sp.pass_ball_dir_jitter_deg, F32)) * (
             2 * u[9] - 1)
         vel_p = lerp(sp.pass_ball_speed_min, sp.pass_ball_speed_max, u[10]) * unit(d_ang)
+        # shoot with the pass at the start: the ball leaves there towards the aim point
+        aim = s_xy + jnp.asarray(sp.shoot_pass_aim_lateral, F32) * (2 * u[8] - 1) * unit(
+            back + jnp.pi / 2)
+        to_aim = jnp.arctan2(aim[1] - ball_s[1], aim[0] - ball_s[0])
+        vel_s = lerp(sp.shoot_pass_speed_min, sp.shoot_pass_speed_max, u[10]) * unit(to_aim)
+        vel_s = jnp.where(self.passed_at_start(params), vel_s, jnp.zeros(2, F32))
         ball = jnp.where(is_pass, ball_p, ball_s)
-        vel = jnp.where(is_pass, vel_p, jnp.zeros(2, F32))
+        vel = jnp.where(is_pass, vel_p, vel_s)
         ball = jnp.clip(ball, -lim_b, lim_b)
         robots = jnp.stack([jnp.concatenate([s_xy, s_th[None]]),
                             jnp.concatenate([p_xy, p_th[None]])]).astype(F32)
@@ -466,11 +502,17 @@ class ShootPassEnv(TaskEnv, params=ShootPassParams, state=ShootPassState,
     def _fresh(self, words: jax.Array, params: ShootPassParams) -> ShootPassState:
         """A fresh episode's state from (FRESH_DRAWS,) uint32 random words."""
         u = uniform01(words)
+        passed = self.passed_at_start(params)
+        memory = init_memory(u[START_DRAWS:], params.other)
         return ShootPassState(world=self.start_from_uniform(u[:START_DRAWS], params),
                               step=jnp.zeros((), I32),
-                              memory=init_memory(u[START_DRAWS:], params.other),
-                              touched=jnp.zeros((), bool), kicked=jnp.zeros((), bool),
+                              memory=memory.replace(kicked=memory.kicked | passed),
+                              touched=jnp.zeros((), bool), kicked=passed,
                               phase=jnp.zeros((), F32))
+
+    def passed_at_start(self, params: ShootPassParams) -> jax.Array:
+        """() bool: a shoot episode starts with the pass (``start.shoot_pass_at_start``)."""
+        return jnp.asarray(params.start.shoot_pass_at_start, bool) & ~self.is_pass(params)
 
     # ------------------------------------------------------------------ obs
     def learner_camera(self, params: ShootPassParams) -> CameraParams:
@@ -528,7 +570,9 @@ class ShootPassEnv(TaskEnv, params=ShootPassParams, state=ShootPassState,
         aim_noise = jnp.where(is_pass, jnp.zeros(2, F32), jnp.stack([
             jnp.zeros((), F32), jnp.deg2rad(jnp.asarray(params.other.aim_noise_deg, F32))]))
         world, kicks = apply_kicks(aim_eps, world, events.touch, actions, speeds, aim_at,
-                                   aim_noise, params.kick_cone_deg)
+                                   aim_noise, params.kick_cone_deg,
+                                   incoming=state.world.ball_vel,
+                                   restitution=params.world.ball.kick_restitution)
         # eccentric rolling (noise model)
         rb = jnp.asarray(params.world.ball.radius, F32)
         if wobble_eps is not None:

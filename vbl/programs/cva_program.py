@@ -34,16 +34,20 @@ from vbl.agents.lem import LEMParams
 from vbl.agents.qlearning import QRunnerParams
 from vbl.engine.experiment import Program
 from vbl.envs.macro import MacroActionParams
-from vbl.envs.shoot_pass import ShootPassEnv
+from vbl.envs.shoot_pass import OBS_DIM, OBS_SLICES, ShootPassEnv
 from vbl.params import ParamError, param, section
 from vbl.spaces.quantize import QuantizerParams
 from vbl.sysid.params import CVAParams
 
 __all__ = ["default_cva", "default_table2_q", "default_lr_scale", "CVATrainParams",
-           "make_cva_program", "task_label", "state_label", "POINT_KEYS"]
+           "BallVelocityOracle", "make_cva_program", "task_label", "state_label",
+           "POINT_KEYS", "VELOCITY"]
 
-POINT_KEYS = ("task", "env.task_pass", "cva.use_cva", "cva.state")
+POINT_KEYS = ("task", "env.task_pass", "cva.use_cva", "cva.state", "ball_velocity")
 """Sweep paths that name a row's task and state vector (the others are extra settings)."""
+
+VELOCITY = " + true velocity"
+"""Suffix of a state vector's label when the ball's true velocity is among its features."""
 
 
 def default_cva() -> CVAStateParams:
@@ -118,9 +122,53 @@ class Carry:
     fresh: object        # QRunnerState of the evaluation's restart (its envs' fresh starts)
 
 
+class BallVelocityOracle:
+    """A control, not the paper's method: the two-robot env whose observation also holds the
+    ball's true velocity in the learner's frame (forward, lateral; m/s), zero while the ball
+    is not in the learner's image, right after the ball's 4 features: obs (28,), the ball's
+    slice ``0:6`` (so the quantiser puts it in the ball's codes), the other slices moved by
+    2. Everything else is the wrapped env's (:class:`vbl.envs.shoot_pass.ShootPassEnv`)."""
+
+    def __init__(self, env: ShootPassEnv):
+        self._env = env
+        b = OBS_SLICES["ball"]
+        self.obs_slices = {k: sl if k == "ball" else slice(sl.start + 2, sl.stop + 2)
+                           for k, sl in OBS_SLICES.items()}
+        self.obs_slices["ball"] = slice(b.start, b.stop + 2)
+        self.observation_shape = (OBS_DIM + 2,)
+
+    def __getattr__(self, name):
+        return getattr(self._env, name)
+
+    def get_obs(self, state, params, eps) -> jax.Array:
+        obs = self._env.get_obs(state, params, eps)
+        me = self._env.roles(params)[0]
+        th = state.world.robots[me, 2]
+        v = state.world.ball_vel
+        c, s = jnp.cos(th), jnp.sin(th)
+        seen = obs[OBS_SLICES["visible"].start]  # the ball's visibility flag
+        vel = jnp.stack([c * v[0] + s * v[1], -s * v[0] + c * v[1]]) * seen
+        end = OBS_SLICES["ball"].stop
+        return jnp.concatenate([obs[:end], vel.astype(obs.dtype), obs[end:]])
+
+    def reset(self, key, params=None):
+        params = self._env.default_params if params is None else params
+        state, eps = self._env.reset_state(key, params)
+        return self.get_obs(state, params, eps), state
+
+    def step(self, key, state, action, params=None):
+        params = self._env.default_params if params is None else params
+        state, eps, reward, terminated, truncated, info = self._env.step_state(
+            key, state, action, params)
+        return self.get_obs(state, params, eps), state, reward, terminated, truncated, info
+
+
 def make_cva_program(cfg) -> Program:
-    """Training chunks, then ``eval_chunks`` greedy chunks through the same compiled step."""
+    """Training chunks, then ``eval_chunks`` greedy chunks through the same compiled step.
+    With ``cfg.ball_velocity`` (static; a control) the env is :class:`BallVelocityOracle`."""
     env = ShootPassEnv(cfg.task)
+    if getattr(cfg, "ball_velocity", False):
+        env = BallVelocityOracle(env)
     lrn = make_cva_learner(env, cfg.cva, cfg.q, m=2)
     n_train, n_eval = cfg.train.num_chunks, cfg.train.eval_chunks
     if n_eval * cfg.q.chunk_steps < cfg.env.max_steps:
@@ -174,7 +222,11 @@ def task_label(pt: dict, config) -> str:
 
 
 def state_label(pt: dict, config) -> str:
-    """"cva" or "current" (or the static ``cva.state``) of sweep point ``pt``."""
+    """"cva" or "current" (or the static ``cva.state``) of sweep point ``pt``, followed by
+    :data:`VELOCITY` when the ball's true velocity is among the features."""
     if "cva.use_cva" in pt or config.cva.state == "select":
-        return "cva" if pt.get("cva.use_cva", config.cva.use_cva) else "current"
-    return pt.get("cva.state", config.cva.state)
+        label = "cva" if pt.get("cva.use_cva", config.cva.use_cva) else "current"
+    else:
+        label = pt.get("cva.state", config.cva.state)
+    return label + (VELOCITY if pt.get("ball_velocity", getattr(config, "ball_velocity", False))
+                    else "")

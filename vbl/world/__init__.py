@@ -18,6 +18,7 @@ from vbl.world.physics import (
     WorldState,
     check_actions,
     goal_corners,
+    kick_velocity,
     make_state,
     robot_commands,
     world_step,
@@ -36,7 +37,8 @@ from vbl.world.robots import (
 __all__ = [
     "ROBOT_KINDS", "BallParams", "FieldParams", "FourWheelParams", "GoalParams",
     "RobotBodyParams", "TwoMotorParams", "WorldParams", "WorldEvents", "WorldState",
-    "check_actions", "goal_corners", "make_state", "robot_commands", "world_step", "wrap_angle",
+    "check_actions", "goal_corners", "kick_velocity", "make_state", "robot_commands",
+    "world_step", "wrap_angle",
     "FOUR_WHEEL_LABELS", "FOUR_WHEEL_U", "TWO_MOTOR_LABELS", "TWO_MOTOR_MOTORS",
     "action_labels", "action_table", "num_actions",
 ]

@@ -61,7 +61,9 @@ class BallParams:
     wall_restitution: float = param(0.6, doc="normal restitution of a ball-wall bounce",
                                     ge=0.0, le=1.0)
     kick_restitution: float = param(0.5, doc="normal restitution of a ball-robot contact "
-                                    "(robot infinitely heavy)", ge=0.0, le=1.0)
+                                    "(robot infinitely heavy): a push by the robot's body, "
+                                    "and a kick by its kicking face (the kick law: "
+                                    "docs/world.md, 'Kicks')", ge=0.0, le=1.0)
     max_speed: float = param(3.0, doc="ball speed cap (safety bound, never reached by "
                              "robots at default speeds)", unit="m/s", gt=0.0)
 

@@ -17,6 +17,10 @@ in ``params.substeps`` equal sub-steps of length ``h``. Each sub-step, in order:
 7. goal: the ball centre crosses ``x = L/2`` with ``|y| <= goal.width / 2``; the ball
    then stays in the net (frozen) and ``scored`` latches, so a goal counts once.
 
+:func:`kick_velocity` is the kick law a task applies when a robot kicks (its kicking face
+moves along the heading; ``ball.kick_restitution``): the incoming velocity's
+component across the heading is kept, the one along it is reflected off the moving face.
+
 All arrays are float32 (int32 / bool for flags); the functions are jit/vmap-able.
 """
 
@@ -38,6 +42,7 @@ __all__ = [
     "goal_corners",
     "robot_commands",
     "wrap_angle",
+    "kick_velocity",
 ]
 
 F32 = jnp.float32
@@ -127,6 +132,25 @@ def robot_commands(kind: str, action: jax.Array, params: WorldParams,
         omega = 2 * v * jnp.tan(delta) / jnp.asarray(params.four_wheel.wheelbase, F32)
         return v, omega
     raise ValueError(f"unknown robot kind {kind!r}")
+
+
+def kick_velocity(ball_vel: jax.Array, heading: jax.Array, kick_speed: jax.Array,
+                  restitution: jax.Array) -> jax.Array:
+    """Ball velocity (2,) float32 after a kick along the unit vector ``heading`` (2,).
+
+    The kicking face moves along ``heading`` at ``V = kick_speed / (1 + e)``, ``e`` =
+    ``restitution``; the ball (velocity ``v``, the incoming one) bounces off it like off
+    an infinitely heavy wall: ``v' = v + J heading`` with the impulse per unit mass
+    ``J = max((1 + e) (V - v . heading), 0) = max(kick_speed - (1 + e) v . heading, 0)``.
+    So a resting ball leaves at ``kick_speed`` along the heading, a ball coming head-on at
+    speed ``s`` at ``kick_speed + e s``, the velocity across the heading is kept, and a ball
+    moving away faster than the face is not touched (J = 0). jit/vmap-able.
+    """
+    v = jnp.asarray(ball_vel, F32)
+    h = jnp.asarray(heading, F32)
+    e = jnp.asarray(restitution, F32)
+    j = jnp.maximum(jnp.asarray(kick_speed, F32) - (1 + e) * jnp.sum(v * h), 0.0)
+    return v + j * h
 
 
 def _reflect(p, v, lo, hi, e):
