@@ -33,7 +33,7 @@ from vbl.programs.video import (
     render_run,
 )
 from vbl.vision.blobs import BlobParams, section2_from_pixels
-from vbl.vision.features import SEC2_BALL_POS, SEC2_BALL_SIZE, SEC2_BALL_VISIBLE
+from vbl.vision.section2 import SEC2_BALL_POS, SEC2_BALL_SIZE, SEC2_BALL_VISIBLE
 from vbl.world.robots import TWO_MOTOR_LABELS
 
 VP = VideoParams(height=48, max_steps=40, caption=10)
