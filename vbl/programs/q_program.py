@@ -121,6 +121,8 @@ def _require(cfg: Any, names: tuple[str, ...]) -> None:
                          f"{type(cfg).__name__} lacks {missing}")
 
 
+# shape: a program factory in the purejaxrl mould: init, step and final are short closures
+# over the static config, and the factory's length is theirs.
 def make_q_program(env: Any, state_fn: Callable[[jax.Array, Any], jax.Array], cfg: Any,
                    *, num_states: int | None = None):
     """An engine :class:`~vbl.engine.Program` training one Q-learner on ``env``.

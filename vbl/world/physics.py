@@ -26,6 +26,8 @@ All arrays are float32 (int32 / bool for flags); the functions are jit/vmap-able
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -162,6 +164,117 @@ def _reflect(p, v, lo, hi, e):
     return jnp.clip(p, lo, hi), v
 
 
+class _Consts(NamedTuple):
+    """The float32 constants of one world step (m, s, m/s, m/s^2, 1/m)."""
+
+    h: jax.Array
+    half_l: jax.Array
+    half_w: jax.Array
+    half_g: jax.Array
+    rb: jax.Array
+    rr: jax.Array
+    e_wall: jax.Array
+    e_kick: jax.Array
+    decel: jax.Array
+    drag: jax.Array
+    vmax: jax.Array
+
+
+def _consts(params: WorldParams) -> _Consts:
+    fp, bp = params.field, params.ball
+    return _Consts(
+        h=jnp.asarray(params.action_dt, F32) / params.substeps,
+        half_l=jnp.asarray(fp.length, F32) / 2, half_w=jnp.asarray(fp.width, F32) / 2,
+        half_g=jnp.asarray(params.goal.width, F32) / 2, rb=jnp.asarray(bp.radius, F32),
+        rr=jnp.asarray(params.robot.radius, F32),
+        e_wall=jnp.asarray(bp.wall_restitution, F32),
+        e_kick=jnp.asarray(bp.kick_restitution, F32),
+        decel=jnp.asarray(bp.rolling_decel, F32), drag=jnp.asarray(bp.drag, F32),
+        vmax=jnp.asarray(bp.max_speed, F32))
+
+
+def _move_robots(robots, v_cmd, w_cmd, c: _Consts):
+    """Steps 1-3: kinematics (midpoint heading), field bounds, robot-robot separation.
+    Returns positions (R, 2), headings (R,) and velocities (R, 2)."""
+    n_robots = robots.shape[0]
+    th_mid = robots[:, 2] + 0.5 * c.h * w_cmd
+    rvel = jnp.stack([v_cmd * jnp.cos(th_mid), v_cmd * jnp.sin(th_mid)], axis=-1)
+    xy = robots[:, :2] + c.h * rvel
+    th = wrap_angle(robots[:, 2] + c.h * w_cmd)
+    lim = jnp.stack([c.half_l - c.rr, c.half_w - c.rr])
+    xy = jnp.clip(xy, -lim, lim)
+    for i in range(n_robots):  # push overlapping pairs apart, half each
+        for j in range(i + 1, n_robots):
+            d = xy[j] - xy[i]
+            dist = jnp.sqrt(jnp.sum(d * d))
+            n = jnp.where(dist > 0, d / jnp.maximum(dist, 1e-12), jnp.array([1.0, 0.0], F32))
+            push = 0.5 * jnp.maximum(2 * c.rr - dist, 0.0)
+            xy = xy.at[i].add(-push * n).at[j].add(push * n)
+    if n_robots > 1:
+        xy = jnp.clip(xy, -lim, lim)
+    return xy, th, rvel
+
+
+def _ball_contacts(ball, bvel, scored, xy, th, rvel, c: _Consts):
+    """Step 4: each robot's body pushes the ball out of contact and reflects its relative
+    normal velocity. Returns ball position, velocity and touches (R,) bool."""
+    bx, bv = ball, bvel
+    touches = []
+    for i in range(xy.shape[0]):
+        d = bx - xy[i]
+        dist = jnp.sqrt(jnp.sum(d * d))
+        heading = jnp.stack([jnp.cos(th[i]), jnp.sin(th[i])])
+        n = jnp.where(dist > 0, d / jnp.maximum(dist, 1e-12), heading)
+        hit = (dist < c.rr + c.rb) & ~scored
+        vn = jnp.sum((bv - rvel[i]) * n)
+        bv = jnp.where(hit & (vn < 0), bv - (1 + c.e_kick) * vn * n, bv)
+        bx = jnp.where(hit, xy[i] + (c.rr + c.rb) * n, bx)
+        touches.append(hit)
+    return bx, bv, jnp.stack(touches)
+
+
+def _roll(bv, c: _Consts):
+    """Step 5: speed cap, rolling deceleration and drag over one sub-step."""
+    s = jnp.sqrt(jnp.sum(bv * bv))
+    s1 = jnp.minimum(s, c.vmax)
+    s2 = jnp.maximum(s1 - (c.decel + c.drag * s1) * c.h, 0.0)
+    return bv * jnp.where(s > 0, s2 / jnp.maximum(s, 1e-12), 0.0)
+
+
+def _walls(bx, new, bv, c: _Consts):
+    """Step 6: reflect the ball (moving from ``bx`` to ``new``) off the side and end walls;
+    the +x wall is open in the goal mouth, whose posts keep the ball within it."""
+    y, vy = _reflect(new[1], bv[1], -c.half_w + c.rb, c.half_w - c.rb, c.e_wall)
+    x, vx = new[0], bv[0]
+    plane = c.half_l - c.rb
+    # crossing the +x wall contact plane: open in the goal mouth
+    frac = (plane - bx[0]) / jnp.where(new[0] != bx[0], new[0] - bx[0], 1.0)
+    y_plane = bx[1] + frac * (new[1] - bx[1])
+    crossing = (new[0] > plane) & (bx[0] <= plane)
+    enters = jnp.where(crossing, jnp.abs(y_plane) <= c.half_g, True)
+    in_channel = (x > plane) & enters
+    hi_x = jnp.where(in_channel, jnp.inf, plane)
+    x, vx = _reflect(x, vx, -c.half_l + c.rb, hi_x, c.e_wall)
+    # inside the mouth the posts keep the ball centre within |y| <= half_g - rb
+    yc, vyc = _reflect(y, vy, -c.half_g + c.rb, c.half_g - c.rb, c.e_wall)
+    y = jnp.where(in_channel, yc, y)
+    vy = jnp.where(in_channel, vyc, vy)
+    return jnp.stack([x, y]), jnp.stack([vx, vy])
+
+
+def _goal_line(ball_before, bx, new, bv, scored, c: _Consts):
+    """Step 7: a goal when the ball centre crosses x = L/2 inside the mouth; a scored ball
+    stays where it was (in the net) with zero velocity."""
+    crossed = (bx[0] <= c.half_l) & (new[0] > c.half_l)
+    frac = (c.half_l - bx[0]) / jnp.where(crossed, new[0] - bx[0], 1.0)
+    y_line = bx[1] + frac * (new[1] - bx[1])
+    goal = crossed & (jnp.abs(y_line) <= c.half_g) & ~scored
+    new = jnp.where(scored, ball_before, new)
+    scored = scored | goal
+    bv = jnp.where(scored, jnp.zeros_like(bv), bv)
+    return new, bv, scored
+
+
 def world_step(state: WorldState, actions: jax.Array, params: WorldParams,
                slip_eps: jax.Array | None = None) -> tuple[WorldState, WorldEvents]:
     """Advance one action primitive.
@@ -173,19 +286,7 @@ def world_step(state: WorldState, actions: jax.Array, params: WorldParams,
     """
     kinds = params.robot_kinds
     n_robots = len(kinds)
-    fp, bp = params.field, params.ball
-    h = jnp.asarray(params.action_dt, F32) / params.substeps
-    half_l = jnp.asarray(fp.length, F32) / 2
-    half_w = jnp.asarray(fp.width, F32) / 2
-    half_g = jnp.asarray(params.goal.width, F32) / 2
-    rb = jnp.asarray(bp.radius, F32)
-    rr = jnp.asarray(params.robot.radius, F32)
-    e_wall = jnp.asarray(bp.wall_restitution, F32)
-    e_kick = jnp.asarray(bp.kick_restitution, F32)
-    decel = jnp.asarray(bp.rolling_decel, F32)
-    drag = jnp.asarray(bp.drag, F32)
-    vmax = jnp.asarray(bp.max_speed, F32)
-
+    c = _consts(params)
     noise = None if slip_eps is None else jnp.asarray(slip_eps, F32).reshape(n_robots, 2)
     vs, ws = [], []
     for i, kind in enumerate(kinds):
@@ -197,72 +298,14 @@ def world_step(state: WorldState, actions: jax.Array, params: WorldParams,
 
     def substep(_, carry):
         robots, ball, bvel, scored, touch = carry
-        # 1. robot kinematics (midpoint heading)
-        th_mid = robots[:, 2] + 0.5 * h * w_cmd
-        rvel = jnp.stack([v_cmd * jnp.cos(th_mid), v_cmd * jnp.sin(th_mid)], axis=-1)
-        xy = robots[:, :2] + h * rvel
-        th = wrap_angle(robots[:, 2] + h * w_cmd)
-        # 2. robots stay inside the field
-        lim = jnp.stack([half_l - rr, half_w - rr])
-        xy = jnp.clip(xy, -lim, lim)
-        # 3. robot-robot: push overlapping pairs apart, half each
-        for i in range(n_robots):
-            for j in range(i + 1, n_robots):
-                d = xy[j] - xy[i]
-                dist = jnp.sqrt(jnp.sum(d * d))
-                n = jnp.where(dist > 0, d / jnp.maximum(dist, 1e-12), jnp.array([1.0, 0.0], F32))
-                push = 0.5 * jnp.maximum(2 * rr - dist, 0.0)
-                xy = xy.at[i].add(-push * n).at[j].add(push * n)
-        if n_robots > 1:
-            xy = jnp.clip(xy, -lim, lim)
-        # 4. robot-ball contact
-        bx = ball
-        bv = bvel
-        touches = []
-        for i in range(n_robots):
-            d = bx - xy[i]
-            dist = jnp.sqrt(jnp.sum(d * d))
-            heading = jnp.stack([jnp.cos(th[i]), jnp.sin(th[i])])
-            n = jnp.where(dist > 0, d / jnp.maximum(dist, 1e-12), heading)
-            hit = (dist < rr + rb) & ~scored
-            vn = jnp.sum((bv - rvel[i]) * n)
-            bv = jnp.where(hit & (vn < 0), bv - (1 + e_kick) * vn * n, bv)
-            bx = jnp.where(hit, xy[i] + (rr + rb) * n, bx)
-            touches.append(hit)
-        touch = touch | jnp.stack(touches)
-        # 5. friction, then move
-        s = jnp.sqrt(jnp.sum(bv * bv))
-        s1 = jnp.minimum(s, vmax)
-        s2 = jnp.maximum(s1 - (decel + drag * s1) * h, 0.0)
-        bv = bv * jnp.where(s > 0, s2 / jnp.maximum(s, 1e-12), 0.0)
-        new = bx + h * bv
-        # 6. walls
-        if fp.walls:
-            y, vy = _reflect(new[1], bv[1], -half_w + rb, half_w - rb, e_wall)
-            x, vx = new[0], bv[0]
-            plane = half_l - rb
-            # crossing the +x wall contact plane: open in the goal mouth
-            frac = (plane - bx[0]) / jnp.where(new[0] != bx[0], new[0] - bx[0], 1.0)
-            y_plane = bx[1] + frac * (new[1] - bx[1])
-            crossing = (new[0] > plane) & (bx[0] <= plane)
-            enters = jnp.where(crossing, jnp.abs(y_plane) <= half_g, True)
-            in_channel = (x > plane) & enters
-            hi_x = jnp.where(in_channel, jnp.inf, plane)
-            x, vx = _reflect(x, vx, -half_l + rb, hi_x, e_wall)
-            # inside the mouth the posts keep the ball centre within |y| <= half_g - rb
-            yc, vyc = _reflect(y, vy, -half_g + rb, half_g - rb, e_wall)
-            y = jnp.where(in_channel, yc, y)
-            vy = jnp.where(in_channel, vyc, vy)
-            new = jnp.stack([x, y])
-            bv = jnp.stack([vx, vy])
-        # 7. goal line
-        crossed = (bx[0] <= half_l) & (new[0] > half_l)
-        frac = (half_l - bx[0]) / jnp.where(crossed, new[0] - bx[0], 1.0)
-        y_line = bx[1] + frac * (new[1] - bx[1])
-        goal = crossed & (jnp.abs(y_line) <= half_g) & ~scored
-        new = jnp.where(scored, ball, new)
-        scored = scored | goal
-        bv = jnp.where(scored, jnp.zeros_like(bv), bv)
+        xy, th, rvel = _move_robots(robots, v_cmd, w_cmd, c)
+        bx, bv, touches = _ball_contacts(ball, bvel, scored, xy, th, rvel, c)
+        touch = touch | touches
+        bv = _roll(bv, c)
+        new = bx + c.h * bv
+        if params.field.walls:
+            new, bv = _walls(bx, new, bv, c)
+        new, bv, scored = _goal_line(ball, bx, new, bv, scored, c)
         robots = jnp.concatenate([xy, th[:, None]], axis=-1)
         return robots, new, bv, scored, touch
 
@@ -270,10 +313,10 @@ def world_step(state: WorldState, actions: jax.Array, params: WorldParams,
              jnp.zeros(n_robots, bool))
     # a rolled loop on purpose: its outputs are materialised, so consumers of the new state
     # (an auto-reset's per-leaf selects) read them instead of XLA re-deriving the last
-    # sub-step inside each consumer (measured 15-20% faster than unrolling on CPU)
+    # sub-step inside each consumer (docs/findings/env_step_cost.md)
     robots, ball, bvel, scored, touch = jax.lax.fori_loop(
         0, params.substeps, substep, carry)
-    outside = (jnp.abs(ball[0]) > half_l) | (jnp.abs(ball[1]) > half_w)
+    outside = (jnp.abs(ball[0]) > c.half_l) | (jnp.abs(ball[1]) > c.half_w)
     out = (outside & ~scored) | state.ball_out
     new_state = WorldState(robots=robots, ball=ball, ball_vel=bvel, scored=scored,
                            ball_out=out)
