@@ -23,14 +23,6 @@ MAX_BRANCHES = 15
 BRANCH_NODES = (ast.If, ast.IfExp, ast.For, ast.AsyncFor, ast.While, ast.Try, ast.TryStar,
                 ast.With, ast.AsyncWith, ast.BoolOp)
 
-# Files other branches are changing at the time of writing (and vbl/params.py, outside this
-# change's files): their offenders do not fail the shape test. Remove a file from this set
-# once its change has landed.
-PENDING = {
-    "vbl/programs/cva_program.py",
-}
-PENDING_DIRS = ()
-
 
 def branches(fn: ast.AST) -> int:
     """Branches of a function by the rule in the module docstring."""
@@ -68,10 +60,6 @@ def offenders(source: str, name: str) -> list[str]:
             out.append(f"{name}:{fn.lineno} {fn.name} ({n_lines} lines, "
                        f"{n_branches} branches)")
     return out
-
-
-def _pending(rel: str) -> bool:
-    return rel in PENDING or rel.startswith(PENDING_DIRS)
 
 
 def _all_offenders() -> list[str]:
@@ -115,12 +103,7 @@ def test_offenders_and_the_shape_comment():
 
 
 def test_no_long_or_branchy_function_without_a_reason():
-    bad = [o for o in _all_offenders() if not _pending(o.split(":", 1)[0])]
+    bad = _all_offenders()
     assert not bad, ("functions over the shape limits (split them into named steps, or say "
                      "why they must be so in a '# shape:' comment above the def):\n"
                      + "\n".join(bad))
-
-
-def test_pending_files_exist():
-    for rel in PENDING:
-        assert (ROOT / rel).is_file(), f"{rel} in PENDING does not exist; remove it"
