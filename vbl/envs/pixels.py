@@ -25,7 +25,7 @@ from flax import struct
 
 from vbl.envs.noise import NoiseParams, eccentric_centroid
 from vbl.params import section
-from vbl.vision.blobs import BlobParams, section3_from_pixels
+from vbl.vision.blobs import BlobParams, section2_from_pixels, section3_from_pixels
 from vbl.vision.camera import CameraParams, camera_frame, to_camera
 from vbl.vision.features import Section3Obs, flatten_section3
 from vbl.vision.render import RenderParams, render_camera, to_uint8
@@ -33,7 +33,7 @@ from vbl.world.params import WorldParams
 from vbl.world.physics import WorldState, goal_corners
 
 __all__ = ["OBS_SOURCES", "PixelObsParams", "camera_image", "noisy_image", "lost_sides",
-           "section3_pixels", "image_noise_shape"]
+           "section3_pixels", "section2_pixels", "image_noise_shape"]
 
 F32 = jnp.float32
 #: Where an env's or a collection's features come from: the analytic camera, or the
@@ -59,12 +59,15 @@ def image_noise_shape(pix: PixelObsParams) -> tuple[int, int, int]:
 
 def camera_image(world: WorldState, me: int, cam: CameraParams, world_params: WorldParams,
                  robot_height, rp: RenderParams) -> jax.Array:
-    """Robot ``me``'s camera image (rp.height, rp.width, 3) float32 RGB in [0, 1] of a
-    two-robot world state; the other robot ``1 - me`` is the box of the analytic Section 3
-    camera (length and width = the robot's diameter, height ``robot_height`` m)."""
-    other = world.robots[1 - me]
-    dia = 2 * jnp.asarray(world_params.robot.radius, F32)
-    size = jnp.stack([dia, dia, jnp.asarray(robot_height, F32)])
+    """Robot ``me``'s (static int) camera image (rp.height, rp.width, 3) float32 RGB in
+    [0, 1]; in a two-robot world the other robot ``1 - me`` is the box of the analytic
+    Section 3 camera (length and width = the robot's diameter, height ``robot_height`` m;
+    ignored with one robot)."""
+    other, size = None, None
+    if world.robots.shape[0] > 1:
+        other = world.robots[1 - me]
+        dia = 2 * jnp.asarray(world_params.robot.radius, F32)
+        size = jnp.stack([dia, dia, jnp.asarray(robot_height, F32)])
     return render_camera(world.robots[me], world.ball, jnp.asarray(world_params.ball.radius, F32),
                          goal_corners(world_params), world_params.field, cam, rp, other, size)
 
@@ -79,14 +82,16 @@ def noisy_image(img: jax.Array, eps: jax.Array | None, pixel_std) -> jax.Array:
 
 def lost_sides(world: WorldState, me: int, cam: CameraParams, world_params: WorldParams,
                robot_height) -> jax.Array:
-    """(3,) float32: -1 / +1 for the ball, the goal and the other robot: the side of robot
-    ``me``'s camera mid-plane (X < 0 / >= 0) where the object's reference point lies (ball
-    centre, goal mouth centre, the other robot's body centre)."""
+    """(2,) or, with two robots, (3,) float32: -1 / +1 for the ball, the goal (and the other
+    robot): the side of robot ``me``'s camera mid-plane (X < 0 / >= 0) where the object's
+    reference point lies (ball centre, goal mouth centre, the other robot's body centre)."""
     rb = jnp.asarray(world_params.ball.radius, F32)
-    other = world.robots[1 - me]
-    pts = jnp.stack([jnp.stack([world.ball[0], world.ball[1], rb]),
-                     goal_corners(world_params).mean(0).astype(F32),
-                     jnp.stack([other[0], other[1], 0.5 * jnp.asarray(robot_height, F32)])])
+    pts = [jnp.stack([world.ball[0], world.ball[1], rb]),
+           goal_corners(world_params).mean(0).astype(F32)]
+    if world.robots.shape[0] > 1:
+        other = world.robots[1 - me]
+        pts.append(jnp.stack([other[0], other[1], 0.5 * jnp.asarray(robot_height, F32)]))
+    pts = jnp.stack(pts)
     x = to_camera(pts, camera_frame(world.robots[me], cam))[:, 0]
     return jnp.where(x < 0, -1.0, 1.0).astype(F32)
 
@@ -106,3 +111,14 @@ def section3_pixels(world: WorldState, me: int, cam: CameraParams, world_params:
     ball = eccentric_centroid(obs.ball, obs.visible[0], phase, noise)
     return flatten_section3(Section3Obs(ball=ball, goal=obs.goal, other=obs.other,
                                         visible=obs.visible, lost_side=obs.lost_side))
+
+
+def section2_pixels(world: WorldState, cam: CameraParams, world_params: WorldParams,
+                    pix: PixelObsParams, img_eps: jax.Array | None, pixel_std=0.0) -> jax.Array:
+    """Section 2 features (9,) float32 (layout ``SEC2_*``) of the one robot of ``world``
+    from its camera image (``pixel_std`` image noise with ``img_eps`` (H, W, 3) standard
+    normals; None: none)."""
+    img = noisy_image(camera_image(world, 0, cam, world_params, 0.0, pix.render), img_eps,
+                      pixel_std)
+    side = lost_sides(world, 0, cam, world_params, 0.0)
+    return section2_from_pixels(img, cam, pix.blobs, lost_side=side)
