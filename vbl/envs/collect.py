@@ -49,7 +49,13 @@ from vbl.envs.other_agents import (
     act_by_id,
     init_memory,
 )
-from vbl.envs.pixels import OBS_SOURCES, PixelObsParams, image_noise_shape, section3_pixels
+from vbl.envs.pixels import (
+    OBS_SOURCES,
+    PixelObsParams,
+    check_obs_source,
+    image_noise_shape,
+    section3_pixels,
+)
 from vbl.envs.shoot_pass import OBS_SLICES, default_world, observe
 from vbl.params import ParamError, param, section, validate
 from vbl.vision.camera import CameraParams
@@ -128,16 +134,10 @@ class CollectParams:
                                      "obs_source='pixels'")
 
     def check(self) -> None:
-        if self.obs_source == "pixels":
-            for path, v in (("noise.image_std", self.noise.image_std),
-                            ("camera.pixel_noise_std", self.camera.pixel_noise_std)):
-                if np.any(np.asarray(v) != 0):
-                    raise ParamError(f"{path}={v} must be 0 with obs_source='pixels' (pixel "
-                                     "features take their noise from the image: "
-                                     "noise.pixel_std)")
-        elif np.any(np.asarray(self.noise.pixel_std) != 0):
-            raise ParamError(f"noise.pixel_std={self.noise.pixel_std} needs "
-                             "obs_source='pixels' (the analytic features have no image)")
+        check_obs_source(self.obs_source, {
+            "noise.image_std": self.noise.image_std,
+            "camera.pixel_noise_std": self.camera.pixel_noise_std},
+            {"noise.pixel_std": self.noise.pixel_std})
         for lo, hi in (("start_x_min", "start_x_max"), ("other_dist_min", "other_dist_max"),
                        ("kick_speed_min", "kick_speed_max"), ("min_dist", "max_dist")):
             if np.any(np.asarray(getattr(self, lo)) > np.asarray(getattr(self, hi))):

@@ -21,10 +21,11 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from vbl.envs.noise import NoiseParams, eccentric_centroid
-from vbl.params import section
+from vbl.params import ParamError, section
 from vbl.vision.blobs import BlobParams, section2_from_pixels, section3_from_pixels
 from vbl.vision.camera import CameraParams, camera_frame, to_camera
 from vbl.vision.features import Section3Obs, flatten_section3
@@ -33,7 +34,8 @@ from vbl.world.params import WorldParams
 from vbl.world.physics import WorldState, goal_corners
 
 __all__ = ["OBS_SOURCES", "PixelObsParams", "camera_image", "noisy_image", "lost_sides",
-           "section3_pixels", "section2_pixels", "image_noise_shape"]
+           "section3_from_image", "section3_pixels", "section2_from_image",
+           "image_noise_shape", "check_obs_source"]
 
 F32 = jnp.float32
 #: Where an env's or a collection's features come from: the analytic camera, or the
@@ -96,16 +98,13 @@ def lost_sides(world: WorldState, me: int, cam: CameraParams, world_params: Worl
     return jnp.where(x < 0, -1.0, 1.0).astype(F32)
 
 
-def section3_pixels(world: WorldState, me: int, cam: CameraParams, world_params: WorldParams,
-                    noise: NoiseParams, robot_height, phase, pix: PixelObsParams,
-                    img_eps: jax.Array | None) -> jax.Array:
+def section3_from_image(img: jax.Array, world: WorldState, me, cam: CameraParams,
+                        world_params: WorldParams, noise: NoiseParams, robot_height, phase,
+                        pix: PixelObsParams) -> jax.Array:
     """Section 3 features (26,) float32 (the layout of
-    :func:`vbl.vision.features.flatten_section3`) of robot ``me`` (static int) from its
-    camera image: rendered, ``noise.pixel_std`` image noise added (``img_eps``: (H, W, 3)
-    standard normals, None = no image noise), blob features, then the ball centroid's
-    eccentricity at rolling phase ``phase`` (rad)."""
-    img = noisy_image(camera_image(world, me, cam, world_params, robot_height, pix.render),
-                      img_eps, noise.pixel_std)
+    :func:`vbl.vision.features.flatten_section3`) of robot ``me``'s camera image ``img``
+    (H, W, 3) uint8: blob features, the lost sides of :func:`lost_sides`, then the ball
+    centroid's eccentricity at rolling phase ``phase`` (rad)."""
     side = lost_sides(world, me, cam, world_params, robot_height)
     obs = section3_from_pixels(img, cam, pix.blobs, lost_side=side)
     ball = eccentric_centroid(obs.ball, obs.visible[0], phase, noise)
@@ -113,12 +112,33 @@ def section3_pixels(world: WorldState, me: int, cam: CameraParams, world_params:
                                         visible=obs.visible, lost_side=obs.lost_side))
 
 
-def section2_pixels(world: WorldState, cam: CameraParams, world_params: WorldParams,
-                    pix: PixelObsParams, img_eps: jax.Array | None, pixel_std=0.0) -> jax.Array:
+def section3_pixels(world: WorldState, me, cam: CameraParams, world_params: WorldParams,
+                    noise: NoiseParams, robot_height, phase, pix: PixelObsParams,
+                    img_eps: jax.Array | None) -> jax.Array:
+    """:func:`section3_from_image` of robot ``me``'s camera image, rendered, with
+    ``noise.pixel_std`` image noise (``img_eps``: (H, W, 3) standard normals, None = no
+    image noise)."""
+    img = noisy_image(camera_image(world, me, cam, world_params, robot_height, pix.render),
+                      img_eps, noise.pixel_std)
+    return section3_from_image(img, world, me, cam, world_params, noise, robot_height, phase,
+                               pix)
+
+
+def section2_from_image(img: jax.Array, world: WorldState, cam: CameraParams,
+                        world_params: WorldParams, pix: PixelObsParams) -> jax.Array:
     """Section 2 features (9,) float32 (layout ``SEC2_*``) of the one robot of ``world``
-    from its camera image (``pixel_std`` image noise with ``img_eps`` (H, W, 3) standard
-    normals; None: none)."""
-    img = noisy_image(camera_image(world, 0, cam, world_params, 0.0, pix.render), img_eps,
-                      pixel_std)
+    from its camera image ``img`` (H, W, 3) uint8 (lost sides: :func:`lost_sides`)."""
     side = lost_sides(world, 0, cam, world_params, 0.0)
     return section2_from_pixels(img, cam, pix.blobs, lost_side=side)
+
+
+def check_obs_source(obs_source: str, feature_noise: dict, image_noise: dict) -> None:
+    """ParamError when a noise std of the other observation source is not 0:
+    ``feature_noise`` ({path: std}) must be 0 with ``"pixels"`` (pixel features take their
+    noise from the image), ``image_noise`` with ``"analytic"`` (no image to add it to)."""
+    wrong = feature_noise if obs_source == "pixels" else image_noise
+    for path, v in wrong.items():
+        if np.any(np.asarray(v) != 0):
+            why = ("pixel features take their noise from the image" if obs_source == "pixels"
+                   else "the analytic features have no image")
+            raise ParamError(f"{path}={v} must be 0 with obs_source={obs_source!r} ({why})")
