@@ -210,12 +210,15 @@ class ShootPassParams:
     shooter_camera: CameraParams = section(CameraParams, doc="shooter's camera")
     passer_camera: CameraParams = section(
         lambda: CameraParams(tilt_deg=-20.0),
-        doc="passer's camera (tilted less than the shooter's: the two bodies differ)")
+        doc="passer's camera (tilted 6 deg less than the shooter's: a hand-mounted camera "
+            "bracket; docs/two_robot_task.md, Bodies)")
     passer_body: FourWheelParams = section(
-        lambda: FourWheelParams(speed=0.35, max_steer_deg=25.0),
-        doc="passer's drive (slower motor, smaller steering angle); used when the passer "
-            "collects identification data (vbl.envs.collect). The world physics has one "
-            "body for all robots, so inside this env both robots use world.four_wheel")
+        lambda: FourWheelParams(speed=0.3, max_steer_deg=22.0),
+        doc="passer's drive: motor 25 % slower, steering limit 8 deg smaller than the "
+            "shooter's world.four_wheel (hand-built robots; docs/two_robot_task.md, "
+            "Bodies); used when the passer collects identification data "
+            "(vbl.envs.collect). The world physics has one body for all robots, so inside "
+            "this env both robots use world.four_wheel")
     noise: NoiseParams = section(NoiseParams, doc="Section 3.4.2 noise model (default off)")
     other: OtherAgentParams = section(OtherAgentParams, doc="the scripted robot")
     start: ShootPassStartParams = section(ShootPassStartParams, doc="start distribution")
