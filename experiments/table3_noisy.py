@@ -2,7 +2,8 @@
 the shooter and from the passer, and the model-swap test.
 
 The shooter and the passer have different bodies (``ShootPassParams``: the passer's camera
-is tilted -20 deg instead of -26 deg, its motor is slower and its steering angle smaller).
+is tilted 6 deg less, its motor is 25 % slower and its steering limit 8 deg smaller; why
+these amounts: ``docs/two_robot_task.md``, Bodies).
 Each observer collects data as in Table 1 while the other robot moves to the ball, with
 image noise, ball-centroid eccentricity and tire slip on (``vbl.envs.noise.NOISE_ON``); the
 same scenarios without noise from the shooter are the reference
