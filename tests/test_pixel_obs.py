@@ -83,6 +83,7 @@ def test_pixel_obs_agrees_with_analytic(kind):
     assert np.all(np.abs(ball_p[ok, :2] - ball_a[ok, :2]) <= PX)
 
 
+@pytest.mark.slow
 def test_pixel_collection_drives_the_analytic_trajectories():
     c = CollectParams(num_steps=24, focus="ball", other_behaviour="move_to_ball",
                       pixels=PixelObsParams(render=RenderParams(width=64, height=60)))
@@ -128,6 +129,7 @@ def _shoot_pass(**kw):
     return ShootPassEnv("shoot", ShootPassParams(obs_source="pixels", pixels=SMALL, **kw))
 
 
+@pytest.mark.slow
 def test_shoot_pass_pixel_obs_sees_what_the_analytic_camera_sees():
     """Pixel obs of the env's own states: a coloured pixel only where the analytic object
     is visible, the goal seen by both at the start (the shooter faces it), the ball's centre
