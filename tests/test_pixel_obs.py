@@ -195,7 +195,7 @@ def test_shooting_pixel_obs_on_easy_starts():
     """Section 2 from pixels at the easy start (ball just ahead, goal ahead): both visible,
     the ball's centre x2 within a pixel (8 px) of the analytic one."""
     from vbl.envs.shooting import ShootingEnv, ShootingParams
-    from vbl.vision.features import SEC2_BALL_POS, SEC2_BALL_VISIBLE, SEC2_GOAL_VISIBLE
+    from vbl.vision.section2 import SEC2_BALL_POS, SEC2_BALL_VISIBLE, SEC2_GOAL_VISIBLE
 
     p = ShootingParams(obs_source="pixels", pixels=SMALL, start_difficulty=0.0)
     p = p.replace(world=p.world.replace(robot_kinds=("two_motor",)))

@@ -1,6 +1,6 @@
 """Pixel-derived observations: the camera image, image noise, colour-blob features.
 
-The analytic observation of a robot (:func:`vbl.vision.features.section3_features`)
+The analytic observation of a robot (:func:`vbl.vision.section3.section3_features`)
 computes its Section 3 features from the projective geometry. The pixel observation
 takes the paper's real pipeline instead (Sec 3.4.2): render the robot's camera image
 (:func:`vbl.vision.render.render_camera`, at ``PixelObsParams.render``'s size), add image
@@ -28,8 +28,8 @@ from vbl.envs.noise import NoiseParams, eccentric_centroid
 from vbl.params import ParamError, section
 from vbl.vision.blobs import BlobParams, section2_from_pixels, section3_from_pixels
 from vbl.vision.camera import CameraParams, camera_frame, to_camera
-from vbl.vision.features import Section3Obs, flatten_section3
 from vbl.vision.render import RenderParams, render_camera, to_uint8
+from vbl.vision.section3 import Section3Obs, flatten_section3
 from vbl.world.params import WorldParams
 from vbl.world.physics import WorldState, goal_corners
 
@@ -102,7 +102,7 @@ def section3_from_image(img: jax.Array, world: WorldState, me, cam: CameraParams
                         world_params: WorldParams, noise: NoiseParams, robot_height, phase,
                         pix: PixelObsParams) -> jax.Array:
     """Section 3 features (26,) float32 (the layout of
-    :func:`vbl.vision.features.flatten_section3`) of robot ``me``'s camera image ``img``
+    :func:`vbl.vision.section3.flatten_section3`) of robot ``me``'s camera image ``img``
     (H, W, 3) uint8: blob features, the lost sides of :func:`lost_sides`, then the ball
     centroid's eccentricity at rolling phase ``phase`` (rad)."""
     side = lost_sides(world, me, cam, world_params, robot_height)
