@@ -19,9 +19,20 @@ subclass gives only its parts:
 * ``_transition(eps, state, action, params)``: one primitive, ``eps`` the normals of the
   transition blocks (None where a source is off), returning (state, reward, terminated,
   truncated, info) with ``info["episode_done"]``;
-* ``get_obs(state, params, eps)``: the observation, ``eps`` the pixel noise's normals or
-  None;
+* ``analytic_obs(state, params, eps)``: the observation from the analytic camera, ``eps``
+  the pixel noise's normals or None; ``camera_image(state, params)``: the learner's camera
+  image (float RGB in [0, 1], :mod:`vbl.vision.render`); ``image_obs(img, state,
+  params)``: the observation from that image (uint8, colour blobs, :mod:`vbl.vision.blobs`);
+  ``image_noise_std(params)``: the std of its image noise;
 * ``check_params(params)`` (optional): consistency rules the env adds to its parameters.
+
+Observation source: ``params.obs_source`` (static) is ``"analytic"`` (``get_obs`` is
+``analytic_obs``) or ``"pixels"`` (``get_obs`` renders the learner's camera image at
+``params.pixels.render``'s size, adds the image noise, rounds it to uint8 and extracts the
+same features from it by colour blobs, :mod:`vbl.envs.pixels`); the pixel noise's normals
+are then one per colour channel of each pixel. ``get_pixels`` gives that image (H, W, 3)
+uint8 in either mode (with image noise only under ``"pixels"``), for learners that see
+pixels (the brax adapter's ``obs="pixels"``).
 
 Random numbers: each call hashes its key once (:func:`vbl.draws.draw_blocks`). ``reset``
 lays out [fresh episode, pixel noise]; ``step_env`` [transition blocks, pixel noise]; ``step``
@@ -52,6 +63,7 @@ from flax import struct
 
 from vbl.draws import draw_blocks, normals
 from vbl.envs.checks import check_action_index
+from vbl.envs.pixels import noisy_image
 from vbl.params import ParamError, param, validate
 
 __all__ = ["NoiseOn", "TaskEnv", "is_traced"]
@@ -123,11 +135,48 @@ class TaskEnv:
     def _transition(self, eps: tuple, state: Any, action: jax.Array, params: Any):
         raise NotImplementedError
 
-    def get_obs(self, state: Any, params: Any, eps: jax.Array | None = None) -> jax.Array:
+    def analytic_obs(self, state: Any, params: Any, eps: jax.Array | None = None) -> jax.Array:
+        raise NotImplementedError
+
+    def camera_image(self, state: Any, params: Any) -> jax.Array:
+        raise NotImplementedError
+
+    def image_obs(self, img: jax.Array, state: Any, params: Any) -> jax.Array:
+        raise NotImplementedError
+
+    def image_noise_std(self, params: Any) -> Any:
         raise NotImplementedError
 
     def check_params(self, params: Any) -> None:
         """Consistency rules of this env beyond the parameters' own (none by default)."""
+
+    # ------------------------------------------------------------------ observations
+    def image_shape(self, params: Any = None) -> tuple[int, int, int]:
+        """(H, W, 3): the shape of :meth:`get_pixels`'s image."""
+        rp = (self._default_params if params is None else params).pixels.render
+        return (rp.height, rp.width, 3)
+
+    def pixel_noise_size(self, params: Any) -> int:
+        """Standard normals of one observation's pixel noise: ``pixel_noise_dim``, or one per
+        colour channel of each pixel under ``obs_source="pixels"``."""
+        if params.obs_source == "pixels":
+            return int(np.prod(self.image_shape(params)))
+        return self.pixel_noise_dim
+
+    def get_pixels(self, state: Any, params: Any, eps: jax.Array | None = None) -> jax.Array:
+        """The learner's camera image (H, W, 3) uint8; ``eps``: the pixel noise's normals
+        (image noise only under ``obs_source="pixels"``; None: none)."""
+        shape = self.image_shape(params)
+        img_eps = None if eps is None or params.obs_source != "pixels" else eps.reshape(shape)
+        return noisy_image(self.camera_image(state, params), img_eps,
+                           self.image_noise_std(params))
+
+    def get_obs(self, state: Any, params: Any, eps: jax.Array | None = None) -> jax.Array:
+        """The observation of ``state`` (module docstring, "Observation source"); ``eps``:
+        the pixel noise's standard normals, or None (``noise_on.pixel`` off)."""
+        if params.obs_source == "pixels":
+            return self.image_obs(self.get_pixels(state, params, eps), state, params)
+        return self.analytic_obs(state, params, eps)
 
     # ------------------------------------------------------------------ metadata
     @property
@@ -178,7 +227,7 @@ class TaskEnv:
         blocks = self.transition_blocks(params) if transition else ()
         *eps, words, pixel = draw_blocks(
             key, *blocks, (self.fresh_words if fresh else 0, fresh),
-            (self.pixel_noise_dim, params.noise_on.pixel))
+            (self.pixel_noise_size(params), params.noise_on.pixel))
         return tuple(normals(e) for e in eps), words, normals(pixel)
 
     # ------------------------------------------------------------------ reset and step

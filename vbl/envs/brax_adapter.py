@@ -35,7 +35,11 @@ Conventions (those of brax's training wrappers, ``brax.envs.wrappers.training.wr
 * Randomness: brax's ``step`` takes no key; the adapter keeps one in ``info["rng"]`` and
   splits it per step into the env step's key (the words of the env's ``step_state``
   layout, :mod:`vbl.draws`), the fresh start's key and the next one.
-* Observations, rewards and flags are float32 whatever ``jax_enable_x64`` says.
+* Observations, rewards and flags are float32 whatever ``jax_enable_x64`` says; with
+  ``obs="pixels"`` the observation is instead the learner's camera image (H, W, 3) uint8
+  (the env's ``get_pixels(state, params, eps)``, with the image noise of its pixel
+  observations; ``observation_size`` is then the image shape ``env.image_shape(params)``),
+  for learners that see pixels.
 
 ``state.pipeline_state`` holds the vbl env state; ``metrics`` has ``success``.
 """
@@ -67,6 +71,7 @@ with quiet_import():
     from brax.envs.base import Env, State
 
 F32 = jnp.float32
+OBS_KINDS = ("features", "pixels")  #: what the adapter's observation is
 DIFFICULTY_FIELD = "start_difficulty"  #: env params field a curriculum drives
 
 
@@ -117,14 +122,23 @@ class BraxAdapter(Env):
       params: env parameters (validated when concrete); ``None`` uses ``env.default_params``.
         May be traced (e.g. per-learner params inside a vmapped program).
       fresh_starts: draw a new start for every episode under ``AutoResetWrapper``.
+      obs: ``"features"`` (the env's observation, float32) or ``"pixels"`` (the learner's
+        camera image (H, W, 3) uint8; the env needs ``get_pixels`` and ``image_shape``).
     """
 
-    def __init__(self, env: Any, params: Any = None, fresh_starts: bool = True):
+    def __init__(self, env: Any, params: Any = None, fresh_starts: bool = True,
+                 obs: str = "features"):
         for attr in ("reset_state", "step_state", "num_actions", "observation_shape",
                      "default_params"):
             if not hasattr(env, attr):
                 raise TypeError(f"{type(env).__name__} is not a vbl env: it lacks {attr!r}")
+        if obs not in OBS_KINDS:
+            raise ValueError(f"obs={obs!r} is not allowed; choose one of {list(OBS_KINDS)}")
+        if obs == "pixels" and not all(hasattr(env, a) for a in ("get_pixels", "image_shape")):
+            raise TypeError(f"{type(env).__name__} has no camera image (get_pixels, "
+                            "image_shape): obs='pixels' needs one")
         self.vbl_env = env
+        self.obs_kind = obs
         self.params = env.default_params if params is None else params
         self.fresh_starts = bool(fresh_starts)
         if hasattr(env, "validate") and not _is_traced(self.params):
@@ -142,8 +156,14 @@ class BraxAdapter(Env):
         return int(self.params.max_steps)
 
     @property
-    def observation_size(self) -> int:
-        shape = tuple(self.vbl_env.observation_shape)
+    def _obs_shape(self) -> tuple[int, ...]:
+        if self.obs_kind == "pixels":
+            return tuple(self.vbl_env.image_shape(self.params))
+        return tuple(self.vbl_env.observation_shape)
+
+    @property
+    def observation_size(self) -> int | tuple[int, ...]:
+        shape = self._obs_shape
         return shape[0] if len(shape) == 1 else shape
 
     @property
@@ -171,12 +191,15 @@ class BraxAdapter(Env):
             info["difficulty"] = difficulty
         st, eps = self.vbl_env.reset_state(k_reset, self._params_at(difficulty))
         zero = jnp.zeros((), F32)
-        obs = jnp.zeros(tuple(self.vbl_env.observation_shape), F32)
+        obs = jnp.zeros(self._obs_shape, jnp.uint8 if self.obs_kind == "pixels" else F32)
         return State(pipeline_state=st, obs=obs, reward=zero, done=zero,
                      metrics={"success": zero}, info=info), eps
 
     def observe(self, state: State, eps: Any) -> State:
         """``state`` with the observation of its env state (pixel-noise normals ``eps``)."""
+        if self.obs_kind == "pixels":
+            img = self.vbl_env.get_pixels(state.pipeline_state, self.params, eps)
+            return state.replace(obs=img)
         if hasattr(self.vbl_env, "observe"):
             obs, st = self.vbl_env.observe(state.pipeline_state, self.params, eps)
         else:

@@ -19,6 +19,12 @@ step an action is drawn uniformly from the 7 primitives, restricted so that the
 The restriction is a feedback from y to u (as in any closed-loop data); it keeps the
 objects in the image, which the features need (a lost object's features are 0).
 
+Observations (``obs_source``): the analytic Section 3 features (default), or the same
+features from the rendered camera image with image noise through the colour-blob detector
+(``"pixels"``, :mod:`vbl.envs.pixels`; the image noise is ``noise.pixel_std``, each step's
+(H, W, 3) normals from the key ``fold_in(key, PIXEL_STREAM)``, so the analytic draws stay
+the same).
+
 The ball is kicked by an invisible third party (the "rolling ball" of Table 1 (b)):
 whenever its speed is below ``kick_below_speed``, with probability ``kick_prob`` per step
 it gets a speed uniform in ``[kick_speed_min, kick_speed_max]`` towards a point drawn
@@ -43,6 +49,13 @@ from vbl.envs.other_agents import (
     act_by_id,
     init_memory,
 )
+from vbl.envs.pixels import (
+    OBS_SOURCES,
+    PixelObsParams,
+    check_obs_source,
+    image_noise_shape,
+    section3_pixels,
+)
 from vbl.envs.shoot_pass import OBS_SLICES, default_world, observe
 from vbl.params import ParamError, param, section, validate
 from vbl.vision.camera import CameraParams
@@ -53,7 +66,7 @@ from vbl.world.robots import FOUR_WHEEL_U
 
 __all__ = ["FOCUS", "OTHER_BEHAVIOURS", "CollectParams", "CollectData", "collect_one",
            "collect_scenarios", "collect", "collect_many", "observer_action", "id_outputs",
-           "object_outputs", "AREA_COLUMN"]
+           "object_outputs", "AREA_COLUMN", "PIXEL_STREAM"]
 
 F32 = jnp.float32
 I32 = jnp.int32
@@ -67,6 +80,8 @@ OTHER_BEHAVIOURS = ("stationary", "random_walk", "move_to_ball")
 #: (4 uniforms), eccentric rolling.
 START_DRAWS = 6 + MEMORY_DRAWS
 STEP_WORDS = SEC3_NOISE_DIM + 1 + ACT_DRAWS + 4 + 4 + 1
+#: ``fold_in`` data of the image-noise key of pixel observations (a stream of its own).
+PIXEL_STREAM = 0x706978
 
 
 @struct.dataclass
@@ -112,8 +127,17 @@ class CollectParams:
     aim_radius: float = param(0.8, doc="radius of the disc of kick aim points", unit="m",
                               ge=0.0)
     robot_height: float = param(0.3, doc="height of the other robot's body", unit="m", gt=0.0)
+    obs_source: str = param("analytic", doc="features from the analytic camera, or from the "
+                            "rendered image (with noise.pixel_std) through the colour-blob "
+                            "detector (vbl.envs.pixels)", static=True, choices=OBS_SOURCES)
+    pixels: PixelObsParams = section(PixelObsParams, doc="image size and blob thresholds of "
+                                     "obs_source='pixels'")
 
     def check(self) -> None:
+        check_obs_source(self.obs_source, {
+            "noise.image_std": self.noise.image_std,
+            "camera.pixel_noise_std": self.camera.pixel_noise_std},
+            {"noise.pixel_std": self.noise.pixel_std})
         for lo, hi in (("start_x_min", "start_x_max"), ("other_dist_min", "other_dist_max"),
                        ("kick_speed_min", "kick_speed_max"), ("min_dist", "max_dist")):
             if np.any(np.asarray(getattr(self, lo)) > np.asarray(getattr(self, hi))):
@@ -246,12 +270,20 @@ def collect_one(key: jax.Array, params: CollectParams, behaviour_id: jax.Array |
     mem0 = init_memory(u0[6:], params.other)
     wp = noisy_world(params.world, params.noise)
     rb = jnp.asarray(params.world.ball.radius, F32)
+    pixels = params.obs_source == "pixels"
 
-    def body(carry, words):
+    def body(carry, xs):
         world, mem, phase = carry
+        words, k_img = xs
         w = Words(words)
-        y = observe(world, 0, params.camera, params.world, params.noise,
-                    params.robot_height, phase, normal(w.take(SEC3_NOISE_DIM)))
+        eps = normal(w.take(SEC3_NOISE_DIM))
+        if pixels:
+            img_eps = jax.random.normal(k_img, image_noise_shape(params.pixels), F32)
+            y = section3_pixels(world, 0, params.camera, params.world, params.noise,
+                                params.robot_height, phase, params.pixels, img_eps)
+        else:
+            y = observe(world, 0, params.camera, params.world, params.noise,
+                        params.robot_height, phase, eps)
         a_me = observer_action(uniform01(w.take(1))[0], world, params, focus_id)
         a_other, mem = act_by_id(behaviour_id, uniform01(w.take(ACT_DRAWS)), world, mem, 1,
                                  params.other)
@@ -268,8 +300,11 @@ def collect_one(key: jax.Array, params: CollectParams, behaviour_id: jax.Array |
         u = jnp.asarray(FOUR_WHEEL_U, F32)[a_me]
         return (new, mem, phase), (u, y)
 
+    n = params.num_steps
+    k_img = (jax.random.split(jax.random.fold_in(key, PIXEL_STREAM), n) if pixels
+             else jnp.zeros((n,), jnp.uint32))
     _, (u, y) = jax.lax.scan(body, (world0, mem0, jnp.zeros((), F32)),
-                             jax.random.bits(k_run, (params.num_steps, STEP_WORDS), jnp.uint32))
+                             (jax.random.bits(k_run, (n, STEP_WORDS), jnp.uint32), k_img))
     return CollectData(u=u, ball=y[:, OBS_SLICES["ball"]], goal=y[:, OBS_SLICES["goal"]],
                        other=y[:, OBS_SLICES["other"]], visible=y[:, OBS_SLICES["visible"]])
 

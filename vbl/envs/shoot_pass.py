@@ -82,6 +82,13 @@ from vbl.envs.other_agents import (
     act,
     init_memory,
 )
+from vbl.envs.pixels import (
+    OBS_SOURCES,
+    PixelObsParams,
+    camera_image,
+    check_obs_source,
+    section3_from_image,
+)
 from vbl.params import ParamError, param, section
 from vbl.vision.camera import CameraParams
 from vbl.vision.section3 import SEC3_NOISE_DIM
@@ -225,12 +232,15 @@ class ShootPassParams:
     shooter_camera: CameraParams = section(CameraParams, doc="shooter's camera")
     passer_camera: CameraParams = section(
         lambda: CameraParams(tilt_deg=-20.0),
-        doc="passer's camera (tilted less than the shooter's: the two bodies differ)")
+        doc="passer's camera (tilted 6 deg less than the shooter's: a hand-mounted camera "
+            "bracket; docs/two_robot_task.md, Bodies)")
     passer_body: FourWheelParams = section(
-        lambda: FourWheelParams(speed=0.35, max_steer_deg=25.0),
-        doc="passer's drive (slower motor, smaller steering angle); used when the passer "
-            "collects identification data (vbl.envs.collect). The world physics has one "
-            "body for all robots, so inside this env both robots use world.four_wheel")
+        lambda: FourWheelParams(speed=0.3, max_steer_deg=22.0),
+        doc="passer's drive: motor 25 % slower, steering limit 8 deg smaller than the "
+            "shooter's world.four_wheel (hand-built robots; docs/two_robot_task.md, "
+            "Bodies); used when the passer collects identification data "
+            "(vbl.envs.collect). The world physics has one body for all robots, so inside "
+            "this env both robots use world.four_wheel")
     noise: NoiseParams = section(NoiseParams, doc="Section 3.4.2 noise model (default off)")
     other: OtherAgentParams = section(OtherAgentParams, doc="the scripted robot")
     start: ShootPassStartParams = section(ShootPassStartParams, doc="start distribution")
@@ -265,16 +275,26 @@ class ShootPassParams:
                             "compiled program serves both tasks (ignored by a fixed task)")
     noise_on: ShootPassNoiseOn = section(ShootPassNoiseOn, doc="static switches of the noise "
                                          "sources")
+    obs_source: str = param("analytic", doc="features from the analytic camera, or from the "
+                            "rendered camera image (with noise.pixel_std) through the "
+                            "colour-blob detector", static=True, choices=OBS_SOURCES)
+    pixels: PixelObsParams = section(PixelObsParams, doc="camera image size and blob "
+                                     "thresholds (obs_source='pixels', get_pixels)")
 
     def check(self) -> None:
         on, nz = self.noise_on, self.noise
+        check_obs_source(self.obs_source, {
+            "noise.image_std": nz.image_std,
+            "shooter_camera.pixel_noise_std": self.shooter_camera.pixel_noise_std,
+            "passer_camera.pixel_noise_std": self.passer_camera.pixel_noise_std},
+            {"noise.pixel_std": nz.pixel_std})
         check_switched_off(on.slip, "noise_on.slip", {
             "world.robot.slip_std": self.world.robot.slip_std, "noise.slip_std": nz.slip_std})
         check_switched_off(on.aim, "noise_on.aim",
                            {"other.aim_noise_deg": self.other.aim_noise_deg})
         check_switched_off(on.wobble, "noise_on.wobble", {"noise.ecc_turn_std": nz.ecc_turn_std})
         check_switched_off(on.pixel, "noise_on.pixel", {
-            "noise.image_std": nz.image_std,
+            "noise.image_std": nz.image_std, "noise.pixel_std": nz.pixel_std,
             "shooter_camera.pixel_noise_std": self.shooter_camera.pixel_noise_std,
             "passer_camera.pixel_noise_std": self.passer_camera.pixel_noise_std})
         s = self.start
@@ -523,14 +543,34 @@ class ShootPassEnv(TaskEnv, params=ShootPassParams, state=ShootPassState,
         return jax.tree.map(lambda a, b: jnp.where(ip, a, b), params.passer_camera,
                             params.shooter_camera)
 
-    def get_obs(self, state: ShootPassState, params: ShootPassParams,
-                eps: jax.Array) -> jax.Array:
+    def _me(self, params: ShootPassParams):
+        """The learner's robot index (static for a fixed task, traced for "select")."""
+        return self.roles(params)[0] if self.task == "select" else self.learner
+
+    def analytic_obs(self, state: ShootPassState, params: ShootPassParams,
+                     eps: jax.Array | None = None) -> jax.Array:
         """The learner's Section 3 features (26,) float32; ``eps``: (SEC3_NOISE_DIM,)
         float32 standard normals of the pixel noise, or None (``noise_on.pixel`` off)."""
-        me = self.roles(params)[0] if self.task == "select" else (
-            PASSER if self.task == "pass" else SHOOTER)
-        return observe(state.world, me, self.learner_camera(params), params.world,
-                       params.noise, params.robot_height, state.phase, eps)
+        return observe(state.world, self._me(params), self.learner_camera(params),
+                       params.world, params.noise, params.robot_height, state.phase, eps)
+
+    def camera_image(self, state: ShootPassState, params: ShootPassParams) -> jax.Array:
+        """The learner's camera image (H, W, 3) float32 RGB in [0, 1] (ball, goal, the other
+        robot as the analytic camera's box)."""
+        return camera_image(state.world, self._me(params), self.learner_camera(params),
+                            params.world, params.robot_height, params.pixels.render)
+
+    def image_obs(self, img: jax.Array, state: ShootPassState,
+                  params: ShootPassParams) -> jax.Array:
+        """The learner's Section 3 features (26,) float32 from its camera image ``img`` (H, W,
+        3) uint8, with the ball centroid's eccentricity of ``params.noise``."""
+        return section3_from_image(img, state.world, self._me(params),
+                                   self.learner_camera(params), params.world, params.noise,
+                                   params.robot_height, state.phase, params.pixels)
+
+    def image_noise_std(self, params: ShootPassParams):
+        """``noise.pixel_std``."""
+        return params.noise.pixel_std
 
     # ------------------------------------------------------------------ dynamics
     def transition_blocks(self, params: ShootPassParams) -> tuple[tuple[int, bool], ...]:

@@ -49,6 +49,13 @@ from flax import struct
 
 from vbl.draws import check_switched_off
 from vbl.envs.base import NoiseOn, TaskEnv
+from vbl.envs.pixels import (
+    OBS_SOURCES,
+    PixelObsParams,
+    camera_image,
+    check_obs_source,
+    section2_from_image,
+)
 from vbl.params import ParamError, param, section
 from vbl.vision.camera import CameraParams
 from vbl.vision.section2 import SEC2_DIM, SEC2_NOISE_DIM, section2_features
@@ -99,8 +106,15 @@ class ShootingParams:
                            unit="primitives", static=True, ge=1)
     noise_on: NoiseOn = section(NoiseOn, doc="static switches of the random "
                                         "noise sources")
+    obs_source: str = param("analytic", doc="features from the analytic camera, or from the "
+                            "rendered camera image through the colour-blob detector (no "
+                            "image noise in this task)", static=True, choices=OBS_SOURCES)
+    pixels: PixelObsParams = section(PixelObsParams, doc="camera image size and blob "
+                                     "thresholds (obs_source='pixels', get_pixels)")
 
     def check(self) -> None:
+        check_obs_source(self.obs_source, {"camera.pixel_noise_std":
+                                           self.camera.pixel_noise_std}, {})
         check_switched_off(self.noise_on.slip, "noise_on.slip",
                            {"world.robot.slip_std": self.world.robot.slip_std})
         check_switched_off(self.noise_on.pixel, "noise_on.pixel",
@@ -202,8 +216,23 @@ class ShootingEnv(TaskEnv, params=ShootingParams, state=ShootingState, fresh_wor
         return WorldState(robots=robots, ball=b, ball_vel=jnp.zeros(2, F32),
                           scored=jnp.zeros((), bool), ball_out=jnp.zeros((), bool))
 
-    def get_obs(self, state: ShootingState, params: ShootingParams,
-                eps: jax.Array | None = None) -> jax.Array:
+    def camera_image(self, state: ShootingState, params: ShootingParams) -> jax.Array:
+        """The robot's camera image (H, W, 3) float32 RGB in [0, 1] (ball and goal)."""
+        return camera_image(state.world, 0, params.camera, params.world, 0.0,
+                            params.pixels.render)
+
+    def image_obs(self, img: jax.Array, state: ShootingState,
+                  params: ShootingParams) -> jax.Array:
+        """Section 2 features (9,) float32 from the camera image ``img`` (H, W, 3) uint8."""
+        return section2_from_image(img, state.world, params.camera, params.world,
+                                   params.pixels)
+
+    def image_noise_std(self, params: ShootingParams) -> float:
+        """No image noise in this task (its pixel noise is the analytic camera's)."""
+        return 0.0
+
+    def analytic_obs(self, state: ShootingState, params: ShootingParams,
+                     eps: jax.Array | None = None) -> jax.Array:
         """Section 2 features (9,) float32 of the robot's camera in ``state``; ``eps``:
         optional (SEC2_NOISE_DIM,) float32 standard normals of the pixel noise (None =
         exact, what ``noise_on.pixel`` off gives)."""
