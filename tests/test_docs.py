@@ -96,8 +96,6 @@ def test_no_chronology_or_machine_paths(doc: Path):
 
 
 RECORD_FREE = [d for d in DOCS if not _rel(d).startswith("docs/results/")]
-# Docs other branches are rewriting at the time of writing; drop a name once it has landed.
-PENDING = {"docs/two_robot_task.md"}
 
 
 def records_and_history(text: str) -> list[str]:
@@ -110,8 +108,6 @@ def records_and_history(text: str) -> list[str]:
 
 @pytest.mark.parametrize("doc", RECORD_FREE, ids=_rel)
 def test_no_measurement_records_or_history(doc: Path):
-    if _rel(doc) in PENDING:
-        pytest.skip("being rewritten on another branch")
     found = records_and_history(doc.read_text())
     assert not found, (f"{_rel(doc)}: commit hashes, load figures, CPU models or change "
                        f"history outside a method paragraph: {found[:10]}")
