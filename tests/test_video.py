@@ -160,6 +160,15 @@ def test_bad_input_is_one_line_exit_2(case, grid_run, tmp_path, capsys):
     assert want in line, line
 
 
+def test_the_committed_grid_run_renders_its_learned_policy(tmp_path):
+    """docs/results/reproduce/grid_shooting keeps its final checkpoint (the README's GIF)."""
+    folder = REPO / "docs" / "results" / "reproduce" / "grid_shooting"
+    v = render_run(folder, tmp_path / "g.gif", 1, "learned", point=1, vp=VP)
+    frames = imageio.mimread(tmp_path / "g.gif")
+    assert len(frames) == v.frames >= 2
+    assert any(not np.array_equal(a, b) for a, b in zip(frames, frames[1:], strict=False))
+
+
 def test_committed_run_without_checkpoints_says_so(tmp_path):
     """Committed run folders keep results and, but for grid_shooting's, no checkpoints:
     the learned policy of such a folder is one line, exit 2."""
