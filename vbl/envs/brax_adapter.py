@@ -70,13 +70,11 @@ def quiet_import() -> Iterator[None]:
 with quiet_import():
     from brax.envs.base import Env, State
 
+from vbl.envs.base import is_traced  # noqa: E402 - after brax's quiet import
+
 F32 = jnp.float32
 OBS_KINDS = ("features", "pixels")  #: what the adapter's observation is
 DIFFICULTY_FIELD = "start_difficulty"  #: env params field a curriculum drives
-
-
-def _is_traced(tree: Any) -> bool:
-    return any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(tree))
 
 
 def get_difficulty(params: Any) -> Any:
@@ -141,7 +139,7 @@ class BraxAdapter(Env):
         self.obs_kind = obs
         self.params = env.default_params if params is None else params
         self.fresh_starts = bool(fresh_starts)
-        if hasattr(env, "validate") and not _is_traced(self.params):
+        if hasattr(env, "validate") and not is_traced(self.params):
             env.validate(self.params)
 
     # ------------------------------------------------------------------ metadata
@@ -215,7 +213,7 @@ class BraxAdapter(Env):
     def _index(self, action: jax.Array) -> jax.Array:
         action = jnp.asarray(action)
         if action.shape == () and jnp.issubdtype(action.dtype, jnp.integer):
-            if not _is_traced(action) and not 0 <= int(action) < self.action_size:
+            if not is_traced(action) and not 0 <= int(action) < self.action_size:
                 raise ValueError(f"action index must be in [0, {self.action_size}), got "
                                  f"{int(action)}")
             return action.astype(jnp.int32)
