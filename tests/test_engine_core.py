@@ -4,14 +4,13 @@ checkpoint guards, error exit codes of the CLI entry point."""
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from tests.engine_helpers import TINY_SETS, experiments_dir
-from vbl.engine import Experiment, get
+from tests.engine_helpers import TINY_SETS, toy_experiment
+from vbl.engine import Experiment
 from vbl.engine.checkpoint import CheckpointError, Checkpoints
 from vbl.engine.config import parse_sweep, parse_value, split_values, stack_traced
 from vbl.engine.runner import run_experiment
@@ -21,14 +20,7 @@ from vbl.params import ParamError
 
 @pytest.fixture(scope="module")
 def toy(tmp_path_factory):
-    d = experiments_dir(tmp_path_factory.mktemp("exps"))
-    old = os.environ.get("VBL_EXPERIMENTS_DIR")
-    os.environ["VBL_EXPERIMENTS_DIR"] = str(d)
-    yield get("toy_bandit")
-    if old is None:
-        os.environ.pop("VBL_EXPERIMENTS_DIR", None)
-    else:
-        os.environ["VBL_EXPERIMENTS_DIR"] = old
+    yield from toy_experiment(tmp_path_factory.mktemp("exps"))
 
 
 SWEEP = {"agent.learning_rate": [0.1, 0.5], "env.num_arms": [3, 4]}

@@ -24,6 +24,8 @@ class ToyParams:
     world: WorldParams = section(WorldParams, doc="physics")
     noise_on: NoiseOn = section(NoiseOn, doc="switches")
     max_steps: int = param(EPISODE, doc="episode length", static=True, ge=1)
+    obs_source: str = param("analytic", doc="the base's observation source switch",
+                            static=True, choices=("analytic", "pixels"))
 
 
 @struct.dataclass
@@ -110,7 +112,7 @@ def test_step_env_does_not_reset():
 
 def test_checks_outside_jit_and_none_inside():
     env = ToyEnv("b")
-    assert repr(env) == "ToyEnv(kind='b', params=['world', 'noise_on', 'max_steps'])"
+    assert repr(env) == "ToyEnv(kind='b', params=['world', 'noise_on', 'max_steps', 'obs_source'])"
     _, state = env.reset(jax.random.key(0))
     key = jax.random.key(1)
     with pytest.raises(ValueError, match=r"\[0, 1\] \(stay, go\)"):

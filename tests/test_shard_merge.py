@@ -12,7 +12,6 @@ learners of each group they run.
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import socket
 import subprocess
@@ -20,8 +19,15 @@ from pathlib import Path
 
 import pytest
 
-from tests.engine_helpers import REPO, TINY, env_for, experiments_dir, one_error_line, vbl_cmd
-from vbl.engine.registry import get
+from tests.engine_helpers import (
+    REPO,
+    TINY,
+    env_for,
+    experiments_dir,
+    one_error_line,
+    toy_experiment,
+    vbl_cmd,
+)
 
 RUN = ["run", "toy_bandit", *TINY, "--sweep", "agent.learning_rate=0.1,0.5", "--seeds", "3",
        "--set", "train.num_chunks=4", "--checkpoint-every", "2", "--quiet"]
@@ -34,14 +40,7 @@ TIMEOUT = 300
 
 @pytest.fixture(scope="module")
 def toy(tmp_path_factory):
-    d = experiments_dir(tmp_path_factory.mktemp("exps"))
-    old = os.environ.get("VBL_EXPERIMENTS_DIR")
-    os.environ["VBL_EXPERIMENTS_DIR"] = str(d)
-    yield get("toy_bandit")
-    if old is None:
-        os.environ.pop("VBL_EXPERIMENTS_DIR", None)
-    else:
-        os.environ["VBL_EXPERIMENTS_DIR"] = old
+    yield from toy_experiment(tmp_path_factory.mktemp("exps"))
 
 
 def vbl(*args) -> int:

@@ -26,6 +26,20 @@ def experiments_dir(tmp: Path) -> Path:
     return d
 
 
+def toy_experiment(tmp: Path):
+    """Generator for a module fixture: the registered toy experiment, with
+    ``$VBL_EXPERIMENTS_DIR`` pointing at :func:`experiments_dir` until the fixture ends."""
+    from vbl.engine.registry import get
+
+    old = os.environ.get("VBL_EXPERIMENTS_DIR")
+    os.environ["VBL_EXPERIMENTS_DIR"] = str(experiments_dir(tmp))
+    yield get("toy_bandit")
+    if old is None:
+        os.environ.pop("VBL_EXPERIMENTS_DIR", None)
+    else:
+        os.environ["VBL_EXPERIMENTS_DIR"] = old
+
+
 def env_for(exp_dir: Path, **extra: str) -> dict[str, str]:
     env = dict(os.environ, VBL_EXPERIMENTS_DIR=str(exp_dir), CI="true",
                TF_CPP_MIN_LOG_LEVEL="3", VBL_HOST_DEVICES="1")  # one device: the reference
