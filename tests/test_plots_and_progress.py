@@ -124,3 +124,23 @@ def test_status_file_phases_and_an_eta_that_leaves_out_the_compiling_chunk(tmp_p
     assert progress.read_status(tmp_path) == "training 3/10 chunks, ETA 14 s"
     p.close()  # the run no longer runs: no status file is left behind
     assert progress.read_status(tmp_path) == "" and not list(tmp_path.iterdir())
+
+
+def test_a_second_program_compiles_again_and_its_eta_leaves_that_chunk_out(tmp_path,
+                                                                            monkeypatch):
+    """Chunks of 100, 2 (first program) then 50 (the second program's compiling chunk)
+    and 3 s: 6 chunks left take 6 x 3 s, not the mean with the 50 s chunk in it."""
+    from vbl.engine import progress
+
+    clock = iter([0.0, 100.0, 102.0, 102.0, 152.0, 155.0, 155.0])
+    monkeypatch.setattr(progress.time, "perf_counter", lambda: next(clock))
+    p = progress.Progress(10, 0, "t", quiet=True, status_dir=tmp_path)
+    m = {"episodes": np.ones(2)}
+    p.update(m)
+    p.update(m)
+    p.compiling()
+    assert progress.read_status(tmp_path) == "compiling 2/10 chunks"
+    p.update(m)
+    p.update(m)
+    assert progress.read_status(tmp_path) == "training 4/10 chunks, ETA 18 s"
+    p.close()

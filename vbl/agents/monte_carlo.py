@@ -79,20 +79,21 @@ def mc_update(q: jax.Array, log: MCLog, ended: jax.Array, scored: jax.Array,
     truncation with ``truncation='skip'``). Returns (q, log emptied where ended, number
     of decisions learned from () float32)."""
     n_s, n_a = q.shape
-    length = log.s.shape[1]
+    size, length = n_s * n_a, log.s.shape[1]
     use = jnp.asarray(ended, bool) if weight is None else jnp.asarray(ended, bool) & weight
     valid = (jnp.arange(length)[None] < log.n[:, None]) & use[:, None]
     k = (jnp.asarray(last_clock, I32)[:, None] - log.clock).astype(F32)
     ret = jnp.where(jnp.asarray(scored, bool)[:, None], jnp.asarray(discount, F32) ** k, 0.0)
-    idx = jnp.where(valid, log.s * n_a + log.a, n_s * n_a).reshape(-1)
-
-    def seg(w):
-        return jax.ops.segment_sum(w.reshape(-1), idx, num_segments=n_s * n_a + 1)[
-            :n_s * n_a].reshape(n_s, n_a)
-
-    cnt = seg(valid.astype(F32))
-    mean = seg(jnp.where(valid, ret, 0.0)) / jnp.maximum(cnt, 1.0)
+    # Sparse in the log's E x L entries, not dense in the table: each entry reads its
+    # (state, action)'s count and return sum, then writes the entry's new value (entries
+    # of one key write the same value; unused entries point past the table and drop).
+    idx = jnp.where(valid, log.s * n_a + log.a, size).reshape(-1)
+    w = jnp.stack([valid.reshape(-1).astype(F32), jnp.where(valid, ret, 0.0).reshape(-1)], -1)
+    sums = jax.ops.segment_sum(w, idx, num_segments=size + 1)[idx]
+    cnt, mean = sums[:, 0], sums[:, 1] / jnp.maximum(sums[:, 0], 1.0)
+    flat = q.reshape(-1)
+    old = flat.at[idx].get(mode="fill", fill_value=0.0)
     step = 1.0 - (1.0 - jnp.asarray(learning_rate, F32)) ** cnt
-    q = jnp.where(cnt > 0, q + step * (mean - q), q).astype(F32)
+    q = flat.at[idx].set((old + step * (mean - old)).astype(F32), mode="drop").reshape(n_s, n_a)
     log = log.replace(n=jnp.where(jnp.asarray(ended, bool), 0, log.n).astype(I32))
-    return q, log, jnp.sum(cnt)
+    return q, log, jnp.sum(w[:, 0])

@@ -93,6 +93,14 @@ class Progress:
         self._bar.set_postfix(post, refresh=False)
         self._bar.update(1)
 
+    def compiling(self) -> None:
+        """A new program starts (the next sweep group): its first chunk includes tracing
+        and compilation, so the phase is "compiling" and the ETA restarts after it."""
+        self._t0, self._first = None, self._done
+        self._write_status("compiling")
+        if self._bar is not None:
+            self._bar.set_description_str(f"{self._desc} (compiling)")
+
     def eta(self) -> float | None:
         """Seconds left at the mean time per chunk after the first chunk of this process
         (which includes compilation); None before a second chunk."""

@@ -353,9 +353,10 @@ def _train(run: _Run, ckpts: Checkpoints, log: MetricsLog) -> int:
     sharding = learner_sharding()
     truncate = run.resume and run.primary
     try:
-        for group in plan.groups:
-            if group.step_offset + group.num_chunks <= start or not group.num_learners:
-                continue
+        for i, group in enumerate(g for g in plan.groups if g.num_learners
+                                  and g.step_offset + g.num_chunks > start):
+            if i:
+                progress.compiling()
             _run_group(plan, group, sharding, ckpts, log, progress, start,
                        run.checkpoint_every, run.learner_batch, truncate)
             truncate = False  # once, before the first new row
