@@ -10,8 +10,10 @@ import numpy as np
 
 from vbl.stats import mean_ci95
 
-__all__ = ["point_label", "plot_curves", "plot_names", "is_rate", "band"]
+__all__ = ["point_label", "plot_curves", "plot_names", "is_rate", "band", "save_figure",
+           "FIGURE_DPI"]
 
+FIGURE_DPI = 120  #: dots per inch of every figure vbl writes
 LINESTYLES = ("-", "--", ":", "-.")  #: one per sweep point (cycled): coinciding lines stay visible
 
 
@@ -29,6 +31,16 @@ def band(metric: str, values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
     if is_rate(metric):
         lo, hi = np.clip(lo, 0.0, 1.0), np.clip(hi, 0.0, 1.0)
     return m, lo, hi
+
+
+def save_figure(fig: Any, path: str | Path) -> Path:
+    """Lay out ``fig``, write it to ``path`` (PNG at :data:`FIGURE_DPI`), close it; the path."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    fig.savefig(path, dpi=FIGURE_DPI)
+    plt.close(fig)
+    return Path(path)
 
 
 def _file_name(metric: str) -> str:
@@ -85,9 +97,5 @@ def plot_curves(curves: dict[str, np.ndarray], points: list[dict[str, Any]], out
         if len(points) > 1 or points[0]:
             ax.legend(fontsize="small")
         ax.grid(alpha=0.3)
-        fig.tight_layout()
-        path = Path(out_dir) / _file_name(name)
-        fig.savefig(path, dpi=100)
-        plt.close(fig)
-        paths.append(path)
+        paths.append(save_figure(fig, Path(out_dir) / _file_name(name)))
     return paths

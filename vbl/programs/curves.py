@@ -10,7 +10,7 @@ import numpy as np
 from flax import struct
 
 from vbl.engine.experiment import RunResult
-from vbl.engine.plots import LINESTYLES, band
+from vbl.engine.plots import LINESTYLES, band, save_figure
 from vbl.params import ParamError, param
 from vbl.programs.q_program import curve_metric
 from vbl.stats import first_crossing
@@ -120,7 +120,4 @@ def plot_success_vs_trials(res: RunResult, level: float, path: Path, title: str)
            title=f"{title} ({res.seeds} seeds, 95% band)")
     ax.legend(fontsize="small")
     ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)

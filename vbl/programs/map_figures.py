@@ -16,6 +16,7 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
+from vbl.engine.plots import save_figure
 from vbl.spaces.action_based import FeatureParams
 from vbl.spaces.action_cells import CellMap, CellMapParams, cell_index, classify_cells
 from vbl.spaces.cell_refine import initial_units
@@ -84,10 +85,7 @@ def _draw_slice(fp: FeatureParams, gp: GridParams, region: np.ndarray, shade: np
     ax.set_xlabel("ball size x1 [px]")
     ax.set_ylabel("goal size x3 [px]")
     ax.set_title(title, fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def plot_fig5(final: dict, cells: CellMapParams, fp: FeatureParams, gp: GridParams,

@@ -23,7 +23,7 @@ import numpy as np
 
 from vbl.agents.ppo_inputs import INPUTS
 from vbl.engine.experiment import PaperRow, ReportSection, RunResult
-from vbl.engine.plots import band
+from vbl.engine.plots import band, save_figure
 from vbl.engine.report import rate_cell, seeds_cell, sibling_result
 from vbl.programs.curves import LEM_PATH
 from vbl.programs.paper import TABLE2
@@ -259,7 +259,7 @@ def _axes(n: int):
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, n, figsize=(5.2 * n if n > 1 else 6.4, 4.0), squeeze=False)
-    return plt, fig, axes[0]
+    return fig, axes[0]
 
 
 def _line(ax, steps: np.ndarray, sr: np.ndarray, **kw) -> None:
@@ -271,27 +271,24 @@ def _line(ax, steps: np.ndarray, sr: np.ndarray, **kw) -> None:
         ax.fill_between(x, lo, hi, color=line.get_color(), alpha=0.15, lw=0)
 
 
-def _finish(plt, fig, axes, path: Path) -> Path:
+def _finish(fig, axes, path: Path) -> Path:
     for ax in axes:
         ax.set(xlabel="training env steps (primitives) per learner", ylabel="success rate",
                ylim=(0, 1))
         ax.grid(alpha=0.3)
         ax.legend(fontsize="small")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def plot_success_vs_steps(curves: dict, labels: list[str], path: Path, title: str) -> Path:
     """``success_rate`` (mean over seeds, 95 % band) against training env steps, one line
     per sweep point; ``curves[metric]`` is (points, chunks, seeds)."""
     steps, sr = np.asarray(curves["env_steps"]), np.asarray(curves["success_rate"])
-    plt, fig, axes = _axes(1)
+    fig, axes = _axes(1)
     for i, label in enumerate(labels):
         _line(axes[0], steps[i], sr[i], label=label)
     axes[0].set_title(f"{title} ({sr.shape[2]} seeds, 95% band)")
-    return _finish(plt, fig, axes, path)
+    return _finish(fig, axes, path)
 
 
 def plot_two_robot_curves(curves: dict, keys: list[Key], path: Path, title: str) -> Path:
@@ -301,7 +298,7 @@ def plot_two_robot_curves(curves: dict, keys: list[Key], path: Path, title: str)
     steps, sr = np.asarray(curves["env_steps"]), np.asarray(curves["success_rate"])
     tasks = [t for t in TASKS if any(k[0] == t for k in keys)]
     colours = dict(zip(INPUTS, ("C0", "C1", "C2"), strict=True))
-    plt, fig, axes = _axes(len(tasks))
+    fig, axes = _axes(len(tasks))
     for ax, task in zip(axes, tasks, strict=True):
         for i, (t, inp, cur) in enumerate(keys):
             if t == task:
@@ -310,7 +307,7 @@ def plot_two_robot_curves(curves: dict, keys: list[Key], path: Path, title: str)
         ax.set_title(task)
     fig.suptitle(f"{title} ({sr.shape[2]} seeds, mean and 95% band; evaluation at start "
                  "difficulty 1)", fontsize="medium")
-    return _finish(plt, fig, axes, path)
+    return _finish(fig, axes, path)
 
 
 def curves_from_metrics(folder: str | Path, points: int) -> dict[str, np.ndarray]:

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from vbl.engine.experiment import PaperRow
+from vbl.engine.plots import save_figure
 from vbl.engine.report import claim, rate_cell, seeds_cell
 from vbl.stats import change_windows, mean_ci95, running_mean
 
@@ -62,11 +63,7 @@ def plot_fig9(final: dict, changes: tuple[int, ...], out: Path, window: int = 50
     h2, l2 = ax2.get_legend_handles_labels()
     ax.legend(h1 + h2, l1 + l2, loc="upper left", fontsize=8)
     ax.set_title(f"Figure 9: on-line segmentation, mean and 95% band over {succ.shape[0]} seeds")
-    fig.tight_layout()
-    path = out / "fig9_success_states.png"
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(fig, out / "fig9_success_states.png")
 
 
 def plot_fig8(final: dict, scale: tuple[float, float], labels: tuple[str, ...], out: Path,
@@ -99,11 +96,7 @@ def plot_fig8(final: dict, scale: tuple[float, float], labels: tuple[str, ...], 
     ax.set_xlabel(f"ball size x{i0 + 1} [px]" if axes == (0, 2) else f"x{i0 + 1} [px]")
     ax.set_ylabel(f"goal size x{i1 + 1} [px]" if axes == (0, 2) else f"x{i1 + 1} [px]")
     ax.set_title(f"Figure 8: final boxes (seed {seed}), {int(act.sum())} states in all")
-    fig.tight_layout()
-    path = out / "fig8_state_space.png"
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(fig, out / "fig8_state_space.png")
 
 
 def change_window(changes: tuple[int, int], trials: int) -> int:
