@@ -76,6 +76,43 @@ def test_mc_update_by_hand():
     assert float(n_skip) == 0.0
 
 
+def numpy_mc_update(q, s, a, clock, n, ended, scored, last, lr, gamma):
+    """Every-visit batch update written plainly: loop over the ended envs' logged
+    decisions, group by (state, action), move each towards its mean return."""
+    q = q.astype(np.float64).copy()
+    groups: dict = {}
+    for e in np.flatnonzero(ended):
+        for j in range(n[e]):
+            ret = gamma ** (last[e] - clock[e, j]) if scored[e] else 0.0
+            groups.setdefault((s[e, j], a[e, j]), []).append(ret)
+    for (si, ai), rets in groups.items():
+        q[si, ai] += (1 - (1 - lr) ** len(rets)) * (np.mean(rets) - q[si, ai])
+    return q
+
+
+def test_mc_update_matches_a_numpy_reference_with_shared_keys():
+    """64 envs x 32 decisions over a 6 x 3 table (every key repeats within and across
+    envs), a third of the envs ended, half of those scored."""
+    rng = np.random.default_rng(3)
+    n_env, length, n_s, n_a = 64, 32, 6, 3
+    s, a = rng.integers(0, n_s, (n_env, length)), rng.integers(0, n_a, (n_env, length))
+    clock = np.sort(rng.integers(0, 40, (n_env, length)), axis=1)
+    n = rng.integers(0, length + 1, n_env)
+    ended, scored = rng.random(n_env) < 0.33, rng.random(n_env) < 0.5
+    last = np.full(n_env, 45)
+    q0 = rng.random((n_s, n_a)).astype(np.float32)
+    log = mc_init(n_env, length).replace(s=jnp.asarray(s, jnp.int32),
+                                         a=jnp.asarray(a, jnp.int32),
+                                         clock=jnp.asarray(clock, jnp.int32),
+                                         n=jnp.asarray(n, jnp.int32))
+    q, log2, used = mc_update(jnp.asarray(q0), log, jnp.asarray(ended), jnp.asarray(scored),
+                              jnp.asarray(last, jnp.int32), 0.3, 0.9)
+    want = numpy_mc_update(q0, s, a, clock, n, ended, scored, last, 0.3, 0.9)
+    np.testing.assert_allclose(np.asarray(q), want, rtol=2e-6, atol=1e-7)
+    assert float(used) == n[ended].sum()
+    np.testing.assert_array_equal(np.asarray(log2.n), np.where(ended, 0, n))
+
+
 def _params(update="monte_carlo", lr=0.01, macro=False, **agent):
     expl = ExplorationParams(schedule="constant", init_value=1.0)
     return QRunnerParams(
