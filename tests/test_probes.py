@@ -52,17 +52,62 @@ def test_probe_files_all_tested():
 
 
 def test_ball_velocity_r2(capsys):
-    out = run_probe("ball_velocity_r2", ["--tiny"], capsys)
-    rows = table(out)
+    out = run_probe("ball_velocity_r2", ["--tiny", "--hold", "3",
+                                         "--set", "cva.n_used_objects=6,4,4"], capsys)
+    fits, _, held = out.partition("Held out")
+    rows = table(fits)
     assert [r[0].split(" (")[0] for r in rows] == ["steps used", "current", "CVA", "oracle",
-                                                   "CVA, first 4", "raw history"]
+                                                   "CVA, first 4", "raw history",
+                                                   "history y+u"]
+    assert rows[2][0] == "CVA (6)"  # the --set reached the identification
+    assert "each action held 3 primitive(s)" in out
     assert all(len(r) == 5 for r in rows)  # 4 phases
-    assert all(int(c) >= 14 for c in rows[0][1:])  # enough steps for a 12-regressor fit
+    assert all(int(c) >= 18 for c in rows[0][1:])  # enough steps for a 16-regressor fit
     for r in rows[1:]:
         for cell in r[1:]:
             vals = numbers(cell)
             assert len(vals) == 2 and all(math.isfinite(v) and v <= 1.0 for v in vals), r
     assert all(min(numbers(c)) > 0.99 for c in rows[3][1:])  # the oracle holds the velocity
+    # the lag's inputs and outputs hold at least what their outputs alone hold (nested fits)
+    for y_only, y_u in zip(rows[5][1:], rows[6][1:], strict=True):
+        assert all(b >= a - 1e-9 for a, b in zip(numbers(y_only), numbers(y_u), strict=True))
+    held_rows = table(held)
+    assert [r[0] for r in held_rows] == ["k-NN on history y+u", "codes of current",
+                                         "codes of CVA", "codes of CVA, cancor-weighted"]
+    for r in held_rows:  # held-out R^2: at most 1, negative when worse than the mean
+        assert len(r) == 5
+        for cell in r[1:]:
+            vals = numbers(cell)
+            assert len(vals) == 2 and all(math.isfinite(v) and v <= 1.0 for v in vals), r
+
+
+def test_ball_velocity_r2_bad_set(capsys):
+    """A bad override is one line and exit status 2, before any computation."""
+    spec = importlib.util.spec_from_file_location("probe_bv", PROBES / "ball_velocity_r2.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    assert mod.main(["--tiny", "--set", "cva.no_such_path=1"]) == 2
+    assert mod.main(["--tiny", "--hold", "0"]) == 2
+    out = capsys.readouterr().out.strip().splitlines()
+    assert len(out) == 2 and all(line.startswith("error: ") for line in out)
+
+
+def test_held_out_r2_by_hand():
+    """The probe's held-out scores on hand-made data (independent: worked by hand)."""
+    spec = importlib.util.spec_from_file_location("probe_bv2", PROBES / "ball_velocity_r2.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    import numpy as np
+    fit = np.array([True, True, True, True, False, False])
+    y = np.array([[0.0], [2.0], [10.0], [12.0], [0.0], [12.0]])
+    # code means of the fitted rows 1 and 11 predict 0 and 12: SSE 2, SST 72
+    assert np.isclose(mod.code_r2(np.array([0, 0, 1, 1, 0, 1]), y, fit)[0], 1 - 2 / 72)
+    # a code unseen in the fitted rows gets their mean 6: SSE 36 + 1, SST 72
+    assert np.isclose(mod.code_r2(np.array([0, 0, 1, 1, 7, 1]), y, fit)[0], 1 - 37 / 72)
+    # k-NN: y = x on a grid, held-out points between two grid points, k = 2 -> exact
+    x = np.concatenate([np.arange(100.0), [10.5, 50.5, 80.5]])[:, None]
+    f = np.arange(103) < 100
+    assert np.isclose(mod.knn_r2(x, x.copy(), f, k=2)[0], 1.0)
 
 
 @pytest.mark.slow  # ~40 s with a warm compilation cache: tracing 10 camera / env programs

@@ -23,7 +23,25 @@ share of such steps. The state vectors (rows):
   zeroed when the ball is not visible (R^2 1 by construction on the visible steps; it
   checks the frame and the phases);
 * ``CVA, first 4``: the first 4 of the ball's canonical components (its AIC order);
-* ``raw history``: the ball's features of the filter's last ``lag`` frames (no CVA).
+* ``raw history``: the ball's features of the filter's last ``lag`` frames (no CVA);
+* ``history y+u``: the same frames and the learner's last ``lag - 1`` commands: every CVA
+  state of that lag is a linear function of them, so no CVA candidate at that lag (any
+  order, input scaling or component count) exceeds this row's linear R^2.
+
+The rows above are in-sample least-squares fits (at most 58 regressors on 1,000-2,600
+steps). A second table is held out: fitted on the first half of the envs, scored on the
+other half. Its ``k-NN on history y+u`` row (10 nearest neighbours, z-scored) says how much
+of the velocity the same history holds for a nonlinear map; its other rows say what a
+Q-table can tell apart: the velocity predicted by its code's mean, for a k-means codebook
+of the ball's state (as many codes as Table 2's ball group, ``cva.quantizer.group_codes``,
+fitted on the first half's visible steps of the driving run) of the current features and
+of the CVA state, z-scored (Table 2's quantiser) or with each component weighted by its
+canonical correlation.
+
+Candidates: ``--set PATH=VALUE`` (repeatable) changes Table 2's config before the ball is
+identified (e.g. ``cva.ident.lag_max=6``, ``cva.n_used_objects=12,4,4``,
+``cva.collect_steps=10000``); ``--hold N`` holds each identification action for ``N``
+primitives (as a macro action holds it) instead of drawing one per primitive.
 
 Only the ball is identified (the goal and the other robot are not needed here), and a
 tiny quantiser is fitted (the probe reads the continuous state, not the index).
@@ -32,7 +50,7 @@ Not an experiment (``vbl reproduce`` does not run it) and not a benchmark (``vbl
 reads ``benchmarks/*.py`` only). Run from the repository root:
 
     python benchmarks/probes/ball_velocity_r2.py [--seed 0] [--envs 64] [--steps 100]
-        [--collect-steps N] [--tiny]
+        [--collect-steps N] [--hold N] [--set PATH=VALUE ...] [--tiny]
 
 ``--tiny`` (a smoke test: 8 envs x 40 steps, 600 identification steps) checks that the
 probe runs; its numbers mean little. Cost: about a minute of CPU at the defaults, mostly
@@ -52,7 +70,10 @@ ROOT = Path(__file__).resolve().parents[2]
 
 #: Rolling: ball speed above this, m/s.
 ROLLING = 0.1
-STATES = ("current", "CVA", "oracle", "CVA, first 4", "raw history")
+STATES = ("current", "CVA", "oracle", "CVA, first 4", "raw history", "history y+u")
+#: Neighbours of the k-NN row (a nonlinear regression on ``history y+u``).
+KNN = 10
+CODE_STATES = ("current", "CVA", "CVA, cancor-weighted")
 PHASES = ("shooter still", "approach", "after contact", "all rolling")
 
 
@@ -67,6 +88,41 @@ def r2(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     tot = ((y - y.mean(0)) ** 2).sum(0)
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(tot > 1e-12, 1.0 - (res ** 2).sum(0) / tot, np.nan)
+
+
+def held_out_r2(pred: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """1 - SSE / SST per column of ``y`` for predictions ``pred`` (may be negative); NaN
+    with fewer than 2 rows or a column without variance."""
+    if len(y) < 2:
+        return np.full(y.shape[1], np.nan)
+    tot = ((y - y.mean(0)) ** 2).sum(0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(tot > 1e-12, 1.0 - ((y - pred) ** 2).sum(0) / tot, np.nan)
+
+
+def code_r2(idx: np.ndarray, y: np.ndarray, fit: np.ndarray) -> np.ndarray:
+    """Held-out R^2 of predicting ``y`` by the mean of its code's ``fit`` rows (a code
+    without ``fit`` rows: the mean of all ``fit`` rows), on the rows that are not ``fit``."""
+    if fit.sum() < 1:
+        return np.full(y.shape[1], np.nan)
+    mean = y[fit].mean(0)
+    pred = np.tile(mean, (len(y), 1))
+    for c in np.unique(idx[fit]):
+        pred[idx == c] = y[fit & (idx == c)].mean(0)
+    return held_out_r2(pred[~fit], y[~fit])
+
+
+def knn_r2(x: np.ndarray, y: np.ndarray, fit: np.ndarray, k: int = KNN) -> np.ndarray:
+    """Held-out R^2 of the ``k``-nearest-neighbour regression of ``y`` on ``x`` (z-scored by
+    the ``fit`` rows), neighbours among the ``fit`` rows, on the rows that are not ``fit``."""
+    if fit.sum() < k:
+        return np.full(y.shape[1], np.nan)
+    mu, sd = x[fit].mean(0), x[fit].std(0)
+    z = (x - mu) / np.where(sd > 0, sd, 1.0)
+    a, b = z[fit], z[~fit]
+    d = (b ** 2).sum(1)[:, None] - 2 * b @ a.T + (a ** 2).sum(1)[None]
+    near = np.argpartition(d, k - 1, axis=1)[:, :k]
+    return held_out_r2(y[fit][near].mean(1), y[~fit])
 
 
 class _WithObs:
@@ -91,6 +147,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--steps", type=int, default=100, help="steps per env")
     ap.add_argument("--collect-steps", type=int, default=None,
                     help="identification steps (default: Table 2's cva.collect_steps)")
+    ap.add_argument("--hold", type=int, default=1,
+                    help="identification: primitives each random action is held (1: i.i.d.)")
+    ap.add_argument("--set", action="append", default=[], metavar="PATH=VALUE",
+                    help="override a path of Table 2's config (repeatable)")
     ap.add_argument("--tiny", action="store_true",
                     help="smoke-test size: 8 envs x 40 steps, 600 identification steps")
     args = ap.parse_args(argv)
@@ -98,12 +158,23 @@ def main(argv: list[str] | None = None) -> int:
         args.envs, args.steps, args.collect_steps = 8, 40, 600
 
     from vbl.agents.cva_state import make_cva_learner
+    from vbl.engine.config import apply_overrides, parse_assignment
     from vbl.engine.jax_setup import engine_precision
     from vbl.engine.registry import load_script
     from vbl.envs.shoot_pass import OBS_SLICES, ShootPassEnv
+    from vbl.params import ParamError
+    from vbl.spaces.quantize import QuantizerParams, fit_quantizer, quantize
 
     cfg = load_script(ROOT / "experiments" / "table2_shoot_pass.py").EXPERIMENT.default_config
+    try:
+        if args.hold < 1:
+            raise ParamError(f"--hold {args.hold}: hold each action for >= 1 primitive")
+        cfg = apply_overrides(cfg, [parse_assignment(t, cfg) for t in args.set])
+    except ParamError as e:
+        print(f"error: {e}")
+        return 2
     cva = cfg.cva
+    ball_codes = int(cva.quantizer.group_codes[list(cva.objects).index("ball")])
     n_ball = cva.n_used_per_object()[list(cva.objects).index("ball")]
     p = cva.replace(state="cva", objects=("ball",), n_used_objects=(n_ball,), extra=(),
                     quantizer=cva.quantizer.replace(method="vq", num_codes=4,
@@ -112,7 +183,7 @@ def main(argv: list[str] | None = None) -> int:
         p = p.replace(collect_steps=args.collect_steps)
     env = ShootPassEnv("shoot")
     ep = cfg.env.replace(task_pass=False)
-    lrn = make_cva_learner(_WithObs(env), p, cfg.q, m=2)
+    lrn = make_cva_learner(_WithObs(env), p, cfg.q, m=2, collect_hold=args.hold)
     fenv = lrn.env
     ball, vis = OBS_SLICES["ball"], OBS_SLICES["visible"].start  # the ball's flag first
     k_prep, k_run = jax.random.split(jax.random.PRNGKey(args.seed))
@@ -139,6 +210,7 @@ def main(argv: list[str] | None = None) -> int:
                     seen = y[vis] > 0.5
                     return st, dict(cva=obs["state"], cur=y[ball], vel=vel, seen=seen,
                                     raw=st.inner.hist_y[0].reshape(-1),
+                                    raw_u=st.inner.hist_u[0][1:].reshape(-1),
                                     speed=jnp.linalg.norm(v), touched=sp.touched)
 
                 _, rec = jax.lax.scan(body, st, jax.random.split(ks, args.steps))
@@ -163,6 +235,8 @@ def main(argv: list[str] | None = None) -> int:
                        else rolling & touched if name == "after contact" else rolling)
 
     def state(rec, kind):
+        if kind == "history y+u":
+            return np.concatenate([rec["raw"], rec["raw_u"]], axis=1)
         if kind == "current":
             return rec["cur"]
         if kind == "CVA":
@@ -175,21 +249,57 @@ def main(argv: list[str] | None = None) -> int:
 
     print(f"Table 2 shooter, seed {args.seed}: {args.envs} envs x {args.steps} steps per "
           f"phase run; ball CVA lag {lag}, AIC order {order}, {n_ball} components kept; "
-          f"identification {p.collect_steps} steps. The ball lies still (speed <= "
-          f"{ROLLING} m/s, velocity 0: no R^2) in {rest:.0%} of the driving run's steps.")
+          f"identification {p.collect_steps} steps, each action held {args.hold} "
+          f"primitive(s); overrides: {', '.join(args.set) or 'none'}. The ball lies "
+          f"still (speed <= {ROLLING} m/s, velocity 0: no R^2) in {rest:.0%} of the driving "
+          "run's steps.")
     print("R^2 of the ball's true velocity in the shooter's frame (forward / lateral) on "
           "the steps where the ball is visible and rolling:")
     print("| state | " + " | ".join(PHASES) + " |")
     print("|---|" + "---|" * len(PHASES))
     print("| steps used | " + " | ".join(str(int(m.sum())) for _, m in masks.values()) + " |")
     dims = {"current": 4, "CVA": n_ball, "oracle": 6, "CVA, first 4": 4,
-            "raw history": recs[False]["raw"].shape[1]}
+            "raw history": recs[False]["raw"].shape[1],
+            "history y+u": recs[False]["raw"].shape[1] + recs[False]["raw_u"].shape[1]}
     for kind in STATES:
         cells = []
         for rec, m in masks.values():
             c = r2(state(rec, kind)[m], rec["vel"][m])
             cells.append(" / ".join("-" if np.isnan(v) else f"{v:.2f}" for v in c))
         print(f"| {kind} ({dims[kind]}) | " + " | ".join(cells) + " |")
+
+    # held out: fitted on the first half of the envs, scored on the second
+    half = {still: np.arange(len(recs[still]["vel"])) < len(recs[still]["vel"]) // 2
+            for still in (True, False)}
+    cancor = np.asarray(fp.inner.filters[0].cancor, np.float64)
+    weights = {"current": None, "CVA": None, "CVA, cancor-weighted": cancor}
+    qp = QuantizerParams(method="vq", num_codes=ball_codes,
+                         kmeans_iters=cva.quantizer.kmeans_iters)
+    k_code = jax.random.PRNGKey(args.seed + 1)
+    fit_on = (moving["seen"] > 0) & half[False]
+    codes = {}
+    for kind in CODE_STATES:
+        base = "current" if kind == "current" else "CVA"
+        qz = fit_quantizer(k_code, state(moving, base)[fit_on], qp, weights=weights[kind])
+        codes[kind] = {still: np.asarray(quantize(qz, state(recs[still], base)))
+                       for still in (True, False)}
+    print(f"Held out (fitted on envs 0-{args.envs // 2 - 1}, scored on the others): R^2 of "
+          f"the same velocity (forward / lateral) by a {KNN}-nearest-neighbour regression "
+          f"and by the mean of its cell in a {ball_codes}-code k-means codebook of the "
+          "ball's state:")
+    print("| held out | " + " | ".join(PHASES) + " |")
+    print("|---|" + "---|" * len(PHASES))
+    for kind in ("k-NN on history y+u",) + tuple(f"codes of {c}" for c in CODE_STATES):
+        cells = []
+        for name, (rec, m) in masks.items():
+            h = half[name == "shooter still"][m]
+            if kind.startswith("k-NN"):
+                c = knn_r2(state(rec, "history y+u")[m], rec["vel"][m], h)
+            else:
+                c = code_r2(codes[kind.removeprefix("codes of ")][name == "shooter still"][m],
+                            rec["vel"][m], h)
+            cells.append(" / ".join("-" if np.isnan(v) else f"{v:.2f}" for v in c))
+        print(f"| {kind} | " + " | ".join(cells) + " |")
     return 0
 
 
