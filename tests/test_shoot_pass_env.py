@@ -385,28 +385,11 @@ def test_easy_starts_are_easier():
     assert pass_easy - pass_full > 4 * se, r
 
 
-def test_pass_at_the_start_of_a_shoot_episode():
-    """start.shoot_pass_at_start: the ball leaves the passer at a speed in the range, on a
-    line that passes the shooter's centre within the aim range, and the passer has kicked."""
+def test_a_shoot_episode_starts_with_a_still_ball_and_no_kick():
+    """The shooting task's start: the ball lies still and nobody has kicked yet (the
+    scripted passer first drives to the ball)."""
     env = ShootPassEnv("shoot")
-    p = env.default_params
-    sp = p.start.replace(shoot_pass_at_start=True)
-    p = p.replace(start=sp)
-    states = jax.jit(jax.vmap(lambda k: env.reset(k, p)[1]))(
-        jax.random.split(jax.random.PRNGKey(5), 256))
-    v = np.asarray(states.world.ball_vel, np.float64)
-    speed = np.linalg.norm(v, axis=1)
-    assert np.all(speed >= sp.shoot_pass_speed_min - 1e-5)
-    assert np.all(speed <= sp.shoot_pass_speed_max + 1e-5)
-    assert speed.std() > 0.1  # drawn, not one value
-    # the distance of the shooter's centre from the ball's line of motion (the aim offset
-    # across the pass line, up to the angle between the pass line and the aim line)
-    d = np.asarray(states.world.robots[:, 0, :2] - states.world.ball, np.float64)
-    across = np.abs(d[:, 0] * v[:, 1] - d[:, 1] * v[:, 0]) / speed
-    assert across.max() <= sp.shoot_pass_aim_lateral + 1e-4
-    assert across.max() > 0.5 * sp.shoot_pass_aim_lateral
-    assert np.all(np.sum(d * v, axis=1) > 0)  # rolling towards the shooter
-    assert np.all(np.asarray(states.kicked)) and np.all(np.asarray(states.memory.kicked))
-    # the default start: the ball lies still
-    still = jax.jit(lambda k: env.reset(k, env.default_params)[1])(jax.random.PRNGKey(5))
-    assert float(jnp.linalg.norm(still.world.ball_vel)) == 0.0 and not bool(still.kicked)
+    states = jax.jit(jax.vmap(lambda k: env.reset(k, env.default_params)[1]))(
+        jax.random.split(jax.random.PRNGKey(5), 64))
+    assert float(jnp.abs(states.world.ball_vel).max()) == 0.0
+    assert not np.any(np.asarray(states.kicked)) and not np.any(np.asarray(states.memory.kicked))

@@ -196,19 +196,6 @@ class ShootPassStartParams:
     pass_ball_dir_jitter_deg: float = param(30.0, doc="pass: uniform +- jitter of the ball "
                                             "direction around 'towards the passer'",
                                             unit="deg", ge=0.0, le=180.0)
-    shoot_pass_at_start: bool = param(False, doc="shoot: the episode starts with the pass "
-                                      "(the ball leaves the passer rolling towards the aim "
-                                      "point, the passer has kicked) instead of a still ball "
-                                      "the scripted passer first drives to")
-    shoot_pass_speed_min: float = param(1.0, doc="shoot, pass at the start: ball speed, lower "
-                                        "end", unit="m/s", ge=0.0)
-    shoot_pass_speed_max: float = param(1.8, doc="shoot, pass at the start: ball speed, upper "
-                                        "end", unit="m/s", ge=0.0)
-    shoot_pass_aim_lateral: float = param(0.3, doc="shoot, pass at the start: the aim point is "
-                                          "the shooter's centre moved uniformly +- this across "
-                                          "the pass line (0.31 m = robot + ball radius: beyond "
-                                          "it the ball passes beside a standing shooter)",
-                                          unit="m", ge=0.0)
     margin: float = param(0.05, doc="robots and ball start at least this far from the walls "
                           "(beyond their radius)", unit="m", ge=0.0)
 
@@ -302,8 +289,7 @@ class ShootPassParams:
                        ("pass_angle_min_deg", "pass_angle_max_deg"),
                        ("ball_gap_min", "ball_gap_max"),
                        ("pass_ball_gap_min", "pass_ball_gap_max"),
-                       ("pass_ball_speed_min", "pass_ball_speed_max"),
-                       ("shoot_pass_speed_min", "shoot_pass_speed_max")):
+                       ("pass_ball_speed_min", "pass_ball_speed_max")):
             if np.any(np.asarray(getattr(s, lo)) > np.asarray(getattr(s, hi))):
                 raise ParamError(f"start.{lo}={getattr(s, lo)} must be <= start.{hi}="
                                  f"{getattr(s, hi)}")
@@ -505,14 +491,8 @@ class ShootPassEnv(TaskEnv, params=ShootPassParams, state=ShootPassState,
         d_ang = to_passer + jnp.deg2rad(jnp.asarray(sp.pass_ball_dir_jitter_deg, F32)) * (
             2 * u[9] - 1)
         vel_p = lerp(sp.pass_ball_speed_min, sp.pass_ball_speed_max, u[10]) * unit(d_ang)
-        # shoot with the pass at the start: the ball leaves there towards the aim point
-        aim = s_xy + jnp.asarray(sp.shoot_pass_aim_lateral, F32) * (2 * u[8] - 1) * unit(
-            back + jnp.pi / 2)
-        to_aim = jnp.arctan2(aim[1] - ball_s[1], aim[0] - ball_s[0])
-        vel_s = lerp(sp.shoot_pass_speed_min, sp.shoot_pass_speed_max, u[10]) * unit(to_aim)
-        vel_s = jnp.where(self.passed_at_start(params), vel_s, jnp.zeros(2, F32))
         ball = jnp.where(is_pass, ball_p, ball_s)
-        vel = jnp.where(is_pass, vel_p, vel_s)
+        vel = jnp.where(is_pass, vel_p, jnp.zeros(2, F32))
         ball = jnp.clip(ball, -lim_b, lim_b)
         robots = jnp.stack([jnp.concatenate([s_xy, s_th[None]]),
                             jnp.concatenate([p_xy, p_th[None]])]).astype(F32)
@@ -522,17 +502,11 @@ class ShootPassEnv(TaskEnv, params=ShootPassParams, state=ShootPassState,
     def _fresh(self, words: jax.Array, params: ShootPassParams) -> ShootPassState:
         """A fresh episode's state from (FRESH_DRAWS,) uint32 random words."""
         u = uniform01(words)
-        passed = self.passed_at_start(params)
-        memory = init_memory(u[START_DRAWS:], params.other)
         return ShootPassState(world=self.start_from_uniform(u[:START_DRAWS], params),
                               step=jnp.zeros((), I32),
-                              memory=memory.replace(kicked=memory.kicked | passed),
-                              touched=jnp.zeros((), bool), kicked=passed,
+                              memory=init_memory(u[START_DRAWS:], params.other),
+                              touched=jnp.zeros((), bool), kicked=jnp.zeros((), bool),
                               phase=jnp.zeros((), F32))
-
-    def passed_at_start(self, params: ShootPassParams) -> jax.Array:
-        """() bool: a shoot episode starts with the pass (``start.shoot_pass_at_start``)."""
-        return jnp.asarray(params.start.shoot_pass_at_start, bool) & ~self.is_pass(params)
 
     # ------------------------------------------------------------------ obs
     def learner_camera(self, params: ShootPassParams) -> CameraParams:
