@@ -79,8 +79,9 @@ def noisy_image(img: jax.Array, eps: jax.Array | None, pixel_std) -> jax.Array:
     standard normals, or None: no noise), clipped and rounded to uint8."""
     if eps is None:
         return to_uint8(img)
-    # the normals and the noisy image are each stored once (as the rendered image,
-    # vbl.vision.render.render_camera): fused with the ray casting, they make one slow loop
+    # the normals and the noisy image are each stored once (vbl.vision.section3._stored):
+    # otherwise XLA fuses the normals' transform and the ray casting into the consumers
+    # that read a pixel's three channels, and each of them recomputes them
     eps = jnp.asarray(eps, F32)
     noisy = img + jnp.asarray(pixel_std, F32) * _stored(eps, _opaque_one(eps[0, 0, 0]))
     return to_uint8(_stored(noisy, _opaque_one(noisy[0, 0, 0])))

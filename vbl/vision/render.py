@@ -23,7 +23,6 @@ from flax import struct
 
 from vbl.params import param
 from vbl.vision.camera import F32, CameraParams, camera_frame, focal_lengths
-from vbl.vision.section3 import _opaque_one, _stored
 from vbl.world.params import FieldParams, WorldParams
 from vbl.world.physics import goal_corners as world_goal_corners
 
@@ -258,11 +257,7 @@ def render_camera(robot_pose, ball_xy, ball_radius, goal_corners, field: FieldPa
     if other_pose is not None:
         layers.append(_box_hit(c, d, jnp.asarray(other_pose, F32),
                                jnp.asarray(other_size, F32), near, rp))
-    img = _pick(layers, SKY_RGB).astype(F32)
-    # stored once (vbl.vision.section3._stored): otherwise XLA fuses the ray casting into
-    # the consumers that read the image at several indices (the three colour channels of
-    # one pixel), and each recomputes it
-    return _stored(img, _opaque_one(img[0, 0, 0]))
+    return _pick(layers, SKY_RGB).astype(F32)
 
 
 def to_uint8(img) -> jnp.ndarray:
