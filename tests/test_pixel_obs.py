@@ -235,9 +235,9 @@ def test_brax_adapter_pixels_observation():
 
 
 # Table 3's pixel rows (collect.num_steps 16, 64 x 60 images, one data set each from
-# collect_many(PRNGKey(5), ..., 1)), recorded with the pixel pipeline before the rendered
-# image, the image noise and the HSV planes were stored once per frame (a change of speed
-# only): sums of |u|, |ball|, |goal|, |other| and the visible flags per row.
+# collect_many(PRNGKey(5), ..., 1)), recorded with a pixel pipeline that stored nothing
+# once per frame (vbl.vision.section3._stored changes the speed only): sums of |u|, |ball|,
+# |goal|, |other| and the visible flags per row.
 PIXEL_ROWS_REFERENCE = {
     "shooter_ball": [27.0, 5796.897, 328734.3, 175303.3, 48.0],
     "shooter_goal": [20.0, 5828.4, 171974.3, 177824.7, 48.0],
