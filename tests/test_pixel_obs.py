@@ -11,11 +11,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from vbl.envs.collect import CollectParams, collect
+from vbl.envs.collect import CollectParams, collect, collect_many
 from vbl.envs.noise import NOISE_ON, NOISE_ON_PIXELS, NoiseParams
 from vbl.envs.pixels import PixelObsParams, noisy_image, section3_pixels
-from vbl.envs.shoot_pass import OBS_SLICES, default_world, observe
+from vbl.envs.shoot_pass import OBS_SLICES, ShootPassParams, default_world, observe
 from vbl.params import ParamError, validate
+from vbl.programs.identification import RowSetup, table3_scenarios
 from vbl.vision.camera import CameraParams
 from vbl.vision.render import RenderParams
 from vbl.vision.scenes import OTHER_HEIGHT, random_scenes
@@ -231,3 +232,30 @@ def test_brax_adapter_pixels_observation():
 
     with pytest.raises(TypeError, match="camera image"):
         BraxAdapter(NoCamera(), obs="pixels")
+
+
+# Table 3's pixel rows (collect.num_steps 16, 64 x 60 images, one data set each from
+# collect_many(PRNGKey(5), ..., 1)), recorded with a pixel pipeline that stored nothing
+# once per frame (vbl.vision.section3._stored changes the speed only): sums of |u|, |ball|,
+# |goal|, |other| and the visible flags per row.
+PIXEL_ROWS_REFERENCE = {
+    "shooter_ball": [27.0, 5796.897, 328734.3, 175303.3, 48.0],
+    "shooter_goal": [20.0, 5828.4, 171974.3, 177824.7, 48.0],
+    "shooter_other": [27.0, 5734.8, 252098.2, 194329.6, 48.0],
+    "passer_ball": [19.0, 4436.8, 176439.1, 222148.2, 48.0],
+    "passer_other": [22.0, 5222.8, 141142.1, 189205.1, 48.0],
+    "noise_free_goal": [25.0, 4692.0, 163034.9, 428765.4, 47.0],
+    "noise_free_ball": [22.0, 4896.0, 117945.9, 141695.3, 48.0],
+    "noise_free_other": [30.0, 5968.0, 269046.2, 227794.5, 47.0],
+}
+
+
+def test_table3_pixel_rows_match_the_recorded_reference():
+    c = CollectParams(num_steps=16, obs_source="pixels",
+                      pixels=PixelObsParams(render=RenderParams(width=64, height=60)))
+    sc = table3_scenarios(c, RowSetup(), ShootPassParams(), NOISE_ON_PIXELS)
+    out = collect_many(jax.random.PRNGKey(5), list(sc.values()), 1)
+    for name, d in zip(sc, out, strict=True):
+        got = [np.abs(np.asarray(getattr(d, f), np.float64)).sum()
+               for f in ("u", "ball", "goal", "other", "visible")]
+        np.testing.assert_allclose(got, PIXEL_ROWS_REFERENCE[name], rtol=1e-5, err_msg=name)

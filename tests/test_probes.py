@@ -174,6 +174,16 @@ def test_lag_rule_comparison(capsys):
     assert len(frac) == 1 and 0.0 <= frac[0] <= 100.0
 
 
+def test_pixel_collection_cost(capsys):
+    out = run_probe("pixel_collection_cost", ["--tiny"], capsys)
+    rows = table(out)
+    assert [r[0] for r in rows] == ["analytic", "pixels, noise-free", "pixels, image noise",
+                                    "part: image + blob features", "part: image-noise normals"]
+    for r in rows:
+        vals = [v for c in r[1:] for v in numbers(c.replace(",", ""))]
+        assert len(vals) == 3 and all(math.isfinite(v) and v >= 0 for v in vals), r
+
+
 @pytest.mark.parametrize("name", sorted(p.stem for p in PROBES.glob("*.py")))
 def test_probe_has_tiny_option(name):
     """Every probe offers the size its test runs at."""

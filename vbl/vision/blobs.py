@@ -75,7 +75,11 @@ def colour_masks(img, bp: BlobParams):
     """Boolean masks (3, H, W) of ball (red), goal (blue) and other robot (yellow)
     pixels: hue within ``hue_tol`` of the class hue (circular), saturation >= ``sat_min``,
     value >= ``val_min``. Order ``MASK_BALL, MASK_GOAL, MASK_OTHER``."""
-    h, s, v = rgb_to_hsv(img)
+    hsv = jnp.stack(rgb_to_hsv(img))
+    # stored once: otherwise XLA fuses the HSV conversion (and the image it reads, e.g. a
+    # renderer fused into the same program) into the masks' computation, where each mask
+    # and colour channel recomputes it per pixel (30 times slower with traced parameters)
+    h, s, v = _stored(hsv, _opaque_one(jnp.sum(hsv[:, 0, 0])))
     coloured = (s >= bp.sat_min) & (v >= bp.val_min)
     out = []
     for hue in (bp.ball_hue, bp.goal_hue, bp.other_hue):
