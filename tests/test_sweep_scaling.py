@@ -81,6 +81,7 @@ def test_layout_is_the_engines():
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1800)  # about 11 min at load 10 on 2 cores: compilations
 def test_tiny_benchmark_writes_rows_scaling_and_finite_predictions(tmp_path):
     """Both learners, 1 and 2 learners, 1 x 1, 1 x 2 and 2 x 1 (processes x devices)."""
     r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "sweep_scaling.py"),
