@@ -82,6 +82,7 @@ EXPERIMENT = register(Experiment(
     presets={"pixels": {"collect.obs_source": "pixels",
                         "noise.image_std": NOISE_ON_PIXELS.image_std,
                         "noise.pixel_std": NOISE_ON_PIXELS.pixel_std}},
+    published_presets=("pixels",),
 ))
 
 if __name__ == "__main__":

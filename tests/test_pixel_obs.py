@@ -117,7 +117,7 @@ def test_table3_pixels_preset_validates():
     exp = discover()["table3_noisy"]
     cfg = apply_overrides(exp.default_config, exp.preset("pixels"))   # validates, check()
     assert cfg.collect.obs_source == "pixels" and cfg.noise.pixel_std > 0
-    assert "pixels" in exp.presets  # published once pixel collection is fast enough
+    assert "pixels" in exp.published_presets
 
 
 # ----------------------------------------------------------------------------- envs
@@ -236,7 +236,7 @@ def test_brax_adapter_pixels_observation():
 
 # Table 3's pixel rows (collect.num_steps 16, 64 x 60 images, one data set each from
 # collect_many(PRNGKey(5), ..., 1)), recorded with a pixel pipeline that stored nothing
-# once per frame (vbl.vision.section3._stored changes the speed only): sums of |u|, |ball|,
+# once per frame (vbl.vision.fusion.stored changes the speed only): sums of |u|, |ball|,
 # |goal|, |other| and the visible flags per row.
 PIXEL_ROWS_REFERENCE = {
     "shooter_ball": [27.0, 5796.897, 328734.3, 175303.3, 48.0],

@@ -26,6 +26,7 @@ from vbl.vision.camera import (
     focal_lengths,
     to_camera,
 )
+from vbl.vision.fusion import opaque_one, stored
 from vbl.vision.noise import add_pixel_noise
 from vbl.vision.projection import (
     BIG,
@@ -109,19 +110,6 @@ def _green_init(n_box):
     return tuple((zero, zero, zero) for _ in range(n_box)), (big, big, -big, -big)
 
 
-def _opaque_one(x):
-    """Exactly 1 for finite ``x``, but not known to the compiler (the ``one`` of
-    :func:`_stored`)."""
-    return x * 0.0 + 1.0
-
-
-def _stored(x, one):
-    """``x / one`` with ``one`` == 1 not known to the compiler: exactly ``x``, but XLA does
-    not copy a division into each of its consumers, so ``x`` is computed once and stored
-    (otherwise every consumer recomputes ``x`` and all it is made of)."""
-    return x / one
-
-
 def _green_step(carry, seg, boxes, orig):
     """Add one directed segment ``(x0, y0, x1, y1, w)`` (scalars, px) to the sums.
 
@@ -131,7 +119,7 @@ def _green_step(carry, seg, boxes, orig):
     for a straight piece), times the weight ``w``. The box-0 bounding box grows by the
     u-range of the part inside its row band and the v-range of the part inside its
     column band (segments of weight 0 are not boundary and add nothing). The pieces'
-    parameters and clamped ends are stored once per box (:func:`_stored`) and read by the
+    parameters and clamped ends are stored once per box (:func:`stored`) and read by the
     three sums, which XLA would otherwise each recompute them for.
     """
     sums, (u_lo, v_lo, u_hi, v_hi) = carry
@@ -140,7 +128,7 @@ def _green_step(carry, seg, boxes, orig):
     ix, iy = safe_div(1.0, dx), safe_div(1.0, dy)
     big = jnp.asarray(BIG, F32)
     zero = jnp.zeros((), F32)
-    one = _opaque_one(ws)   # weights are finite
+    one = opaque_one(ws)   # weights are finite
     new = []
     for j, ((lu, lv, hu, hv), (ou, ov)) in enumerate(zip(boxes, orig, strict=True)):
         r0, r1 = (lv - y0) * iy, (hv - y0) * iy
@@ -160,9 +148,9 @@ def _green_step(carry, seg, boxes, orig):
             v_lo = jnp.minimum(v_lo, jnp.where(vok, jnp.minimum(va, vb), big))
             v_hi = jnp.maximum(v_hi, jnp.where(vok, jnp.maximum(va, vb), -big))
         tb = jnp.maximum(tb, ta)
-        ts = [_stored(t, one) for t in (ta, jnp.clip(cmin, ta, tb), jnp.clip(cmax, ta, tb), tb)]
-        xs = [_stored(jnp.clip(x0 + t * dx, lu, hu) - ou, one) for t in ts]
-        ys = [_stored(jnp.clip(y0 + t * dy, lv, hv) - ov, one) for t in ts]
+        ts = [stored(t, one) for t in (ta, jnp.clip(cmin, ta, tb), jnp.clip(cmax, ta, tb), tb)]
+        xs = [stored(jnp.clip(x0 + t * dx, lu, hu) - ou, one) for t in ts]
+        ys = [stored(jnp.clip(y0 + t * dy, lv, hv) - ov, one) for t in ts]
         a = m = n = zero
         for k in range(3):
             xa, xb, ya, yb = xs[k], xs[k + 1], ys[k], ys[k + 1]
@@ -401,7 +389,7 @@ class _View(NamedTuple):
     """One robot's camera: its frame, focal lengths (px) and image rectangle (px)."""
 
     frame: CameraFrame
-    one: jnp.ndarray      # exactly 1, not known to the compiler (:func:`_stored`)
+    one: jnp.ndarray      # exactly 1, not known to the compiler (:func:`stored`)
     fu: jnp.ndarray
     fv: jnp.ndarray
     img_lo: jnp.ndarray   # (2,) -W/2, -H/2
@@ -436,9 +424,9 @@ def _view(robot_pose, cam: CameraParams) -> _View:
     """The camera of the robot at ``robot_pose``; its heading's cosine and sine stored."""
     fu, fv = focal_lengths(cam)
     pose = jnp.asarray(robot_pose, F32)
-    one = _opaque_one(pose[0])   # poses are finite
-    frame = camera_frame(pose, cam, trig=(_stored(jnp.cos(pose[2]), one),
-                                          _stored(jnp.sin(pose[2]), one)))
+    one = opaque_one(pose[0])   # poses are finite
+    frame = camera_frame(pose, cam, trig=(stored(jnp.cos(pose[2]), one),
+                                          stored(jnp.sin(pose[2]), one)))
     hw = jnp.asarray(cam.image_width, F32) / 2
     hh = jnp.asarray(cam.image_height, F32) / 2
     return _View(frame, one, fu, fv, jnp.stack([-hw, -hh]), jnp.stack([hw, hh]))
@@ -449,9 +437,9 @@ def _ball(ball_xy, ball_radius, view: _View, cam: CameraParams) -> _Ball:
     r = jnp.asarray(ball_radius, F32)
     bxy = jnp.asarray(ball_xy, F32)
     ball_w = jnp.stack([bxy[0], bxy[1], r])
-    ball_c = _stored(to_camera(ball_w, view.frame), view.one)
+    ball_c = stored(to_camera(ball_w, view.frame), view.one)
     bi = ball_image(ball_c, r, cam)
-    box = _stored(jnp.stack([bi.u_lo, bi.u_hi, bi.v_lo, bi.v_hi]), view.one)
+    box = stored(jnp.stack([bi.u_lo, bi.u_hi, bi.v_lo, bi.v_hi]), view.one)
     bi = bi.replace(u_lo=box[0], u_hi=box[1], v_lo=box[2], v_hi=box[3])
     return _Ball(ball_w, ball_c, bi, jnp.stack([bi.u_lo, bi.v_lo]),
                  jnp.stack([bi.u_hi, bi.v_hi]))
@@ -468,10 +456,10 @@ def _box(other_pose, other_size, view: _View) -> _Box:
     """The other robot's box: its faces the camera sees and its camera-frame axes."""
     opose = jnp.asarray(other_pose, F32)
     osize = jnp.asarray(other_size, F32)
-    c, s = _stored(jnp.cos(opose[2]), view.one), _stored(jnp.sin(opose[2]), view.one)
+    c, s = stored(jnp.cos(opose[2]), view.one), stored(jnp.sin(opose[2]), view.one)
     half = jnp.stack([osize[0] / 2, osize[1] / 2, osize[2] / 2])
     ocen = jnp.stack([opose[0], opose[1], half[2]])
-    locc = _stored(_to_local(view.frame.c, c, s, ocen), view.one)
+    locc = stored(_to_local(view.frame.c, c, s, ocen), view.one)
     front = jnp.stack([locc[0] > half[0], locc[0] < -half[0], locc[1] > half[1],
                        locc[1] < -half[1], locc[2] > half[2], locc[2] < -half[2]])
     zero = jnp.zeros((), F32)
@@ -479,8 +467,8 @@ def _box(other_pose, other_size, view: _View) -> _Box:
                         jnp.stack([-s * half[1], c * half[1], zero]),
                         jnp.stack([zero, zero, osize[2]])])
     rot = view.frame.rot
-    axes_c = _stored(jnp.sum(axes_w[:, None, :] * rot[None, :, :], axis=-1), view.one)
-    base_c = _stored(to_camera(jnp.stack([opose[0], opose[1], zero]), view.frame), view.one)
+    axes_c = stored(jnp.sum(axes_w[:, None, :] * rot[None, :, :], axis=-1), view.one)
+    base_c = stored(to_camera(jnp.stack([opose[0], opose[1], zero]), view.frame), view.one)
     return _Box(c, s, half, ocen, locc, front, axes_c, base_c)
 
 
@@ -504,7 +492,7 @@ def _robot_region(box: _Box, ball: _Ball, occ_b, view: _View, cam: CameraParams)
     e_lo, e_hi = _empty_rect()
     ob_lo, ob_hi = _rect_inter(view.img_lo, view.img_hi, ball.lo, ball.hi)
     ob_lo, ob_hi = jnp.where(occ_b, ob_lo, e_lo), jnp.where(occ_b, ob_hi, e_hi)
-    ocen_c = _stored(to_camera(box.centre, view.frame), view.one)
+    ocen_c = stored(to_camera(box.centre, view.frame), view.one)
     o_origin = project(ocen_c, view.fu, view.fv, jnp.asarray(cam.near_plane, F32))
     oreg = _box_region(box.base_c, box.axes_c, box.front, cam, view.fu, view.fv,
                        jnp.stack([view.img_lo, ob_lo]), jnp.stack([view.img_hi, ob_hi]),
@@ -580,10 +568,10 @@ def section3_features(robot_pose, ball_xy, ball_radius, goal_corners, other_pose
     ball = _ball(ball_xy, ball_radius, view, cam)
     bi = ball.image
     corners = jnp.asarray(goal_corners, F32)
-    pc = _stored(to_camera(corners, view.frame), view.one)
+    pc = stored(to_camera(corners, view.frame), view.one)
     gseg = goal_segments(pc, cam, view.fu, view.fv)
     ends = goal_ends(gseg, cam)
-    ends = ends.replace(bot=_stored(ends.bot, view.one), top=_stored(ends.top, view.one))
+    ends = ends.replace(bot=stored(ends.bot, view.one), top=stored(ends.top, view.one))
     box = _box(other_pose, other_size, view)
     ball_before_goal, robot_before_goal, ball_before_robot = _depth_order(corners, ball,
                                                                           box, view)
