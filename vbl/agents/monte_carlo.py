@@ -70,6 +70,12 @@ def mc_log(log: MCLog, decided: jax.Array, s: jax.Array, a: jax.Array,
     return MCLog(s=s, a=a, clock=clock, n=n)
 
 
+#: Ended envs whose logs one pass of :func:`mc_update` reads (its loop runs ceil(ended /
+#: this) passes): XLA's scatters on CPU cost per entry, so reading only the ended envs'
+#: rows, not all E x L entries, is what makes the update cheap.
+MC_BLOCK_ENVS = 8
+
+
 def mc_update(q: jax.Array, log: MCLog, ended: jax.Array, scored: jax.Array,
               last_clock: jax.Array, learning_rate: Any, discount: Any,
               weight: jax.Array | None = None) -> tuple[jax.Array, MCLog, jax.Array]:
@@ -77,23 +83,47 @@ def mc_update(q: jax.Array, log: MCLog, ended: jax.Array, scored: jax.Array,
     ``last_clock`` (E,) int32 the primitive index (from 0) of the trial's last primitive;
     ``weight`` (E,) bool: False = the ended trial teaches nothing (e.g. a time-limit
     truncation with ``truncation='skip'``). Returns (q, log emptied where ended, number
-    of decisions learned from () float32)."""
+    of decisions learned from () float32).
+
+    The ended envs' rows are read in blocks of :data:`MC_BLOCK_ENVS`: a first pass sums
+    each (state, action)'s count and returns into table-sized sums, a second gives each
+    logged decision its key's new value (decisions of one key write the same value)."""
     n_s, n_a = q.shape
-    size, length = n_s * n_a, log.s.shape[1]
+    size, (n_env, length) = n_s * n_a, log.s.shape
     use = jnp.asarray(ended, bool) if weight is None else jnp.asarray(ended, bool) & weight
-    valid = (jnp.arange(length)[None] < log.n[:, None]) & use[:, None]
-    k = (jnp.asarray(last_clock, I32)[:, None] - log.clock).astype(F32)
-    ret = jnp.where(jnp.asarray(scored, bool)[:, None], jnp.asarray(discount, F32) ** k, 0.0)
-    # Sparse in the log's E x L entries, not dense in the table: each entry reads its
-    # (state, action)'s count and return sum, then writes the entry's new value (entries
-    # of one key write the same value; unused entries point past the table and drop).
-    idx = jnp.where(valid, log.s * n_a + log.a, size).reshape(-1)
-    w = jnp.stack([valid.reshape(-1).astype(F32), jnp.where(valid, ret, 0.0).reshape(-1)], -1)
-    sums = jax.ops.segment_sum(w, idx, num_segments=size + 1)[idx]
-    cnt, mean = sums[:, 0], sums[:, 1] / jnp.maximum(sums[:, 0], 1.0)
-    flat = q.reshape(-1)
-    old = flat.at[idx].get(mode="fill", fill_value=0.0)
-    step = 1.0 - (1.0 - jnp.asarray(learning_rate, F32)) ** cnt
-    q = flat.at[idx].set((old + step * (mean - old)).astype(F32), mode="drop").reshape(n_s, n_a)
+    block = min(MC_BLOCK_ENVS, n_env)
+    order = jnp.argsort(~use, stable=True)  # the learning envs first
+    n_blocks = (jnp.sum(use, dtype=jnp.int32) + block - 1) // block
+    order = jnp.concatenate([order, jnp.full((block,), n_env, order.dtype)])  # pad rows
+    g = jnp.asarray(discount, F32)
+
+    def entries(b):  # keys (block * L,) (size: unused) and returns of block b's rows
+        rows = jax.lax.dynamic_slice(order, (b * block,), (block,))
+        ok = rows < n_env
+        r = jnp.minimum(rows, n_env - 1)
+        valid = (jnp.arange(length)[None] < log.n[r][:, None]) & (ok & use[r])[:, None]
+        k = (jnp.asarray(last_clock, I32)[r][:, None] - log.clock[r]).astype(F32)
+        ret = jnp.where(jnp.asarray(scored, bool)[r][:, None], g ** k, 0.0)
+        idx = jnp.where(valid, log.s[r] * n_a + log.a[r], size).reshape(-1)
+        return idx, jnp.stack([valid.reshape(-1).astype(F32),
+                               jnp.where(valid, ret, 0.0).reshape(-1)], -1)
+
+    def add(b, sums):
+        idx, w = entries(b)
+        return sums.at[idx].add(w, mode="drop")
+
+    sums = jax.lax.fori_loop(0, n_blocks, add, jnp.zeros((size + 1, 2), F32))
+    keep = 1.0 - jnp.asarray(learning_rate, F32)
+
+    before = q.reshape(-1)
+
+    def put(b, flat):  # every block reads the table from before the update
+        idx, _ = entries(b)
+        s = sums[idx]
+        old = before.at[idx].get(mode="fill", fill_value=0.0)
+        new = old + (1.0 - keep ** s[:, 0]) * (s[:, 1] / jnp.maximum(s[:, 0], 1.0) - old)
+        return flat.at[idx].set(new.astype(F32), mode="drop")
+
+    q = jax.lax.fori_loop(0, n_blocks, put, before).reshape(n_s, n_a)
     log = log.replace(n=jnp.where(jnp.asarray(ended, bool), 0, log.n).astype(I32))
-    return q, log, jnp.sum(w[:, 0])
+    return q, log, jnp.sum(sums[:size, 0])
