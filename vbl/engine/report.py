@@ -361,9 +361,9 @@ def _progress_line(out: Path, running: list[Job], n_done: int, n_all: int, t0: f
         st = read_status(out / j.folder)
         if st or (out / j.folder).exists():
             parts.append(f"{j.folder} {st or 'running'}")
-    elapsed = time.perf_counter() - t0
-    return (f"vbl reproduce [{n_done}/{n_all} done, {elapsed // 60:.0f} min "
-            f"{elapsed % 60:02.0f} s] " + ("; ".join(parts) if parts else "finishing"))
+    elapsed = round(time.perf_counter() - t0)  # whole seconds: never "29 min 60 s"
+    return (f"vbl reproduce [{n_done}/{n_all} done, {elapsed // 60} min "
+            f"{elapsed % 60:02d} s] " + ("; ".join(parts) if parts else "finishing"))
 
 
 def _run_parallel(jobs: list[Job], exps: dict[str, Experiment], workers: int, out: Path,
