@@ -7,6 +7,7 @@ import argparse
 import os
 import sys
 import time
+import warnings
 from pathlib import Path
 
 __all__ = ["main", "main_for", "build_parser"]
@@ -366,6 +367,10 @@ def _guarded(fn, *a, debug: bool = False) -> int:
         sys.stdout.flush()  # a closed pipe shows here, not at exit
         return code
     except KeyboardInterrupt as e:  # SIGINT, or SIGTERM (Terminated)
+        # a stop can leave an asynchronous checkpoint's coroutine unstarted; Python's
+        # warning when it is collected would follow the one error line
+        warnings.filterwarnings("ignore", message="coroutine .* was never awaited",
+                                category=RuntimeWarning)
         return _error(stop_message(e), stop_code(e))
     except BrokenPipeError as e:
         if _is_stdout_pipe(e):
