@@ -28,7 +28,7 @@ from vbl.envs.noise import NoiseParams, eccentric_centroid
 from vbl.params import ParamError, section
 from vbl.vision.blobs import BlobParams, section2_from_pixels, section3_from_pixels
 from vbl.vision.camera import CameraParams, camera_frame, to_camera
-from vbl.vision.fusion import opaque_one, stored
+from vbl.vision.fusion import stored_once
 from vbl.vision.render import RenderParams, render_camera, to_uint8
 from vbl.vision.section3 import Section3Obs, flatten_section3
 from vbl.world.params import WorldParams
@@ -80,12 +80,12 @@ def noisy_image(img: jax.Array, eps: jax.Array | None, pixel_std) -> jax.Array:
     standard normals, or None: no noise), clipped and rounded to uint8."""
     if eps is None:
         return to_uint8(img)
-    # the normals and the noisy image are each stored once (vbl.vision.fusion.stored):
+    # the normals and the noisy image are each stored once (vbl.vision.fusion.stored_once):
     # otherwise XLA fuses the normals' transform and the ray casting into the consumers
     # that read a pixel's three channels, and each of them recomputes them
     eps = jnp.asarray(eps, F32)
-    noisy = img + jnp.asarray(pixel_std, F32) * stored(eps, opaque_one(eps[0, 0, 0]))
-    return to_uint8(stored(noisy, opaque_one(noisy[0, 0, 0])))
+    noisy = img + jnp.asarray(pixel_std, F32) * stored_once(eps)
+    return to_uint8(stored_once(noisy))
 
 
 def lost_sides(world: WorldState, me: int, cam: CameraParams, world_params: WorldParams,

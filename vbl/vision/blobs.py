@@ -17,7 +17,7 @@ from flax import struct
 
 from vbl.params import param
 from vbl.vision.camera import F32, CameraParams, focal_lengths
-from vbl.vision.fusion import opaque_one, stored
+from vbl.vision.fusion import stored_once
 from vbl.vision.render import pixel_grid
 from vbl.vision.section3 import Section3Obs, flatten_section3
 
@@ -80,16 +80,16 @@ def colour_masks(img, bp: BlobParams):
     # stored once: otherwise XLA fuses the HSV conversion (and the image it reads, e.g. a
     # renderer fused into the same program) into the masks' computation, where each mask
     # and colour channel recomputes it per pixel (30 times slower with traced parameters)
-    h, s, v = stored(hsv, opaque_one(jnp.sum(hsv[:, 0, 0])))
+    h, s, v = stored_once(hsv)
     coloured = (s >= bp.sat_min) & (v >= bp.val_min)
     out = []
     for hue in (bp.ball_hue, bp.goal_hue, bp.other_hue):
         dh = jnp.abs(jnp.mod(h - hue + 180.0, 360.0) - 180.0)
         out.append(coloured & (dh <= bp.hue_tol))
     masks = jnp.stack(out).astype(F32)
-    # stored once (see vbl.vision.fusion.stored): otherwise XLA recomputes the masks,
+    # stored once (see vbl.vision.fusion.stored_once): otherwise XLA recomputes the masks,
     # and a renderer fused into the same program, inside every reduction that reads them
-    return stored(masks, opaque_one(jnp.sum(masks[:, 0, 0]))) > 0.5
+    return stored_once(masks) > 0.5
 
 
 @struct.dataclass

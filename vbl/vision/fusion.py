@@ -8,7 +8,7 @@ value is computed once and stored, and stays exactly the same.
 
 from __future__ import annotations
 
-__all__ = ["opaque_one", "stored"]
+__all__ = ["opaque_one", "stored", "stored_once"]
 
 
 def opaque_one(x):
@@ -21,3 +21,8 @@ def stored(x, one):
     """``x / one`` with ``one`` == 1 not known to the compiler: exactly ``x``, computed once
     and stored instead of copied into each of its consumers."""
     return x / one
+
+
+def stored_once(x):
+    """:func:`stored` with a ``one`` made from ``x``'s own first element (``x`` finite)."""
+    return stored(x, opaque_one(x.reshape(-1)[0]))
