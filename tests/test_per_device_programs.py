@@ -57,3 +57,43 @@ def test_sharded_learners_need_no_collectives():
     out = dict(line.split() for line in r.stdout.splitlines() if line.startswith(("COLL", "MAX")))
     assert int(out["COLLECTIVES"]) == 0
     assert float(out["MAXERR"]) < 1e-4
+
+
+def test_init_and_final_run_in_bounded_batches(monkeypatch):
+    """With at most 3 learners per batch, init and final of 8 learners (two batches and a
+    remainder) give each learner what it gets alone; with 9 learners (three batches) init's
+    scratch memory is at most half that of all 9 at once (each learner's init builds
+    512 x 512 intermediates)."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from vbl.engine import runner
+    from vbl.engine.experiment import Program
+    from vbl.engine.sharding import learner_sharding, put
+
+    def init(key, c):
+        m = jax.random.normal(key, (512, 512)) + c
+        return jnp.sum(jnp.tanh(m @ m.T))
+
+    def final(carry, c, key):
+        return {"v": carry * 2.0 + jax.random.uniform(key)}
+
+    prog = Program(init=init, step=lambda carry, c: (carry, {}), num_chunks=1, final=final)
+    sh = learner_sharding()
+    d = len(jax.devices())
+    temps = {}
+    for batch, n in ((3, 8 * d), (3, 9 * d), (10**6, 9 * d)):
+        keys = np.asarray(jax.random.split(jax.random.PRNGKey(0), n))
+        cfg = np.linspace(0.0, 1.0, n).astype(np.float32)
+        monkeypatch.setattr(runner, "ONCE_LEARNER_BATCH", batch)
+        init_fn, _, final_fn = runner._compiled(Program(**vars(prog)), sh)
+        k, c = put(keys, sh), put(cfg, sh)
+        temps[batch] = init_fn.lower(k, c).compile().memory_analysis().temp_size_in_bytes
+        carry = np.asarray(init_fn(k, c))
+        fin = np.asarray(final_fn(put(carry, sh), c, k)["v"])
+        alone = np.array([float(init(jnp.asarray(keys[i]), cfg[i])) for i in range(n)])
+        np.testing.assert_allclose(carry, alone, rtol=1e-5)
+        want = [float(final(alone[i], cfg[i], jnp.asarray(keys[i]))["v"]) for i in range(n)]
+        np.testing.assert_allclose(fin, want, rtol=1e-5)
+    assert temps[3] <= 0.5 * temps[10**6]

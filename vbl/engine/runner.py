@@ -53,6 +53,12 @@ __all__ = ["run_experiment", "resolve", "describe_sweep", "load_result", "defaul
 
 DEFAULT_CHECKPOINT_EVERY = 10  # chunks between checkpoints (and one at the end of a group)
 DEFAULT_LEARNER_BATCH = 4096  # most learners in one compiled call
+ONCE_LEARNER_BATCH = 64
+"""Most learners per device that a program's ``init`` and ``final`` (run once per group)
+compute at once: larger batches run as a loop over vmapped batches of this size
+(``jax.lax.map``), which bounds their memory (Table 2's ``init``, data collection and
+identification, needs about 23 MB per learner) at the same results; ``step`` vmaps all
+its learners at once."""
 
 
 def resolve(experiment: Experiment, sets: Mapping[str, Any] | None = None,
@@ -458,16 +464,22 @@ def _run_group(plan: SweepPlan, group: Group, sharding, ckpts: Checkpoints, log:
 _JITTED: dict[tuple, tuple] = {}
 
 
-def _per_device(fn, sharding):
+def _per_device(fn, sharding, batch: int | None = None):
     """``jit(vmap(fn))`` over the learner axis, each device running its own learners
     (``shard_map``): the learners are independent, so no device waits for another, also
     not in a loop whose trip count depends on the data (a ``while_loop`` vmapped over
     learners runs until its last learner is done: over the global learner axis that is a
-    cross-device reduction per iteration)."""
+    cross-device reduction per iteration). With ``batch``, a device's learners run in
+    vmapped batches of at most ``batch`` (``jax.lax.map``)."""
     spec = sharding.spec
+    if batch is None:
+        per_device = jax.vmap(fn)
+    else:
+        def per_device(*args):
+            return jax.lax.map(lambda a: fn(*a), args, batch_size=batch)
     # check_vma off: the learner programs use no collectives, and their loop carries start
     # from constants (which the check would need marked as varying over devices)
-    return jax.jit(jax.shard_map(jax.vmap(fn), mesh=sharding.mesh, in_specs=spec,
+    return jax.jit(jax.shard_map(per_device, mesh=sharding.mesh, in_specs=spec,
                                  out_specs=spec, check_vma=False),
                    compiler_options=COMPILER_OPTIONS)
 
@@ -477,9 +489,12 @@ def _compiled(prog, sharding) -> tuple:
     cached per (program, sharding)."""
     key = (id(prog), sharding)
     if key not in _JITTED:
-        final = _per_device(prog.final, sharding) if prog.final is not None else None
-        _JITTED[key] = (_per_device(prog.init, sharding), _per_device(prog.step, sharding),
-                        final, prog)  # keeps prog alive so its id stays unique
+        once = ONCE_LEARNER_BATCH
+        final = (_per_device(prog.final, sharding, once) if prog.final is not None
+                 else None)
+        _JITTED[key] = (_per_device(prog.init, sharding, once),
+                        _per_device(prog.step, sharding), final,
+                        prog)  # keeps prog alive so its id stays unique
     return _JITTED[key][:3]
 
 
