@@ -22,6 +22,7 @@ also times N/2 learners). The model (:func:`fit`, :func:`chunk_seconds`,
 predicts every row, then Table 2 with ``SEEDS`` seeds.
 
     python benchmarks/sweep_scaling.py [--quick] [--out DIR]
+    python benchmarks/sweep_scaling.py --rebuild [--out DIR]   # model and tables only
 Writes DIR/sweep_scaling.{json,md} (default benchmarks/results).
 """
 
@@ -306,7 +307,7 @@ def add_model(rows: list[dict], speed: float) -> dict:
             r["predicted_s_per_chunk"] = chunk_seconds(
                 model, r["padded"], r["processes"], r["devices"] // r["processes"],
                 checkpoints=False)
-        out[name] = dict(model=asdict(model))
+        out[name] = dict(model=asdict(model), check=model_check(mine))
         if name == PREDICTED:
             shape = mine[0]["plan"]
             points = shape["points"] // shape["groups"]
@@ -318,6 +319,17 @@ def add_model(rows: list[dict], speed: float) -> dict:
                     model, h, d, SEEDS, points, shape["groups"], shape["chunks"],
                     speed=s) / 3600 for h in GRID for d in GRID}
     return out
+
+
+def model_check(rows: list[dict]) -> dict:
+    """Per configuration ("P x D": processes x devices per process), the median and worst
+    of predicted / measured - 1 over its rows (the 1 x 1 rows are the fit's own)."""
+    out = {}
+    for r in rows:
+        key = f"{r['processes']} x {r['devices'] // r['processes']}"
+        out.setdefault(key, []).append(r["predicted_s_per_chunk"] / r["s_per_chunk"] - 1)
+    return {k: dict(median=float(np.median(v)), worst=float(max(v, key=abs)), rows=len(v))
+            for k, v in out.items()}
 
 
 def markdown(result: dict) -> str:
@@ -355,6 +367,12 @@ def markdown(result: dict) -> str:
                   f"{m['metric_bytes']:,.0f} bytes of metrics gathered every chunk and "
                   f"{m['carry_bytes']:,.0f} bytes of carry gathered and checkpointed every "
                   f"{m['checkpoint_every']} chunks; compile {m['compile_s']:.0f} s."]
+        if "check" in fitted:
+            lines += ["", "Model check, predicted / measured - 1 (median, worst) per "
+                      "configuration: " + "; ".join(
+                          f"{k}{' (fitted)' if k == '1 x 1' else ''}: {c['median']:+.0%}, "
+                          f"{c['worst']:+.0%} over {c['rows']} rows"
+                          for k, c in fitted["check"].items()) + "."]
         if "run" in fitted:
             run = fitted["run"]
             lines += ["", f"Predicted wall time of {name} with {run['seeds']:,} seeds "
@@ -411,7 +429,18 @@ def main(argv=None) -> None:
     ap.add_argument("--coordinator", help=argparse.SUPPRESS)
     ap.add_argument("--num-processes", type=int, help=argparse.SUPPRESS)
     ap.add_argument("--process-id", type=int, help=argparse.SUPPRESS)
+    ap.add_argument("--rebuild", action="store_true",
+                    help="rewrite OUT/sweep_scaling.{json,md} from the rows of its JSON "
+                         "(the model and the tables of today's script; nothing is timed)")
     args = ap.parse_args(argv)
+    if args.rebuild:
+        from benchmarks.hardware import write_results
+
+        path = Path(args.out) / "sweep_scaling"
+        result = json.loads(path.with_suffix(".json").read_text())
+        result["model"] = add_model(result["rows"], result["assumptions"]["gpu_factor"])
+        write_results(path, result, markdown(result))
+        return
     if args.worker:
         print(json.dumps(worker(args)))
         return

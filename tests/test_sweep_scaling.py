@@ -73,6 +73,18 @@ def test_transfers_count_the_other_hosts_share_and_the_checkpoint_write():
     assert ss.chunk_seconds(m, 1000, 1, 8, checkpoints=False) == 0.0
 
 
+def test_model_check_gives_each_configurations_median_and_worst_error():
+    def row(p, d, pred, meas):
+        return dict(processes=p, devices=p * d, predicted_s_per_chunk=pred, s_per_chunk=meas)
+
+    rows = [row(1, 1, 1.0, 1.0), row(1, 1, 1.1, 1.0), row(1, 2, 0.5, 1.0),
+            row(1, 2, 1.0, 0.8), row(1, 2, 1.0, 1.0), row(2, 1, 3.0, 2.0)]
+    check = ss.model_check(rows)
+    assert check["1 x 1"] == pytest.approx(dict(median=0.05, worst=0.1, rows=2))
+    assert check["1 x 2"] == pytest.approx(dict(median=0.0, worst=-0.5, rows=3))
+    assert check["2 x 1"] == pytest.approx(dict(median=0.5, worst=0.5, rows=1))
+
+
 def test_layout_is_the_engines():
     from vbl.engine.sharding import batch_layout
 
@@ -110,3 +122,9 @@ def test_tiny_benchmark_writes_rows_scaling_and_finite_predictions(tmp_path):
     md = (tmp_path / "sweep_scaling.md").read_text()
     assert "predicted s" in md and "Tiny run" in md and "a prediction, not a measurement" in md
     assert md.count("| hosts \\ devices per host |") == 2
+    assert "Model check" in md
+    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "sweep_scaling.py"),
+                        "--rebuild", "--out", str(tmp_path)], capture_output=True, text=True,
+                       timeout=300, cwd=ROOT)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert (tmp_path / "sweep_scaling.md").read_text() == md  # the same rows, the same text
