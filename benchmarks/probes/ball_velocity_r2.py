@@ -40,8 +40,7 @@ canonical correlation.
 
 Candidates: ``--set PATH=VALUE`` (repeatable) changes Table 2's config before the ball is
 identified (e.g. ``cva.ident.lag_max=6``, ``cva.n_used_objects=12,4,4``,
-``cva.collect_steps=10000``); ``--hold N`` holds each identification action for ``N``
-primitives (as a macro action holds it) instead of drawing one per primitive.
+``cva.collect_steps=10000``).
 
 Only the ball is identified (the goal and the other robot are not needed here), and a
 tiny quantiser is fitted (the probe reads the continuous state, not the index).
@@ -50,7 +49,7 @@ Not an experiment (``vbl reproduce`` does not run it) and not a benchmark (``vbl
 reads ``benchmarks/*.py`` only). Run from the repository root:
 
     python benchmarks/probes/ball_velocity_r2.py [--seed 0] [--envs 64] [--steps 100]
-        [--collect-steps N] [--hold N] [--set PATH=VALUE ...] [--tiny]
+        [--collect-steps N] [--set PATH=VALUE ...] [--tiny]
 
 ``--tiny`` (a smoke test: 8 envs x 40 steps, 600 identification steps) checks that the
 probe runs; its numbers mean little. Cost: about a minute of CPU at the defaults, mostly
@@ -147,8 +146,6 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--steps", type=int, default=100, help="steps per env")
     ap.add_argument("--collect-steps", type=int, default=None,
                     help="identification steps (default: Table 2's cva.collect_steps)")
-    ap.add_argument("--hold", type=int, default=1,
-                    help="identification: primitives each random action is held (1: i.i.d.)")
     ap.add_argument("--set", action="append", default=[], metavar="PATH=VALUE",
                     help="override a path of Table 2's config (repeatable)")
     ap.add_argument("--tiny", action="store_true",
@@ -167,8 +164,6 @@ def main(argv: list[str] | None = None) -> int:
 
     cfg = load_script(ROOT / "experiments" / "table2_shoot_pass.py").EXPERIMENT.default_config
     try:
-        if args.hold < 1:
-            raise ParamError(f"--hold {args.hold}: hold each action for >= 1 primitive")
         cfg = apply_overrides(cfg, [parse_assignment(t, cfg) for t in args.set])
     except ParamError as e:
         print(f"error: {e}")
@@ -183,7 +178,7 @@ def main(argv: list[str] | None = None) -> int:
         p = p.replace(collect_steps=args.collect_steps)
     env = ShootPassEnv("shoot")
     ep = cfg.env.replace(task_pass=False)
-    lrn = make_cva_learner(_WithObs(env), p, cfg.q, m=2, collect_hold=args.hold)
+    lrn = make_cva_learner(_WithObs(env), p, cfg.q, m=2)
     fenv = lrn.env
     ball, vis = OBS_SLICES["ball"], OBS_SLICES["visible"].start  # the ball's flag first
     k_prep, k_run = jax.random.split(jax.random.PRNGKey(args.seed))
@@ -249,8 +244,8 @@ def main(argv: list[str] | None = None) -> int:
 
     print(f"Table 2 shooter, seed {args.seed}: {args.envs} envs x {args.steps} steps per "
           f"phase run; ball CVA lag {lag}, AIC order {order}, {n_ball} components kept; "
-          f"identification {p.collect_steps} steps, each action held {args.hold} "
-          f"primitive(s); overrides: {', '.join(args.set) or 'none'}. The ball lies "
+          f"identification {p.collect_steps} steps; overrides: "
+          f"{', '.join(args.set) or 'none'}. The ball lies "
           f"still (speed <= {ROLLING} m/s, velocity 0: no R^2) in {rest:.0%} of the driving "
           "run's steps.")
     print("R^2 of the ball's true velocity in the shooter's frame (forward / lateral) on "

@@ -175,11 +175,9 @@ class ObjectModel(LinearFilter):
     cancor: jax.Array   # (n_used,) canonical correlations of the used components at that l
 
 
-def collect(env: Any, key: jax.Array, env_params: Any, num_steps: int,
-            hold: int = 1) -> dict[str, jax.Array]:
-    """Run uniformly random actions for ``num_steps`` (auto-reset included), a new action
-    every ``hold`` primitives (1: i.i.d. actions, the paper's random exploration; > 1:
-    each action held, as a macro action holds it).
+def collect(env: Any, key: jax.Array, env_params: Any, num_steps: int) -> dict[str, jax.Array]:
+    """Run uniformly random actions (i.i.d., one per primitive: the paper's random
+    exploration) for ``num_steps`` (auto-reset included).
 
     Returns ``obs`` (N, obs_dim) float32 = y(t), ``u`` (N, m) float32 = the command taken
     after observing y(t), ``start`` (N,) bool = y(t) is the first of an episode. ``env``
@@ -189,19 +187,16 @@ def collect(env: Any, key: jax.Array, env_params: Any, num_steps: int,
     """
     k_reset, k_run = jax.random.split(key)
 
-    def body(c, xs):
-        st, eps, start, a_prev = c
-        k, i = xs
+    def body(c, k):
+        st, eps, start = c
         k_a, k_s = jax.random.split(k)
-        a = jnp.where(i % hold == 0, jax.random.randint(k_a, (), 0, env.num_actions,
-                                                          jnp.int32), a_prev)
+        a = jax.random.randint(k_a, (), 0, env.num_actions, jnp.int32)
         st2, eps2, _, term, trunc, info = env.step_state(k_s, st, a, env_params)
         out = (env.get_obs(st, env_params, eps), jnp.asarray(info["u"], jnp.float32), start)
-        return (st2, eps2, term | trunc, a), out
+        return (st2, eps2, term | trunc), out
 
-    init = (*env.reset_state(k_reset, env_params), jnp.bool_(True), jnp.int32(0))
-    xs = (jax.random.split(k_run, num_steps), jnp.arange(num_steps))
-    _, (obs, u, start) = jax.lax.scan(body, init, xs)
+    init = (*env.reset_state(k_reset, env_params), jnp.bool_(True))
+    _, (obs, u, start) = jax.lax.scan(body, init, jax.random.split(k_run, num_steps))
     return {"obs": obs.astype(jnp.float32), "u": u, "start": start}
 
 
@@ -284,9 +279,9 @@ class CVALearner(struct.PyTreeNode):
 
 
 def make_cva_learner(env: Any, p: CVAStateParams, q: QRunnerParams,
-                     m: int | None = None, collect_hold: int = 1) -> CVALearner:
+                     m: int | None = None) -> CVALearner:
     """Validate ``p`` and build the learner's pure functions for ``env`` (the Q-learner's
-    static fields from ``q``; ``collect_hold``: :func:`collect`'s ``hold``).
+    static fields from ``q``).
 
     ``env`` needs ``num_actions``, ``obs_slices``, ``reset``/``step`` (gymnax style, auto-reset,
     ``info["u"]`` the motor command (m,), ``info["success"]``). ``m`` is the input dimension
@@ -320,7 +315,7 @@ def make_cva_learner(env: Any, p: CVAStateParams, q: QRunnerParams,
 
     def prepare(key, pp: CVAStateParams, env_params) -> QuantizeParams:
         k_col, k_q = jax.random.split(key)
-        data = collect(env, k_col, env_params, p.collect_steps, collect_hold)
+        data = collect(env, k_col, env_params, p.collect_steps)
         models = ()
         if p.state != "current":
             models = tuple(identify_object(data["u"], data["obs"][:, sl], pp.ident, k,
