@@ -23,7 +23,8 @@ predicts every row, then Table 2 with ``SEEDS`` seeds.
 
     python benchmarks/sweep_scaling.py [--quick] [--out DIR]
     python benchmarks/sweep_scaling.py --rebuild [--out DIR]   # model and tables only
-Writes DIR/sweep_scaling.{json,md} (default benchmarks/results).
+Writes DIR/sweep_scaling.{json,md} (default benchmarks/results); while it runs,
+DIR/sweep_scaling.partial.json holds the rows of the configurations done so far.
 """
 
 from __future__ import annotations
@@ -396,7 +397,9 @@ def _grid_table(hours: dict) -> list[str]:
 
 
 def measure(names: list[str], sizes: tuple[int, ...], tiny: bool, chunks: int,
-            reps: int) -> list[dict]:
+            reps: int, partial: Path | None = None) -> list[dict]:
+    """Every configuration's rows; after each, the rows so far are written to ``partial``
+    (a stopped run keeps what it measured)."""
     rows = []
     one = sorted(set(sizes) | {n // 2 for n in sizes if n >= 2})
     for name in names:
@@ -406,6 +409,9 @@ def measure(names: list[str], sizes: tuple[int, ...], tiny: bool, chunks: int,
                                sets, chunks, reps)
             print(f"{name}: {procs} process(es) x {devs} device(s) done", file=sys.stderr,
                   flush=True)
+            if partial is not None:
+                partial.parent.mkdir(parents=True, exist_ok=True)
+                partial.write_text(json.dumps(rows, indent=1))
     return rows
 
 
@@ -451,7 +457,8 @@ def main(argv=None) -> None:
     sizes = TINY_SIZES if args.tiny else QUICK_SIZES if args.quick else SIZES
     args.experiments = args.experiments or list(QUICK_EXPERIMENTS if args.quick else EXPERIMENTS)
     load0 = os.getloadavg()[0]
-    rows = measure(args.experiments, sizes, args.tiny, args.chunks, args.reps)
+    partial = Path(args.out) / "sweep_scaling.partial.json"
+    rows = measure(args.experiments, sizes, args.tiny, args.chunks, args.reps, partial)
     add_scaling(rows)
     command = " ".join(["python benchmarks/sweep_scaling.py"] + ["--quick"] * args.quick
                        + ["--tiny"] * args.tiny + [f"--chunks {args.chunks}",
@@ -466,6 +473,7 @@ def main(argv=None) -> None:
                                    disk_bytes_per_s=DISK_BYTES_PER_S))
     text = markdown(result)
     write_results(Path(args.out) / "sweep_scaling", result, text)
+    partial.unlink(missing_ok=True)
     print(text)
 
 
