@@ -246,12 +246,11 @@ def test_select_pads_each_object_block_for_a_per_object_quantiser():
         make_cva_learner(env, p.replace(quantizer=pq.replace(group_codes=(4, 2))), Q)
 
 
-@pytest.mark.parametrize("hold", [1, 4])
-def test_collect_observes_what_reset_and_step_return(hold):
+def test_collect_observes_what_reset_and_step_return():
     """collect (the observation inside its loop body, from the env's reset_state /
     step_state) records the observations, commands and episode starts of a plain loop over
     the env's own reset / step with the same keys (pixel noise on: its draws follow the
-    state through the loop); with ``hold`` h the loop draws a new action every h steps."""
+    state through the loop)."""
     from vbl.envs.shoot_pass import ShootPassEnv
 
     env = ShootPassEnv("shoot")
@@ -259,15 +258,14 @@ def test_collect_observes_what_reset_and_step_return(hold):
     ep = ep.replace(noise_on=ep.noise_on.replace(pixel=True),
                     noise=ep.noise.replace(image_std=2.0))
     key, n = jax.random.PRNGKey(5), 120
-    d = collect(env, key, ep, n, hold)
+    d = collect(env, key, ep, n)
     reset, step = jax.jit(env.reset), jax.jit(env.step)
     k_reset, k_run = jax.random.split(key)
     obs, st = reset(k_reset, ep)
     start, ref = True, []
-    for i, k in enumerate(jax.random.split(k_run, n)):
+    for k in jax.random.split(k_run, n):
         k_a, k_s = jax.random.split(k)
-        if i % hold == 0:
-            a = jax.random.randint(k_a, (), 0, env.num_actions, jnp.int32)
+        a = jax.random.randint(k_a, (), 0, env.num_actions, jnp.int32)
         obs2, st, _, term, trunc, info = step(k_s, st, a, ep)
         ref.append((np.asarray(obs), np.asarray(info["u"]), start))
         obs, start = obs2, bool(term | trunc)
