@@ -31,23 +31,17 @@ I32 = jnp.int32
 class MCLog:
     """Decisions of every env's running trial: s, a, clock (E, L) int32 (clock = primitives
     of the trial before the decision); n (E,) int32 decisions logged. A full log drops
-    later decisions. ``scratch`` (S * A, 3) float32, zero between updates: the working
-    table of :func:`mc_update` (per (state, action): count, return sum, new value), kept
-    so that an update touches only the logged decisions' entries, never the whole table."""
+    later decisions."""
 
     s: jax.Array
     a: jax.Array
     clock: jax.Array
     n: jax.Array
-    scratch: jax.Array
 
 
-def mc_init(num_envs: int, length: int, table_size: int) -> MCLog:
-    """An empty log of ``length`` decisions per env for a table of ``table_size`` = S * A
-    entries."""
+def mc_init(num_envs: int, length: int) -> MCLog:
     z = jnp.zeros((num_envs, length), I32)
-    return MCLog(s=z, a=z, clock=z, n=jnp.zeros((num_envs,), I32),
-                 scratch=jnp.zeros((table_size, 3), F32))
+    return MCLog(s=z, a=z, clock=z, n=jnp.zeros((num_envs,), I32))
 
 
 def log_append(fields: tuple, n: jax.Array, decided: jax.Array,
@@ -73,15 +67,13 @@ def mc_log(log: MCLog, decided: jax.Array, s: jax.Array, a: jax.Array,
            clock: jax.Array) -> MCLog:
     """Append (s, a, clock) (E,) where ``decided`` (E,) bool."""
     (s, a, clock), n = log_append((log.s, log.a, log.clock), log.n, decided, (s, a, clock))
-    return log.replace(s=s, a=a, clock=clock, n=n)
+    return MCLog(s=s, a=a, clock=clock, n=n)
 
 
-#: Ended envs whose logs one pass of :func:`mc_update` reads: the first block is read
-#: outright, further blocks (when more envs end in one step) in a loop. XLA's scatters on
-#: CPU cost per entry, so reading only the ended envs' rows, not all E x L entries, is what
-#: makes the update cheap; and a loop vmapped over learners selects its whole carry (a
-#: table) per pass, so the common step, with at most this many ended envs, runs none.
-MC_BLOCK_ENVS = 4
+#: Ended envs whose logs one pass of :func:`mc_update` reads (its loop runs ceil(ended /
+#: this) passes): XLA's scatters on CPU cost per entry, so reading only the ended envs'
+#: rows, not all E x L entries, is what makes the update cheap.
+MC_BLOCK_ENVS = 8
 
 
 def mc_update(q: jax.Array, log: MCLog, ended: jax.Array, scored: jax.Array,
@@ -93,10 +85,9 @@ def mc_update(q: jax.Array, log: MCLog, ended: jax.Array, scored: jax.Array,
     truncation with ``truncation='skip'``). Returns (q, log emptied where ended, number
     of decisions learned from () float32).
 
-    The ended envs' rows are read in blocks of :data:`MC_BLOCK_ENVS`, in four passes
-    through ``log.scratch``: sum each (state, action)'s count and returns, give each its new
-    value (from the table before the update), write the new values into q, zero the
-    scratch entries again. Only the logged decisions' entries are read or written."""
+    The ended envs' rows are read in blocks of :data:`MC_BLOCK_ENVS`: a first pass sums
+    each (state, action)'s count and returns into table-sized sums, a second gives each
+    logged decision its key's new value (decisions of one key write the same value)."""
     n_s, n_a = q.shape
     size, (n_env, length) = n_s * n_a, log.s.shape
     use = jnp.asarray(ended, bool) if weight is None else jnp.asarray(ended, bool) & weight
@@ -105,9 +96,8 @@ def mc_update(q: jax.Array, log: MCLog, ended: jax.Array, scored: jax.Array,
     n_blocks = (jnp.sum(use, dtype=jnp.int32) + block - 1) // block
     order = jnp.concatenate([order, jnp.full((block,), n_env, order.dtype)])  # pad rows
     g = jnp.asarray(discount, F32)
-    keep = 1.0 - jnp.asarray(learning_rate, F32)
 
-    def entries(b):  # keys (block * L,) (size: none) and returns of block b's rows
+    def entries(b):  # keys (block * L,) (size: unused) and returns of block b's rows
         rows = jax.lax.dynamic_slice(order, (b * block,), (block,))
         ok = rows < n_env
         r = jnp.minimum(rows, n_env - 1)
@@ -115,36 +105,25 @@ def mc_update(q: jax.Array, log: MCLog, ended: jax.Array, scored: jax.Array,
         k = (jnp.asarray(last_clock, I32)[r][:, None] - log.clock[r]).astype(F32)
         ret = jnp.where(jnp.asarray(scored, bool)[r][:, None], g ** k, 0.0)
         idx = jnp.where(valid, log.s[r] * n_a + log.a[r], size).reshape(-1)
-        return idx, valid.reshape(-1), jnp.where(valid, ret, 0.0).reshape(-1)
+        return idx, jnp.stack([valid.reshape(-1).astype(F32),
+                               jnp.where(valid, ret, 0.0).reshape(-1)], -1)
 
-    def blocks(fn, x):  # fn(b, x) over the blocks: the first outright, the others in a loop
-        return jax.lax.fori_loop(1, n_blocks, fn, fn(0, x))
+    def add(b, sums):
+        idx, w = entries(b)
+        return sums.at[idx].add(w, mode="drop")
 
-    def add(b, carry):  # counts and return sums
-        sc, used = carry
-        idx, valid, ret = entries(b)
-        sc = sc.at[idx, :2].add(jnp.stack([valid.astype(F32), ret], -1), mode="drop")
-        return sc, used + jnp.sum(valid, dtype=I32)
+    sums = jax.lax.fori_loop(0, n_blocks, add, jnp.zeros((size + 1, 2), F32))
+    keep = 1.0 - jnp.asarray(learning_rate, F32)
 
-    def value(b, sc):  # the new value of each entry, from q before the update
-        idx, _, _ = entries(b)
-        s = sc.at[idx].get(mode="fill", fill_value=0.0)
-        old = q.reshape(-1).at[idx].get(mode="fill", fill_value=0.0)
+    before = q.reshape(-1)
+
+    def put(b, flat):  # every block reads the table from before the update
+        idx, _ = entries(b)
+        s = sums[idx]
+        old = before.at[idx].get(mode="fill", fill_value=0.0)
         new = old + (1.0 - keep ** s[:, 0]) * (s[:, 1] / jnp.maximum(s[:, 0], 1.0) - old)
-        return sc.at[idx, 2].set(new.astype(F32), mode="drop")
+        return flat.at[idx].set(new.astype(F32), mode="drop")
 
-    def write(b, flat):  # the new values into q
-        idx, _, _ = entries(b)
-        return flat.at[idx].set(scratch.at[idx, 2].get(mode="fill", fill_value=0.0),
-                                mode="drop")
-
-    def clear(b, sc):  # the scratch back to zero
-        return sc.at[entries(b)[0]].set(0.0, mode="drop")
-
-    scratch, used = blocks(add, (log.scratch, jnp.int32(0)))
-    scratch = blocks(value, scratch)
-    flat = blocks(write, q.reshape(-1))
-    scratch = blocks(clear, scratch)
-    log = log.replace(n=jnp.where(jnp.asarray(ended, bool), 0, log.n).astype(I32),
-                      scratch=scratch)
-    return flat.reshape(n_s, n_a), log, used.astype(F32)
+    q = jax.lax.fori_loop(0, n_blocks, put, before).reshape(n_s, n_a)
+    log = log.replace(n=jnp.where(jnp.asarray(ended, bool), 0, log.n).astype(I32))
+    return q, log, jnp.sum(sums[:size, 0])

@@ -235,7 +235,7 @@ def _init(sp: _Spec, key, params: QRunnerParams, env_params) -> QRunnerState:
     zeros = jnp.zeros((sp.n_envs,), jnp.int32)
     return QRunnerState(key=key, q=q, env_state=st.inner, obs=obs, s=st.index,
                         steps=jnp.int32(0), episodes=jnp.int32(0), ep_primitives=zeros,
-                        ep_actions=zeros, lem=lem, rule=sp.rule.init(sp.n_envs, q),
+                        ep_actions=zeros, lem=lem, rule=sp.rule.init(sp.n_envs),
                         macro=st.running)
 
 
