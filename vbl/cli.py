@@ -4,6 +4,7 @@ docs/engine.md), render (docs/render.md)."""
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import sys
 import time
@@ -279,8 +280,6 @@ def _cmd_bench(args) -> int:
 
 
 def _cmd_report(args) -> int:
-    import contextlib
-
     from vbl.engine.config import EngineError
     from vbl.engine.report import results_table
 
@@ -467,11 +466,14 @@ def _quiet_xla() -> None:
     use_compilation_cache()
 
 
-def _end(code: int, argv: list[str]) -> int:
+def _end(code: int, argv: list[str], process: bool = True) -> int:
     """After a failure's ``vbl: error:`` line, nothing more reaches stderr (background
     threads of the checkpoint library can print at interpreter exit); ``--debug`` /
-    ``VBL_DEBUG`` keep it."""
-    from vbl.engine.errors import debug_requested, finish
+    ``VBL_DEBUG`` keep it. With ``process`` (the command owns the process), a stopped
+    command (exit 130 or 143) ends here, its files already closed: a signal can interrupt
+    a library call mid-way, and the threads it leaves behind can abort the interpreter's
+    teardown (SIGABRT instead of the stop's exit code)."""
+    from vbl.engine.errors import debug_requested, finish, is_stop_code
 
     finish(code)
     if code and not ("--debug" in argv or debug_requested()):
@@ -479,6 +481,11 @@ def _end(code: int, argv: list[str]) -> int:
         fd = os.open(os.devnull, os.O_WRONLY)
         os.dup2(fd, 2)
         os.close(fd)
+    if process and is_stop_code(code):
+        for stream in (sys.stdout, sys.stderr):
+            with contextlib.suppress(OSError, ValueError):
+                stream.flush()
+        os._exit(code)
     return code
 
 
@@ -606,7 +613,7 @@ def main_for(experiment, argv: list[str] | None = None) -> None:
         return _run(experiment, args)
 
     code = _guarded(go, debug=getattr(args, "debug", False))
-    sys.exit(_end(code, sys.argv[1:] if argv is None else argv))
+    sys.exit(_end(code, sys.argv[1:] if argv is None else argv, process=argv is None))
 
 
 if __name__ == "__main__":

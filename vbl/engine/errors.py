@@ -148,6 +148,11 @@ def stop_code(e: BaseException | int | None) -> int:
     return 143 if isinstance(e, Terminated) else 130
 
 
+def is_stop_code(code: int) -> bool:
+    """Whether exit ``code`` is a stop's (SIGINT 130 or SIGTERM 143)."""
+    return code in (128 + signal.SIGINT, 128 + signal.SIGTERM)
+
+
 def stop_message(e: BaseException | None = None) -> str:
     text = str(e) if e is not None else ""
     if text:
