@@ -269,6 +269,7 @@ def test_reproduce_chains_group_experiments_and_start_the_costliest(toy):
                                 exp("t2", 90), exp("t3", 70, "ident"))}
     jobs = reproduce_jobs(exps)
     assert jobs == [Job("t1"), Job("grid"), Job("grid", "p"), Job("t2"), Job("t3")]
+    assert reproduce_jobs(exps, quick=True) == [Job("t1"), Job("grid"), Job("t2"), Job("t3")]
     assert [[j.folder for j in c] for c in _chains(jobs, exps)] == [
         ["t1", "t3"], ["t2"], ["grid"], ["grid-p"]]
 

@@ -217,9 +217,12 @@ class Job:
         return self.name if self.preset is None else f"{self.name}-{self.preset}"
 
 
-def reproduce_jobs(exps: dict[str, Experiment]) -> list[Job]:
-    """Every published result: each experiment's default, then its published presets."""
-    return [Job(n, p) for n, e in exps.items() for p in (None, *e.published_presets)]
+def reproduce_jobs(exps: dict[str, Experiment], quick: bool = False) -> list[Job]:
+    """Every published result: each experiment's default, then its published presets;
+    ``quick``: the defaults only (a preset is a variant of a paper result, published from
+    the full run; the quick run is the paper's experiments once, in minutes)."""
+    return [Job(n, p) for n, e in exps.items()
+            for p in (None, *(() if quick else e.published_presets))]
 
 
 def default_jobs(n_runs: int) -> int:
@@ -500,7 +503,7 @@ def _reproduce(exps: dict[str, Experiment], out: Path, quick: bool, quiet: bool 
                resume: bool, overwrite: bool, jobs: int | None) -> tuple[Path, bool]:
     from vbl.engine.results import write_json
 
-    todo = reproduce_jobs(exps)
+    todo = reproduce_jobs(exps, quick)
     workers = default_jobs(len(todo)) if jobs is None else max(1, min(int(jobs), len(todo)))
     load_start, t_start = _load(), time.perf_counter()
     if quiet is not True:
