@@ -1,8 +1,10 @@
-"""Compile time of every program a full-scale ``vbl run`` compiles.
+"""Compile time of every program ``vbl reproduce`` compiles.
 
-For each registered experiment (default config, default sweep and seeds, as ``vbl run``
-plans it) and each of its groups (one compilation each), the program's ``init``, ``step``
-and ``final`` are lowered and compiled the way the engine compiles them
+For each run of the full ``vbl reproduce`` (every paper experiment's default config and
+its published presets, full-scale plans as ``vbl run`` makes them; ``--quick`` runs the
+same programs, the presets excepted) and each of its groups (one compilation each), the
+program's ``init``, ``step`` and ``final`` are lowered and compiled the way the engine
+compiles them
 (``jit(shard_map(vmap(...)))`` with the learner axis split over the devices, inside
 :func:`vbl.engine.jax_setup.engine_precision`), with the persistent compilation cache off.
 ``trace`` is Python tracing + lowering to StableHLO, ``compile`` XLA's compilation; their
@@ -10,15 +12,19 @@ sum is what a cold run waits for, per program. Both are reported as process CPU 
 target's measure: it stretches less with other jobs' load than wall time; XLA's CPU
 compiler runs part of its work on a thread pool, so on a quiet machine the CPU time is up
 to about 1.6x the wall time a user waits) and as wall time. ``init`` runs once to give
-``step`` its carry (its run time is not counted).
+``step`` its carry (its run time is not counted). A program whose StableHLO equals an
+earlier row's is marked ``shared``: the persistent compilation cache that a reproduce's
+workers share compiles it once. The ``before`` column is the committed measurement of the
+code before the compile-cost work (``compile_time_before.json``, the same 2-core machine
+type, quiet), matched by experiment, group and function.
 
 Usage::
 
-    python benchmarks/compile_time.py                        # every experiment
-    python benchmarks/compile_time.py --experiments table2_shoot_pass
-    python benchmarks/compile_time.py --experiments table2_shoot_pass --merge
+    python benchmarks/compile_time.py                        # every reproduce run
+    python benchmarks/compile_time.py --runs table2_shoot_pass
+    python benchmarks/compile_time.py --runs table2_shoot_pass --merge
 Writes benchmarks/results/compile_time.{json,md} (``--out`` elsewhere). ``--merge`` keeps
-the rows of the other experiments from the existing JSON and replaces those measured now;
+the rows of the other runs from the existing JSON and replaces those measured now;
 each row records the load average when it was measured (rows of different runs compare
 only roughly: compile CPU time stretches with the load).
 """
@@ -26,6 +32,7 @@ only roughly: compile CPU time stretches with the load).
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
 import pathlib
@@ -48,6 +55,7 @@ import vbl  # noqa: E402,F401
 from benchmarks.hardware import hardware_info, write_results  # noqa: E402
 from vbl.engine import registry  # noqa: E402
 from vbl.engine.jax_setup import engine_precision  # noqa: E402
+from vbl.engine.report import Job, paper_experiments, reproduce_jobs  # noqa: E402
 from vbl.engine.runner import _compiled, resolve  # noqa: E402
 from vbl.engine.sharding import learner_sharding, put  # noqa: E402
 from vbl.engine.sweep import make_plan  # noqa: E402
@@ -57,25 +65,32 @@ MAX_COMPILE_S = 60.0  #: target: trace + compile of any one program on the 2-cor
 
 def _timed(fn, *args) -> tuple[dict, object]:
     """Wall and process CPU seconds of tracing + lowering (``trace``) and of XLA's
-    compilation (``compile``) of the jitted ``fn`` at ``args``, and the compiled function."""
+    compilation (``compile``) of the jitted ``fn`` at ``args``, the compiled function, and
+    a hash of the lowered StableHLO (equal hashes: one compilation in a shared cache)."""
     w0, c0 = time.perf_counter(), time.process_time()
     lowered = fn.lower(*args)
     w1, c1 = time.perf_counter(), time.process_time()
     compiled = lowered.compile()
     w2, c2 = time.perf_counter(), time.process_time()
+    hlo = hashlib.sha256(lowered.as_text().encode()).hexdigest()[:16]
     return dict(trace_s=w1 - w0, compile_s=w2 - w1, trace_cpu_s=c1 - c0,
-                compile_cpu_s=c2 - c1), compiled
+                compile_cpu_s=c2 - c1, hlo=hlo), compiled
 
 
-def time_experiment(name: str) -> list[dict]:
-    """One row per (group, function) of ``name``'s full-scale plan."""
-    exp = registry.get(name)
-    config, sweep, seeds, _ = resolve(exp)
+def time_run(job: Job) -> list[dict]:
+    """One row per (group, function) of the full-scale plan of ``job`` (a reproduce run)."""
+    exp = registry.get(job.name)
+    config, sweep, seeds, _ = resolve(exp, preset=job.preset)
     plan = make_plan(exp, config, sweep, seeds)
     if plan is None:
         return []
     sharding = learner_sharding()
     rows = []
+
+    def row(head, function, times):
+        rows.append(dict(head, function=function, load=os.getloadavg()[0], **times))
+        print(json.dumps(rows[-1]), flush=True)
+
     with engine_precision():
         for group in plan.groups:
             prog, n = group.program, group.num_learners
@@ -84,47 +99,66 @@ def time_experiment(name: str) -> list[dict]:
             keys = put(np.tile(plan.init_keys, (reps, 1)), sharding)
             final_keys = put(np.tile(plan.final_keys, (reps, 1)), sharding)
             cfgs = put(group.configs, sharding)
-            head = dict(experiment=name, group=group.index, learners=n)
+            head = dict(run=job.folder, experiment=job.name, preset=job.preset,
+                        group=group.index, learners=n)
             times, init_c = _timed(init_fn, keys, cfgs)
-            times["load"] = os.getloadavg()[0]
-            rows.append(dict(head, function="init", **times))
-            print(json.dumps(rows[-1]), flush=True)
+            row(head, "init", times)
             carry = jax.block_until_ready(init_c(keys, cfgs))
-            times, _ = _timed(step_fn, carry, cfgs)
-            times["load"] = os.getloadavg()[0]
-            rows.append(dict(head, function="step", **times))
-            print(json.dumps(rows[-1]), flush=True)
+            row(head, "step", _timed(step_fn, carry, cfgs)[0])
             if final_fn is not None:
-                times, _ = _timed(final_fn, carry, cfgs, final_keys)
-                times["load"] = os.getloadavg()[0]
-                rows.append(dict(head, function="final", **times))
-                print(json.dumps(rows[-1]), flush=True)
+                row(head, "final", _timed(final_fn, carry, cfgs, final_keys)[0])
     return rows
 
 
-def markdown(result: dict, cmd: str) -> str:
+def _total(r: dict) -> float:
+    return r["trace_cpu_s"] + r["compile_cpu_s"]
+
+
+def markdown(result: dict, cmd: str, before: dict | None) -> str:
     hw = result["hardware"]
-    worst = max(result["rows"], key=lambda r: r["trace_cpu_s"] + r["compile_cpu_s"])
-    total = worst["trace_cpu_s"] + worst["compile_cpu_s"]
+    rows = result["rows"]
+    seen: set[str] = set()
+    for r in rows:  # the first row of each StableHLO compiles; later equal ones share it
+        r["shared"] = r["hlo"] in seen
+        seen.add(r["hlo"])
+    b_rows = before["rows"] if before else []
+    old = {(b["experiment"], b["group"], b["function"]): _total(b) for b in b_rows}
+    b_hw = before["hardware"] if before else {}
+    b_where = (f"on a {b_hw.get('cores')}-core {b_hw.get('cpu')}, load average "
+               f"{b_hw.get('load_average', float('nan')):.1f}" if before else "none given")
+    worst = max(rows, key=_total)
     merged = " (rows of several runs: the load column is each row's)" if result.get(
         "merged") else ""
     lines = [f"Compile time ({hw['cpu']}, {hw['cores']} cores, {len(hw['devices'])} "
              f"device(s), jax {hw['jax']}, load average {hw['load_average']:.1f} at the start "
-             f"and {result['load_end']:.1f} at the end{merged}; `{cmd}`). Full-scale default "
-             "plans, persistent compilation cache off.", "",
-             "| experiment | group | function | learners | trace CPU s | compile CPU s | "
-             "total CPU s | total wall s | load |",
-             "|---|---:|---|---:|---:|---:|---:|---:|---:|"]
-    for r in result["rows"]:
-        load = f"{r['load']:.1f}" if "load" in r else "-"
-        lines.append(f"| {r['experiment']} | {r['group']} | {r['function']} | "
-                     f"{r['learners']} | {r['trace_cpu_s']:.1f} | {r['compile_cpu_s']:.1f} | "
-                     f"{r['trace_cpu_s'] + r['compile_cpu_s']:.1f} | "
-                     f"{r['trace_s'] + r['compile_s']:.1f} | {load} |")
-    walls = [r["trace_s"] + r["compile_s"] for r in result["rows"]]
-    lines += ["", f"Target: every program <= {MAX_COMPILE_S:.0f} s (trace + compile, CPU time): "
-              f"{'met' if total <= MAX_COMPILE_S else 'not met'}; the longest is "
-              f"{worst['experiment']} {worst['function']}, {total:.1f} CPU s; the longest "
+             f"and {result['load_end']:.1f} at the end{merged}; `{cmd}`). Every program of "
+             "the full `vbl reproduce` (full-scale plans; `--quick` compiles the same "
+             "programs except the presets'), persistent compilation cache off. `before`: the "
+             "same program before the compile-cost work (commit b22967f, measured "
+             f"{b_where}; another machine type when its CPU differs, so compare the totals "
+             "roughly; `-`: a program that did not exist then). `shared`: its StableHLO "
+             "equals an earlier row's, so a reproduce compiles it once.", "",
+             "| run | group | function | learners | trace CPU s | compile CPU s | "
+             "total CPU s | before: total CPU s | total wall s | load | shared |",
+             "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---|"]
+    for r in rows:
+        prev = old.get((r["experiment"], r["group"], r["function"])) if not r.get(
+            "preset") else None
+        lines.append(f"| {r['run']} | {r['group']} | {r['function']} | {r['learners']} | "
+                     f"{r['trace_cpu_s']:.1f} | {r['compile_cpu_s']:.1f} | {_total(r):.1f} | "
+                     f"{'-' if prev is None else f'{prev:.1f}'} | "
+                     f"{r['trace_s'] + r['compile_s']:.1f} | {r['load']:.1f} | "
+                     f"{'yes' if r['shared'] else ''} |")
+    own = [r for r in rows if not r["shared"]]
+    quick = [r for r in own if not r.get("preset")]
+    walls = [r["trace_s"] + r["compile_s"] for r in rows]
+    lines += ["", f"Compiled by a cold full reproduce: {len(own)} programs, "
+              f"{sum(map(_total, own)):.0f} CPU s; by a cold `--quick`: {len(quick)} programs, "
+              f"{sum(map(_total, quick)):.0f} CPU s; before: {len(b_rows)} programs "
+              f"(defaults only), {sum(map(_total, b_rows)):.0f} CPU s.", "",
+              f"Target: every program <= {MAX_COMPILE_S:.0f} s (trace + compile, CPU time): "
+              f"{'met' if _total(worst) <= MAX_COMPILE_S else 'not met'}; the longest is "
+              f"{worst['run']} {worst['function']}, {_total(worst):.1f} CPU s; the longest "
               f"wall time is {max(walls):.1f} s. XLA's CPU compiler runs part of its work on a "
               "thread pool, so CPU time exceeds wall time on a quiet machine; on a shared "
               "machine the wall time stretches with the load, and the CPU time too, less "
@@ -134,33 +168,48 @@ def markdown(result: dict, cmd: str) -> str:
 
 def main(argv=None):
     registry.discover()
-    names = [n for n, e in registry.all_experiments().items() if e.paper_result]
+    jobs = reproduce_jobs(paper_experiments())
+    folders = [j.folder for j in jobs]
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--experiments", nargs="*", default=names,
-                    choices=list(registry.all_experiments()))
+    ap.add_argument("--runs", nargs="*", default=folders, choices=folders,
+                    help="reproduce runs to measure (default: every one)")
     ap.add_argument("--devices", type=int, default=DEVICES,
                     help="JAX host devices (default: every usable core)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "compile_time"))
+    ap.add_argument("--before", default=str(ROOT / "benchmarks" / "results" /
+                                            "compile_time_before.json"),
+                    help="the measurement to compare with (JSON of this benchmark)")
     ap.add_argument("--merge", action="store_true",
-                    help="keep the other experiments' rows of the existing JSON at --out")
+                    help="keep the other runs' rows of the existing JSON at --out")
+    ap.add_argument("--rebuild", action="store_true",
+                    help="measure nothing: the tables again from the JSON at --out")
     args = ap.parse_args(argv)
     out = pathlib.Path(args.out)
+    before_path = pathlib.Path(args.before)
+    before = json.loads(before_path.read_text()) if before_path.exists() else None
+    if args.rebuild:
+        result = json.loads(out.with_suffix(".json").read_text())
+        text = markdown(result, result.get("command", "python benchmarks/compile_time.py"),
+                        before)
+        write_results(out, result, text)
+        print(text)
+        return
     result = dict(benchmark="compile_time", hardware=hardware_info(), rows=[],
                   target_s=MAX_COMPILE_S)
-    fresh = {name: time_experiment(name) for name in args.experiments}
+    fresh = {j.folder: time_run(j) for j in jobs if j.folder in args.runs}
     old = (json.loads(out.with_suffix(".json").read_text())["rows"]
            if args.merge and out.with_suffix(".json").exists() else [])
-    kept = [r for r in old if r["experiment"] not in fresh]
+    kept = [r for r in old if r.get("run") in folders and r["run"] not in fresh]
     result["merged"] = bool(kept)
-    by_name = {}
+    by_run: dict[str, list[dict]] = {}
     for r in kept + [r for rows in fresh.values() for r in rows]:
-        by_name.setdefault(r["experiment"], []).append(r)
-    result["rows"] = [r for name in sorted(by_name) for r in by_name[name]]
+        by_run.setdefault(r["run"], []).append(r)
+    result["rows"] = [r for f in folders for r in by_run.get(f, [])]
     result["load_end"] = os.getloadavg()[0]
-    cmd = "python benchmarks/compile_time.py" + (
-        " --experiments " + " ".join(args.experiments) if args.experiments != names else "") + (
+    result["command"] = cmd = "python benchmarks/compile_time.py" + (
+        " --runs " + " ".join(args.runs) if args.runs != folders else "") + (
         " --merge" if args.merge else "")
-    text = markdown(result, cmd)
+    text = markdown(result, cmd, before)
     write_results(out, result, text)
     print(text)
 

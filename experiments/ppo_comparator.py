@@ -78,6 +78,7 @@ EXPERIMENT = register(Experiment(
     seeds=8, quick_seeds=2, paper_result=True, paper=TABLE2,
     report=partial(shoot_pass_section, paper=TABLE2), paper_rows=shoot_pass_rows,
     sweep={"env.task_pass": [False, True], "inputs.index": [0, 1, 2]},
+    report_reads=("table2_shoot_pass",),  # the tabular learner's column
     cost=300.0))  # s, cold --quick on 2 cores (compile-dominated; 1,389 s at load average 12)
 
 SHOOTING = register(Experiment(
@@ -88,6 +89,7 @@ SHOOTING = register(Experiment(
     seeds=8, quick_seeds=2, paper_result=True, report=shooting_section,
     paper_rows=shooting_rows,
     sweep={"ppo.curriculum.enabled": [False, True]},
+    report_reads=("grid_shooting",),  # the grid baseline's rows
     cost=150.0))  # s, cold --quick (guess)
 
 if __name__ == "__main__":

@@ -213,6 +213,33 @@ def test_reproduce_writes_one_report(toy, tmp_path):
     assert (tmp_path / "rep" / "toy_paper" / "success_rate.png").exists()
 
 
+def test_reproduce_builds_a_report_again_once_the_runs_it_reads_have_finished(toy, tmp_path):
+    """A report that reads a later run (``report_reads``) shows that run's numbers in the
+    reproduce's report.md and in its own, though its run ended first; its engine figures
+    and curves survive the second build."""
+    from vbl.engine import ReportSection, register
+    from vbl.engine.report import load_run, reproduce, sibling_result
+
+    def reader(res):
+        other = sibling_result(res, "toy_read_b")
+        seen = "none" if other is None else f"{np.mean(other.final['greedy_is_best']):.3f}"
+        chunks = next(iter(res.curves.values())).shape[1] if res.curves else 0
+        return ReportSection(f"b says {seen}; {chunks} chunks", figures=tuple(res.figures))
+
+    common = dict(default_config=toy.default_config, make_program=toy.make_program,
+                  quick={**TINY_SETS, "train.num_chunks": 2}, quick_seeds=2, paper_result=True)
+    register(Experiment(name="toy_read_a", description="reads b", report=reader,
+                        report_reads=("toy_read_b",), **common))
+    register(Experiment(name="toy_read_b", description="read by a", **common))
+    path, ok = reproduce(tmp_path / "rep", quick=True, quiet=True,
+                         names=["toy_read_a", "toy_read_b"])
+    _, b, _ = load_run(tmp_path / "rep" / "toy_read_b")
+    want = f"b says {np.mean(b.final['greedy_is_best']):.3f}; 2 chunks"
+    own = (tmp_path / "rep" / "toy_read_a" / "report.md").read_text()
+    assert ok and want in path.read_text() and want in own, own
+    assert "![success_rate](toy_read_a/success_rate.png)" in path.read_text()
+
+
 _PAPER_TOY = """
 import importlib.util, sys
 spec = importlib.util.spec_from_file_location("_toy_src_{name}", {toy!r})

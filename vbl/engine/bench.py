@@ -97,9 +97,9 @@ def _camera(r: dict) -> tuple[float, str]:
 
 def _compile(r: dict) -> tuple[float, str]:
     worst = max(r["rows"], key=lambda x: x["trace_cpu_s"] + x["compile_cpu_s"])
+    name = worst.get("run", worst["experiment"])
     return worst["trace_cpu_s"] + worst["compile_cpu_s"], (
-        f"CPU s to trace and compile the longest program ({worst['experiment']} "
-        f"{worst['function']})")
+        f"CPU s to trace and compile the longest program ({name} {worst['function']})")
 
 
 def _ppo(r: dict) -> tuple[float, str]:

@@ -175,6 +175,9 @@ class Experiment:
         it.
       published_presets: the presets whose results the README publishes: ``vbl reproduce``
         runs each of them beside the default config (into ``<out>/<name>-<preset>``).
+      report_reads: run folders beside this run's (in a ``vbl reproduce`` folder) whose
+        results its ``report`` reads (:func:`vbl.engine.report.sibling_result`): ``vbl
+        reproduce`` builds this run's report again once every run has finished.
     """
 
     name: str
@@ -195,6 +198,7 @@ class Experiment:
     paper_rows: Callable[[RunResult], list[PaperRow]] | None = None
     presets: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     published_presets: tuple[str, ...] = ()
+    report_reads: tuple[str, ...] = ()
 
     def preset(self, name: str | None, swept: Any = ()) -> dict[str, Any]:
         """The ``{path: value}`` overrides of preset ``name`` ({} for None) but the paths in

@@ -11,7 +11,7 @@ import os
 import shlex
 import time
 import traceback
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -94,6 +94,39 @@ def run_report(exp: Experiment, result: RunResult) -> tuple[ReportSection, Path]
     finally:
         record_files(out_dir, {p.name for p in out_dir.iterdir()} - before)
     return ReportSection(section.markdown, figs), path
+
+
+def rerender(folder: str | Path) -> ReportSection:
+    """Build a finished run folder's report again (its curves from ``metrics.jsonl``, its
+    engine figures as they are) and write its ``report.md``; returns the section."""
+    from vbl.engine.plots import plot_names
+    from vbl.engine.results import curves_from_metrics
+
+    exp, res, _ = load_run(folder)
+    curves = curves_from_metrics(folder, len(res.points))
+    figures = [p for p in (Path(folder) / n for n in plot_names(curves)) if p.is_file()]
+    res = replace(res, curves=curves, figures=figures)
+    return run_report(exp, res)[0]
+
+
+def _rerender_readers(todo: list[Job], exps: dict[str, Experiment], out: Path,
+                      done: dict[str, dict[str, Any]]) -> None:
+    """The report of each finished run whose experiment reads other runs of this reproduce
+    (``Experiment.report_reads``) is built again now that they have all finished (a worker
+    builds it when its own run ends, maybe before theirs)."""
+    finished = {j.folder for j in todo if done[j.folder]["status"] == "ok"}
+    for j in todo:
+        reads = set(exps[j.name].report_reads)
+        if j.folder not in finished or not reads & finished:
+            continue
+        try:
+            section = rerender(out / j.folder)
+        except Exception as e:  # noqa: BLE001 - keep the worker's section, say why
+            done[j.folder]["markdown"] += (f"\n\n(built before {sorted(reads & finished)} "
+                                           f"finished; building it again failed: {e})")
+            continue
+        done[j.folder].update(markdown=section.markdown,
+                              figures=[str(f) for f in section.figures])
 
 
 def _cell(st: dict[str, Any]) -> str:
@@ -519,6 +552,7 @@ def _reproduce(exps: dict[str, Experiment], out: Path, quick: bool, quiet: bool 
                                           exp=exps[j.name])
         except KeyboardInterrupt as e:  # SIGINT / SIGTERM: the finished runs are kept
             raise type(e)(_stopped(e, out, len(done), len(todo))) from None
+    _rerender_readers(todo, exps, out, done)
     wall = time.perf_counter() - t_start
     manifest = {"quick": quick, "commit": git_commit(), "machine": machine_description(),
                 "workers": workers, "wall_s": round(wall, 1),

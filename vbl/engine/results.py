@@ -123,6 +123,23 @@ def _row(line: str) -> dict[str, Any] | None:
     return row if ok else None
 
 
+def curves_from_metrics(folder: str | Path, points: int) -> dict[str, np.ndarray]:
+    """``{metric: (points, chunks, seeds)}`` of a run folder's per-chunk rows of
+    ``metrics.jsonl`` (NaN where a row is missing; {} without chunk rows)."""
+    rows = [r for r in read_metrics(Path(folder) / "metrics.jsonl")
+            if isinstance(r.get("chunk"), int)]
+    if not rows:
+        return {}
+    chunks = 1 + max(r["chunk"] for r in rows)
+    curves: dict[str, np.ndarray] = {}
+    for r in rows:
+        for k, st in r["metrics"].items():
+            v = np.asarray(st["per_seed"], np.float64)
+            curves.setdefault(k, np.full((points, chunks, v.size), np.nan))[
+                r["point"], r["chunk"]] = v
+    return curves
+
+
 def read_metrics(path: Path) -> list[dict[str, Any]]:
     """All rows of a ``metrics.jsonl`` (a torn last line is ignored; any other malformed
     line raises EngineError)."""

@@ -4,9 +4,7 @@
   PPO without and with the curriculum beside the tabular learner and the paper, and
   whether PPO on current features, frame stacks or CVA states shows the paper's CVA
   advantage (Welch 95 % intervals over seeds);
-* :func:`shooting_section`: the shooting task of Section 2 beside the grid baseline;
-* :func:`rerender`: rewrite a finished run folder's ``report.md`` (curves rebuilt from
-  its ``metrics.jsonl``): ``python -m vbl.programs.ppo_report RUN_DIR``.
+* :func:`shooting_section`: the shooting task of Section 2 beside the grid baseline.
 
 Success rates are in % (``final["greedy_success_rate"]`` x 100); every interval comes
 from :mod:`vbl.stats` (one seed: the mean alone, no interval).
@@ -14,7 +12,6 @@ from :mod:`vbl.stats` (one seed: the mean alone, no interval).
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -31,8 +28,7 @@ from vbl.stats import mean_ci95, seeds_to_resolve, welch_ci95
 
 __all__ = ["TASKS", "point_keys", "diff_verdict", "shoot_pass_section", "shooting_section",
            "tabular_cells", "grid_cells", "shoot_pass_rows", "shooting_rows",
-           "plot_success_vs_steps", "plot_two_robot_curves", "curves_from_metrics",
-           "rerender"]
+           "plot_success_vs_steps", "plot_two_robot_curves"]
 
 TASKS = ("shoot", "pass")  #: two-robot tasks, in report order (``env.task_pass`` False, True)
 PCT = (0.0, 100.0)  #: range of a success rate in %
@@ -118,6 +114,8 @@ def tabular_cells(res: RunResult) -> dict[str, dict[str, str]]:
         return {}
     out: dict[str, dict[str, str]] = {}
     for i, pt in enumerate(t2.points):
+        if bool(_value(t2, pt, "ball_velocity")):  # the velocity control, not a default
+            continue
         task = "pass" if bool(_value(t2, pt, "env.task_pass")) else "shoot"
         inp = "cva" if bool(_value(t2, pt, "cva.use_cva")) else "current"
         out.setdefault(task, {})[inp] = rate_cell(t2.final["greedy_success_rate"][i], 100.0,
@@ -308,38 +306,3 @@ def plot_two_robot_curves(curves: dict, keys: list[Key], path: Path, title: str)
     fig.suptitle(f"{title} ({sr.shape[2]} seeds, mean and 95% band; evaluation at start "
                  "difficulty 1)", fontsize="medium")
     return _finish(fig, axes, path)
-
-
-def curves_from_metrics(folder: str | Path, points: int) -> dict[str, np.ndarray]:
-    """``{metric: (points, chunks, seeds)}`` of a run folder's per-chunk rows of
-    ``metrics.jsonl`` (NaN where a row is missing)."""
-    from vbl.engine.results import read_metrics
-
-    rows = [r for r in read_metrics(Path(folder) / "metrics.jsonl")
-            if isinstance(r.get("chunk"), int)]
-    chunks = 1 + max(r["chunk"] for r in rows)
-    curves: dict[str, np.ndarray] = {}
-    for r in rows:
-        for k, st in r["metrics"].items():
-            v = np.asarray(st["per_seed"], np.float64)
-            curves.setdefault(k, np.full((points, chunks, v.size), np.nan))[
-                r["point"], r["chunk"]] = v
-    return curves
-
-
-def rerender(folder: str | Path) -> Path:
-    """Write a finished run folder's ``report.md`` again with its experiment's report (the
-    curves rebuilt from ``metrics.jsonl``); returns its path."""
-    from vbl.engine.report import load_run, run_report
-
-    exp, res, _ = load_run(folder)
-    res = dataclasses.replace(res, curves=curves_from_metrics(folder, len(res.points)),
-                              figures=[])
-    return run_report(exp, res)[1]
-
-
-if __name__ == "__main__":
-    import sys
-
-    for f in sys.argv[1:]:
-        print(rerender(f))

@@ -1,0 +1,32 @@
+"""benchmarks/compile_time.py at a tiny size: a real program's rows, and the StableHLO
+hash that marks a program a reproduce compiles once."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from benchmarks import compile_time as ct  # noqa: E402
+
+
+def test_rows_of_one_run_and_an_identical_program_is_shared():
+    from vbl.engine import registry
+    from vbl.engine.report import Job
+
+    registry.discover()
+    first = ct.time_run(Job("toy_bandit"))
+    again = ct.time_run(Job("toy_bandit"))  # the same program, traced and compiled anew
+    assert [r["function"] for r in first] == ["init", "step", "final"][:len(first)]
+    assert all(r["trace_cpu_s"] > 0 and r["compile_cpu_s"] >= 0 for r in first)
+    assert [r["hlo"] for r in first] == [r["hlo"] for r in again]
+    assert len({r["hlo"] for r in first}) == len(first)  # init, step, final differ
+    before = dict(hardware=dict(cpu="cpu", cores=2, load_average=1.0),
+                  rows=[dict(first[0], trace_cpu_s=1.0, compile_cpu_s=2.0)])
+    result = dict(hardware=dict(cpu="cpu", cores=2, devices=["d"], jax="x",
+                                load_average=0.0), load_end=0.0, rows=first + again)
+    text = ct.markdown(result, "cmd", before)
+    assert [r["shared"] for r in result["rows"]] == [False] * len(first) + [True] * len(again)
+    assert f"{len(first)} programs" in text and "| 3.0 |" in text
