@@ -100,10 +100,10 @@ def rerender(folder: str | Path) -> ReportSection:
     """Build a finished run folder's report again (its curves from ``metrics.jsonl``, its
     engine figures as they are) and write its ``report.md``; returns the section."""
     from vbl.engine.plots import plot_names
-    from vbl.engine.results import curves_from_metrics
+    from vbl.engine.results import metric_arrays, read_metrics
 
     exp, res, _ = load_run(folder)
-    curves = curves_from_metrics(folder, len(res.points))
+    curves, _ = metric_arrays(read_metrics(Path(folder) / "metrics.jsonl"), len(res.points))
     figures = [p for p in (Path(folder) / n for n in plot_names(curves)) if p.is_file()]
     res = replace(res, curves=curves, figures=figures)
     return run_report(exp, res)[0]

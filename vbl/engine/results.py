@@ -14,7 +14,7 @@ import numpy as np
 from vbl.engine.config import EngineError
 from vbl.stats import mean_ci95
 
-__all__ = ["MetricsLog", "seed_stats", "read_metrics",
+__all__ = ["MetricsLog", "seed_stats", "read_metrics", "metric_arrays",
            "write_json", "read_json"]
 
 
@@ -123,21 +123,26 @@ def _row(line: str) -> dict[str, Any] | None:
     return row if ok else None
 
 
-def curves_from_metrics(folder: str | Path, points: int) -> dict[str, np.ndarray]:
-    """``{metric: (points, chunks, seeds)}`` of a run folder's per-chunk rows of
-    ``metrics.jsonl`` (NaN where a row is missing; {} without chunk rows)."""
-    rows = [r for r in read_metrics(Path(folder) / "metrics.jsonl")
-            if isinstance(r.get("chunk"), int)]
-    if not rows:
-        return {}
-    chunks = 1 + max(r["chunk"] for r in rows)
+def metric_arrays(rows: list[dict[str, Any]], points: int, chunks: int | None = None
+                  ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """``(curves, final)`` of ``metrics.jsonl`` rows: ``curves[metric]`` (points, chunks,
+    seeds...) from the per-chunk rows, ``final[metric]`` (points, seeds...) from the
+    ``"final"`` rows, NaN where a row is missing; ``chunks`` None: the rows' last chunk + 1."""
+    if chunks is None:
+        chunks = 1 + max((r["chunk"] for r in rows if isinstance(r.get("chunk"), int)),
+                         default=-1)
     curves: dict[str, np.ndarray] = {}
+    final: dict[str, np.ndarray] = {}
     for r in rows:
+        p = r["point"]
         for k, st in r["metrics"].items():
-            v = np.asarray(st["per_seed"], np.float64)
-            curves.setdefault(k, np.full((points, chunks, v.size), np.nan))[
-                r["point"], r["chunk"]] = v
-    return curves
+            v = np.asarray(st["per_seed"], dtype=np.float64)
+            if r["chunk"] == "final":
+                final.setdefault(k, np.full((points,) + v.shape, np.nan))[p] = v
+            else:
+                curves.setdefault(k, np.full((points, chunks) + v.shape, np.nan))[
+                    p, r["chunk"]] = v
+    return curves, final
 
 
 def read_metrics(path: Path) -> list[dict[str, Any]]:

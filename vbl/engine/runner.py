@@ -31,6 +31,7 @@ from vbl.engine.plots import plot_curves, plot_names
 from vbl.engine.progress import STATUS_FILE, Progress, auto_quiet
 from vbl.engine.results import (
     MetricsLog,
+    metric_arrays,
     read_json,
     read_metrics,
     seed_stats,
@@ -526,17 +527,8 @@ def load_result(run_dir: Path, experiment: Experiment, config: Any, plan: SweepP
                 and (r.get("chunk") == "final" or isinstance(r.get("chunk"), int))):
             raise EngineError(f"{run_dir / 'metrics.jsonl'} line {i} is not a metrics row of "
                               f"this run; restore the file, or start again with --overwrite")
-    npts, chunks = len(plan.points), max(g.num_chunks for g in plan.groups)
-    curves: dict[str, np.ndarray] = {}
-    final: dict[str, np.ndarray] = {}
-    for r in rows:
-        p = r["point"]
-        for k, st in r["metrics"].items():
-            v = np.asarray(st["per_seed"], dtype=np.float64)
-            if r["chunk"] == "final":
-                final.setdefault(k, np.full((npts,) + v.shape, np.nan))[p] = v
-            else:
-                curves.setdefault(k, np.full((npts, chunks) + v.shape, np.nan))[p, r["chunk"]] = v
+    chunks = max(g.num_chunks for g in plan.groups)
+    curves, final = metric_arrays(rows, len(plan.points), chunks)
     points = []
     for p, values in enumerate(plan.points):
         entry: dict[str, Any] = {"point": p, "values": values}
