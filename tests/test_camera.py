@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import vbl  # noqa: F401  (x64 on: the camera must stay float32 anyway)
+import vbl  # noqa: F401
 from tests.reference.camera_np import project_points_np
 from vbl.params import ParamError, validate
 from vbl.vision import CameraParams, check_inputs, project_points

@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import vbl  # noqa: F401  (x64 on, as in every vbl program)
+import vbl  # noqa: F401
 from vbl.params import ParamError, validate
 from vbl.spaces.grid import NUM_GRID_STATES, GridParams, grid_state, state_label
 

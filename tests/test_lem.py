@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import vbl  # noqa: F401  (x64 on, as in every vbl program)
+import vbl  # noqa: F401
 from vbl.agents import stack_for_learners
 from vbl.agents.lem import LEMParams, lem_init, lem_update
 from vbl.params import ParamError, validate

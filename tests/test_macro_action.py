@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from flax import struct
 
-import vbl  # noqa: F401  (x64 on, as in every vbl program)
+import vbl  # noqa: F401
 from vbl.agents import (
     QRunnerParams,
     learner_keys,

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from flax import struct
 
-import vbl  # noqa: F401  (x64 on, as in every vbl program)
+import vbl  # noqa: F401
 from vbl.envs.macro import MacroActionParams, MacroEnvParams, MacroWrapper
 
 GOAL, BLOCK, SLIP = 10, 3, 0.3    # counter goal, discrete state = counter // 3, P(slip)

@@ -8,11 +8,12 @@ gamma * mean_b Q(s', b): the return counts the scoring primitive as k = 0).
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import vbl  # noqa: F401  (x64 on, as in every vbl program)
+import vbl  # noqa: F401
 from tests.test_qlearning import N_CHAIN as N
 from tests.test_qlearning import ChainEnv as Chain
 from tests.test_qlearning import ChainParams
@@ -25,7 +26,7 @@ from vbl.agents import (
     stack_for_learners,
 )
 from vbl.agents.lem import LEMParams
-from vbl.agents.monte_carlo import mc_init, mc_log, mc_update
+from vbl.agents.monte_carlo import MC_PASS_ENTRIES, MCLog, mc_init, mc_log, mc_update
 from vbl.envs.macro import MacroActionParams
 from vbl.params import ParamError
 
@@ -111,6 +112,39 @@ def test_mc_update_matches_a_numpy_reference_with_shared_keys():
     np.testing.assert_allclose(np.asarray(q), want, rtol=2e-6, atol=1e-7)
     assert float(used) == n[ended].sum()
     np.testing.assert_array_equal(np.asarray(log2.n), np.where(ended, 0, n))
+
+
+
+def test_mc_update_vmapped_over_learners_that_need_different_numbers_of_passes():
+    """Three learners in one vmapped update: no trial ended, one short trial, and most
+    trials ended with long logs (more decisions than one pass of MC_PASS_ENTRIES reads);
+    a masked trial (weight False) teaches nothing. Each equals the NumPy reference."""
+    rng = np.random.default_rng(7)
+    n_env, length, n_s, n_a = 64, 128, 5, 2
+    s = rng.integers(0, n_s, (3, n_env, length))
+    a = rng.integers(0, n_a, (3, n_env, length))
+    clock = np.sort(rng.integers(0, 200, (3, n_env, length)), axis=2)
+    n = rng.integers(0, length + 1, (3, n_env))
+    ended = np.zeros((3, n_env), bool)
+    ended[1, 5] = True
+    ended[2] = rng.random(n_env) < 0.8
+    weight = np.ones((3, n_env), bool)
+    weight[2, :4] = False
+    assert (n[2] * (ended[2] & weight[2])).sum() > 3 * MC_PASS_ENTRIES
+    scored = rng.random((3, n_env)) < 0.5
+    last = np.full((3, n_env), 250)
+    q0 = rng.random((3, n_s, n_a)).astype(np.float32)
+    log = MCLog(s=jnp.asarray(s, jnp.int32), a=jnp.asarray(a, jnp.int32),
+                clock=jnp.asarray(clock, jnp.int32), n=jnp.asarray(n, jnp.int32))
+    q, _, used = jax.vmap(lambda q, lg, e, sc, la, w: mc_update(q, lg, e, sc, la, 0.2, 0.9, w))(
+        jnp.asarray(q0), log, jnp.asarray(ended), jnp.asarray(scored),
+        jnp.asarray(last, jnp.int32), jnp.asarray(weight))
+    for i in range(3):
+        use = ended[i] & weight[i]
+        want = numpy_mc_update(q0[i], s[i], a[i], clock[i], n[i], use, scored[i], last[i],
+                               0.2, 0.9)
+        np.testing.assert_allclose(np.asarray(q[i]), want, rtol=2e-6, atol=1e-7)
+        assert float(used[i]) == n[i][use].sum()
 
 
 def _params(update="monte_carlo", lr=0.01, macro=False, **agent):

@@ -16,7 +16,7 @@ from reference.qlearning_np import (
     value_iteration,
 )
 
-import vbl  # noqa: F401  (x64 on, as in every vbl program)
+import vbl  # noqa: F401
 from tests import toy_worlds
 from vbl.agents import (
     ExplorationParams,

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from flax import struct
 
-import vbl  # noqa: F401  (x64 on, as in every vbl program)
+import vbl  # noqa: F401
 from tests.test_qlearning import N_CHAIN, ChainEnv, chain_state_fn
 from vbl.agents import (
     ExplorationParams,

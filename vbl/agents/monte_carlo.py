@@ -70,10 +70,10 @@ def mc_log(log: MCLog, decided: jax.Array, s: jax.Array, a: jax.Array,
     return MCLog(s=s, a=a, clock=clock, n=n)
 
 
-#: Ended envs whose logs one pass of :func:`mc_update` reads (its loop runs ceil(ended /
-#: this) passes): XLA's scatters on CPU cost per entry, so reading only the ended envs'
-#: rows, not all E x L entries, is what makes the update cheap.
-MC_BLOCK_ENVS = 8
+#: Logged decisions one pass of :func:`mc_update` reads (its loop runs ceil(decisions of the
+#: ended trials / this) passes): XLA's scatters and gathers on CPU cost per entry, valid or
+#: not, so a pass reads the ended trials' decisions packed, not whole log rows.
+MC_PASS_ENTRIES = 256
 
 
 def mc_update(q: jax.Array, log: MCLog, ended: jax.Array, scored: jax.Array,
@@ -85,45 +85,49 @@ def mc_update(q: jax.Array, log: MCLog, ended: jax.Array, scored: jax.Array,
     truncation with ``truncation='skip'``). Returns (q, log emptied where ended, number
     of decisions learned from () float32).
 
-    The ended envs' rows are read in blocks of :data:`MC_BLOCK_ENVS`: a first pass sums
-    each (state, action)'s count and returns into table-sized sums, a second gives each
-    logged decision its key's new value (decisions of one key write the same value)."""
+    The learning trials' decisions, packed in env order, are read :data:`MC_PASS_ENTRIES`
+    at a time: a first pass sums each (state, action)'s count and returns into table-sized
+    sums, a second gives each decision its key's new value (decisions of one key write the
+    same value) and zeroes the key's count, so a later pass that holds the key writes its
+    value again (a zero count moves nothing)."""
     n_s, n_a = q.shape
-    size, (n_env, length) = n_s * n_a, log.s.shape
+    size, length = n_s * n_a, log.s.shape[1]
     use = jnp.asarray(ended, bool) if weight is None else jnp.asarray(ended, bool) & weight
-    block = min(MC_BLOCK_ENVS, n_env)
-    order = jnp.argsort(~use, stable=True)  # the learning envs first
-    n_blocks = (jnp.sum(use, dtype=jnp.int32) + block - 1) // block
-    order = jnp.concatenate([order, jnp.full((block,), n_env, order.dtype)])  # pad rows
+    cnt = jnp.where(use, log.n, 0)
+    end = jnp.cumsum(cnt)                      # (E,) packed index after each env's decisions
+    total = end[-1]
+    n_pass = (total + MC_PASS_ENTRIES - 1) // MC_PASS_ENTRIES
     g = jnp.asarray(discount, F32)
-
-    def entries(b):  # keys (block * L,) (size: unused) and returns of block b's rows
-        rows = jax.lax.dynamic_slice(order, (b * block,), (block,))
-        ok = rows < n_env
-        r = jnp.minimum(rows, n_env - 1)
-        valid = (jnp.arange(length)[None] < log.n[r][:, None]) & (ok & use[r])[:, None]
-        k = (jnp.asarray(last_clock, I32)[r][:, None] - log.clock[r]).astype(F32)
-        ret = jnp.where(jnp.asarray(scored, bool)[r][:, None], g ** k, 0.0)
-        idx = jnp.where(valid, log.s[r] * n_a + log.a[r], size).reshape(-1)
-        return idx, jnp.stack([valid.reshape(-1).astype(F32),
-                               jnp.where(valid, ret, 0.0).reshape(-1)], -1)
-
-    def add(b, sums):
-        idx, w = entries(b)
-        return sums.at[idx].add(w, mode="drop")
-
-    sums = jax.lax.fori_loop(0, n_blocks, add, jnp.zeros((size + 1, 2), F32))
     keep = 1.0 - jnp.asarray(learning_rate, F32)
 
-    before = q.reshape(-1)
+    def entries(p):  # keys (K,) (size: unused) and (count, return) (K, 2) of pass p
+        j = p * MC_PASS_ENTRIES + jnp.arange(MC_PASS_ENTRIES, dtype=end.dtype)
+        env = jnp.minimum(jnp.sum(end[None, :] <= j[:, None], axis=1), cnt.shape[0] - 1)
+        pos = jnp.clip(j - (end[env] - cnt[env]), 0, length - 1)
+        valid = j < total
+        k = (jnp.asarray(last_clock, I32)[env] - log.clock[env, pos]).astype(F32)
+        ret = jnp.where(jnp.asarray(scored, bool)[env], g ** k, 0.0)
+        idx = jnp.where(valid, log.s[env, pos] * n_a + log.a[env, pos], size)
+        return idx, jnp.stack([valid.astype(F32), jnp.where(valid, ret, 0.0)], -1)
 
-    def put(b, flat):  # every block reads the table from before the update
-        idx, _ = entries(b)
+    def add(p, sums):
+        idx, w = entries(p)
+        return sums.at[idx].add(w, mode="drop")
+
+    def put(p, state):  # a key's first pass writes its new value and zeroes its count
+        flat, sums = state
+        idx, _ = entries(p)
         s = sums[idx]
-        old = before.at[idx].get(mode="fill", fill_value=0.0)
+        old = flat.at[idx].get(mode="fill", fill_value=0.0)
         new = old + (1.0 - keep ** s[:, 0]) * (s[:, 1] / jnp.maximum(s[:, 0], 1.0) - old)
-        return flat.at[idx].set(new.astype(F32), mode="drop")
+        return flat.at[idx].set(new.astype(F32), mode="drop"), sums.at[idx, 0].set(
+            0.0, mode="drop")
 
-    q = jax.lax.fori_loop(0, n_blocks, put, before).reshape(n_s, n_a)
+    # pass 0 outright, a loop only for more: under vmap a loop with a batched trip count
+    # selects its whole carry (the table) every pass, and most steps need one pass or none
+    sums = jax.lax.fori_loop(1, n_pass, add, add(0, jnp.zeros((size + 1, 2), F32)))
+    learned = jnp.sum(sums[:size, 0])
+    flat, _ = jax.lax.fori_loop(1, n_pass, put, put(0, (q.reshape(-1), sums)))
+    q = flat.reshape(n_s, n_a)
     log = log.replace(n=jnp.where(jnp.asarray(ended, bool), 0, log.n).astype(I32))
-    return q, log, jnp.sum(sums[:size, 0])
+    return q, log, learned
