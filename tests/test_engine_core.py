@@ -3,6 +3,7 @@ checkpoint guards, error exit codes of the CLI entry point."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -298,6 +299,13 @@ def test_reproduce_chains_group_experiments_and_start_the_costliest(toy):
     assert jobs == [Job("t1"), Job("grid"), Job("grid", "p"), Job("t2"), Job("t3")]
     assert reproduce_jobs(exps, quick=True) == [Job("t1"), Job("grid"), Job("t2"), Job("t3")]
     assert [[j.folder for j in c] for c in _chains(jobs, exps)] == [
+        ["t1", "t3"], ["t2"], ["grid"], ["grid-p"]]
+    # full scale: each run's full_cost (a preset's own) orders it; quick: cost
+    exps["grid"] = dataclasses.replace(exps["grid"], full_cost={None: 10, "p": 500})
+    exps["t2"] = dataclasses.replace(exps["t2"], full_cost={None: 200})
+    assert [[j.folder for j in c] for c in _chains(jobs, exps)] == [
+        ["grid-p"], ["t2"], ["t1", "t3"], ["grid"]]
+    assert [[j.folder for j in c] for c in _chains(jobs, exps, quick=True)] == [
         ["t1", "t3"], ["t2"], ["grid"], ["grid-p"]]
 
 

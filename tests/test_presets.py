@@ -87,6 +87,21 @@ def test_reproduce_runs_every_published_preset_beside_the_default():
     assert len({j.folder for j in jobs}) == len(jobs)
 
 
+
+def test_every_full_reproduce_run_has_a_full_cost():
+    """The full run orders its runs by full_cost; a run without one would count its quick
+    cost, another unit. The runs: those of the committed full reproduce."""
+    import json
+
+    from tests.engine_helpers import REPO
+    from vbl.engine.report import paper_experiments
+
+    exps = paper_experiments()
+    runs = json.loads((REPO / "docs/results/reproduce/reproduce.json").read_text())["runs"]
+    missing = [r["folder"] for r in runs
+               if r["preset"] not in exps[r["experiment"]].full_cost]
+    assert runs and not missing, f"no full_cost for {missing}"
+
 def test_the_table2_preset_folder_rebuilds_to_its_preset_command():
     from vbl.engine import get
     from vbl.engine.report import run_command

@@ -377,14 +377,20 @@ def _kill_workers(workers: dict) -> None:
             p.kill()
 
 
-def _chains(jobs: list[Job], exps: dict[str, Experiment]) -> list[list[Job]]:
+def _chains(jobs: list[Job], exps: dict[str, Experiment], quick: bool = False
+            ) -> list[list[Job]]:
     """Jobs grouped by :attr:`Experiment.group` (registry order inside a group), costliest
-    chain first."""
+    chain first (:attr:`Experiment.cost`, or :attr:`Experiment.full_cost` for a full-scale
+    run)."""
+    def cost(j: Job) -> float:
+        e = exps[j.name]
+        return e.cost if quick else e.full_cost.get(j.preset, e.cost)
+
     chains: dict[str, list[Job]] = {}
     for j in jobs:
         e = exps[j.name]
         chains.setdefault(e.group if e.group is not None else f"\0{j.folder}", []).append(j)
-    return sorted(chains.values(), key=lambda c: -sum(exps[j.name].cost for j in c))
+    return sorted(chains.values(), key=lambda c: -sum(cost(j) for j in c))
 
 
 def _progress_line(out: Path, running: list[Job], n_done: int, n_all: int, t0: float) -> str:
@@ -417,7 +423,7 @@ def _run_parallel(jobs: list[Job], exps: dict[str, Experiment], workers: int, ou
     started = time.time()
     ctx = multiprocessing.get_context("spawn")  # jax is not fork-safe
     t0 = last = time.perf_counter()
-    chains = _chains(jobs, exps)
+    chains = _chains(jobs, exps, quick)
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, max_tasks_per_child=1,
                                initializer=_worker_init, initargs=(out,))
     procs = _workers(pool)
