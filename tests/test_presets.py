@@ -87,7 +87,6 @@ def test_reproduce_runs_every_published_preset_beside_the_default():
     assert len({j.folder for j in jobs}) == len(jobs)
 
 
-
 def test_every_full_reproduce_run_has_a_full_cost():
     """The full run orders its runs by full_cost; a run without one would count its quick
     cost, another unit. The runs: those of the committed full reproduce."""
@@ -101,6 +100,7 @@ def test_every_full_reproduce_run_has_a_full_cost():
     missing = [r["folder"] for r in runs
                if r["preset"] not in exps[r["experiment"]].full_cost]
     assert runs and not missing, f"no full_cost for {missing}"
+
 
 def test_the_table2_preset_folder_rebuilds_to_its_preset_command():
     from vbl.engine import get
