@@ -128,6 +128,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default=None, metavar="FILE",
                    help="write the table to FILE (links relative to its folder) instead of "
                         "printing it")
+    p.add_argument("--seeds", type=int, default=None, metavar="K",
+                   help="rebuild every run from its first K seeds (what a K-seed run gives) "
+                        "and add each run's report section, its claims, at K seeds")
     _add_debug(p, argparse.SUPPRESS)
     p = sub.add_parser("bench", help="run the benchmarks (benchmarks/*.py of the source tree)")
     p.add_argument("--quick", action="store_true", help="small sizes")
@@ -286,7 +289,12 @@ def _cmd_report(args) -> int:
     out = Path(args.out) if args.out is not None else None
     base = out.absolute().parent if out is not None else None
     with contextlib.redirect_stdout(sys.stderr):  # what imported scripts print stays apart
-        table = results_table(args.folders, link_base=base)
+        if args.seeds is None:
+            table = results_table(args.folders, link_base=base)
+        else:
+            from vbl.engine.seed_subsets import seeds_report
+
+            table = seeds_report(args.folders, args.seeds, link_base=base)
     if out is None:
         print(table, end="")
         return 0

@@ -869,17 +869,20 @@ def run_folders(folders: list[str | Path]) -> list[Path]:
     return out
 
 
-def results_table(folders: list[str | Path], link_base: str | Path | None = None) -> str:
+def results_table(folders: list[str | Path], link_base: str | Path | None = None,
+                  load=load_run) -> str:
     """``vbl report``: one Markdown table over run folders (a ``vbl reproduce`` folder
     stands for its runs), a row per paper number (the experiments'
     :attr:`~vbl.engine.Experiment.paper_rows`) with vbl's mean and 95 % interval, the
     seeds, a link to the run folder and the command that regenerates it (shown on the first
-    row of each run). Links are relative to ``link_base`` (default: the current folder)."""
+    row of each run). Links are relative to ``link_base`` (default: the current folder);
+    ``load(folder) -> (experiment, RunResult, config.json)`` reads a run (default
+    :func:`load_run`; :func:`vbl.engine.seed_subsets.first_seeds` for fewer seeds)."""
     base = Path(link_base if link_base is not None else ".").absolute()
     lines = ["| paper result | paper | vbl (mean, 95 % CI) | seeds | run | command |",
              "|---|---|---|---|---|---|"]
     for folder in run_folders(folders):
-        exp, result, spec = load_run(folder)
+        exp, result, spec = load(folder)
         if exp.paper_rows is None:
             raise EngineError(f"experiment {exp.name} declares no paper rows "
                               f"(Experiment.paper_rows); {folder} cannot be reported")

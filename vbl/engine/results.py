@@ -14,7 +14,7 @@ import numpy as np
 from vbl.engine.config import EngineError
 from vbl.stats import mean_ci95
 
-__all__ = ["MetricsLog", "seed_stats", "read_metrics", "metric_arrays",
+__all__ = ["MetricsLog", "seed_stats", "read_metrics", "metric_arrays", "point_summaries",
            "write_json", "read_json"]
 
 
@@ -143,6 +143,23 @@ def metric_arrays(rows: list[dict[str, Any]], points: int, chunks: int | None = 
                 curves.setdefault(k, np.full((points, chunks) + v.shape, np.nan))[
                     p, r["chunk"]] = v
     return curves, final
+
+
+def point_summaries(curves: dict[str, np.ndarray], final: dict[str, np.ndarray],
+                    points: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """``summary.json``'s ``points``: per sweep point its ``values``, the seed statistics
+    of every metric's last logged chunk (``last_chunk``, no per-seed values) and of its
+    ``final`` metrics (with per-seed values); arrays as :func:`metric_arrays` gives them."""
+    out = []
+    for p, values in enumerate(points):
+        last = {}
+        for k, a in curves.items():
+            logged = a[p][~np.all(np.isnan(a[p].reshape(a.shape[1], -1)), axis=1)]
+            if len(logged):
+                last[k] = {n: v for n, v in seed_stats(logged[-1]).items() if n != "per_seed"}
+        out.append({"point": p, "values": values, "last_chunk": last,
+                    "final": {k: seed_stats(a[p]) for k, a in final.items()}})
+    return out
 
 
 def read_metrics(path: Path) -> list[dict[str, Any]]:

@@ -32,6 +32,7 @@ from vbl.engine.progress import STATUS_FILE, Progress, auto_quiet
 from vbl.engine.results import (
     MetricsLog,
     metric_arrays,
+    point_summaries,
     read_json,
     read_metrics,
     seed_stats,
@@ -529,15 +530,7 @@ def load_result(run_dir: Path, experiment: Experiment, config: Any, plan: SweepP
                               f"this run; restore the file, or start again with --overwrite")
     chunks = max(g.num_chunks for g in plan.groups)
     curves, final = metric_arrays(rows, len(plan.points), chunks)
-    points = []
-    for p, values in enumerate(plan.points):
-        entry: dict[str, Any] = {"point": p, "values": values}
-        last = {k: a[p][~np.all(np.isnan(a[p].reshape(chunks, -1)), axis=1)] for k, a in
-                curves.items()}
-        entry["last_chunk"] = {k: _no_seeds(seed_stats(v[-1])) for k, v in last.items()
-                               if len(v)}
-        entry["final"] = {k: seed_stats(a[p]) for k, a in final.items()}
-        points.append(entry)
+    points = point_summaries(curves, final, plan.points)
     if plots and curves:
         if folder is not None:
             folder.record(*plot_names(curves))
@@ -548,7 +541,3 @@ def load_result(run_dir: Path, experiment: Experiment, config: Any, plan: SweepP
                "chunks": plan.total_steps, "points": points}
     return RunResult(experiment.name, run_dir, config, plan.sweep, plan.points, plan.seeds,
                      curves, final, summary, list(figures))
-
-
-def _no_seeds(st: dict[str, Any]) -> dict[str, Any]:
-    return {k: v for k, v in st.items() if k != "per_seed"}
