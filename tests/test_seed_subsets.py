@@ -5,6 +5,8 @@ run folder is only read; a bad K is one line, exit 2."""
 from __future__ import annotations
 
 import json
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -99,3 +101,34 @@ def test_half_the_seeds_of_table2_leave_its_shooting_verdict_unresolved():
     assert "`vbl run table2_shoot_pass --seeds 8`" in text and "8 seeds per row" in text
     shoot = next(ln for ln in text.splitlines() if ln.startswith("| shoot | not resolved"))
     assert "not resolved at 8 seeds" in shoot
+
+
+BUDGET = REPO / "docs" / "findings" / "reproduce_budget.md"
+FOLDERS = {"table2_shoot_pass, Monte Carlo": "table2_shoot_pass-monte_carlo",
+           "table3_noisy, pixels": "table3_noisy-pixels"}
+VERDICT = re.compile(r"not resolved at \d+ seeds|\byes\b|\bno\b(?= \(|,|\*\*)|above 0|below 0")
+
+
+def _verdicts(folder: Path, seeds: int) -> list[str]:
+    section = seeds_report([folder], seeds).split("## ", 1)[1]
+    return [re.sub(r"\d+", "N", v) for v in VERDICT.findall(section)]
+
+
+def _budget_rows() -> list[tuple[str, int, int, str]]:
+    text = BUDGET.read_text().split("## Would fewer seeds do?", 1)[1]
+    rows = [r.split("|")[1:-1] for r in text.splitlines() if re.match(r"\| \w", r)]
+    return [(n.strip(), int(s), int(k), v.strip()) for n, s, k, v in rows[1:]]
+
+
+@pytest.mark.parametrize("name, seeds, k, says", _budget_rows())
+def test_the_budget_notes_verdicts_at_fewer_seeds_are_the_committed_runs(name, seeds, k,
+                                                                         says):
+    folder = RESULTS / FOLDERS.get(name, name)
+    assert load_run(folder)[1].seeds == seeds
+    full, fewer = _verdicts(folder, seeds), _verdicts(folder, k)
+    assert len(full) == len(fewer)
+    changed = sum(a != b for a, b in zip(full, fewer, strict=True))
+    if says.startswith("none of"):
+        assert changed == 0 and int(says.split()[2]) == len(full)
+    elif not says.startswith("(no claim"):
+        assert changed > 0
