@@ -123,7 +123,9 @@ def _budget_rows() -> list[tuple[str, int, int, str]]:
 @pytest.mark.parametrize("name, seeds, k, says", _budget_rows())
 def test_the_budget_notes_verdicts_at_fewer_seeds_are_the_committed_runs(name, seeds, k,
                                                                          says):
-    folder = RESULTS / FOLDERS.get(name, name)
+    name, quick = name.removesuffix(" --quick"), name.endswith(" --quick")
+    folder = (RESULTS.with_name("reproduce-quick") if quick else RESULTS) / FOLDERS.get(name,
+                                                                                      name)
     assert load_run(folder)[1].seeds == seeds
     full, fewer = _verdicts(folder, seeds), _verdicts(folder, k)
     assert len(full) == len(fewer)

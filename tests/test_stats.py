@@ -11,6 +11,7 @@ from vbl.stats import (
     first_crossing,
     mean_ci95,
     running_mean,
+    seeds_to_resolve,
     t_quantile_975,
     welch_ci95,
 )
@@ -81,3 +82,19 @@ def test_change_windows_by_hand():
     np.testing.assert_array_equal(w["rates"], [[1.0, 0.0, 1.0]])
     np.testing.assert_array_equal(w["states"], [[10, 40, 70]])
     assert w["spans"] == [(0, 2), (2, 4), (6, 8)] and w["end"] == 8
+
+
+@pytest.mark.parametrize("diff, half, n", [(1.0, 2.0, 4), (-0.3, 0.5, 8), (2.0, 2.05, 16),
+                                           (0.01, 3.0, 64)])
+def test_seeds_to_resolve_is_the_first_count_whose_projected_interval_clears_zero(diff,
+                                                                                  half, n):
+    # the half-width falls as 1/sqrt(seeds); 10 % margin on |diff|
+    m = seeds_to_resolve(diff, half, n)
+    assert m > n and half * np.sqrt(n / m) <= abs(diff) / 1.1
+    assert m == n + 1 or half * np.sqrt(n / (m - 1)) > abs(diff) / 1.1
+
+
+@pytest.mark.parametrize("diff, half", [(0.0, 0.2), (-1.39e-17, 0.234), (0.5, float("nan"))])
+def test_no_seed_count_for_a_zero_difference_or_no_interval(diff, half):
+    # -1.39e-17: the float mean of per-seed differences that are exactly opposite
+    assert seeds_to_resolve(diff, half, 4) is None

@@ -99,11 +99,17 @@ def bounded_ci95(x: Any, lo: float, hi: float) -> tuple[float, float, float] | N
     return m, max(m - h, lo), min(m + h, hi)
 
 
+ZERO_DIFFERENCE_RTOL = 1e-9
+"""A difference within this fraction of its 95 % half-width is zero for
+:func:`seeds_to_resolve` (float rounding of equal means, e.g. -1.4e-17)."""
+
+
 def seeds_to_resolve(diff: float, half: float, n: int) -> int | None:
     """About how many seeds per arm a difference ``diff`` with 95 % half-width ``half``
     at ``n`` seeds needs for its interval to exclude 0, if the spread stays the same (the
-    half-width falls as 1/sqrt(n)); None when ``diff`` is 0 or ``half`` is not finite."""
-    if not (diff != 0 and math.isfinite(half) and n >= 1):
+    half-width falls as 1/sqrt(n)); None when ``diff`` is 0 (to
+    :data:`ZERO_DIFFERENCE_RTOL` of ``half``) or ``half`` is not finite."""
+    if not (math.isfinite(half) and n >= 1 and abs(diff) > ZERO_DIFFERENCE_RTOL * half):
         return None
     return max(n + 1, math.ceil(n * (1.1 * half / abs(diff)) ** 2))
 
