@@ -89,7 +89,8 @@ def test_reproduce_runs_every_published_preset_beside_the_default():
 
 def test_every_full_reproduce_run_has_a_full_cost():
     """The full run orders its runs by full_cost; a run without one would count its quick
-    cost, another unit. The runs: those of the committed full reproduce."""
+    cost, another unit, and one far from what the run takes puts it in the wrong place.
+    The runs: those of the committed full reproduce, within 1.5x of its seconds."""
     import json
 
     from tests.engine_helpers import REPO
@@ -100,6 +101,10 @@ def test_every_full_reproduce_run_has_a_full_cost():
     missing = [r["folder"] for r in runs
                if r["preset"] not in exps[r["experiment"]].full_cost]
     assert runs and not missing, f"no full_cost for {missing}"
+    off = {r["folder"]: (exps[r["experiment"]].full_cost[r["preset"]], r["seconds"])
+           for r in runs}
+    off = {k: v for k, v in off.items() if not 1 / 1.5 <= v[0] / v[1] <= 1.5}
+    assert not off, f"full_cost far from the committed run's seconds: {off}"
 
 
 def test_the_table2_preset_folder_rebuilds_to_its_preset_command():
