@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import tempfile
 from dataclasses import replace
-from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -49,7 +48,13 @@ def seeds_report(folders: list[str | Path], seeds: int,
     seeds, then each run's report section (its claims) at ``seeds`` seeds, without
     figures and without the columns a report takes from sibling runs."""
     with tempfile.TemporaryDirectory() as scratch:
-        load = partial(first_seeds, seeds=seeds, scratch=scratch)
+        loaded: dict[Path, tuple] = {}
+
+        def load(folder):  # each run read once, for the table and for its section
+            if folder not in loaded:
+                loaded[folder] = first_seeds(folder, seeds, scratch)
+            return loaded[folder]
+
         parts = [f"Every run rebuilt from its first {seeds} seeds.", "",
                  results_table(folders, link_base, load=load)]
         for folder in run_folders(folders):
