@@ -54,9 +54,9 @@ QUICK_EXPERIMENTS = (PREDICTED,)  #: --quick: Table 2's learners only
 TINY_SIZES = (2,)
 CONFIGS = ((1, 1), (1, 2), (2, 1))  #: (processes, devices per process)
 TINY_SETS = {  # a few steps of a few envs: the test's size, not a measurement
-    "table2_shoot_pass": ["q.chunk_steps=10", "q.num_envs=2", "env.max_steps=10"],
+    "table2_shoot_pass": ["agent.chunk_steps=10", "agent.num_envs=2", "env.max_steps=10"],
     "grid_shooting": ["agent.chunk_steps=10", "agent.num_envs=2", "train.eval_every=1",
-                      "train.eval_envs=2", "train.eval_steps=10"],
+                      "train.eval_chunks=1", "env.max_steps=10"],
 }
 WORKER_TIMEOUT_S = 4 * 3600
 DISTINCT_LEARNERS = 64

@@ -74,7 +74,7 @@ def report(res) -> ReportSection:
                f"| random policy (grid's macro actions) | | {ms('random_success')} |", "",
                f"The grid baseline is the preset grid_shooting trains (with LEM), trained for "
                f"{gt.num_chunks} chunks and evaluated by its own final evaluation "
-               f"({gt.final_eval_rounds} x {gt.eval_envs} starts per seed).", "",
+               f"({gt.eval_rounds} x {cfg.baseline.agent.num_envs} starts per seed).", "",
                "What must hold: success at least the grid baseline's with fewer states than "
                f"{NUM_GRID_STATES}. Map above the grid: "
                f"{claim(fin['map_success'], fin['grid_success'])}; below it: "

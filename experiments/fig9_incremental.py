@@ -42,9 +42,10 @@ class Fig9Train:
 def _grid() -> GridLearner:
     """vbl.programs.baselines' grid learner on Figure 9's env and final ball, 1 robot x 360
     chunks of 500 primitives: the on-line learner's experience (180,000 primitives per seed);
-    evaluations at Figure 9's training start difficulty."""
+    evaluations at Figure 9's training start difficulty, one chunk each (the episodes last
+    at most 150 primitives), on 128 rounds of the one robot's fresh starts."""
     return GridLearner(agent=grid_agent().replace(num_envs=1), train=grid_train().replace(
-        eval_difficulty=0.1, num_chunks=360, eval_every=1))
+        eval_difficulty=0.1, num_chunks=360, eval_every=1, eval_chunks=1, eval_rounds=128))
 
 
 @struct.dataclass

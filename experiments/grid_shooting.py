@@ -46,7 +46,7 @@ from vbl.programs.curves import (
     plot_success_vs_trials,
     trials_to_levels,
 )
-from vbl.programs.q_program import QTrainParams, curve_metric
+from vbl.programs.tabular import TabularTrainParams, curve_metric
 from vbl.spaces.grid import NUM_GRID_STATES, GridParams
 from vbl.stats import mean_ci95
 
@@ -56,7 +56,7 @@ class GridShootingConfig:
     env: ShootingParams = section(grid_env, doc="shooting task (Section 2), 100 s time limit")
     grid: GridParams = section(grid_space, doc="grid boundaries (319 states)")
     agent: QRunnerParams = section(grid_agent, doc="Q-learning, macro actions, LEM")
-    train: QTrainParams = section(grid_train, doc="run length and evaluation")
+    train: TabularTrainParams = section(grid_train, doc="run length and evaluation")
     report: CurveReportParams = section(CurveReportParams, doc="report settings")
 
 

@@ -30,7 +30,6 @@ from vbl.engine import Experiment, register
 from vbl.envs.shoot_pass import ShootPassParams
 from vbl.envs.shooting import ShootingParams
 from vbl.params import section
-from vbl.programs.cva_program import default_cva
 from vbl.programs.paper import TABLE2
 from vbl.programs.ppo_program import (
     InputChoice,
@@ -44,6 +43,7 @@ from vbl.programs.ppo_report import (
     shooting_rows,
     shooting_section,
 )
+from vbl.programs.table2 import table2_cva
 
 QUICK_PPO = {"ppo.num_envs": 16, "ppo.batch_size": 16, "ppo.num_minibatches": 2,
              "ppo.steps_per_chunk": 2, "ppo.eval_envs": 8, "run.final_eval_envs": 16,
@@ -54,7 +54,7 @@ QUICK_PPO = {"ppo.num_envs": 16, "ppo.batch_size": 16, "ppo.num_minibatches": 2,
 class ShootPassConfig:
     env: ShootPassParams = section(ShootPassParams, doc="the two-robot task (Table 2's)")
     inputs: InputChoice = section(InputChoice, doc="what PPO sees")
-    cva: CVAStateParams = section(default_cva, doc="the tabular learner's CVA "
+    cva: CVAStateParams = section(table2_cva, doc="the tabular learner's CVA "
                                   "pipeline (collection, identification; its quantiser is "
                                   "unused)")
     ppo: PPOParams = section(PPOParams, doc="brax PPO")

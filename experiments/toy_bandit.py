@@ -79,7 +79,8 @@ def make_program(cfg: BanditConfig) -> Program:
                     jnp.float32),
                 "value_error": jnp.mean(jnp.abs(carry.q - carry.mu))}
 
-    return Program(init=init, step=step, num_chunks=cfg.train.num_chunks, final=final)
+    return Program(init=init, step=step, num_chunks=cfg.train.num_chunks, final=final,
+                   progress_metric="success_rate")
 
 
 EXPERIMENT = register(Experiment(

@@ -7,6 +7,7 @@ current-feature learner clearly.
 
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import jax
 import jax.numpy as jnp
@@ -19,11 +20,11 @@ from vbl.agents.cva_state import (
     collect,
     history_wrapper,
     identify_object,
-    make_cva_learner,
 )
 from vbl.agents.exploration import ExplorationParams
 from vbl.agents.lem import LEMParams
-from vbl.agents.qlearning import QRunnerParams
+from vbl.agents.qlearning import QRunnerParams, make_qlearning_runner
+from vbl.agents.state_maps import CVAMap
 from vbl.envs.macro import MacroActionParams
 from vbl.envs.wrappers import linear_filter
 from vbl.params import ParamError
@@ -52,18 +53,27 @@ def params(state: str) -> CVAStateParams:
                           quantizer=QuantizerParams(method="bins", bins=bins))
 
 
+def fitted_params(env, p, key):
+    """The CVA map of ``p`` on ``env`` and its filtered env's params fitted from ``key``."""
+    smap = CVAMap(env, p)
+    fitted = smap.prepare(key, SimpleNamespace(cva=p, env=env.default_params))
+    return smap, smap.env_params(fitted, env.default_params)
+
+
 def train_and_evaluate(env, p):
     """One jit: prepare (collect, CVA, quantiser), CHUNKS chunks of Q-learning, greedy eval."""
-    lrn = make_cva_learner(env, p, Q)
-    rp = lrn.runner_params(Q)
+    smap = CVAMap(env, p)
+    rp = Q.replace(num_states=smap.num_states)
+    runner = make_qlearning_runner(smap.env, lambda o: o["index"], rp, None,
+                                   lambda o: o["perceived"])
 
     def one(key):
         k1, k2, k3 = jax.random.split(key, 3)
-        fp = lrn.prepare(k1, p, env.default_params)
-        c = lrn.runner.init(k2, rp, fp)
-        c, _ = jax.lax.scan(lambda c, _: (lrn.runner.run_chunk(c, rp, fp)[0], None), c, None,
+        fp = fitted_params(env, p, k1)[1]
+        c = runner.init(k2, rp, fp)
+        c, _ = jax.lax.scan(lambda c, _: (runner.run_chunk(c, rp, fp)[0], None), c, None,
                             length=CHUNKS)
-        ev = lrn.runner.evaluate(k3, c.q, rp, fp, 60)  # 32 first episodes
+        ev = runner.evaluate(k3, c.q, rp, fp, 60)  # 32 first episodes
         return ev["success_rate"], fp
 
     return jax.jit(jax.vmap(one))(jax.random.split(jax.random.PRNGKey(0), SEEDS))
@@ -139,18 +149,18 @@ def test_keep_beyond_order_keeps_the_fits_components():
 def test_bad_inputs():
     env = MovingTargetEnv()
     with pytest.raises(ParamError, match="obs_slices"):
-        make_cva_learner(env, params("cva").replace(objects=("ball",)), Q)
+        CVAMap(env, params("cva").replace(objects=("ball",)))
     with pytest.raises(ParamError, match="collect_steps"):
-        make_cva_learner(env, params("cva").replace(collect_steps=10), Q)
+        CVAMap(env, params("cva").replace(collect_steps=10))
     with pytest.raises(ParamError, match="state"):
-        make_cva_learner(env, params("cva").replace(state="history"), Q)
+        CVAMap(env, params("cva").replace(state="history"))
     with pytest.raises(ParamError, match="max_states"):
-        make_cva_learner(env, params("current").replace(
-            quantizer=QuantizerParams(method="bins", bins=10, max_states=5)), Q)
+        CVAMap(env, params("current").replace(
+            quantizer=QuantizerParams(method="bins", bins=10, max_states=5)))
     with pytest.raises(ParamError, match="one entry per object"):
-        make_cva_learner(env, params("cva").replace(n_used_objects=(2, 2)), Q)
+        CVAMap(env, params("cva").replace(n_used_objects=(2, 2)))
     with pytest.raises(ParamError, match="integers >= 1"):
-        make_cva_learner(env, params("cva").replace(n_used_objects=(0,)), Q)
+        CVAMap(env, params("cva").replace(n_used_objects=(0,)))
 
 
 def test_n_used_per_object_sets_state_dim():
@@ -169,19 +179,15 @@ def test_n_used_per_object_sets_state_dim():
                                     extra=("lost_side",))) == 23
 
 
-def test_select_state_and_first_episode_counters():
-    """state='select' gives the padded CVA or current vector by the traced use_cva; the
-    wrapper's first-episode counters follow the episodes; greedy_params stops learning."""
-    from vbl.agents.cva_state import first_episode_stats, greedy_params
-
+def test_select_state_picks_the_vector_by_use_cva():
+    """state='select' gives the padded CVA or current vector by the traced use_cva."""
     env = MovingTargetEnv()
     vq = QuantizerParams(method="vq", num_codes=4, kmeans_iters=2)
     p = params("cva").replace(state="select", quantizer=vq, collect_steps=200)
-    lrn = make_cva_learner(env, p, Q)
-    fp = lrn.prepare(jax.random.PRNGKey(1), p, env.default_params)
-    fenv, hist, models = lrn.env, history_wrapper(env, p, 1), fp.inner.filters
+    smap, fp = fitted_params(env, p, jax.random.PRNGKey(1))
+    fenv, hist, models = smap.env, history_wrapper(env, p, 1), fp.inner.filters
     obs, st = fenv.reset(jax.random.PRNGKey(2), fp)
-    hu, hy = st.inner.hist_u, st.inner.hist_y
+    hu, hy = st.hist_u, st.hist_y
     y0 = hy[0][0]                      # the raw first observation (1,) fills the history
     x_cva = hist.state_vector(hu, hy, y0, models, True)
     ref_cva = linear_filter(models[0], hu[0], hy[0])    # (2,): d = max(2, 1)
@@ -189,22 +195,8 @@ def test_select_state_and_first_episode_counters():
     np.testing.assert_allclose(np.asarray(obs["state"]), np.asarray(ref_cva), rtol=1e-6)
     x_cur = hist.state_vector(hu, hy, y0, models, False)
     np.testing.assert_allclose(np.asarray(x_cur), [float(y0[0]), 0.0])  # zero-padded
-    # counters: strike at once (action 1) ends the episode after one step
-    succ = []
-    for i in range(3):
-        obs, st, r, term, trunc, info = fenv.step(jax.random.PRNGKey(10 + i), st,
-                                                  jnp.int32(1), fp)
-        succ.append(bool(info["success"]))
-    assert int(st.episodes) == 3 and bool(st.first_success) == succ[0]
-    stats = first_episode_stats(jax.tree.map(lambda a: a[None], st))
-    assert float(stats["finished"]) == 1.0 and float(stats["success_rate"]) == float(succ[0])
-    g = greedy_params(lrn.runner_params(Q), jnp.bool_(True))
-    assert float(g.learning_rate) == 0.0
-    assert float(g.exploration.init_value) == 0.0
-    g = greedy_params(lrn.runner_params(Q), jnp.bool_(False))
-    assert float(g.learning_rate) == Q.learning_rate
     with pytest.raises(ParamError, match="select"):
-        make_cva_learner(env, params("cva").replace(state="select"), Q)
+        CVAMap(env, params("cva").replace(state="select"))
 
 
 def test_select_pads_each_object_block_for_a_per_object_quantiser():
@@ -243,7 +235,7 @@ def test_select_pads_each_object_block_for_a_per_object_quantiser():
     np.testing.assert_array_equal(x_cva[16:20], 0.0)
     np.testing.assert_array_equal(x_cur, np.asarray(obs[:20]))
     with pytest.raises(ParamError, match="group_codes"):
-        make_cva_learner(env, p.replace(quantizer=pq.replace(group_codes=(4, 2))), Q)
+        CVAMap(env, p.replace(quantizer=pq.replace(group_codes=(4, 2))))
 
 
 def test_collect_observes_what_reset_and_step_return():

@@ -57,9 +57,9 @@ def test_table2_quick_is_the_full_run_shortened():
     assert ratio < 1 and quick_seeds == full_seeds
     assert {p: q[p] for p in static_paths(full) if p != "train.num_chunks"} == \
         {p: f[p] for p in static_paths(full) if p != "train.num_chunks"}
-    for p in ("q.exploration.transition_steps", "train.lr_scale.transition_begin",
+    for p in ("agent.exploration.transition_steps", "train.lr_scale.transition_begin",
               "train.lr_scale.transition_steps"):
         assert q[p] == pytest.approx(ratio * f[p])
     changed = {p for p in f if f[p] != q[p]}
-    assert changed == {"train.num_chunks", "q.exploration.transition_steps",
+    assert changed == {"train.num_chunks", "agent.exploration.transition_steps",
                        "train.lr_scale.transition_begin", "train.lr_scale.transition_steps"}

@@ -62,7 +62,7 @@ def test_the_reuse_examples_load_and_resolve(tmp_path):
         assert exp.name == name and exp.make_program is not None
         config, sweep, seeds, _ = resolve(exp)
         assert seeds >= 8 and len(next(iter(sweep.values()))) >= 2
-    assert config.task == "pass" and config.q.learning_rate == 0.25
+    assert config.task == "pass" and config.agent.learning_rate == 0.25
 
 
 def test_readme_experiment_runs_from_a_temporary_folder(tmp_path):
@@ -203,8 +203,8 @@ def _tree_digest(d: Path) -> dict[str, str]:
             for p in sorted(d.rglob("*")) if p.is_file()}
 
 
-def test_q_program_names_its_success_curves_by_what_they_measure():
-    from vbl.programs.q_program import curve_metric
+def test_tabular_program_names_its_success_curves_by_what_they_measure():
+    from vbl.programs.tabular import curve_metric
 
     assert curve_metric({"eval_success": 1, "train_success": 0}) == "eval_success"
     assert curve_metric({"train_success": 0}) == "train_success"

@@ -90,7 +90,7 @@ def test_goal_mouth_without_walls_is_the_goal_width():
 # training and evaluation start at the same difficulty (the experiment's task difficulty,
 # LEM off), so their start distributions are the same
 TINY = {"agent.num_envs": 4, "agent.chunk_steps": 3, "train.num_chunks": 2, "train.eval_every": 1,
-        "train.eval_envs": 4, "train.eval_steps": 4, "train.final_eval_rounds": 1,
+        "train.eval_chunks": 7, "train.eval_rounds": 1,
         "train.eval_curve": False, "env.max_steps": 20,
         "agent.lem.initial_difficulty": 1.0, "train.eval_difficulty": 1.0}
 SEEDS = 2
@@ -147,10 +147,10 @@ class RecordingEnv:
 @pytest.mark.slow  # compile-bound: about 65 s on 2 quiet cores
 def test_final_evaluation_draws_from_its_own_stream(monkeypatch):
     """The grid_shooting program (``vbl.programs.baselines.grid_program``) with the engine's
-    per-seed training and final keys: the final evaluation's env keys are disjoint from
-    every training env key, its fresh starts are none of training's first starts, and the
-    final evaluation is a function of the final key only (the same with the training
-    carry's key replaced, different with another final key)."""
+    per-seed training and final keys: the evaluation's fresh starts (drawn at init) are none
+    of training's first starts, the final evaluation's env keys are disjoint from every
+    training env key, and the final evaluation is a function of the final key only (the
+    same with the training carry's key replaced, different with another final key)."""
     from vbl.programs import baselines
 
     gs = load_script(ROOT / "experiments" / "grid_shooting.py")
@@ -173,34 +173,34 @@ def test_final_evaluation_draws_from_its_own_stream(monkeypatch):
             carry, _ = step(carry, cfgs)
         jax.block_until_ready(carry)
     with rec.phase("final"):
-        jax.block_until_ready(final(carry, cfgs, jnp.asarray(final_keys)))
-    other_carry_key = jax.random.split(jax.random.PRNGKey(123), SEEDS)
+        out = jax.block_until_ready(final(carry, cfgs, jnp.asarray(final_keys)))
+    other = carry.learner.replace(key=jax.random.split(jax.random.PRNGKey(123), SEEDS))
     with rec.phase("final, training key replaced"):
-        jax.block_until_ready(final(carry.replace(key=other_carry_key), cfgs,
-                                    jnp.asarray(final_keys)))
+        same = jax.block_until_ready(final(carry.replace(learner=other), cfgs,
+                                           jnp.asarray(final_keys)))
     other_final = learner_keys(1, SEEDS)[1]
     with rec.phase("final, another final key"):
         jax.block_until_ready(final(carry, cfgs, jnp.asarray(other_final)))
 
-    first = rec.starts["init"]  # training's first starts
+    starts = rec.starts["init"]  # training's first starts and the evaluation's
     train_keys = set(rec.keys["init"]) | set(rec.keys["train"])
     eval_keys = set(rec.keys["final"])
-    # every env reset at init, then >= one primitive per env and learner step
-    assert len(rec.keys["init"]) == SEEDS * cfg.agent.num_envs
+    per_seed = (1 + cfg.train.eval_rounds) * cfg.agent.num_envs
+    assert len(rec.keys["init"]) == SEEDS * per_seed
     assert len(rec.keys["train"]) >= SEEDS * prog.num_chunks * cfg.agent.chunk_steps \
         * cfg.agent.num_envs
-    assert len(first) == SEEDS * cfg.agent.num_envs == len(set(first))
-    n_fresh = SEEDS * 3 * cfg.train.final_eval_rounds * cfg.train.eval_envs
-    eval_starts = rec.starts["final"]
-    assert len(eval_starts) == n_fresh == len(set(eval_starts))
+    # every start distinct: the evaluation's are none of training's first ones
+    assert len(starts) == SEEDS * per_seed == len(set(starts))
+    # the evaluation's starts are the carry's, drawn once at init: the final resets no env
+    # beyond its episodes' own auto-resets
+    np.testing.assert_array_equal(np.asarray(carry.starts.env_state.inner.world.robots).shape[:3],
+                                  (SEEDS, cfg.train.eval_rounds, cfg.agent.num_envs))
     # no key of the final evaluation is a training key
-    assert not train_keys & eval_keys
-    # the evaluation's fresh starts are none of training's first starts
-    assert not set(first) & set(eval_starts)
+    assert eval_keys and not train_keys & eval_keys
     # the final evaluation reads nothing of the training stream (the carry's key) ...
     assert Counter(rec.keys["final, training key replaced"]) == Counter(rec.keys["final"])
-    assert Counter(rec.starts["final, training key replaced"]) == Counter(eval_starts)
+    for k in out:
+        np.testing.assert_array_equal(np.asarray(out[k]), np.asarray(same[k]))
     # ... but draws everything from its own key
     assert not set(rec.keys["final, another final key"]) & eval_keys
-    assert not set(rec.starts["final, another final key"]) & set(eval_starts)
 

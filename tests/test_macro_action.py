@@ -100,7 +100,8 @@ def start_states(counters, t=0) -> MacroState:
     counters = np.asarray(counters)
     n = len(counters)
     st = CounterState(c=jnp.asarray(counters, jnp.int32), t=jnp.full((n,), t, jnp.int32))
-    return MacroState(inner=st, index=jnp.asarray(counters // BLOCK, jnp.int32),
+    index = jnp.asarray(counters // BLOCK, jnp.int32)
+    return MacroState(inner=st, index=index, key=index,
                       running=RunningAction.none((n,)))
 
 

@@ -54,19 +54,27 @@ def test_bar_width_when_the_terminal_reports_none(monkeypatch, columns, want):
     assert os.environ["COLUMNS"] == columns
 
 
-def test_progress_shows_the_success_metric_by_its_name(capsys):
+def test_progress_shows_the_programs_metric_by_its_name(capsys):
+    """The bar shows the metric the program names (Program.progress_metric), mean over the
+    learners, and none when the program names none or the chunk lacks it."""
     import numpy as np
 
     from vbl.engine.progress import Progress
 
-    for metrics, shown in (({"eval_success": 0.5, "train_success": 0.25}, "eval_success=0.500"),
-                            ({"train_success": 0.75}, "train_success=0.750")):
+    both = {"eval_success": 0.5, "train_success": 0.25}
+    for name, shown in (("eval_success", "eval_success=0.500"),
+                        ("train_success", "train_success=0.250"), (None, None),
+                        ("greedy_success", None)):
         p = Progress(1, desc="x")
-        p.update({"episodes": np.full(2, 5.0), **{k: np.full(2, v) for k, v in metrics.items()}},
-                 0.5)
+        p.update({"episodes": np.full(2, 5.0), **{k: np.full(2, v) for k, v in both.items()}},
+                 0.5, name)
         p.close()
         err = capsys.readouterr().err
-        assert shown in err and "episodes/s=20" in err
+        assert "episodes/s=20" in err
+        if shown is None:
+            assert "success=" not in err
+        else:
+            assert shown in err and err.count("success=") == 1
 
 
 def test_every_success_plot_keeps_its_bands_in_the_unit_interval(tmp_path, monkeypatch):

@@ -3,8 +3,7 @@
 Truth: a NumPy loop over the episodes, one step at a time, with LineWorld's dynamics
 written out (position p, primitive 0 moves +step, 1 moves -step, floor at 0, goal
 p >= 1, time limit) and the key stream of the module docstring; the policies are given
-functions of (obs, key), called per step. ``first_episodes`` against a step whose
-episodes have hand-set lengths and outcomes.
+functions of (obs, key), called per step.
 """
 
 import jax
@@ -13,7 +12,7 @@ import numpy as np
 import pytest
 from toy_worlds import LineWorld
 
-from vbl.envs.rollout import first_episodes, fresh_starts, rollout, stateless
+from vbl.envs.rollout import fresh_starts, rollout, stateless
 
 ENV = LineWorld()
 EPISODES, MAX_STEPS, HOLD = 16, 30, 3
@@ -98,24 +97,3 @@ def test_rollout_matches_a_numpy_loop(kind, env_limit):
                                   starts)
 
 
-def test_first_episodes_counts_each_envs_first_episode():
-    """Env i's episodes last i + 1 steps; its first scores iff i is even."""
-    num_envs = 5
-    lengths = jnp.arange(1, num_envs + 1, dtype=jnp.int32)
-
-    def step(t):
-        t = t + 1
-        done = t % lengths == 0
-        episode = (t - 1) // lengths                       # index of the running episode
-        success = done & ((jnp.arange(num_envs) + episode) % 2 == 0)
-        return t, done, success, (t - 1) % lengths + 1
-
-    t0 = jnp.zeros((num_envs,), jnp.int32)
-    capped = jax.jit(lambda c: first_episodes(step, c, num_envs, 3))(t0)
-    assert float(capped["success_rate"]) == pytest.approx(2 / 5)   # envs 0, 2 (4 unfinished)
-    assert float(capped["finished"]) == pytest.approx(3 / 5)
-    assert float(capped["mean_primitives"]) == pytest.approx((1 + 2 + 3) / 3)
-    full = jax.jit(lambda c: first_episodes(step, c, num_envs, 100))(t0)
-    assert float(full["success_rate"]) == pytest.approx(3 / 5)
-    assert float(full["finished"]) == 1.0
-    assert float(full["mean_primitives"]) == pytest.approx(3.0)

@@ -11,7 +11,8 @@ import pytest
 
 import vbl  # noqa: F401
 from vbl.envs.shoot_pass import OBS_DIM, OBS_SLICES, ShootPassEnv
-from vbl.programs.cva_program import VELOCITY, BallVelocityOracle
+from vbl.envs.wrappers import BallVelocityOracle
+from vbl.programs.table2 import VELOCITY
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -62,17 +63,21 @@ def test_report_gives_the_oracle_verdict():
               for v in (False, True) for c in (False, True)]
     rng = np.random.default_rng(0)
     means = {(False, False): 0.20, (True, False): 0.15, (False, True): 0.60, (True, True): 0.30}
-    final = {"greedy_success_rate": np.array([np.clip(means[(p["cva.use_cva"],
-                                                             p["ball_velocity"])]
-                                                       + 0.02 * rng.standard_normal(16), 0, 1)
-                                               for p in points])}
+    greedy = np.array([np.clip(means[(p["cva.use_cva"], p["ball_velocity"])]
+                               + 0.02 * rng.standard_normal(16), 0, 1) for p in points])
+    final = {"greedy_success": greedy, "near_greedy_success": greedy,
+             "random_success": 0.0 * greedy, "greedy_primitives_per_decision": 1.0 + greedy}
+    chunks = (4, cfg.train.num_chunks, 16)
     res = RunResult(experiment=exp.name, out_dir=Path("."), config=cfg, sweep={},
                     points=points, seeds=16,
-                    curves={"chunk_success": np.zeros((4, cfg.train.num_chunks + 1, 16))},
+                    curves={"train_success": np.zeros(chunks), "primitives": np.full(chunks, 6.0),
+                            "decisions": np.full(chunks, 3.0)},
                     final=final, summary={})
     md = exp.report(res).markdown
     assert f"| shoot | current{VELOCITY} |" in md and f"| shoot | cva{VELOCITY} |" in md
     oracle = [ln for ln in md.splitlines() if ln.startswith("| shoot | yes")]
     assert len(oracle) == 1 and oracle[0].count("yes") == 2  # +40 points: both verdicts hold
+    # primitives per decision over the whole run: 6 primitives per 3 decisions every chunk
+    assert "| 2.00 ± 0.00 / " in md
     rows = [r.result for r in exp.paper_rows(res)]
     assert any("velocity oracle" in r for r in rows)

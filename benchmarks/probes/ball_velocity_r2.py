@@ -154,7 +154,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.tiny:
         args.envs, args.steps, args.collect_steps = 8, 40, 600
 
-    from vbl.agents.cva_state import make_cva_learner
+    from types import SimpleNamespace
+
+    from vbl.agents.state_maps import CVAMap
     from vbl.engine.config import apply_overrides, parse_assignment
     from vbl.engine.jax_setup import engine_precision
     from vbl.engine.registry import load_script
@@ -178,13 +180,14 @@ def main(argv: list[str] | None = None) -> int:
         p = p.replace(collect_steps=args.collect_steps)
     env = ShootPassEnv("shoot")
     ep = cfg.env.replace(task_pass=False)
-    lrn = make_cva_learner(_WithObs(env), p, cfg.q, m=2)
-    fenv = lrn.env
+    smap = CVAMap(_WithObs(env), p)
+    fenv = smap.env
     ball, vis = OBS_SLICES["ball"], OBS_SLICES["visible"].start  # the ball's flag first
     k_prep, k_run = jax.random.split(jax.random.PRNGKey(args.seed))
 
     with engine_precision():
-        fp = jax.jit(lambda k: lrn.prepare(k, p, ep))(k_prep)
+        fp = jax.jit(lambda k: smap.env_params(smap.prepare(k, SimpleNamespace(cva=p, env=ep)),
+                                               ep))(k_prep)
         lag, order = int(fp.inner.filters[0].lag), int(fp.inner.filters[0].n)
 
         def rollout(k, still, fp):
@@ -196,7 +199,7 @@ def main(argv: list[str] | None = None) -> int:
                     ka, kst = jax.random.split(k)
                     a = jnp.where(still, 0, jax.random.randint(ka, (), 0, env.num_actions))
                     obs, st, *_, info = fenv.step(kst, st, a, fp)
-                    sp = st.inner.inner  # EpisodeCounts(HistoryState(ShootPassState))
+                    sp = st.inner  # HistoryState(ShootPassState)
                     th = sp.world.robots[0, 2]
                     v = sp.world.ball_vel
                     vel = jnp.stack([v[0] * jnp.cos(th) + v[1] * jnp.sin(th),
@@ -204,8 +207,8 @@ def main(argv: list[str] | None = None) -> int:
                     y = info["y"]
                     seen = y[vis] > 0.5
                     return st, dict(cva=obs["state"], cur=y[ball], vel=vel, seen=seen,
-                                    raw=st.inner.hist_y[0].reshape(-1),
-                                    raw_u=st.inner.hist_u[0][1:].reshape(-1),
+                                    raw=st.hist_y[0].reshape(-1),
+                                    raw_u=st.hist_u[0][1:].reshape(-1),
                                     speed=jnp.linalg.norm(v), touched=sp.touched)
 
                 _, rec = jax.lax.scan(body, st, jax.random.split(ks, args.steps))

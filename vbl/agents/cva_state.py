@@ -14,16 +14,17 @@ One learner (all functions are written for one learner and ``vmap``-ed over lear
    ``[mu_ball, mu_goal, mu_other]``;
 4. **quantise** the state vector into a Q-table index with a quantiser fitted to the states
    of the collected data (:mod:`vbl.spaces.quantize`);
-5. **Q-learning** with the batched runner of :mod:`vbl.agents.qlearning`.
+5. **Q-learning** with the one tabular learner (:mod:`vbl.programs.tabular` on the map of
+   :mod:`vbl.agents.state_maps`).
 
 The baseline of Table 2 (``state="current"``) is the same pipeline with the current
 features ``y(t)`` of the same objects as the state vector (no history, no CVA).
 
 The memory (the filter history) lives in the env-loop carry: :func:`filtered_env` wraps a
 gymnax-style env in the wrapper stack of :mod:`vbl.envs.wrappers` (history filter, then
-first-episode counts, then quantisation); its observation is
-``{"index": int32 (), "state": float32 (d,)}``, so the generic Q-learning runner uses
-``state_fn = lambda o: o["index"]``. Its params (:func:`filtered_params`) hold the fitted
+quantisation); its observation is ``{"index": int32 (), "perceived": int32 (), "state":
+float32 (d,)}`` ("perceived": the index of the state vector without the learner's command
+terms, which ends macro actions). Its params (:func:`filtered_params`) hold the fitted
 models and the quantiser, which are per-learner pytrees.
 
 Decision-time state: at time ``t`` (after observing ``y(t)``, before choosing ``u(t)``) the
@@ -42,11 +43,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from vbl.agents.qlearning import QRunnerParams, make_qlearning_runner
 from vbl.envs.wrappers import (
     KINDS,
-    EpisodeCounts,
-    FirstEpisodeWrapper,
     HistoryFilterWrapper,
     HistoryParams,
     LinearFilter,
@@ -77,9 +75,10 @@ __all__ = [
     "filtered_env",
     "filtered_params",
     "state_dim",
-    "make_cva_learner",
-    "greedy_params",
-    "first_episode_stats",
+    "command_dim",
+    "check_collection",
+    "prepare_state",
+    "state_count",
 ]
 
 #: What the Q-learner sees (static choice). "select": both state vectors are built (zero-padded
@@ -242,18 +241,21 @@ def identify_object(u: jax.Array, y: jax.Array, cva: CVAParams, n_used: int,
 # ---------------------------------------------------------------------------- the env stack
 
 
-def history_wrapper(env: Any, p: CVAStateParams, m: int) -> HistoryFilterWrapper:
+def history_wrapper(env: Any, p: CVAStateParams, m: int,
+                    world: bool = False) -> HistoryFilterWrapper:
     """The history filter of ``p``: objects, lag ``max(p.ident.lags())``, ``n_used`` per
-    object, state kind and extra slices (its filters are the :class:`ObjectModel` s)."""
+    object, state kind and extra slices (its filters are the :class:`ObjectModel` s);
+    ``world``: also the state vector without command terms."""
     return HistoryFilterWrapper(env, tuple(p.objects), max(p.ident.lags()), m,
-                                p.n_used_per_object(), p.state, tuple(p.extra))
+                                p.n_used_per_object(), p.state, tuple(p.extra), world=world)
 
 
 def filtered_env(env: Any, p: CVAStateParams, m: int) -> QuantizeWrapper:
-    """The env the Q-learner sees: ``QuantizeWrapper(FirstEpisodeWrapper(history_wrapper))``
-    (quantised by :func:`vbl.spaces.quantize.quantize`); its state is an
-    :class:`~vbl.envs.wrappers.EpisodeCounts` around a ``HistoryState``."""
-    return QuantizeWrapper(FirstEpisodeWrapper(history_wrapper(env, p, m)), quantize)
+    """The env the Q-learner sees: ``QuantizeWrapper(history_wrapper(world=True))``
+    (quantised by :func:`vbl.spaces.quantize.quantize`); its observation is
+    ``{"index", "perceived", "state"}``: the state's index, the index of the state without
+    its command terms, and the state vector."""
+    return QuantizeWrapper(history_wrapper(env, p, m, world=True), quantize)
 
 
 def filtered_params(env_params: Any, models: tuple, quantizer: Quantizer,
@@ -268,91 +270,51 @@ def state_dim(env: Any, p: CVAStateParams) -> int:
     return int(sum(history_wrapper(env, p, 1).block_dims()))
 
 
-class CVALearner(struct.PyTreeNode):
-    """Pure functions of one learner (vmap over learners); built by :func:`make_cva_learner`."""
+def command_dim(env: Any) -> int:
+    """Length m of ``info["u"]`` (the motor command) of ``env``, by one abstract step."""
+    key = jax.random.PRNGKey(0)
+    ep = env.default_params
+    _, st = jax.eval_shape(env.reset, key, ep)
+    out = jax.eval_shape(lambda s: env.step(key, s, jnp.int32(0), ep), st)
+    return int(np.prod(out[5]["u"].shape))
 
-    prepare: Any = struct.field(pytree_node=False)  # (key, p, env_params) -> QuantizeParams
-    runner: Any = struct.field(pytree_node=False)   # QLearningRunner on the filtered env
-    env: Any = struct.field(pytree_node=False)      # the filtered env (filtered_env)
-    num_states: int = struct.field(pytree_node=False)
-    runner_params: Any = struct.field(pytree_node=False)  # q -> q with num_states set
 
-
-def make_cva_learner(env: Any, p: CVAStateParams, q: QRunnerParams,
-                     m: int | None = None) -> CVALearner:
-    """Validate ``p`` and build the learner's pure functions for ``env`` (the Q-learner's
-    static fields from ``q``).
-
-    ``env`` needs ``num_actions``, ``obs_slices``, ``reset``/``step`` (gymnax style, auto-reset,
-    ``info["u"]`` the motor command (m,), ``info["success"]``). ``m`` is the input dimension
-    (default: the length of ``info["u"]``, found by one abstract step).
-
-    ``prepare(key, p, env_params)``: collect, identify, fit the quantiser; returns the
-    params of the filtered env (:func:`filtered_params`) for the runner. The runner's
-    ``num_states`` must equal the quantiser's number of states: use
-    ``learner.runner_params(q)`` (sets it).
-    """
-    validate(p)
-    if m is None:
-        key = jax.random.PRNGKey(0)
-        ep = env.default_params
-        _, st = jax.eval_shape(env.reset, key, ep)
-        out = jax.eval_shape(lambda s: env.step(key, s, jnp.int32(0), ep), st)
-        m = int(np.prod(out[5]["u"].shape))
-    fenv = filtered_env(env, p, m)
+def check_collection(env: Any, p: CVAStateParams, m: int) -> None:
+    """ParamError when ``p.collect_steps`` is too few for CVA up to the largest lag."""
     hist = history_wrapper(env, p, m)
-    groups = hist.block_dims()
-    d = int(sum(groups))
-    make_quantizer(p.quantizer, d, groups)
-    s = num_states(p.quantizer, d)
     lags = p.ident.lags()
     q_max = max(sl.stop - sl.start for sl in hist.slices)
     need = p.ident.min_samples_factor * 2 * max(lags) * (m + q_max) + 2 * max(lags)
     if p.state != "current" and p.collect_steps < need:
         raise ParamError(f"collect_steps={p.collect_steps} is too few for CVA up to lag "
                          f"{max(lags)}; use >= {int(need)}")
-    runner = make_qlearning_runner(fenv, lambda o: o["index"], runner_params(q, s))
-
-    def prepare(key, pp: CVAStateParams, env_params) -> QuantizeParams:
-        k_col, k_q = jax.random.split(key)
-        data = collect(env, k_col, env_params, p.collect_steps)
-        models = ()
-        if p.state != "current":
-            models = tuple(identify_object(data["u"], data["obs"][:, sl], pp.ident, k,
-                                           pp.keep_beyond_order)
-                           for sl, k in zip(hist.slices, p.n_used_per_object(), strict=True))
-        use_cva = jnp.asarray(pp.use_cva, bool)
-        xs = hist.replay(data["obs"], data["u"], data["start"],
-                         HistoryParams(env_params, models, use_cva))
-        qz = fit_quantizer(k_q, xs, pp.quantizer, groups=groups)
-        return filtered_params(env_params, models, qz, use_cva)
-
-    return CVALearner(prepare=prepare, runner=runner, env=fenv, num_states=s,
-                      runner_params=lambda qq: runner_params(qq, s))
 
 
-def runner_params(q: QRunnerParams, s: int) -> QRunnerParams:
-    """``q`` with ``num_states = s`` (the quantiser's number of states)."""
-    return q.replace(num_states=int(s))
+def prepare_state(env: Any, p: CVAStateParams, m: int, key: jax.Array, pp: CVAStateParams,
+                  env_params: Any) -> tuple[tuple, Quantizer, jax.Array]:
+    """Collect (random actions), identify one model per object and fit the quantiser to the
+    collected state vectors: ``(models, quantizer, use_cva)`` of one learner. ``p`` gives
+    the static fields, ``pp`` the learner's (traced) ones."""
+    hist = history_wrapper(env, p, m)
+    groups = hist.block_dims()
+    k_col, k_q = jax.random.split(key)
+    data = collect(env, k_col, env_params, p.collect_steps)
+    models = ()
+    if p.state != "current":
+        models = tuple(identify_object(data["u"], data["obs"][:, sl], pp.ident, k,
+                                       pp.keep_beyond_order)
+                       for sl, k in zip(hist.slices, p.n_used_per_object(), strict=True))
+    use_cva = jnp.asarray(pp.use_cva, bool)
+    xs = hist.replay(data["obs"], data["u"], data["start"],
+                     HistoryParams(env_params, models, use_cva))
+    return models, fit_quantizer(k_q, xs, pp.quantizer, groups=groups), use_cva
 
 
-def greedy_params(rp: QRunnerParams, greedy: jax.Array) -> QRunnerParams:
-    """``rp`` with learning switched off (learning_rate 0) and exploration rate 0 where the
-    traced bool ``greedy`` is set: a greedy evaluation runs through the same compiled
-    ``run_chunk`` as training (no separate compilation of the env loop)."""
-    g = jnp.asarray(greedy, bool)
-    ex = rp.exploration
-    ex = ex.replace(init_value=jnp.where(g, 0.0, ex.init_value).astype(jnp.float32),
-                    end_value=jnp.where(g, 0.0, ex.end_value).astype(jnp.float32))
-    return rp.replace(learning_rate=jnp.where(g, 0.0, rp.learning_rate).astype(jnp.float32),
-                      exploration=ex)
-
-
-def first_episode_stats(env_state: EpisodeCounts) -> dict[str, jax.Array]:
-    """First-episode evaluation from the counters of a batch (E,) of
-    :class:`~vbl.envs.wrappers.EpisodeCounts` (the state of :func:`filtered_env`, reset at
-    the start of the evaluation): ``success_rate`` = fraction of the E envs whose first
-    episode succeeded, ``finished`` = fraction that finished one."""
-    fin = (env_state.episodes > 0).astype(jnp.float32)
-    ok = (env_state.first_success & (env_state.episodes > 0)).astype(jnp.float32)
-    return {"success_rate": jnp.mean(ok), "finished": jnp.mean(fin)}
+def state_count(env: Any, p: CVAStateParams) -> int:
+    """Number of discrete states of ``p``'s quantiser on ``env`` (validates ``p``)."""
+    validate(p)
+    hist = history_wrapper(env, p, 1)
+    groups = hist.block_dims()
+    d = int(sum(groups))
+    make_quantizer(p.quantizer, d, groups)
+    return int(num_states(p.quantizer, d))

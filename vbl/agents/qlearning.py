@@ -16,8 +16,12 @@ the one field ``update`` (:func:`rule_of`).
 environments. One learner step is: select (:func:`_select`), act (:func:`_act`: the env
 under :class:`~vbl.envs.macro.MacroWrapper` runs every env's whole action, or in async
 mode one primitive of every env's running action), truncation rule (:func:`_truncation`),
-update (the rule), bookkeeping and LEM (:func:`_record`). ``evaluate`` is the greedy
-policy through the same step without learning (:func:`vbl.envs.rollout.first_episodes`).
+update (the rule), bookkeeping and LEM (:func:`_record`). An evaluation runs the same step
+in evaluation mode (:class:`Evaluation`: epsilon-greedy at a fixed epsilon, step size 0)
+from fresh starts; the runner's env counts each env's first episode
+(:class:`~vbl.envs.wrappers.FirstEpisodeWrapper`), which :func:`evaluation_stats` reads.
+Because the mode is traced, a program can run training and evaluation chunks through one
+compiled ``run_chunk``.
 """
 
 from __future__ import annotations
@@ -43,7 +47,7 @@ from vbl.envs.macro import (
     RunningAction,
     macro_env_params,
 )
-from vbl.envs.rollout import first_episodes
+from vbl.envs.wrappers import EpisodeCounts, FirstEpisodeWrapper
 from vbl.params import ParamError, param, section, validate
 from vbl.spaces.macro_action import stop_key
 
@@ -51,6 +55,8 @@ __all__ = [
     "QRunnerParams",
     "QRunnerState",
     "QLearningRunner",
+    "Evaluation",
+    "evaluation_stats",
     "init_q",
     "q_update",
     "make_qlearning_runner",
@@ -119,6 +125,7 @@ class QRunnerState:
     episodes: jax.Array       #: int32 finished episodes (trials) so far
     ep_primitives: jax.Array  #: (E,) int32 primitives in the running episodes
     ep_actions: jax.Array     #: (E,) int32 (macro) actions in the running episodes
+    perceived: jax.Array      #: (E,) int32 stop keys of the current observations
     lem: LEMState
     rule: Any                 #: the update rule's state (trace window, Monte Carlo log; E)
     macro: RunningAction      #: per-env running macro actions (E,) (macro.mode 'async')
@@ -128,8 +135,8 @@ class QLearningRunner(NamedTuple):
     """Pure functions of one learner (vmap them over learners; ``*_batch`` are jit(vmap))."""
 
     init: Callable       #: (key, params, env_params) -> QRunnerState
-    run_chunk: Callable  #: (carry, params, env_params) -> (carry, metrics of shape (T,))
-    evaluate: Callable   #: (key, q, params, env_params) -> dict of scalars
+    run_chunk: Callable  #: (carry, params, env_params[, Evaluation]) -> (carry, metrics (T,))
+    evaluate: Callable   #: (key, q, params, env_params, num_steps, epsilon[, start]) -> dict
     init_batch: Callable
     run_chunk_batch: Callable
     evaluate_batch: Callable
@@ -169,6 +176,16 @@ def stack_for_learners(tree: Any, num_learners: int) -> Any:
         return jnp.broadcast_to(x, (n, *x.shape))
 
     return jax.tree.map(leaf, tree)
+
+
+@struct.dataclass
+class Evaluation:
+    """A traced evaluation mode of :func:`make_qlearning_runner`'s step: where ``active``,
+    actions are epsilon-greedy at ``epsilon`` (ties broken at random) and the step size is 0
+    (the table does not move); elsewhere the step trains as usual."""
+
+    active: Any = True    #: () bool
+    epsilon: Any = 0.0    #: () float32 epsilon of the evaluated policy (0: greedy)
 
 
 class _Spec(NamedTuple):
@@ -235,8 +252,8 @@ def _init(sp: _Spec, key, params: QRunnerParams, env_params) -> QRunnerState:
     zeros = jnp.zeros((sp.n_envs,), jnp.int32)
     return QRunnerState(key=key, q=q, env_state=st.inner, obs=obs, s=st.index,
                         steps=jnp.int32(0), episodes=jnp.int32(0), ep_primitives=zeros,
-                        ep_actions=zeros, lem=lem, rule=sp.rule.init(sp.n_envs),
-                        macro=st.running)
+                        ep_actions=zeros, perceived=st.key, lem=lem,
+                        rule=sp.rule.init(sp.n_envs), macro=st.running)
 
 
 def _count(sp: _Spec, steps: jax.Array, episodes: jax.Array) -> jax.Array:
@@ -244,15 +261,19 @@ def _count(sp: _Spec, steps: jax.Array, episodes: jax.Array) -> jax.Array:
     return steps if sp.params.exploration.count_unit == "steps" else episodes
 
 
-def _select(sp: _Spec, k_act, c: QRunnerState, params: QRunnerParams, learn: bool,
-            eval_epsilon: Any) -> tuple[jax.Array, jax.Array]:
-    """(rate, action (E,)): the behaviour policy (learn) or epsilon-greedy (evaluation)."""
-    if not learn:
-        rate = jnp.asarray(eval_epsilon, jnp.float32)
-        return rate, select_action(k_act, c.q[c.s], rate, "epsilon_greedy")
+def _select(sp: _Spec, k_act, c: QRunnerState, params: QRunnerParams,
+            mode: Evaluation | None) -> tuple[jax.Array, jax.Array]:
+    """(rate, action (E,)): the behaviour policy, or where ``mode`` is active the
+    epsilon-greedy policy at its epsilon."""
     rate = schedule_value(params.exploration, _count(sp, c.steps, c.episodes))
-    action = select_action(k_act, c.q[c.s], rate, sp.params.exploration.policy)
-    return rate, sp.rule.act(c.rule, action)
+    action = sp.rule.act(c.rule, select_action(k_act, c.q[c.s], rate,
+                                               sp.params.exploration.policy))
+    if mode is None:
+        return rate, action
+    eps = jnp.asarray(mode.epsilon, jnp.float32)
+    greedy = select_action(k_act, c.q[c.s], eps, "epsilon_greedy")
+    on = jnp.asarray(mode.active, bool)
+    return jnp.where(on, eps, rate), jnp.where(on, greedy, action)
 
 
 def _act(sp: _Spec, key, c: QRunnerState, action, params: QRunnerParams,
@@ -261,7 +282,7 @@ def _act(sp: _Spec, key, c: QRunnerState, action, params: QRunnerParams,
     when macro actions are off), or one primitive of its running action (async)."""
     keys = jax.random.split(key, sp.n_envs)
     wp = _wrapper_params(sp, params, env_params, c.lem.difficulty)
-    state = MacroState(inner=c.env_state, index=c.s, running=c.macro)
+    state = MacroState(inner=c.env_state, index=c.s, key=c.perceived, running=c.macro)
     obs, state, _, term, trunc, info = jax.vmap(sp.env.step, in_axes=(0, 0, 0, None))(
         keys, state, action, wp)
     mi = info["macro"]
@@ -308,7 +329,7 @@ def _transition(sp: _Spec, k_act, c: QRunnerState, m: _Moved,
 
 
 def _record(c: QRunnerState, m: _Moved, key, q, rule_state, lem, rate, td_abs):
-    """Episode bookkeeping: (new carry, metrics, done, success, episode primitives)."""
+    """Episode bookkeeping: (new carry, metrics)."""
     done = m.term | m.trunc
     success = jnp.asarray(m.info["success"]).astype(bool) & done
     ep_prim = c.ep_primitives + m.prims
@@ -323,81 +344,104 @@ def _record(c: QRunnerState, m: _Moved, key, q, rule_state, lem, rate, td_abs):
     new = QRunnerState(key=key, q=q, env_state=m.state.inner, obs=m.obs, s=m.state.index,
                        steps=c.steps + 1, episodes=c.episodes + metrics["episodes"],
                        ep_primitives=jnp.where(done, 0, ep_prim),
-                       ep_actions=jnp.where(done, 0, ep_act), lem=lem, rule=rule_state,
-                       macro=m.state.running)
-    return new, metrics, done, success, ep_prim
+                       ep_actions=jnp.where(done, 0, ep_act), perceived=m.state.key, lem=lem,
+                       rule=rule_state, macro=m.state.running)
+    return new, metrics
 
 
-def _step(sp: _Spec, c: QRunnerState, params: QRunnerParams, env_params, learn: bool,
-          eval_epsilon: Any = 0.0):
-    """One learner step: select, act, update (if ``learn``), record."""
+def _step(sp: _Spec, c: QRunnerState, params: QRunnerParams, env_params,
+          mode: Evaluation | None = None):
+    """One learner step: select, act, update (step size 0 where ``mode`` is active),
+    record."""
     key, k_act, k_env = jax.random.split(c.key, 3)
-    rate, action = _select(sp, k_act, c, params, learn, eval_epsilon)
+    rate, action = _select(sp, k_act, c, params, mode)
     m = _act(sp, k_env, c, action, params, env_params)
-    q, rule_state, lem, td_abs = c.q, c.rule, c.lem, jnp.float32(0.0)
-    if learn:
-        t = _transition(sp, k_act, c, m, params)
-        q, rule_state, td_abs = sp.rule.update(c.q, c.rule, t, params)
-        lem = lem_update(c.lem, q, params.lem, jnp.sum(t.done), jnp.sum(t.scored))
+    t = _transition(sp, k_act, c, m, params)
+    learning = params if mode is None else params.replace(learning_rate=jnp.where(
+        jnp.asarray(mode.active, bool), 0.0, params.learning_rate).astype(jnp.float32))
+    q, rule_state, td_abs = sp.rule.update(c.q, c.rule, t, learning)
+    lem = lem_update(c.lem, q, params.lem, jnp.sum(t.done), jnp.sum(t.scored))
     return _record(c, m, key, q, rule_state, lem, rate, td_abs)
 
 
-def _run_chunk(sp: _Spec, carry: QRunnerState, params: QRunnerParams, env_params):
-    def body(c, _):
-        c, m, *_ = _step(sp, c, params, env_params, learn=True)
-        return c, m
+def _run_chunk(sp: _Spec, carry: QRunnerState, params: QRunnerParams, env_params,
+               mode: Evaluation | None = None):
+    return jax.lax.scan(lambda c, _: _step(sp, c, params, env_params, mode), carry, None,
+                        length=sp.params.chunk_steps)
 
-    return jax.lax.scan(body, carry, None, length=sp.params.chunk_steps)
+
+def evaluation_stats(carry: QRunnerState, metrics: dict) -> dict[str, jax.Array]:
+    """What an evaluation from fresh starts gave, as float32 scalars: ``success_rate``
+    (fraction of the E envs whose first episode since the starts scored; one not finished
+    counts as a failure), ``finished`` (fraction that finished one), ``mean_primitives``
+    (mean length of the episodes that finished, primitives) and
+    ``primitives_per_decision`` (their primitives per (macro) action); ``metrics`` are the
+    step metrics of the evaluation (any leading axes), ``carry`` the runner state after it."""
+    counts: EpisodeCounts = carry.env_state
+    done = counts.episodes > 0
+    f32 = jnp.float32
+    eps = jnp.sum(metrics["episodes"]).astype(f32)
+    prims = jnp.sum(metrics["primitives"]).astype(f32)
+    return dict(success_rate=jnp.mean((counts.first_success & done).astype(f32)),
+                finished=jnp.mean(done.astype(f32)),
+                mean_primitives=prims / jnp.maximum(eps, 1.0),
+                primitives_per_decision=prims / jnp.maximum(
+                    jnp.sum(metrics["actions"]).astype(f32), 1.0))
 
 
 def _evaluate(sp: _Spec, key, q, params: QRunnerParams, env_params, num_steps: int = 200,
-              epsilon: Any = 0.0):
-    """Greedy policy from fresh starts (``env_params`` as given: set the env's start
-    difficulty yourself) for at most ``num_steps`` learner steps (static); each env's first
-    finished episode counts (:func:`~vbl.envs.rollout.first_episodes`). ``epsilon`` >
-    0 (may be traced) evaluates the near-greedy policy instead: a uniform action with that
-    probability (the standard remedy for a deterministic policy cycling between aliased
-    states)."""
-    if sp.params.lem.enabled:  # start (and stay) at env_params' own difficulty
-        d = jnp.asarray(env_params.start_difficulty, jnp.float32)
-        params = params.replace(lem=params.lem.replace(initial_difficulty=d))
-    c = _init(sp, key, params, env_params).replace(q=jnp.asarray(q, jnp.float32))
-
-    def step(c):
-        c, _, done, success, ep_prim = _step(sp, c, params, env_params, learn=False,
-                                             eval_epsilon=epsilon)
-        return c, done, success, ep_prim
-
-    return first_episodes(step, c, sp.n_envs, num_steps)
+              epsilon: Any = 0.0, start: QRunnerState | None = None):
+    """The epsilon-greedy policy of table ``q`` (``epsilon`` 0: greedy; may be traced; > 0
+    breaks cycles between aliased states) from fresh starts, ``num_steps`` (static) learner
+    steps in evaluation mode; :func:`evaluation_stats`. The starts are ``start`` (a state
+    from ``init``; its key replaced by ``key``) or drawn from ``key`` at ``env_params``'
+    start difficulty (LEM's pinned to it)."""
+    if start is None:
+        if sp.params.lem.enabled:  # start (and stay) at env_params' own difficulty
+            d = jnp.asarray(env_params.start_difficulty, jnp.float32)
+            params = params.replace(lem=params.lem.replace(initial_difficulty=d))
+        key, k_init = jax.random.split(key)
+        start = _init(sp, k_init, params, env_params)
+    c = start.replace(key=key, q=jnp.asarray(q, jnp.float32))
+    mode = Evaluation(active=jnp.bool_(True), epsilon=jnp.asarray(epsilon, jnp.float32))
+    c, m = jax.lax.scan(lambda c, _: _step(sp, c, params, env_params, mode), c, None,
+                        length=num_steps)
+    return evaluation_stats(c, m)
 
 
 def make_qlearning_runner(env: Any, state_fn: Callable, params: QRunnerParams,
-                          env_params: Any = None) -> QLearningRunner:
+                          env_params: Any = None,
+                          perceive_fn: Callable | None = None) -> QLearningRunner:
     """Build the pure training functions of one learner for a gymnax-style ``env``.
 
     Args:
       env: ``reset(key, env_params) -> (obs, state)``, ``step(key, state, action,
         env_params) -> (obs, state, reward, terminated, truncated, info)`` with
-        auto-reset and ``info["success"]``; optional ``num_actions``.
+        auto-reset and ``info["success"]``; optional ``num_actions``. The runner counts
+        each env's first episode around it (:class:`~vbl.envs.wrappers.FirstEpisodeWrapper`).
       state_fn: observation(s) (..., obs_dim) -> int32 discrete state in [0, S).
       params: validated here; its static fields (S, A, E, T, kinds) fix the shapes.
       env_params: used only to check that LEM can set ``start_difficulty``
         (default ``env.default_params``).
+      perceive_fn: observation -> int32 what the state map perceives of the world; a macro
+        action ends when it changes (default ``state_fn``; ``macro.stop_on`` applies on top).
 
-    Returns a :class:`QLearningRunner`. ``run_chunk`` runs ``params.chunk_steps``
-    learner steps; its metrics (each of shape (T,)) are ``episodes`` (finished in
-    that step), ``successes``, ``primitives`` and ``actions`` (summed lengths of the
-    finished episodes), ``td_abs`` (mean |TD error| of the updated transitions),
-    ``rate`` (epsilon or temperature), ``difficulty`` (LEM start difficulty) and
-    ``lem_raises``. ``evaluate(key, q, params, env_params, num_steps=200, epsilon=0)``
-    runs the greedy policy (random tie-breaking, no learning) for at most ``num_steps``
-    learner steps and reports the success rate of each env's first finished episode.
+    Returns a :class:`QLearningRunner`. ``run_chunk(carry, params, env_params, mode=None)``
+    runs ``params.chunk_steps`` learner steps (in evaluation mode where the traced
+    :class:`Evaluation` ``mode`` is active); its metrics (each of shape (T,)) are
+    ``episodes`` (finished in that step), ``successes``, ``primitives`` and ``actions``
+    (summed lengths of the finished episodes), ``td_abs`` (mean |TD error| of the updated
+    transitions), ``rate`` (epsilon or temperature), ``difficulty`` (LEM start difficulty)
+    and ``lem_raises``. ``evaluate(key, q, params, env_params, num_steps=200, epsilon=0,
+    start=None)`` runs the epsilon-greedy policy of ``q`` (random tie-breaking, no learning)
+    for ``num_steps`` learner steps and returns :func:`evaluation_stats`.
     """
     validate(params)
     _check(env, params, env_params)
     mp = params.macro
-    sp = _Spec(env=MacroWrapper(env, state_fn, mp, stop_key(mp.stop_on)), state_fn=state_fn,
-               params=params, rule=rule_of(params))
+    sp = _Spec(env=MacroWrapper(FirstEpisodeWrapper(env), state_fn, mp, stop_key(mp.stop_on),
+                                perceive_fn),
+               state_fn=state_fn, params=params, rule=rule_of(params))
     init, run_chunk, evaluate = (partial(_init, sp), partial(_run_chunk, sp),
                                  partial(_evaluate, sp))
     init_batch = jax.jit(jax.vmap(init, in_axes=(0, 0, 0)))

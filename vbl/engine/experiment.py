@@ -39,17 +39,19 @@ class Program:
         finished in the chunk) is the progress bar's episodes/s and the plots' x axis. Name
         success rates by what they measure: ``train_success`` (training episodes, with
         exploration), ``eval_success`` / ``greedy_success`` (an evaluation of the learned
-        policy); the progress bar shows the first of
-        :data:`vbl.engine.progress.SUCCESS_METRICS` present.
+        policy).
       num_chunks: number of ``step`` calls in one run (>= 1).
       final: optional ``(carry, config, key) -> metrics`` evaluated once after the last chunk
         (e.g. greedy evaluation on fresh starts); ``key`` is independent of the training keys.
+      progress_metric: the per-chunk metric the progress bar shows beside the rate (e.g.
+        ``"eval_success"``); None: none.
     """
 
     init: Callable[[jax.Array, Config], Carry]
     step: Callable[[Carry, Config], tuple[Carry, Metrics]]
     num_chunks: int
     final: Callable[[Carry, Config, jax.Array], Metrics] | None = None
+    progress_metric: str | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.num_chunks, int) or self.num_chunks < 1:

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["auto_quiet", "Progress", "bar_width", "SUCCESS_METRICS", "STATUS_FILE",
+__all__ = ["auto_quiet", "Progress", "bar_width", "STATUS_FILE",
            "read_status", "eta_text"]
 
 STATUS_FILE = ".vbl-progress"
@@ -22,11 +22,6 @@ when the chunks end, or the run stops): phase
 "compiling" until the first chunk ends (it includes tracing and compilation), then
 "training" with chunks done and an ETA from the chunks after the first; "finishing" once
 the last chunk is done (final metrics, summary, plots)."""
-
-SUCCESS_METRICS = ("eval_success", "greedy_success", "success_rate", "train_success",
-                   "chunk_success")
-"""Per-chunk metrics the bar shows, the first one present, under its own name: the
-evaluation of the policy learned so far before training success (with exploration)."""
 
 BAR_FORMAT = "{desc}: {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]"
 """tqdm's bar without its own rate and remaining time (they would count compilation)."""
@@ -70,7 +65,11 @@ class Progress:
         self._desc = desc
         self._t = time.perf_counter()
 
-    def update(self, metrics: dict[str, Any], seconds: float | None = None) -> None:
+    def update(self, metrics: dict[str, Any], seconds: float | None = None,
+               shown: str | None = None) -> None:
+        """One chunk done: ``metrics`` (learner axis first), its ``seconds``, and ``shown``,
+        the metric the bar shows (its mean over learners; the program's
+        ``progress_metric``)."""
         now = time.perf_counter()
         dt = seconds if seconds is not None else now - self._t
         self._t = now
@@ -87,8 +86,7 @@ class Progress:
             post["ETA"] = eta_text(eta)
         if "episodes" in metrics and dt > 0:
             post["episodes/s"] = f"{float(np.sum(metrics['episodes'])) / dt:,.0f}"
-        shown = next((m for m in SUCCESS_METRICS if m in metrics), None)
-        if shown is not None:
+        if shown is not None and shown in metrics:
             post[shown] = f"{float(np.mean(metrics[shown])):.3f}"
         self._bar.set_postfix(post, refresh=False)
         self._bar.update(1)

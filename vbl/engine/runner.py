@@ -454,7 +454,7 @@ def _run_group(plan: SweepPlan, group: Group, sharding, ckpts: Checkpoints, log:
         dt = time.perf_counter() - t0
         step = group.step_offset + chunk + 1
         log.append(_rows(plan, group, step, chunk, metrics))
-        progress.update(metrics, dt)
+        progress.update(metrics, dt, prog.progress_metric)
         last = chunk + 1 == prog.num_chunks
         if last and prog.final is not None:
             fin = gather([final_fn(c, cfg, k) for c, cfg, k in

@@ -103,13 +103,14 @@ class RunningAction:
     reward: jax.Array   #: float32 discounted reward so far, sum_i discount**i r_i
     weight: jax.Array   #: float32 discount**count
     count: jax.Array    #: int32 primitives done so far (0: the env decides at the next step)
+    start_key: jax.Array  #: int32 stop key where the action started
 
     @staticmethod
     def none(shape: tuple = ()) -> RunningAction:
         """No running action (arrays of ``shape``): the env decides at the next step."""
         z = jnp.zeros(shape, jnp.int32)
         return RunningAction(action=z, start=z, reward=jnp.zeros(shape, jnp.float32),
-                             weight=jnp.ones(shape, jnp.float32), count=z)
+                             weight=jnp.ones(shape, jnp.float32), count=z, start_key=z)
 
 
 @struct.dataclass
@@ -118,6 +119,7 @@ class MacroState:
 
     inner: Any              #: the wrapped env's state
     index: jax.Array        #: int32 discrete state of the current observation
+    key: jax.Array          #: int32 stop key of the current observation
     running: RunningAction  #: async mode's running action (sync: always none)
 
 
@@ -137,12 +139,15 @@ class MacroWrapper(Wrapper):
       state_fn: obs -> int32 discrete state.
       macro: its static fields choose the behaviour (``enabled``, ``mode``, ``stop_on``);
         the traced ones come with the step's :class:`MacroEnvParams`.
-      stop_key: int32 state -> int32 key; an action stops when the key changes (default:
-        the state itself). Required when ``macro.stop_on`` is not "state".
+      stop_key: int32 perceived state -> int32 key; an action stops when the key changes
+        (default: the perceived state itself). Required when ``macro.stop_on`` is not
+        "state".
+      perceive_fn: obs -> int32 what the state map perceives of the world (default
+        ``state_fn``): the stop key is ``stop_key(perceive_fn(obs))``.
     """
 
     def __init__(self, env: Any, state_fn: Callable, macro: MacroActionParams,
-                 stop_key: Callable | None = None):
+                 stop_key: Callable | None = None, perceive_fn: Callable | None = None):
         super().__init__(env)
         if macro.mode not in MACRO_MODES:
             raise ParamError(f"macro.mode={macro.mode!r}; choose one of {list(MACRO_MODES)}")
@@ -150,6 +155,7 @@ class MacroWrapper(Wrapper):
             raise ParamError(f"macro.stop_on={macro.stop_on!r} needs its stop_key function")
         self.state_fn, self.macro = state_fn, macro
         self.stop_key = _same_key if stop_key is None else stop_key
+        self.perceive_fn = state_fn if perceive_fn is None else perceive_fn
 
     @property
     def is_async(self) -> bool:
@@ -160,9 +166,14 @@ class MacroWrapper(Wrapper):
         """int32 discrete state of one observation."""
         return jnp.asarray(self.state_fn(obs), jnp.int32)
 
+    def key(self, obs: Any) -> jax.Array:
+        """int32 stop key of one observation (an action ends when it changes)."""
+        return jnp.asarray(self.stop_key(jnp.asarray(self.perceive_fn(obs), jnp.int32)),
+                           jnp.int32)
+
     def reset(self, key: jax.Array, params: MacroEnvParams):
         obs, st = self.env.reset(key, params.inner)
-        return obs, MacroState(st, self.index(obs), RunningAction.none())
+        return obs, MacroState(st, self.index(obs), self.key(obs), RunningAction.none())
 
     def step(self, key: jax.Array, state: MacroState, action, params: MacroEnvParams):
         if self.is_async:
@@ -176,14 +187,14 @@ class MacroWrapper(Wrapper):
         info = {**info, "macro": dict(decided=yes, ended=yes, start=state.index,
                                       action=jnp.asarray(action, jnp.int32), reward=r,
                                       num_primitives=one, next_state=s_next)}
-        return (obs, state.replace(inner=st, index=s_next), r, jnp.asarray(term, bool),
+        return (obs, state.replace(inner=st, index=s_next, key=self.key(obs)), r,
+                jnp.asarray(term, bool),
                 jnp.asarray(trunc, bool), info)
 
     def _step_sync(self, key, state: MacroState, action, params: MacroEnvParams):
         """The whole action in a while loop; primitive i uses ``fold_in(key, i)``."""
-        key_of, step_fn, ep = self.stop_key, self.env.step, params.inner
-        s0 = state.index
-        k0 = key_of(s0)
+        step_fn, ep = self.env.step, params.inner
+        s0, k0 = state.index, state.key
         gamma = jnp.asarray(params.discount, jnp.float32)
         cap = jnp.asarray(params.max_repeats, jnp.int32)
         least = jnp.minimum(jnp.asarray(params.min_repeats, jnp.int32), cap)
@@ -191,10 +202,10 @@ class MacroWrapper(Wrapper):
         obs0, _, _, term0, trunc0, info0 = _zeros_like_struct(out_shape)
         init = dict(env_state=state.inner, obs=obs0, reward=jnp.float32(0.0),
                     weight=jnp.float32(1.0), n=jnp.int32(0), terminated=term0.astype(bool),
-                    truncated=trunc0.astype(bool), info=info0, s=s0)
+                    truncated=trunc0.astype(bool), info=info0, s=s0, k=k0)
 
         def cond(c):
-            unchanged = (key_of(c["s"]) == k0) | (c["n"] < least)
+            unchanged = (c["k"] == k0) | (c["n"] < least)
             moving = unchanged & ~(c["terminated"] | c["truncated"]) & (c["n"] < cap)
             return (c["n"] == 0) | moving
 
@@ -205,7 +216,7 @@ class MacroWrapper(Wrapper):
                         reward=c["reward"] + c["weight"] * jnp.asarray(r, jnp.float32),
                         weight=c["weight"] * gamma, n=c["n"] + 1,
                         terminated=jnp.asarray(term, bool), truncated=jnp.asarray(trunc, bool),
-                        info=info, s=self.index(obs))
+                        info=info, s=self.index(obs), k=self.key(obs))
 
         c = jax.lax.while_loop(cond, body, init)
         yes = jnp.bool_(True)
@@ -213,32 +224,35 @@ class MacroWrapper(Wrapper):
                                            action=jnp.asarray(action, jnp.int32),
                                            reward=c["reward"], num_primitives=c["n"],
                                            next_state=c["s"])}
-        return (c["obs"], state.replace(inner=c["env_state"], index=c["s"]), c["reward"],
+        return (c["obs"], state.replace(inner=c["env_state"], index=c["s"], key=c["k"]),
+                c["reward"],
                 c["terminated"], c["truncated"], info)
 
     def _step_async(self, key, state: MacroState, action, params: MacroEnvParams):
         """One primitive of the running action (``action`` only where the env decides);
         the returned reward is the primitive's."""
-        key_of, run = self.stop_key, state.running
+        run = state.running
         decided = run.count == 0
         action = jnp.where(decided, jnp.asarray(action, jnp.int32), run.action)
         start = jnp.where(decided, state.index, run.start)
+        start_key = jnp.where(decided, state.key, run.start_key)
         obs, st, r, term, trunc, info = self.env.step(key, state.inner, action, params.inner)
-        s_next = self.index(obs)
+        s_next, k_next = self.index(obs), self.key(obs)
         r = jnp.asarray(r, jnp.float32)
         reward = run.reward + run.weight * r
         weight = run.weight * jnp.asarray(params.discount, jnp.float32)
         count = run.count + 1
         cap = jnp.asarray(params.max_repeats, jnp.int32)
         least = jnp.minimum(jnp.asarray(params.min_repeats, jnp.int32), cap)
-        changed = key_of(s_next) != key_of(start)
+        changed = k_next != start_key
         term, trunc = jnp.asarray(term, bool), jnp.asarray(trunc, bool)
         ended = term | trunc | (changed & (count >= least)) | (count >= cap)
+        # ended: none, the env decides at the next step
         running = RunningAction(action=action, start=start, reward=reward, weight=weight,
-                                count=count)  # ended: none, the env decides at the next step
+                                count=count, start_key=start_key)
         running = jax.tree.map(lambda f, n: jnp.where(ended, f, n), RunningAction.none(),
                                running)
-        new = MacroState(inner=st, index=s_next, running=running)
+        new = MacroState(inner=st, index=s_next, key=k_next, running=running)
         info = {**info, "macro": dict(decided=decided, ended=ended, start=start, action=action,
                                       reward=reward, num_primitives=count, next_state=s_next)}
         return obs, new, r, term, trunc, info

@@ -1,16 +1,14 @@
 """First-episode rollouts and evaluation: how every learner and experiment scores a policy.
 
 An evaluation counts, per env, only its **first** episode: whether it scored and how many
-steps it took. Two loops serve every caller:
+steps it took (a tabular learner evaluates through its own step instead:
+:func:`vbl.agents.qlearning.evaluation_stats`).
 
 * :func:`rollout`: ``num_episodes`` fresh starts in parallel (``vmap``), each run for
   ``max_steps`` steps (``lax.scan``) by ``policy(obs, policy_state, key) -> (action,
   policy_state)``; the policy state (e.g. the action being held) starts at
   ``policy_state`` in every episode. :func:`stateless` adapts ``policy(obs, key) ->
   action``; :func:`fresh_starts` gives the starts the episodes begin from.
-* :func:`first_episodes`: a ``lax.while_loop`` over any batched, auto-resetting step
-  (e.g. a learner's own step with learning off) that stops once every env finished one
-  episode.
 
 Key stream of :func:`rollout` (callers' results depend on it): episode ``i`` takes
 ``k = split(key, num_episodes)[i]``, ``k_reset, k_run = split(k)``; step ``t`` takes
@@ -25,7 +23,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-__all__ = ["stateless", "fresh_starts", "rollout", "first_episodes"]
+__all__ = ["stateless", "fresh_starts", "rollout"]
 
 Policy = Callable[[jax.Array, Any, jax.Array], tuple[jax.Array, Any]]
 
@@ -73,37 +71,3 @@ def rollout(env: Any, env_params: Any, key: jax.Array, policy: Policy, num_episo
         return ok, n
 
     return jax.vmap(one)(jax.random.split(key, num_episodes))
-
-
-def first_episodes(step: Callable, carry: Any, num_envs: int,
-                   num_steps: int) -> dict[str, jax.Array]:
-    """Evaluate ``step(carry) -> (carry, done, success, length)`` (each (E,): the episode
-    ended at this step, it scored, its length so far incl. this step) from ``carry`` until
-    each of the E = ``num_envs`` envs finished one episode or ``num_steps`` steps passed.
-
-    Returns scalars: ``success_rate`` (fraction of the E envs whose first episode scored;
-    an env that finished none counts as a failure), ``finished`` (fraction that finished
-    one) and ``mean_primitives`` (mean length of the finished first episodes, 0 if none).
-    """
-    first = dict(finished=jnp.zeros((num_envs,), bool), success=jnp.zeros((num_envs,), bool),
-                 primitives=jnp.zeros((num_envs,), jnp.int32))
-
-    def body(state):
-        i, c, f = state
-        c, done, success, length = step(c)
-        new_first = done & ~f["finished"]
-        f = dict(finished=f["finished"] | done,
-                 success=jnp.where(new_first, success, f["success"]),
-                 primitives=jnp.where(new_first, length, f["primitives"]))
-        return i + 1, c, f
-
-    def cond(state):
-        i, _, f = state
-        return (i < num_steps) & ~jnp.all(f["finished"])
-
-    _, _, f = jax.lax.while_loop(cond, body, (jnp.int32(0), carry, first))
-    fin = f["finished"].astype(jnp.float32)
-    n_fin = jnp.sum(fin)
-    return dict(success_rate=jnp.sum(f["success"].astype(jnp.float32)) / num_envs,
-                finished=n_fin / num_envs,
-                mean_primitives=jnp.sum(f["primitives"] * fin) / jnp.maximum(n_fin, 1.0))

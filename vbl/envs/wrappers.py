@@ -15,7 +15,9 @@ field holds the inner env's params; one with state of its own keeps the inner st
 * :class:`FirstEpisodeWrapper`: counts the episodes finished since the reset and whether
   the first one succeeded (a first-episode evaluation reads them);
 * :class:`QuantizeWrapper`: state vector -> ``{"index": int32 (), "state": (d,)}`` with a
-  quantiser (data in its params, applied by a function given at construction).
+  quantiser (data in its params, applied by a function given at construction);
+* :class:`BallVelocityOracle`: a control, the two-robot env whose observation also holds
+  the ball's true velocity.
 """
 
 from __future__ import annotations
@@ -31,7 +33,8 @@ from vbl.params import ParamError
 
 __all__ = ["KINDS", "Wrapper", "LinearFilter", "linear_filter", "fresh_history",
            "push_history", "HistoryParams", "HistoryState", "HistoryFilterWrapper",
-           "EpisodeCounts", "FirstEpisodeWrapper", "QuantizeParams", "QuantizeWrapper"]
+           "EpisodeCounts", "FirstEpisodeWrapper", "QuantizeParams", "QuantizeWrapper",
+           "BallVelocityOracle"]
 
 F32 = jnp.float32
 #: State vectors of :class:`HistoryFilterWrapper` (static): "cva" the filtered states,
@@ -83,11 +86,14 @@ class LinearFilter:
     y_scale: jax.Array  # (q,)
 
 
-def linear_filter(filt: LinearFilter, hist_u: jax.Array, hist_y: jax.Array) -> jax.Array:
+def linear_filter(filt: LinearFilter, hist_u: jax.Array, hist_y: jax.Array,
+                  commands: bool = True) -> jax.Array:
     """Filtered state (k,) float32 from raw histories ``hist_u`` (lag, m) (row j = u(t-j);
-    row 0 is ignored) and ``hist_y`` (lag, q) (row j = y(t-j))."""
+    row 0 is ignored) and ``hist_y`` (lag, q) (row j = y(t-j)). ``commands=False`` (static)
+    leaves out the command terms (every u at its data mean): the part of the state the
+    outputs, i.e. the world, give."""
     un = (hist_u - filt.u_mean) / filt.u_scale
-    un = un.at[0].set(0.0)
+    un = un.at[0].set(0.0) if commands else jnp.zeros_like(un)
     yn = (hist_y - filt.y_mean) / filt.y_scale
     return (jnp.einsum("njm,jm->n", filt.Uu, un)
             + jnp.einsum("njq,jq->n", filt.Uy, yn)).astype(F32)
@@ -132,19 +138,23 @@ class HistoryState:
 
 
 class HistoryFilterWrapper(Wrapper):
-    """Observation = the state vector ``[x_obj..., extra...]`` (d,) float32.
+    """Observation = the state vector ``[x_obj..., extra...]`` (d,) float32; with
+    ``world=True`` the dict ``{"state": (d,), "world": (d,)}``, where "world" is the same
+    vector without the command terms (what the state map perceives of the world; the
+    current features are their own).
 
     Args:
       env: gymnax-style env with ``obs_slices`` and ``info["u"]`` (the command, (m,)).
       objects: names of ``env.obs_slices``, one filter each. lag: history length.
       m: command dimension. out_dims: each object's filter output size.
       kind: one of :data:`KINDS`. extra: ``obs_slices`` appended unfiltered.
-      filter_fn: ``(filter, hist_u (lag, m), hist_y (lag, q)) -> (k,)``.
+      filter_fn: ``(filter, hist_u (lag, m), hist_y (lag, q), commands=True) -> (k,)``.
+      world: also return the vector without command terms (static).
     """
 
     def __init__(self, env: Any, objects: tuple, lag: int, m: int, out_dims: tuple,
                  kind: str = "cva", extra: tuple = (),
-                 filter_fn: Callable = linear_filter):
+                 filter_fn: Callable = linear_filter, world: bool = False):
         super().__init__(env)
         if kind not in KINDS:
             raise ParamError(f"state kind={kind!r} is not allowed; choose one of {list(KINDS)}")
@@ -156,6 +166,7 @@ class HistoryFilterWrapper(Wrapper):
         if len(out_dims) != len(objects):
             raise ParamError(f"out_dims={out_dims!r} needs one size per object {objects!r}")
         self.kind, self.lag, self.m, self.filter_fn = kind, int(lag), int(m), filter_fn
+        self.world = bool(world)
         self.out_dims = tuple(int(k) for k in out_dims)
         self.slices = [slices[o] for o in objects]
         self.extra = [slices[o] for o in extra]
@@ -169,14 +180,16 @@ class HistoryFilterWrapper(Wrapper):
         return tuple(int(k) for k in per[self.kind]) + tuple(s.stop - s.start
                                                               for s in self.extra)
 
-    def state_vector(self, hist_u, hist_y, obs, filters, use_filter=True) -> jax.Array:
+    def state_vector(self, hist_u, hist_y, obs, filters, use_filter=True,
+                     commands: bool = True) -> jax.Array:
         """(d,) float32: the object blocks then the extra slices; kind 'select': each object
-        block zero-padded to :meth:`block_dims` in both vectors, ``use_filter`` picks."""
+        block zero-padded to :meth:`block_dims` in both vectors, ``use_filter`` picks;
+        ``commands=False``: the filtered blocks without their command terms."""
         extra = [obs[s].astype(F32) for s in self.extra]
         cur = [obs[s].astype(F32) for s in self.slices]
         if self.kind == "current":
             return jnp.concatenate(cur + extra)
-        filt = [self.filter_fn(f, hu, hy).astype(F32) for f, hu, hy in
+        filt = [self.filter_fn(f, hu, hy, commands=commands).astype(F32) for f, hu, hy in
                 zip(filters, hist_u, hist_y, strict=True)]
         if self.kind == "cva":
             return jnp.concatenate(filt + extra)
@@ -193,17 +206,22 @@ class HistoryFilterWrapper(Wrapper):
         return (tuple(jnp.where(restart, a, b) for a, b in zip(fu, pu, strict=True)),
                 tuple(jnp.where(restart, a, b) for a, b in zip(fy, py, strict=True)))
 
+    def _observe(self, hu, hy, obs, params: HistoryParams):
+        x = self.state_vector(hu, hy, obs, params.filters, params.use_filter)
+        if not self.world:
+            return x
+        return {"state": x, "world": self.state_vector(hu, hy, obs, params.filters,
+                                                       params.use_filter, commands=False)}
+
     def reset(self, key: jax.Array, params: HistoryParams):
         obs, st = self.env.reset(key, params.inner)
         hu, hy = fresh_history(obs, self.slices, self.lag, self.m)
-        x = self.state_vector(hu, hy, obs, params.filters, params.use_filter)
-        return x, HistoryState(st, hu, hy)
+        return self._observe(hu, hy, obs, params), HistoryState(st, hu, hy)
 
     def step(self, key: jax.Array, state: HistoryState, action, params: HistoryParams):
         obs, st, r, term, trunc, info = self.env.step(key, state.inner, action, params.inner)
         hu, hy = self.advance(state.hist_u, state.hist_y, info["u"], obs, term | trunc)
-        x = self.state_vector(hu, hy, obs, params.filters, params.use_filter)
-        return x, HistoryState(st, hu, hy), r, term, trunc, info
+        return self._observe(hu, hy, obs, params), HistoryState(st, hu, hy), r, term, trunc, info
 
     def replay(self, obs: jax.Array, u: jax.Array, start: jax.Array,
                params: HistoryParams) -> jax.Array:
@@ -264,13 +282,19 @@ class QuantizeParams:
 
 class QuantizeWrapper(Wrapper):
     """Observation ``{"index": quantize_fn(quantizer, x) int32 (), "state": x}`` for the inner
-    observation ``x`` (d,); the state passes through unchanged."""
+    observation ``x`` (d,); for an inner ``{"state": x, "world": w}`` (a
+    :class:`HistoryFilterWrapper` with ``world``) also ``"perceived"``: the index of ``w``
+    with the same quantiser. The state passes through unchanged."""
 
     def __init__(self, env: Any, quantize_fn: Callable):
         super().__init__(env)
         self.quantize_fn = quantize_fn
 
-    def _obs(self, x: jax.Array, params: QuantizeParams) -> dict[str, jax.Array]:
+    def _obs(self, x: Any, params: QuantizeParams) -> dict[str, jax.Array]:
+        if isinstance(x, dict):
+            return {"index": self.quantize_fn(params.quantizer, x["state"]),
+                    "perceived": self.quantize_fn(params.quantizer, x["world"]),
+                    "state": x["state"]}
         return {"index": self.quantize_fn(params.quantizer, x), "state": x}
 
     def reset(self, key: jax.Array, params: QuantizeParams):
@@ -280,3 +304,44 @@ class QuantizeWrapper(Wrapper):
     def step(self, key: jax.Array, state: Any, action, params: QuantizeParams):
         x, st, r, term, trunc, info = self.env.step(key, state, action, params.inner)
         return self._obs(x, params), st, r, term, trunc, info
+
+
+# ----------------------------------------------------------------------- a control env
+
+
+class BallVelocityOracle(Wrapper):
+    """A control, not the paper's method: the two-robot env
+    (:class:`vbl.envs.shoot_pass.ShootPassEnv`) whose observation also holds the ball's true
+    velocity in the learner's frame (forward, lateral; m/s), zero while the ball is not in
+    the learner's image, right after the ball's features: the ball's slice grows by 2 (so a
+    quantiser puts the velocity in the ball's codes) and the slices after it move by 2."""
+
+    def __init__(self, env: Any):
+        super().__init__(env)
+        ball = env.obs_slices["ball"]
+        self._end = ball.stop
+        self.obs_slices = {k: sl if sl.stop <= ball.start else
+                           slice(sl.start + 2, sl.stop + 2) for k, sl in env.obs_slices.items()}
+        self.obs_slices["ball"] = slice(ball.start, ball.stop + 2)
+        self.observation_shape = (env.observation_shape[0] + 2,)
+
+    def get_obs(self, state, params, noise) -> jax.Array:
+        obs = self.env.get_obs(state, params, noise)
+        me = self.env.roles(params)[0]
+        th = state.world.robots[me, 2]
+        v = state.world.ball_vel
+        c, s = jnp.cos(th), jnp.sin(th)
+        seen = obs[self.env.obs_slices["visible"].start]  # the ball's visibility flag
+        vel = jnp.stack([c * v[0] + s * v[1], -s * v[0] + c * v[1]]) * seen
+        return jnp.concatenate([obs[:self._end], vel.astype(obs.dtype), obs[self._end:]])
+
+    def reset(self, key, params=None):
+        params = self.env.default_params if params is None else params
+        state, noise = self.env.reset_state(key, params)
+        return self.get_obs(state, params, noise), state
+
+    def step(self, key, state, action, params=None):
+        params = self.env.default_params if params is None else params
+        state, noise, reward, terminated, truncated, info = self.env.step_state(
+            key, state, action, params)
+        return self.get_obs(state, params, noise), state, reward, terminated, truncated, info

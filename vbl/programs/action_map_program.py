@@ -30,6 +30,7 @@ from vbl.envs.shooting import ShootingEnv
 from vbl.params import ParamError, param, validate
 from vbl.programs.baselines import GridLearner, grid_program, grid_train
 from vbl.programs.map_figures import map_arrays
+from vbl.programs.tabular import curve_metric
 from vbl.spaces.action_based import (
     ExperienceParams,
     collect_experience,
@@ -127,7 +128,7 @@ def make_action_map_program(cfg: Any) -> Program:
             return carry, {"map_states": states}
         g, m = gprog.step(carry.grid, c.baseline.on(c.env))
         prims = carry.grid_primitives + m["episodes"] * m["mean_primitives"]
-        curve = "eval_success" if "eval_success" in m else "train_success"  # grid.train.eval_curve
+        curve = curve_metric(m)  # baseline.train.eval_curve
         return carry.replace(grid=g, grid_primitives=prims.astype(F32)), {
             "episodes": m["episodes"], f"grid_{curve}": m[curve],
             "grid_difficulty": m["difficulty"], "map_states": states}
@@ -164,4 +165,5 @@ def make_action_map_program(cfg: Any) -> Program:
         return out
 
     return Program(init=init, step=step, final=final,
-                   num_chunks=1 if gprog is None else gprog.num_chunks)
+                   num_chunks=1 if gprog is None else gprog.num_chunks,
+                   progress_metric=None if gprog is None else f"grid_{gprog.progress_metric}")

@@ -14,11 +14,12 @@ from flax import struct
 
 from vbl.agents.exploration import ScheduleParams
 from vbl.agents.qlearning import QRunnerParams
+from vbl.agents.state_maps import GridMap
 from vbl.agents.traces import TraceParams
 from vbl.envs.shooting import ShootingEnv, ShootingParams
 from vbl.params import section
-from vbl.programs.q_program import QTrainParams, make_q_program
-from vbl.spaces.grid import NUM_GRID_STATES, GridParams, grid_state
+from vbl.programs.tabular import TabularTrainParams, make_tabular_program
+from vbl.spaces.grid import GridParams
 
 __all__ = ["GridBaseline", "GridLearner", "grid_program", "grid_env", "grid_space", "grid_agent",
            "grid_train", "TASK_DIFFICULTY"]
@@ -60,12 +61,12 @@ CHUNK_STEPS = 100 * MEAN_ACTION
 """Learner steps (primitives of each robot) per training chunk: the 100 actions of a
 synchronous chunk, so ``NUM_CHUNKS`` and the per-chunk ``LR_SCALE`` keep their meaning."""
 
+EVAL_CHUNKS = MAX_STEPS // CHUNK_STEPS
+"""Chunks per evaluation (of ``CHUNK_STEPS`` learner steps, i.e. primitives): the
+env's time limit, not the evaluation's length, ends an unfinished first episode."""
+
 LEM_WINDOW = 100 * MEAN_ACTION
 """Learner steps (primitives) per LEM window: the synchronous learner's 100 actions."""
-
-EVAL_STEPS = MAX_STEPS
-"""Cap on learner steps (primitives) per evaluation episode: the env's time limit, not the
-cap, ends an unfinished first episode."""
 
 LEARNING_RATE = 0.05
 """Step size alpha. The "mean" duplicate rule averages the TD errors that one learner step
@@ -97,10 +98,9 @@ success (~2,300 and ~3,100 trials); to compare at 50 % (LEM ~4,600) run the no-L
 longer (``--sweep agent.lem.initial_difficulty=1.0 --set train.num_chunks=132``)."""
 
 EVAL_EVERY = 4
-"""Training chunks per point of the learning curve: the greedy evaluation of 32 fresh
-starts took 56 % of a chunk's time when it ran after every chunk; after every fourth chunk
-(25 curve points over 100 chunks; a crossing is read from the mean of 2 points, 64 starts)
-three quarters of that work goes, and training and the final evaluation stay the same."""
+"""Training chunks per point of the learning curve: an evaluation runs ``EVAL_CHUNKS``
+chunks, so after every chunk it would double the run; after every fourth chunk (25 curve
+points over 100 chunks, each from the 64 robots' fresh starts) it adds half."""
 
 LR_SCALE = ScheduleParams(schedule="linear", init_value=1.0, end_value=0.2,
                           transition_begin=60.0, transition_steps=20.0)
@@ -143,13 +143,13 @@ def grid_agent() -> QRunnerParams:
                      num_envs=64, chunk_steps=CHUNK_STEPS)
 
 
-def grid_train() -> QTrainParams:
+def grid_train() -> TabularTrainParams:
     """Evaluation at the task difficulty; the near-greedy policy (epsilon ``EVAL_EPSILON``)
     beside the greedy one draws the learning curve; step size ``LR_SCALE``."""
-    return QTrainParams(num_chunks=NUM_CHUNKS, eval_every=EVAL_EVERY,
-                        eval_difficulty=TASK_DIFFICULTY, eval_steps=EVAL_STEPS,
-                        eval_epsilon=EVAL_EPSILON, curve_epsilon=EVAL_EPSILON,
-                        lr_scale=LR_SCALE)
+    return TabularTrainParams(num_chunks=NUM_CHUNKS, eval_every=EVAL_EVERY,
+                              eval_difficulty=TASK_DIFFICULTY, eval_chunks=EVAL_CHUNKS,
+                              eval_epsilon=EVAL_EPSILON, curve_epsilon=EVAL_EPSILON,
+                              lr_scale=LR_SCALE)
 
 
 @struct.dataclass
@@ -160,7 +160,7 @@ class GridBaseline:
     env: ShootingParams = section(grid_env, doc="shooting task (Section 2), 100 s time limit")
     grid: GridParams = section(grid_space, doc="grid boundaries (319 states)")
     agent: QRunnerParams = section(grid_agent, doc="Q-learning, macro actions, LEM")
-    train: QTrainParams = section(grid_train, doc="run length and evaluation")
+    train: TabularTrainParams = section(grid_train, doc="run length and evaluation")
 
 
 @struct.dataclass
@@ -171,7 +171,7 @@ class GridLearner:
 
     grid: GridParams = section(grid_space, doc="grid boundaries (319 states)")
     agent: QRunnerParams = section(grid_agent, doc="Q-learning, macro actions, LEM")
-    train: QTrainParams = section(grid_train, doc="run length and evaluation")
+    train: TabularTrainParams = section(grid_train, doc="run length and evaluation")
 
     def on(self, env: ShootingParams) -> GridBaseline:
         """The full baseline config on ``env``."""
@@ -179,7 +179,7 @@ class GridLearner:
 
 
 def grid_program(cfg: Any):
-    """The engine program training one grid learner; ``cfg`` has the sections of
+    """The engine program training one grid learner (the tabular learner on
+    :class:`~vbl.agents.state_maps.GridMap`); ``cfg`` has the sections of
     :class:`GridBaseline` (``env``, ``grid``, ``agent``, ``train``)."""
-    return make_q_program(ShootingEnv(), lambda obs, c: grid_state(obs, c.grid), cfg,
-                          num_states=NUM_GRID_STATES)
+    return make_tabular_program(GridMap(ShootingEnv()), cfg)

@@ -12,7 +12,7 @@ from flax import struct
 from vbl.engine.experiment import RunResult
 from vbl.engine.plots import LINESTYLES, band, save_figure
 from vbl.params import ParamError, param
-from vbl.programs.q_program import curve_metric
+from vbl.programs.tabular import curve_metric
 from vbl.stats import first_crossing
 
 __all__ = ["CurveReportParams", "lem_label", "trials_to_levels", "lem_verdict",
@@ -31,7 +31,7 @@ class CurveReportParams:
                                   "first is drawn in the plot")
     smooth_chunks: int = param(2, doc="a crossing is the first curve point whose mean success "
                                "over the last this many points reaches the level (one "
-                               "evaluation has eval_envs starts: noisy)", ge=1)
+                               "evaluation has agent.num_envs starts: noisy)", ge=1)
 
     def check(self) -> None:
         lv = np.asarray(self.success_levels, float)

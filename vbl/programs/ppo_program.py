@@ -65,7 +65,8 @@ def _program(lrn, init_env, num_chunks: int, final_envs: int):
     def final(carry, c, key):
         return {"greedy_success_rate": lrn.evaluate(carry, key, 1.0, final_envs)}
 
-    return Program(init=init, step=step, num_chunks=num_chunks, final=final)
+    return Program(init=init, step=step, num_chunks=num_chunks, final=final,
+                   progress_metric="success_rate")
 
 
 def make_shooting_program(cfg: Any):

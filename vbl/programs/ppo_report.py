@@ -110,7 +110,7 @@ def tabular_cells(res: RunResult) -> dict[str, dict[str, str]]:
     (Table 2's defaults) from the ``table2_shoot_pass`` run folder beside ``res``'s (as
     ``vbl reproduce`` writes them); {} without one."""
     t2 = sibling_result(res, "table2_shoot_pass")
-    if t2 is None or "greedy_success_rate" not in t2.final:
+    if t2 is None or "greedy_success" not in t2.final:
         return {}
     out: dict[str, dict[str, str]] = {}
     for i, pt in enumerate(t2.points):
@@ -118,7 +118,7 @@ def tabular_cells(res: RunResult) -> dict[str, dict[str, str]]:
             continue
         task = "pass" if bool(_value(t2, pt, "env.task_pass")) else "shoot"
         inp = "cva" if bool(_value(t2, pt, "cva.use_cva")) else "current"
-        out.setdefault(task, {})[inp] = rate_cell(t2.final["greedy_success_rate"][i], 100.0,
+        out.setdefault(task, {})[inp] = rate_cell(t2.final["greedy_success"][i], 100.0,
                                                   ".1f")
     return out
 

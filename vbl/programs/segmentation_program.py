@@ -80,4 +80,5 @@ def make_segmentation_program(cfg) -> Program:
             out.update(tot, grid_success=gfin["greedy_success"])
         return out
 
-    return Program(init=init, step=step, num_chunks=tr.num_chunks, final=final)
+    return Program(init=init, step=step, num_chunks=tr.num_chunks, final=final,
+                   progress_metric="train_success")

@@ -1,15 +1,16 @@
-"""Table 2's report: the success table with the paper's column, CVA minus current features
-per task, and the velocity oracle's criterion (:data:`ORACLE_MARGIN`); and the rows beside
-the paper's numbers for ``vbl reproduce``'s headline table."""
+"""Table 2's report: the success table (greedy, near-greedy and random policies, primitives
+per decision) with the paper's column, CVA minus current features per task, and the
+velocity oracle's criterion (:data:`ORACLE_MARGIN`); and the rows beside the paper's
+numbers for ``vbl reproduce``'s headline table."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from vbl.engine.experiment import PaperRow, ReportSection
-from vbl.engine.report import claim, rate_cell
-from vbl.programs.cva_program import POINT_KEYS, VELOCITY, state_label, task_label
+from vbl.engine.report import claim, rate_cell, seeds_cell
 from vbl.programs.paper import TABLE2
+from vbl.programs.table2 import POINT_KEYS, VELOCITY, state_label, task_label
 
 __all__ = ["ORACLE_MARGIN", "report", "paper_rows"]
 
@@ -24,25 +25,42 @@ def _row(pt: dict, config) -> tuple[str, str, str]:
     return task_label(pt, config), state_label(pt, config), more
 
 
+def decision_primitives(res, point: int) -> np.ndarray:
+    """(seeds,) primitives per decision of point ``point``'s training episodes over the whole
+    run: the finished episodes' primitives over their (macro) actions."""
+    prims = np.asarray(res.curves["primitives"][point], np.float64).sum(axis=0)
+    return prims / np.maximum(np.asarray(res.curves["decisions"][point], np.float64).sum(axis=0),
+                              1.0)
+
+
 def report(res) -> ReportSection:
-    rows = ["| task | state vector | ours: greedy success % (mean ± 95% CI) | ours: last "
-            "training chunk % | paper % | CVA (l, n*) ball / goal / other |",
-            "|---|---|---|---|---|---|"]
-    n_ev = res.config.train.eval_chunks  # the last curve points are the greedy chunks
+    rows = ["| task | state vector | greedy % | near-greedy % | random % | last training "
+            "chunk % | primitives per decision: training / greedy | paper % | CVA (l, n*) "
+            "ball / goal / other |", "|---|---|---|---|---|---|---|---|---|"]
+    fin = res.final
     for i, pt in enumerate(res.points):
         task, state, more = _row(pt, res.config)
-        greedy = rate_cell(res.final["greedy_success_rate"][i], 100.0, ".1f")
-        train = rate_cell(res.curves["chunk_success"][i][-1 - n_ev], 100.0, ".1f")
+        cells = [rate_cell(fin[m][i], 100.0, ".1f") for m in
+                 ("greedy_success", "near_greedy_success", "random_success")]
+        train = rate_cell(res.curves["train_success"][i][-1], 100.0, ".1f")
+        per = (f"{seeds_cell(decision_primitives(res, i), fmt='.2f')} / "
+               f"{seeds_cell(fin['greedy_primitives_per_decision'][i], fmt='.2f')}")
         ident = " / ".join(
-            f"{np.median(res.final[f'lag_{o}'][i]):.0f}, {np.median(res.final[f'n_{o}'][i]):.0f}"
-            for o in res.config.cva.objects if f"lag_{o}" in res.final)
+            f"{np.median(fin[f'lag_{o}'][i]):.0f}, {np.median(fin[f'n_{o}'][i]):.0f}"
+            for o in res.config.cva.objects if f"lag_{o}" in fin)
         label = f"{task} ({more})" if more else task
-        rows.append(f"| {label} | {state} | {greedy} | {train} | "
+        rows.append(f"| {label} | {state} | {' | '.join(cells)} | {train} | {per} | "
                     f"{TABLE2[task].get(state, '-')} | "
                     f"{ident if state.startswith('cva') else '-'} |")
-    md = ("Table 2 (success rates, %), " + f"{res.seeds} seeds per row; greedy success = "
-          "first episode from a fresh start of each of the learner's envs after training "
-          "(CVA column: median selected lag and AIC order).\n\n" + "\n".join(rows))
+    ev = res.config.train
+    md = (f"Table 2 (success rates, %), {res.seeds} seeds per row, mean ± 95 % CI: the "
+          f"first episode from each of {ev.eval_rounds} x {res.config.agent.num_envs} fresh "
+          "starts after training, the same starts for the greedy policy, the near-greedy "
+          f"one (a uniform action with probability {ev.eval_epsilon}) and the uniformly "
+          "random one. Primitives per decision: primitives per macro action of the training "
+          "episodes (whole run) and of the greedy policy; an action ends when what the "
+          "state map perceives changes (for the CVA state: not its command terms). CVA "
+          "column: median selected lag and AIC order.\n\n" + "\n".join(rows))
     return ReportSection(markdown=md + _differences(res), figures=tuple(res.figures))
 
 
@@ -53,7 +71,7 @@ def _differences(res) -> str:
     for i, pt in enumerate(res.points):
         task, state, more = _row(pt, res.config)
         arms.setdefault((task, more), {})[state] = 100.0 * np.asarray(
-            res.final["greedy_success_rate"][i])
+            res.final["greedy_success"][i])
     lines, oracle = [], []
     for (task, more), a in arms.items():
         name = f"{task}{f' ({more})' if more else ''}"
@@ -82,7 +100,7 @@ def _differences(res) -> str:
 
 
 def paper_rows(res) -> list[PaperRow]:
-    update = res.config.q.update
+    update = res.config.agent.update
     values = {"q_learning": "", "monte_carlo": ", Monte Carlo values"}.get(update,
                                                                            f", {update}")
     rows = []
@@ -96,5 +114,5 @@ def paper_rows(res) -> list[PaperRow]:
             f"{names.get(state, state)}{values}"
             f"{', ' + more if more else ''}: greedy success %",
             str(TABLE2[task].get(state, "-")),
-            rate_cell(res.final["greedy_success_rate"][i], 100.0, ".1f")))
+            rate_cell(res.final["greedy_success"][i], 100.0, ".1f")))
     return rows

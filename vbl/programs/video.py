@@ -38,18 +38,19 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from vbl.agents.cva_state import make_cva_learner
 from vbl.agents.exploration import select_action
+from vbl.agents.state_maps import CVAMap
 from vbl.engine.checkpoint import Checkpoints
 from vbl.engine.config import EngineError
 from vbl.engine.jax_setup import engine_precision
 from vbl.engine.report import load_run
 from vbl.engine.sweep import make_plan
 from vbl.envs.macro import MacroWrapper, macro_env_params
-from vbl.envs.shoot_pass import ShootPassEnv
 from vbl.envs.shooting import ShootingEnv
 from vbl.params import param, validate
-from vbl.spaces.grid import NUM_GOAL_STATES, grid_state
+from vbl.programs.table2 import table2_env
+from vbl.programs.tabular import PREPARE_STREAM
+from vbl.spaces.grid import NUM_GOAL_STATES, NUM_GRID_STATES, grid_state
 from vbl.spaces.macro_action import stop_key
 from vbl.vision.render import RenderParams, render_world, to_uint8
 
@@ -99,6 +100,7 @@ class Policy(NamedTuple):
     env: Any                 #: gymnax-style env (auto-reset) the learner acts in
     env_params: Any
     state_fn: Callable       #: obs -> int32 discrete state
+    perceive_fn: Callable    #: obs -> int32 what the map perceives (ends a macro action)
     vector_fn: Callable      #: obs -> (d,) float32 state vector shown as bars
     macro: Any               #: MacroActionParams of the learner
     discount: float
@@ -124,35 +126,40 @@ def _find_world(state: Any) -> Any:
 def _grid_policy(cfg: Any, q, title: str) -> Policy:
     env = ShootingEnv()
     ep = cfg.env.replace(start_difficulty=float(cfg.train.eval_difficulty))
-    return Policy(env, ep, lambda o: grid_state(o, cfg.grid), lambda o: o,
-                  cfg.agent.macro, float(cfg.agent.discount), q,
+    state = lambda o: grid_state(o, cfg.grid)  # noqa: E731
+    return Policy(env, ep, state, state, lambda o: o, cfg.agent.macro,
+                  float(cfg.agent.discount), q,
                   float(cfg.train.eval_epsilon), cfg.env.world, lambda p: p.camera,
                   lambda p: jnp.int32(0), tuple(env.action_labels), NUM_GOAL_STATES, title)
 
 
-def _cva_policy(cfg: Any, q, fparams, title: str) -> Policy:
-    env = ShootPassEnv(cfg.task)
-    lrn = make_cva_learner(env, cfg.cva, cfg.q, m=2)
-    inner = fparams.inner.inner  # QuantizeParams -> HistoryParams -> ShootPassParams
-    cols = int(np.ceil(np.sqrt(lrn.num_states)))
-    return Policy(lrn.env, fparams, lambda o: o["index"], lambda o: o["state"],
-                  cfg.q.macro, float(cfg.q.discount), q, 0.0, inner.world,
-                  lambda p: env.learner_camera(p.inner.inner),
-                  lambda p: env.roles(p.inner.inner)[0], tuple(env.action_labels), cols,
-                  title)
+def _cva_map(cfg: Any) -> CVAMap:
+    return CVAMap(table2_env(cfg.task, cfg.ball_velocity), cfg.cva)
+
+
+def _cva_policy(cfg: Any, q, fitted, title: str) -> Policy:
+    smap = _cva_map(cfg)
+    shoot_pass = getattr(smap.base, "unwrapped", smap.base)
+    cols = int(np.ceil(np.sqrt(smap.num_states)))
+    return Policy(smap.env, smap.env_params(fitted, cfg.env), lambda o: o["index"],
+                  lambda o: o["perceived"], lambda o: o["state"], cfg.agent.macro,
+                  float(cfg.agent.discount), q, 0.0, cfg.env.world,
+                  lambda p: shoot_pass.learner_camera(p.inner.inner),
+                  lambda p: shoot_pass.roles(p.inner.inner)[0],
+                  tuple(shoot_pass.action_labels), cols, title)
 
 
 def _cva_prepared(cfg: Any, traced: Any, key) -> Any:
-    """The CVA learner's filtered-env params (models, codebooks) as its run built them:
-    ``Program.init``'s first key, the learner's traced config ``traced`` (the engine's
+    """The CVA map's fitted parameters (models, codebooks) as its run built them:
+    ``Program.init``'s key, the learner's traced config ``traced`` (the engine's
     per-learner config arrays)."""
-    lrn = make_cva_learner(ShootPassEnv(cfg.task), cfg.cva, cfg.q, m=2)
-    return jax.jit(lambda k, c: lrn.prepare(k, c.cva, c.env))(jax.random.split(key, 3)[0],
-                                                               traced)
+    smap = _cva_map(cfg)
+    return jax.jit(lambda k, c: smap.prepare(jax.random.fold_in(k, PREPARE_STREAM), c))(
+        key, traced)
 
 
-#: experiment name -> kind of learner its program trains ("grid": make_q_program on the
-#: grid states; "cva": the Table 2 CVA program)
+#: experiment name -> the state map its tabular learner learns on ("grid": the grid;
+#: "cva": Table 2's)
 RENDERABLE = {"grid_shooting": "grid", "table2_shoot_pass": "cva"}
 
 
@@ -209,15 +216,15 @@ def load_policy(folder: str | Path, policy: str = "learned", point: int = 0,
     if policy == "learned":
         carry = _final_carry(folder, spec, group, j)
     if kind == "grid":
-        q = carry.q if policy == "learned" else jnp.zeros((cfg.agent.num_states,
-                                                           cfg.agent.num_actions), F32)
+        q = carry.learner.q if policy == "learned" else jnp.zeros(
+            (NUM_GRID_STATES, cfg.agent.num_actions), F32)
         return _grid_policy(cfg, q, title)
     if policy == "learned":
-        return _cva_policy(cfg, carry.runner.q, carry.fparams, title)
+        return _cva_policy(cfg, carry.learner.q, carry.fitted, title)
     traced = jax.tree.map(lambda x: jnp.asarray(x[j]), group.configs)
-    fp = _cva_prepared(cfg, traced, jnp.asarray(plan.init_keys[seed]))
-    s = make_cva_learner(ShootPassEnv(cfg.task), cfg.cva, cfg.q, m=2).num_states
-    return _cva_policy(cfg, jnp.zeros((s, cfg.q.num_actions), F32), fp, title)
+    fitted = _cva_prepared(cfg, traced, jnp.asarray(plan.init_keys[seed]))
+    s = _cva_map(cfg).num_states
+    return _cva_policy(cfg, jnp.zeros((s, cfg.agent.num_actions), F32), fitted, title)
 
 
 # ---------------------------------------------------------------------------- rollout
@@ -230,7 +237,8 @@ def trajectories(pol: Policy, key: jax.Array, episodes: int, max_steps: int) -> 
     ``alive`` (the step belongs to the first episode), ``done`` (the episode ended at this
     step), ``success`` (it scored at this step),
     ``camera`` and ``me`` (the learner's camera and robot)."""
-    wrapper = MacroWrapper(pol.env, pol.state_fn, pol.macro, stop_key(pol.macro.stop_on))
+    wrapper = MacroWrapper(pol.env, pol.state_fn, pol.macro, stop_key(pol.macro.stop_on),
+                           pol.perceive_fn)
     wp = macro_env_params(pol.env_params, pol.macro, pol.discount)
 
     def one(k, wp, q):

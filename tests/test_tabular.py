@@ -1,11 +1,12 @@
-"""The Q-learning engine program (`vbl.programs.q_program`) and the grid_shooting experiment.
+"""The one tabular learner (`vbl.programs.tabular`) on a toy state map, and the
+grid_shooting experiment.
 
-* Fast: `make_q_program` runs through the engine on a tiny chain task with a start
-  difficulty (LEM off / on in one compiled group, 2 seeds): metrics are written with the
-  right shapes, the epsilon schedule and LEM difficulty follow their definitions, the
-  greedy policy solves the chain and the random policy's success matches an exact
-  dynamic-programming value; the grid_shooting report renders from that result;
-  trials-to-level against hand-computed values; bad configs fail clearly.
+* Fast: `make_tabular_program` on a toy map of a chain task with a start difficulty runs
+  through the engine (LEM off / on in one compiled group, 2 seeds): metrics are written
+  with the right shapes, the epsilon schedule and LEM difficulty follow their definitions,
+  the greedy policy solves the chain and the random and near-greedy policies' success
+  match exact dynamic-programming values; the grid_shooting report renders from that
+  result; trials-to-level against hand-computed values; bad configs fail clearly.
 * Slow (`-m slow`, compiles the shooting env, ~1-2 min CPU): the registered grid_shooting
   experiment at tiny size through the engine; its greedy policy beats the random policy
   on easy starts.
@@ -27,7 +28,7 @@ from tests import toy_worlds
 from vbl.agents import QRunnerParams
 from vbl.engine import Experiment, discover, get, run_experiment
 from vbl.params import ParamError, param, section
-from vbl.programs.q_program import QTrainParams, make_q_program
+from vbl.programs.tabular import TabularTrainParams, make_tabular_program
 from vbl.stats import first_crossing
 
 # ------------------------------------------------------------------ a chain with a start difficulty
@@ -88,25 +89,48 @@ def _agent() -> QRunnerParams:
                      num_envs=8, chunk_steps=30)
 
 
-def _train() -> QTrainParams:
-    return QTrainParams(num_chunks=4, eval_envs=64, eval_steps=8, final_eval_rounds=4)
+def _train() -> TabularTrainParams:
+    return TabularTrainParams(num_chunks=4, eval_rounds=32)  # 32 x 8 = 256 starts
 
 
 @struct.dataclass
 class ChainConfig:
     env: ChainParams = section(ChainParams)
     agent: QRunnerParams = section(_agent)
-    train: QTrainParams = section(_train)
+    train: TabularTrainParams = section(_train)
     report: ReportP = section(ReportP)
 
 
-def chain_state(obs, c):
-    return obs[0].astype(jnp.int32)
+class ChainMap:
+    """A toy :class:`~vbl.agents.state_maps.StateMap`: the chain's position, nothing to
+    fit."""
+
+    num_states = N
+    env = ChainEnv()
+
+    def prepare(self, key, c):
+        return ()
+
+    def env_params(self, fitted, env_params):
+        return env_params
+
+    def index(self, obs, c):
+        return obs[0].astype(jnp.int32)
+
+    def perceived(self, obs, c):
+        return self.index(obs, c)
+
+    def describe(self, fitted):
+        return {}
+
+
+def chain_program(cfg):
+    return make_tabular_program(ChainMap(), cfg)
 
 
 CHAIN_EXP = Experiment(
     name="chain_q_test", description="chain test", default_config=ChainConfig(),
-    make_program=lambda cfg: make_q_program(ChainEnv(), chain_state, cfg, num_states=N),
+    make_program=chain_program,
     sweep={"agent.lem.initial_difficulty": [1.0, 0.0]}, seeds=2)
 
 
@@ -123,7 +147,8 @@ def test_program_runs_through_engine(chain_result):
     assert sum(r["chunk"] != "final" for r in lines) == 4 * 2       # chunks x points
     assert sum(r["chunk"] == "final" for r in lines) == 2
     for name in ("episodes", "successes", "eval_success", "train_success", "difficulty",
-                 "epsilon", "td_abs", "lem_raises", "mean_primitives"):
+                 "epsilon", "td_abs", "lem_raises", "mean_primitives", "decisions",
+                 "primitives", "primitives_per_decision"):
         assert res.curves[name].shape == (2, 4, 2), name           # points, chunks, seeds
     assert np.all(res.curves["episodes"] > 0)
     for name in ("eval_success", "train_success"):
@@ -137,6 +162,10 @@ def test_program_runs_through_engine(chain_result):
     assert np.all(np.isin(d[1], [0.0, 0.5, 1.0])) and np.all(np.diff(d[1], axis=0) >= 0)
     np.testing.assert_allclose(res.curves["lem_raises"][1], d[1] / 0.5)
     assert np.all(res.final["num_states"] == N)
+    # macro actions off: every decision is one primitive
+    np.testing.assert_array_equal(res.curves["primitives"], res.curves["decisions"])
+    np.testing.assert_array_equal(res.curves["primitives_per_decision"][res.curves["decisions"]
+                                                                        > 0], 1.0)
 
 
 def test_greedy_solves_chain_random_matches_dp(chain_result):
@@ -144,7 +173,7 @@ def test_greedy_solves_chain_random_matches_dp(chain_result):
     np.testing.assert_array_equal(fin["greedy_success"], 1.0)       # optimal: right x5
     np.testing.assert_allclose(fin["greedy_primitives"], N - 1)
     exact = random_success_exact(0, 8)                              # eval at difficulty 1
-    n = 4 * 64                                                      # rounds x eval envs
+    n = 32 * 8                                                      # rounds x envs
     tol = 4 * np.sqrt(exact * (1 - exact) / n)
     assert np.all(np.abs(fin["random_success"] - exact) <= tol), (fin["random_success"], exact)
     # near-greedy (epsilon 0.05, default): the greedy move (right) unless a uniform action
@@ -194,11 +223,11 @@ def test_trials_to_level_hand_computed():
         first_crossing(success, trials, 0.5, window=0)
 
 
-def run_chain_program(train: QTrainParams, steps: int, seed: int = 0):
-    """The chain's Q program with ``train``, stepped ``steps`` times outside the engine:
+def run_chain_program(train: TabularTrainParams, steps: int, seed: int = 0):
+    """The chain's tabular program with ``train``, stepped ``steps`` times outside the engine:
     (program, final carry, per-step metrics as NumPy)."""
     cfg = ChainConfig().replace(train=train)
-    prog = make_q_program(ChainEnv(), chain_state, cfg, num_states=N)
+    prog = chain_program(cfg)
     carry = prog.init(jax.random.PRNGKey(seed), cfg)
     ms = []
     for _ in range(steps):
@@ -214,7 +243,7 @@ def test_lr_scale_schedule_sets_the_step_size_per_chunk():
 
     def run(scale: ScheduleParams, chunks: int):
         _, carry, ms = run_chain_program(_train().replace(lr_scale=scale), chunks)
-        return carry.q, [float(m["learning_rate"]) for m in ms]
+        return carry.learner.q, [float(m["learning_rate"]) for m in ms]
 
     lin = ScheduleParams(schedule="linear", init_value=1.0, end_value=0.2, transition_begin=1.0,
                          transition_steps=2.0)
@@ -247,8 +276,7 @@ def test_eval_every_trains_the_same_and_sums_the_chunks():
         for k in ("epsilon", "difficulty", "lem_raises"):
             assert m2[i][k] == pair[1][k]
     with pytest.raises(ParamError, match="multiple of train.eval_every"):
-        make_q_program(ChainEnv(), chain_state, ChainConfig().replace(
-            train=_train().replace(eval_every=3)))
+        chain_program(ChainConfig().replace(train=_train().replace(eval_every=3)))
 
 
 def test_difficulty_metric_is_the_one_in_effect_with_lem_off():
@@ -257,10 +285,12 @@ def test_difficulty_metric_is_the_one_in_effect_with_lem_off():
     cfg = ChainConfig()
     cfg = cfg.replace(env=cfg.env.replace(start_difficulty=0.25),
                       agent=cfg.agent.replace(lem=cfg.agent.lem.replace(enabled=False)))
-    prog = make_q_program(ChainEnv(), chain_state, cfg, num_states=N)
+    prog = chain_program(cfg)
     carry = prog.init(jax.random.PRNGKey(0), cfg)
     # the starts really are at that difficulty: position floor((1 - 0.25) * 4) = 3
-    np.testing.assert_array_equal(np.asarray(carry.env_state.s), 3)
+    np.testing.assert_array_equal(np.asarray(carry.learner.env_state.inner.s), 3)
+    # the evaluation's starts are at train.eval_difficulty (1: position 0)
+    np.testing.assert_array_equal(np.asarray(carry.starts.env_state.inner.s), 0)
     carry, m = jax.jit(prog.step)(carry, cfg)
     assert float(m["difficulty"]) == 0.25
 
@@ -272,15 +302,17 @@ def test_bad_config_errors():
         agent: QRunnerParams = section(_agent)
 
     with pytest.raises(ParamError, match="train"):
-        make_q_program(ChainEnv(), chain_state, NoTrain())
-    with pytest.raises(ParamError, match="num_states"):
-        make_q_program(ChainEnv(), chain_state, ChainConfig(), num_states=10)
-    bad = ChainConfig().replace(train=QTrainParams(eval_difficulty=1.5))
+        chain_program(NoTrain())
+    bad = ChainConfig().replace(train=TabularTrainParams(eval_difficulty=1.5))
     with pytest.raises(ParamError, match="eval_difficulty"):
-        make_q_program(ChainEnv(), chain_state, bad)
+        chain_program(bad)
     bad = ChainConfig().replace(agent=_agent().replace(num_envs=0))
     with pytest.raises(ParamError, match="num_envs"):
-        make_q_program(ChainEnv(), chain_state, bad)
+        chain_program(bad)
+    # an evaluation shorter than the time limit could not see an episode end
+    short = ChainConfig().replace(agent=_agent().replace(chunk_steps=5))
+    with pytest.raises(ParamError, match="env.max_steps=8"):
+        chain_program(short)
 
 
 # ------------------------------------------------------------------ the real experiment (slow)
@@ -290,8 +322,8 @@ def test_bad_config_errors():
 # in front of the goal facing it, ball just ahead; 6 s episodes); LEM never raises within
 # its 1000-step window.
 TINY = {"agent.num_envs": 32, "agent.chunk_steps": 80, "train.num_chunks": 3,
-        "train.eval_every": 1, "train.eval_envs": 32, "train.eval_steps": 60,
-        "train.final_eval_rounds": 2, "env.max_steps": 60, "train.eval_difficulty": 0.0,
+        "train.eval_every": 1, "train.eval_chunks": 1, "train.eval_rounds": 2,
+        "env.max_steps": 60, "train.eval_difficulty": 0.0,
         "agent.exploration.transition_steps": 160.0, "agent.lem.window": 1000}
 
 

@@ -1,0 +1,270 @@
+"""The one tabular learner of the paper's comparison: Q-learning on any state map.
+
+:func:`make_tabular_program` turns a :class:`~vbl.agents.state_maps.StateMap` and the
+batched runner of :mod:`vbl.agents.qlearning` into an engine
+:class:`~vbl.engine.Program` (one learner's run, chunked; the engine vmaps it over seeds x
+sweep values). Every state space the paper compares (the 319-state grid, the current
+image features, the CVA state, and the velocity oracle as a control) learns through it,
+with the same update rules (``agent.update``: one-step Q-learning, Monte Carlo, Peng's
+Q(lambda), ...), the same macro actions (``agent.macro``; an action ends when what the map
+perceives changes) and the same evaluation. Its config has the sections
+
+* ``env``: the task's env params (with ``start_difficulty``),
+* ``agent``: :class:`vbl.agents.qlearning.QRunnerParams` (the learner),
+* ``train``: :class:`TabularTrainParams` (run length, evaluation, step-size schedule),
+
+plus the map's own (``grid``; ``cva``).
+
+**Evaluation.** A policy is evaluated from ``agent.num_envs`` fresh starts at
+``train.eval_difficulty`` (drawn once, in ``init``) for ``train.eval_chunks`` chunks
+through the training step in evaluation mode (no learning, epsilon-greedy at a fixed
+epsilon): the fraction of the starts whose first episode scores (one not finished counts
+as a failure). The learning curve evaluates after every ``train.eval_every`` training
+chunks as extra chunks of the same compiled scan; ``final`` evaluates the greedy policy
+(epsilon 0), the near-greedy one (``train.eval_epsilon``) and the uniformly random one
+(an all-zero table, random tie-breaking, in the same action space) on the same
+``train.eval_rounds`` x ``agent.num_envs`` starts.
+
+Per engine chunk (``train.eval_every`` training chunks; metrics per learner, scalars):
+``episodes`` and ``successes`` (training episodes finished, and scored), ``train_success``
+(their ratio, 0 when none finished: with exploration and under the curriculum's starts;
+biased towards short episodes), ``mean_primitives`` (per finished training episode),
+``primitives``, ``decisions`` and ``primitives_per_decision`` (primitives and (macro)
+actions of the finished training episodes, and their ratio), ``difficulty`` (LEM's start
+difficulty, else the env's), ``lem_raises``, ``epsilon`` (exploration rate at the end),
+``td_abs`` (mean absolute TD error), ``learning_rate`` (of the last training chunk) and,
+with ``train.eval_curve``, ``eval_success`` (the policy at ``train.curve_epsilon``).
+
+``final``: ``greedy_success``, ``near_greedy_success``, ``random_success``,
+``greedy_primitives`` (mean episode length of the greedy policy), ``greedy_finished``
+(fraction of its starts that finished an episode), ``greedy_primitives_per_decision``,
+``num_states`` (S), ``states_with_value`` (states whose Q row moved from ``q_init``) and
+the map's own (:meth:`~vbl.agents.state_maps.StateMap.describe`).
+
+Keys: the training runner starts from the program's key itself; the map's fit, the
+evaluation starts and every evaluation draw from streams folded off it
+(:data:`PREPARE_STREAM`, :data:`EVAL_STREAM`), so switching the curve on or off leaves
+training unchanged.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from vbl.agents.exploration import ScheduleParams, schedule_value
+from vbl.agents.qlearning import Evaluation, QRunnerState, evaluation_stats, make_qlearning_runner
+from vbl.agents.state_maps import StateMap
+from vbl.engine.experiment import Program
+from vbl.params import ParamError, param, section, validate
+
+__all__ = ["TabularTrainParams", "TabularCarry", "make_tabular_program", "curve_metric",
+           "EVAL_STREAM", "PREPARE_STREAM"]
+
+F32 = jnp.float32
+EVAL_STREAM = 0x5EED  #: fold_in tag of the evaluation keys (kept off the training stream)
+PREPARE_STREAM = 0x9E9  #: fold_in tag of the map's fit (data collection, quantiser)
+SUMMED = ("episodes", "successes", "primitives", "actions")  #: chunk totals of the runner
+
+
+def curve_metric(curves: dict) -> str:
+    """The learning curve a run has: ``eval_success`` (``train.eval_curve`` on), else
+    ``train_success``."""
+    return "eval_success" if "eval_success" in curves else "train_success"
+
+
+@struct.dataclass
+class TabularTrainParams:
+    """Run length, evaluation and step-size schedule of the tabular learner (one chunk =
+    ``agent.chunk_steps`` learner steps of ``agent.num_envs`` environments)."""
+
+    num_chunks: int = param(40, doc="training chunks per run (a curve point and metrics "
+                            "line every eval_every of them)", static=True, ge=1)
+    eval_curve: bool = param(True, doc="evaluate the policy on fresh starts for the "
+                             "eval_success curve (every eval_every chunks); off: no "
+                             "eval_success curve (train_success is always recorded)",
+                             static=True)
+    eval_every: int = param(1, doc="training chunks per curve point: one engine chunk (a "
+                            "metrics line, the checkpoint unit) trains this many chunks, then "
+                            "evaluates once; num_chunks must be a multiple of it",
+                            static=True, ge=1)
+    eval_chunks: int = param(1, doc="chunks of agent.chunk_steps learner steps per "
+                             "evaluation: each env's first episode from its fresh start "
+                             "counts, one not finished by then is a failure (so "
+                             "eval_chunks x chunk_steps should reach env.max_steps)",
+                             static=True, ge=1)
+    eval_difficulty: float = param(1.0, doc="start difficulty of evaluation episodes (1: fully "
+                                   "random starts)", ge=0.0, le=1.0)
+    eval_epsilon: float = param(0.05, doc="final evaluation: epsilon of the near-greedy "
+                                "policy (greedy, but a uniform action with this probability: "
+                                "breaks cycles between aliased states)", ge=0.0, le=1.0)
+    curve_epsilon: float = param(0.0, doc="epsilon of the policy the eval_success curve "
+                                 "evaluates (0: greedy; e.g. eval_epsilon: near-greedy)",
+                                 ge=0.0, le=1.0)
+    eval_rounds: int = param(4, doc="final evaluation: rounds of agent.num_envs fresh starts, "
+                             "the same for the greedy, near-greedy and random policies",
+                             static=True, ge=1)
+    lr_scale: ScheduleParams = section(
+        lambda: ScheduleParams(schedule="constant", init_value=1.0),
+        doc="factor on agent.learning_rate in each training chunk, count = chunks done "
+        "(default constant 1: the agent's step size throughout)")
+
+    def check(self) -> None:
+        if self.num_chunks % self.eval_every:
+            raise ParamError(f"train.num_chunks={self.num_chunks} must be a multiple of "
+                             f"train.eval_every={self.eval_every}")
+
+
+@struct.dataclass
+class TabularCarry:
+    """One learner between chunks."""
+
+    learner: QRunnerState  #: the training runner's state
+    fitted: Any            #: the map's fitted parameters (StateMap.prepare)
+    starts: QRunnerState   #: (eval_rounds, ...) fresh evaluation starts
+
+
+def _require(cfg: Any) -> None:
+    missing = [n for n in ("env", "agent", "train") if not hasattr(cfg, n)]
+    if missing:
+        raise ParamError(f"a tabular program's config needs sections ['env', 'agent', "
+                         f"'train']; {type(cfg).__name__} lacks {missing}")
+    if not hasattr(cfg.env, "start_difficulty"):
+        raise ParamError(f"the evaluation sets env.start_difficulty; {type(cfg.env).__name__} "
+                         "has no such field")
+
+
+def _where(flag: jax.Array, a: Any, b: Any) -> Any:
+    return jax.tree.map(lambda x, y: jnp.where(flag, x, y), a, b)
+
+
+def _stack(first: Any, rest: Any, n: int) -> Any:
+    """Leaves ``[first, rest x n]`` along a new leading axis."""
+    return jax.tree.map(lambda a, b: jnp.concatenate(
+        [jnp.asarray(a)[None], jnp.broadcast_to(jnp.asarray(b), (n, *jnp.shape(b)))]),
+        first, rest)
+
+
+# shape: a program factory in the purejaxrl mould: init, step and final are short closures
+# over the static config, and the factory's length is theirs.
+def make_tabular_program(smap: StateMap, cfg: Any) -> Program:
+    """An engine :class:`~vbl.engine.Program` training one tabular learner on ``smap``.
+
+    ``cfg`` is the experiment's resolved config (sections ``env``, ``agent``, ``train`` and
+    the map's); only its static fields shape the program. ``agent.num_states`` is set to
+    the map's. Metrics in the module docstring; ParamError for a bad config.
+    """
+    _require(cfg)
+    train = validate(cfg.train, "train.")
+    agent = validate(cfg.agent.replace(num_states=int(smap.num_states)), "agent.")
+    steps = train.eval_chunks * agent.chunk_steps
+    max_steps = getattr(cfg.env, "max_steps", None)
+    if isinstance(max_steps, int) and steps < max_steps:
+        raise ParamError(f"train.eval_chunks={train.eval_chunks} x agent.chunk_steps="
+                         f"{agent.chunk_steps} must be >= env.max_steps={max_steps} (every "
+                         "evaluation episode must be able to finish)")
+    n_train, n_eval, rounds = train.eval_every, train.eval_chunks, train.eval_rounds
+
+    def runner(c):
+        """The runner whose state map reads the learner's config ``c``."""
+        return make_qlearning_runner(smap.env, lambda o: smap.index(o, c), agent, None,
+                                     lambda o: smap.perceived(o, c))
+
+    def params(c):
+        return c.agent.replace(num_states=agent.num_states)
+
+    def eval_setting(c, fitted):
+        """(agent params, env params) of an evaluation: fresh starts at eval_difficulty."""
+        d = jnp.asarray(c.train.eval_difficulty, F32)
+        p = params(c)
+        if agent.lem.enabled:  # start (and stay) at the evaluation's difficulty
+            p = p.replace(lem=p.lem.replace(initial_difficulty=d))
+        return p, smap.env_params(fitted, c.env.replace(start_difficulty=d))
+
+    def init(key, c) -> TabularCarry:
+        fitted = smap.prepare(jax.random.fold_in(key, PREPARE_STREAM), c)
+        p_eval, e_eval = eval_setting(c, fitted)
+        keys = jnp.concatenate([key[None], jax.random.split(jax.random.fold_in(
+            key, EVAL_STREAM), rounds)])
+        # the training runner and the evaluation starts in one vmapped init: the env's
+        # reset (its camera) is compiled once
+        both = jax.vmap(runner(c).init)(keys, _stack(params(c), p_eval, rounds),
+                                        _stack(smap.env_params(fitted, c.env), e_eval, rounds))
+        learner = jax.tree.map(lambda a: a[0], both)
+        return TabularCarry(learner, fitted, jax.tree.map(lambda a: a[1:], both))
+
+    def step(carry: TabularCarry, c):
+        run = runner(c)
+        p_eval, e_eval = eval_setting(c, carry.fitted)
+        e_train = smap.env_params(carry.fitted, c.env)
+        first = jax.tree.map(lambda a: a[0], carry.starts)
+
+        def chunk(state, j):
+            """Sub-chunk j: training (j < eval_every) or evaluation, one compiled run_chunk."""
+            learner, ev = state
+            evaluating = j >= n_train
+            lr = c.agent.learning_rate * schedule_value(
+                c.train.lr_scale, learner.steps // agent.chunk_steps)
+            fresh = first.replace(key=jax.random.fold_in(learner.key, EVAL_STREAM),
+                                  q=learner.q)
+            ev = _where(j == n_train, fresh, ev)
+            cur, m = run.run_chunk(
+                _where(evaluating, ev, learner), _where(evaluating, p_eval, params(c).replace(
+                    learning_rate=jnp.asarray(lr, F32))), _where(evaluating, e_eval, e_train),
+                Evaluation(evaluating, jnp.asarray(c.train.curve_epsilon, F32)))
+            learner, ev = _where(evaluating, learner, cur), _where(evaluating, cur, ev)
+            return (learner, ev), dict(m, learning_rate=jnp.full_like(m["rate"], lr))
+
+        subs = n_train + (n_eval if train.eval_curve else 0)
+        (learner, ev), ms = jax.lax.scan(chunk, (carry.learner, first), jnp.arange(subs))
+        t = jax.tree.map(lambda a: a[:n_train], ms)  # (eval_every, chunk_steps) training
+        tot = {k: jnp.sum(t[k]).astype(F32) for k in SUMMED}
+        n = jnp.maximum(tot["episodes"], 1.0)
+        out = dict(episodes=tot["episodes"], successes=tot["successes"],
+                   train_success=tot["successes"] / n, mean_primitives=tot["primitives"] / n,
+                   primitives=tot["primitives"], decisions=tot["actions"],
+                   primitives_per_decision=tot["primitives"] / jnp.maximum(tot["actions"], 1.0),
+                   difficulty=(learner.lem.difficulty if agent.lem.enabled else
+                               jnp.asarray(c.env.start_difficulty)).astype(F32),
+                   lem_raises=learner.lem.raises.astype(F32), epsilon=t["rate"][-1, -1],
+                   td_abs=jnp.mean(jnp.mean(t["td_abs"], axis=1)).astype(F32),
+                   learning_rate=t["learning_rate"][-1, -1].astype(F32))
+        if train.eval_curve:
+            e = jax.tree.map(lambda a: a[n_train:], ms)
+            out["eval_success"] = evaluation_stats(ev, e)["success_rate"]
+        return carry.replace(learner=learner), out
+
+    def final(carry: TabularCarry, c, key):
+        run = runner(c)
+        p_eval, e_eval = eval_setting(c, carry.fitted)
+        q = carry.learner.q
+        # three policies on the same starts: learned greedy, learned near-greedy
+        # (eval_epsilon), zero table (uniformly random)
+        qs = jnp.stack([q, q, jnp.zeros_like(q)])
+        eps = jnp.stack([jnp.float32(0.0), jnp.asarray(c.train.eval_epsilon, F32),
+                         jnp.float32(0.0)])
+
+        def policy(k, q_p, e_p):
+            return jax.vmap(lambda kk, st: run.evaluate(kk, q_p, p_eval, e_eval, steps, e_p,
+                                                        start=st))(
+                jax.random.split(k, rounds), carry.starts)
+
+        res = jax.vmap(policy)(jax.random.split(key, 3), qs, eps)  # each (3, rounds)
+        mean = {k: jnp.mean(v, axis=1).astype(F32) for k, v in res.items()}
+        moved = jnp.any(q != jnp.asarray(c.agent.q_init, F32), axis=1)
+        return dict(greedy_success=mean["success_rate"][0],
+                    near_greedy_success=mean["success_rate"][1],
+                    random_success=mean["success_rate"][2],
+                    greedy_primitives=mean["mean_primitives"][0],
+                    greedy_finished=mean["finished"][0],
+                    greedy_primitives_per_decision=mean["primitives_per_decision"][0],
+                    num_states=jnp.asarray(agent.num_states, F32),
+                    states_with_value=jnp.sum(moved).astype(F32),
+                    **smap.describe(carry.fitted))
+
+    return Program(init=init, step=step, num_chunks=train.num_chunks // train.eval_every,
+                   final=final,
+                   progress_metric="eval_success" if train.eval_curve else "train_success")
