@@ -64,9 +64,9 @@ def grid_run(tmp_path_factory):
                            jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype),
                                         g.configs))
     carry = jax.tree.map(lambda s: np.zeros(s.shape, s.dtype), shape)
-    q = np.zeros(carry.q.shape, np.float32)
+    q = np.zeros(carry.learner.q.shape, np.float32)
     q[..., FORWARD] = 1.0
-    carry = carry.replace(q=q)
+    carry = carry.replace(learner=carry.learner.replace(q=q))
     ck = Checkpoints(folder / "checkpoints", spec["fingerprint"])
     ck.save(g.step_offset + g.num_chunks, carry, {"group": 0})
     ck.close()

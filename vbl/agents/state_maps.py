@@ -43,6 +43,7 @@ from vbl.agents.cva_state import (
     prepare_state,
     state_count,
 )
+from vbl.params import validate
 from vbl.spaces.grid import NUM_GRID_STATES, grid_state
 
 __all__ = ["StateMap", "GridMap", "CVAMap"]
@@ -103,6 +104,7 @@ class CVAMap:
     command terms (the current features are their own)."""
 
     def __init__(self, env: Any, p: CVAStateParams):
+        validate(p)
         self.m = command_dim(env)
         check_collection(env, p, self.m)
         self.num_states = state_count(env, p)
