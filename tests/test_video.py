@@ -26,6 +26,7 @@ from vbl.engine.registry import discover, get
 from vbl.engine.runner import resolve
 from vbl.engine.sweep import make_plan
 from vbl.programs.video import (
+    RENDERABLE,
     VideoParams,
     _sizes,
     load_policy,
@@ -199,3 +200,36 @@ def test_table2_random_policy_films_the_learner(tmp_path):
 
     d = state_dim(ShootPassEnv(config.task), config.cva)  # what the quantiser sees
     assert np.asarray(v.traj["vector"]).shape[-1] == d
+
+
+def render_points_block() -> str:
+    """docs/render.md's list of the renderable experiments' sweep points, from their
+    default sweeps (the order of a run's points)."""
+    discover()
+    lines = []
+    for name in sorted(RENDERABLE):
+        exp = get(name)
+        config, sweep, seeds, _ = resolve(exp)
+        plan = make_plan(exp, config, sweep, seeds, 0)
+        pts = [", ".join(f"{k.rsplit('.', 1)[-1]}={v}" for k, v in p.items())
+               for p in plan.points]
+        lines.append(f"* `{name}`: " + "; ".join(f"{i} `{p}`" for i, p in enumerate(pts)))
+    return "\n".join(lines)
+
+
+def test_render_doc_lists_the_points_of_the_default_sweeps():
+    """The --point indices docs/render.md gives are those of the experiments' sweeps
+    (regenerate: PYTHONPATH=. python tests/test_video.py)."""
+    text = (REPO / "docs" / "render.md").read_text()
+    begin, end = "<!-- render points -->\n", "\n<!-- /render points -->"
+    block = text[text.index(begin) + len(begin):text.index(end)]
+    assert block == render_points_block(), (
+        "docs/render.md: regenerate: PYTHONPATH=. python tests/test_video.py")
+
+
+if __name__ == "__main__":
+    path = REPO / "docs" / "render.md"
+    text = path.read_text()
+    head, rest = text.split("<!-- render points -->\n", 1)
+    path.write_text(head + "<!-- render points -->\n" + render_points_block()
+                    + rest[rest.index("\n<!-- /render points -->"):])
