@@ -26,7 +26,7 @@ from flax import struct
 from vbl.agents.qlearning import QRunnerParams
 from vbl.engine import Experiment, ReportSection, RunResult, register
 from vbl.engine.experiment import PaperRow
-from vbl.engine.report import claim, rate_cell
+from vbl.engine.report import claim, rate_cell, seeds_cell
 from vbl.envs.shooting import ShootingParams
 from vbl.params import section
 from vbl.programs.baselines import (
@@ -46,7 +46,7 @@ from vbl.programs.curves import (
     plot_success_vs_trials,
     trials_to_levels,
 )
-from vbl.programs.tabular import TabularTrainParams, curve_metric
+from vbl.programs.tabular import TabularTrainParams, curve_metric, decision_primitives
 from vbl.spaces.grid import NUM_GRID_STATES, GridParams
 from vbl.stats import mean_ci95
 
@@ -76,12 +76,14 @@ def report(res: RunResult) -> ReportSection:
           f"Near-greedy: a uniform action with probability {res.config.train.eval_epsilon} "
           "(breaks cycles between aliased grid states; on an aliased state space the best "
           "memoryless policy can be stochastic).", "",
-          "| policy | greedy success | near-greedy success | training trials |",
-          "|---|---|---|---|"]
+          "| policy | greedy success | near-greedy success | training trials | primitives "
+          "per decision: training / greedy |", "|---|---|---|---|---|"]
     md += [f"| {n} | {rate_cell(fin['greedy_success'][p])} | "
-           f"{rate_cell(fin['near_greedy_success'][p])} | {runs[n]:.0f} |"
+           f"{rate_cell(fin['near_greedy_success'][p])} | {runs[n]:.0f} | "
+           f"{seeds_cell(decision_primitives(res, p), fmt='.2f')} / "
+           f"{seeds_cell(fin['greedy_primitives_per_decision'][p], fmt='.2f')} |"
            for p, n in enumerate(names)]
-    md += [f"| random policy | {rate_cell(rnd)} | | |", "",
+    md += [f"| random policy | {rate_cell(rnd)} | | | |", "",
            f"Training trials (episodes) until {curve_description(res)[0]}, averaged over the "
            f"last {window} chunks, first reaches each level: median over the seeds (a seed "
            "that never reaches it counts as slowest) and seeds reaching it.", "",

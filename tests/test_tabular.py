@@ -343,3 +343,29 @@ def test_grid_shooting_tiny_run(tmp_path):
     greedy, rand = res.final["greedy_success"][1], res.final["random_success"][1]
     assert np.all(greedy >= rand + 0.2), (greedy, rand)
     assert (Path(res.out_dir) / "summary.json").exists()
+
+
+def test_evaluation_mode_leaves_the_table_and_training_unchanged():
+    """run_chunk in evaluation mode (traced) does not move the table and acts greedily; with
+    the mode off it trains exactly as without a mode (bit for bit)."""
+    from vbl.agents.qlearning import Evaluation, make_qlearning_runner
+
+    cfg = ChainConfig()
+    agent = cfg.agent.replace(lem=cfg.agent.lem.replace(enabled=False))
+    run = make_qlearning_runner(ChainEnv(), lambda o: o[0].astype(jnp.int32), agent)
+    c0 = run.init(jax.random.PRNGKey(0), agent, cfg.env)
+    q = jnp.zeros((N, 2)).at[:, 1].set(1.0)  # "right" everywhere: the chain's optimum
+    c0 = c0.replace(q=q)
+    chunk = jax.jit(run.run_chunk)
+    plain, m_plain = chunk(c0, agent, cfg.env)
+    off, m_off = chunk(c0, agent, cfg.env, Evaluation(jnp.bool_(False), jnp.float32(0.0)))
+    for a, b in zip(jax.tree.leaves((plain, m_plain)), jax.tree.leaves((off, m_off)),
+                    strict=True):
+        np.testing.assert_array_equal(a, b)
+    on, m_on = chunk(c0, agent, cfg.env, Evaluation(jnp.bool_(True), jnp.float32(0.0)))
+    np.testing.assert_array_equal(on.q, q)
+    np.testing.assert_array_equal(m_on["rate"], 0.0)
+    # greedy "right" from position 0 scores every episode in N - 1 primitives
+    done = np.asarray(m_on["episodes"]).sum()
+    assert done > 0 and np.asarray(m_on["successes"]).sum() == done
+    np.testing.assert_array_equal(np.asarray(m_on["primitives"]).sum(), (N - 1) * done)

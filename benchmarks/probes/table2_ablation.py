@@ -80,7 +80,7 @@ def rows(res) -> dict[str, dict]:
     """Per row ("shoot, cva + true velocity", ...): greedy success per seed (%) and the
     training episodes' primitives per decision per seed."""
     from vbl.programs.table2 import state_label, task_label
-    from vbl.programs.table2_report import decision_primitives
+    from vbl.programs.tabular import decision_primitives
 
     out = {}
     for i, pt in enumerate(res.points):

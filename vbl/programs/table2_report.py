@@ -11,6 +11,7 @@ from vbl.engine.experiment import PaperRow, ReportSection
 from vbl.engine.report import claim, rate_cell, seeds_cell
 from vbl.programs.paper import TABLE2
 from vbl.programs.table2 import POINT_KEYS, VELOCITY, state_label, task_label
+from vbl.programs.tabular import decision_primitives
 
 __all__ = ["ORACLE_MARGIN", "report", "paper_rows"]
 
@@ -23,14 +24,6 @@ def _row(pt: dict, config) -> tuple[str, str, str]:
     """(task, state vector, the point's other settings) of a sweep point."""
     more = ", ".join(f"{k}={v}" for k, v in pt.items() if k not in POINT_KEYS)
     return task_label(pt, config), state_label(pt, config), more
-
-
-def decision_primitives(res, point: int) -> np.ndarray:
-    """(seeds,) primitives per decision of point ``point``'s training episodes over the whole
-    run: the finished episodes' primitives over their (macro) actions."""
-    prims = np.asarray(res.curves["primitives"][point], np.float64).sum(axis=0)
-    return prims / np.maximum(np.asarray(res.curves["decisions"][point], np.float64).sum(axis=0),
-                              1.0)
 
 
 def report(res) -> ReportSection:

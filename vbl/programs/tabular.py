@@ -53,6 +53,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from vbl.agents.exploration import ScheduleParams, schedule_value
@@ -62,7 +63,7 @@ from vbl.engine.experiment import Program
 from vbl.params import ParamError, param, section, validate
 
 __all__ = ["TabularTrainParams", "TabularCarry", "make_tabular_program", "curve_metric",
-           "EVAL_STREAM", "PREPARE_STREAM"]
+           "decision_primitives", "EVAL_STREAM", "PREPARE_STREAM"]
 
 F32 = jnp.float32
 EVAL_STREAM = 0x5EED  #: fold_in tag of the evaluation keys (kept off the training stream)
@@ -74,6 +75,14 @@ def curve_metric(curves: dict) -> str:
     """The learning curve a run has: ``eval_success`` (``train.eval_curve`` on), else
     ``train_success``."""
     return "eval_success" if "eval_success" in curves else "train_success"
+
+
+def decision_primitives(res: Any, point: int) -> np.ndarray:
+    """(seeds,) primitives per decision of sweep point ``point``'s training episodes over a
+    finished run ``res`` (a RunResult): their primitives over their (macro) actions."""
+    prims = np.asarray(res.curves["primitives"][point], np.float64).sum(axis=0)
+    acts = np.asarray(res.curves["decisions"][point], np.float64).sum(axis=0)
+    return prims / np.maximum(acts, 1.0)
 
 
 @struct.dataclass
