@@ -77,8 +77,8 @@ SPECS = {
     # async macro actions: every runner step is one primitive of every env
     "table2_shoot_pass": Spec(
         env=lambda c: (ShootPassEnv("shoot"), c.env),
-        envs_per_learner=lambda c: c.q.num_envs,
-        primitives=lambda c, m: c.q.chunk_steps * c.q.num_envs * m["learners"]),
+        envs_per_learner=lambda c: c.agent.num_envs,
+        primitives=lambda c, m: c.agent.chunk_steps * c.agent.num_envs * m["learners"]),
     # async macro actions as well; one engine chunk trains train.eval_every chunks
     "grid_shooting": Spec(
         env=lambda c: (ShootingEnv(), c.env),

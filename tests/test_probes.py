@@ -186,3 +186,25 @@ def test_pixel_collection_cost(capsys):
 def test_probe_has_tiny_option(name):
     """Every probe offers the size its test runs at."""
     assert "--tiny" in (PROBES / f"{name}.py").read_text()
+
+
+def test_table2_ablation(capsys, tmp_path):
+    """The ablation probe at toy size: its state map whose index ends actions runs through
+    the tabular program and its results file holds per-seed rows; the findings' table is
+    the committed results file's."""
+    import json
+
+    out = tmp_path / "ablation"
+    run_probe("table2_ablation", ["--tiny", "--out", str(out)], capsys)
+    data = json.loads((out / "table2_ablation.json").read_text())
+    rows = data["results"]["q_learning"]["index_ends_actions"]
+    assert set(rows) == {"shoot, current", "shoot, cva"}
+    for r in rows.values():
+        assert len(r["greedy"]) == 2 and all(0.0 <= g <= 100.0 for g in r["greedy"])
+        assert all(p >= 1.0 for p in r["primitives_per_decision"])  # a decision >= 1 primitive
+    committed = run_probe("table2_ablation", ["--table"], capsys).strip()
+    note = (PROBES.parents[1] / "docs" / "findings" / "table2_shoot_pass.md").read_text()
+    begin, end = "<!-- table2_ablation -->\n", "\n<!-- /table2_ablation -->"
+    assert note[note.index(begin) + len(begin):note.index(end)] == committed, (
+        "docs/findings/table2_shoot_pass.md: the ablation table differs from "
+        "`python benchmarks/probes/table2_ablation.py --table`")

@@ -17,15 +17,19 @@ them and come from the default run):
 * ``no_command_terms``: ``cva.command_terms=False``: the state without the command terms;
 * ``cancor_weights``: ``cva.code_weights=cancor``;
 * ``aic_order``: ``cva.keep_beyond_order=False``: the components beyond the AIC order are 0;
-* ``ball_4``: ``cva.n_used_objects=(4, 4, 4)``: the ball's 4 leading components.
+* ``ball_4``: ``cva.n_used_objects=(4, 4, 4)``: the ball's 4 leading components;
+* ``cva_ball_only``: the ball's CVA state with the goal's and the other robot's current
+  features (``cva.objects=(ball,)``, ``cva.extra=(goal, other)``): what the goal's and the
+  other robot's CVA blocks cost.
 
 Not an experiment and not a benchmark; run from the repository root:
 
     python benchmarks/probes/table2_ablation.py [--out runs/table2_ablation]
         [--variants NAME ...] [--updates q_learning monte_carlo] [--tiny]
 
-Writes ``benchmarks/results/table2_ablation.json`` (``--tiny``: a smoke test at toy size
-that writes into ``--out`` only). Cost: about 45 min on 2 cores (12 quick runs). Cited by
+Writes ``benchmarks/results/table2_ablation.json``, keeping the rows of earlier
+invocations that this one does not rerun (``--tiny``: a smoke test at toy size that writes
+into ``--out`` only). Cost: about 45 min on 2 cores (12 quick runs). Cited by
 docs/findings/table2_shoot_pass.md.
 """
 
@@ -34,6 +38,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import subprocess
 import sys
 from pathlib import Path
 
@@ -49,6 +54,8 @@ VARIANTS = {
     "cancor_weights": {"cva.code_weights": "cancor"},
     "aic_order": {"cva.keep_beyond_order": False},
     "ball_4": {"cva.n_used_objects": (4, 4, 4)},
+    "cva_ball_only": {"cva.objects": ("ball",), "cva.n_used_objects": (8,),
+                      "cva.extra": ("goal", "other")},
 }
 UPDATES = ("q_learning", "monte_carlo")
 TINY = {"agent.num_envs": 4, "agent.chunk_steps": 10, "env.max_steps": 10,
@@ -130,19 +137,42 @@ def gaps(results: dict) -> dict:
     return out
 
 
-def table(results: dict, diffs: dict) -> str:
-    lines = ["| update | variant | row | greedy % | primitives per decision |",
-             "|---|---|---|---|---|"]
-    for update, by_variant in results.items():
+def _cell(values) -> str:
+    from vbl.stats import mean_ci95
+
+    m, h = mean_ci95(np.asarray(values, np.float64))
+    return f"{m:.1f} ± {h:.1f}"
+
+
+def table(data: dict) -> str:
+    """The findings' table of a results file: per update rule and variant, the CVA state's
+    greedy success and its gap to the oracle when identified with the true velocity, per
+    task, and the CVA learner's primitives per decision; then the reference rows."""
+    head = ("| update | variant | shoot: CVA % | shoot: CVA + true velocity − oracle | pass: "
+            "CVA % | pass: CVA + true velocity − oracle | primitives per decision, CVA: "
+            "shoot / pass |")
+    lines = [head, "|---|---|---|---|---|---|---|"]
+    res, diffs = data["results"], data["differences"]
+    for update, by_variant in res.items():
         for variant, r in by_variant.items():
-            for row, v in r.items():
-                g, p = np.asarray(v["greedy"]), np.asarray(v["primitives_per_decision"])
-                lines.append(f"| {update} | {variant} | {row} | {g.mean():.1f} | "
-                             f"{p.mean():.2f} |")
-    for update, by_variant in diffs.items():
-        for variant, d in by_variant.items():
-            for what, (m, h) in d.items():
-                lines.append(f"| {update} | {variant} | {what} | {m:+.1f} ± {h:.1f} | |")
+            d = diffs.get(update, {}).get(variant, {})
+            gap = [("{:+.1f} ± {:.1f}".format(*d[f"{t}: cva + true velocity - oracle"])
+                    if f"{t}: cva + true velocity - oracle" in d else "-")
+                   for t in ("shoot", "pass")]
+            per = " / ".join(f"{np.mean(r[f'{t}, cva']['primitives_per_decision']):.2f}"
+                             for t in ("shoot", "pass"))
+            lines.append(f"| {update} | {variant} | {_cell(r['shoot, cva']['greedy'])} | "
+                         f"{gap[0]} | {_cell(r['pass, cva']['greedy'])} | {gap[1]} | {per} |")
+    lines += ["", "| update | reference row (defaults) | shoot % | pass % | primitives per "
+              "decision: shoot / pass |", "|---|---|---|---|---|"]
+    for update, by_variant in res.items():
+        r = by_variant.get("defaults", {})
+        for state in ("current", "current + true velocity"):
+            if f"shoot, {state}" in r:
+                per = " / ".join(f"{np.mean(r[f'{t}, {state}']['primitives_per_decision']):.2f}"
+                                 for t in ("shoot", "pass"))
+                lines.append(f"| {update} | {state} | {_cell(r[f'shoot, {state}']['greedy'])} "
+                             f"| {_cell(r[f'pass, {state}']['greedy'])} | {per} |")
     return "\n".join(lines)
 
 
@@ -152,21 +182,34 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
     ap.add_argument("--updates", nargs="+", default=list(UPDATES), choices=list(UPDATES))
     ap.add_argument("--tiny", action="store_true", help="smoke-test size (2 seeds, 2 chunks)")
+    ap.add_argument("--table", action="store_true", help="print the table of the committed "
+                    "results file and stop (no runs)")
     args = ap.parse_args(argv)
+    if args.table:
+        print(table(json.loads(RESULT.read_text())))
+        return 0
     if args.tiny:
         args.variants, args.updates = ["index_ends_actions"], ["q_learning"]
     out = Path(args.out)
     dest = out / "table2_ablation.json" if args.tiny else RESULT
     dest.parent.mkdir(parents=True, exist_ok=True)
-    results: dict = {}
-    for update in args.updates:
-        for variant in args.variants:
-            results.setdefault(update, {})[variant] = run(variant, update, out, args.tiny)
-            diffs = gaps(results)  # written after every run: a stopped probe keeps its rows
-            dest.write_text(json.dumps({"results": results, "differences": diffs}, indent=1)
-                            + "\n")
-            print(f"{update} / {variant}: done", flush=True)
-    print(table(results, gaps(results)))
+    jobs = [(u, v) for u in args.updates for v in args.variants]
+    if len(jobs) > 1 and not args.tiny:  # one process per run: compiled programs do not pile up
+        for u, v in jobs:
+            subprocess.run([sys.executable, __file__, "--out", str(out), "--variants", v,
+                            "--updates", u], check=True)
+        print(table(json.loads(dest.read_text())))
+        return 0
+    # the rows of earlier invocations are kept (a variant run alone adds to them)
+    results: dict = json.loads(dest.read_text())["results"] if dest.exists() else {}
+    for update, variant in jobs:
+        results.setdefault(update, {})[variant] = run(variant, update, out, args.tiny)
+        diffs = gaps(results)  # written after every run: a stopped probe keeps its rows
+        dest.write_text(json.dumps({"results": results, "differences": diffs}, indent=1)
+                        + "\n")
+        print(f"{update} / {variant}: done", flush=True)
+    if not args.tiny:
+        print(table({"results": results, "differences": gaps(results)}))
     return 0
 
 
