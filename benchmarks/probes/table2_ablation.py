@@ -1,26 +1,31 @@
 """Probe: where Table 2's CVA state loses to the velocity oracle (an ablation at quick scale).
 
-What it measures: ``table2_shoot_pass --quick`` (16 seeds, shooting and passing) with one
-step of the CVA state's construction changed at a time, with one-step Q-learning and with
-Monte Carlo values (the ``monte_carlo`` preset): greedy success of the CVA state and of the
-CVA state identified from the features plus the ball's true velocity, beside the velocity
-oracle (current features + true velocity) and the current features of the default run,
-and the training episodes' primitives per decision. A gap between "CVA + true velocity"
-and the oracle is lost in how the state is built and quantised, not in estimating the
-velocity.
+What it measures: ``table2_shoot_pass --quick`` (16 seeds, shooting and passing) with the
+CVA state built in other ways, with one-step Q-learning and with Monte Carlo values (the
+``monte_carlo`` preset): greedy success of the CVA state and of the CVA state identified
+from the features plus the ball's true velocity, beside the velocity oracle (current
+features + true velocity) and the current features, and the training episodes' primitives
+per decision. A gap between "CVA + true velocity" and the oracle is lost in how the state
+is built and quantised, not in estimating the velocity.
 
-Variants (each the defaults with one change; the current-feature rows do not depend on
-them and come from the default run):
+Variants (the current-feature rows do not depend on them and come from ``figure11``):
 
-* ``index_ends_actions``: a macro action ends when the state's index changes, command
-  terms included (the rule before the perceived index; a state map of this probe);
-* ``no_command_terms``: ``cva.command_terms=False``: the state without the command terms;
-* ``cancor_weights``: ``cva.code_weights=cancor``;
-* ``aic_order``: ``cva.keep_beyond_order=False``: the components beyond the AIC order are 0;
-* ``ball_4``: ``cva.n_used_objects=(4, 4, 4)``: the ball's 4 leading components;
-* ``cva_ball_only``: the ball's CVA state with the goal's and the other robot's current
-  features (``cva.objects=(ball,)``, ``cva.extra=(goal, other)``): what the goal's and the
-  other robot's CVA blocks cost.
+* ``figure11``: a CVA state of every observed object (the paper's Figure 11): the ball's 8
+  components, the goal's and the other robot's 4 (``FIGURE11``); every row;
+* ``index_ends_actions``: ``figure11`` where a macro action ends when the state's index
+  changes, command terms included (the rule before the perceived index; a state map of
+  this probe);
+* ``no_command_terms`` and ``cancor_weights``: rows of the results file measured on the
+  tag ``prune/cva-ablation-knobs``, whose ``cva.command_terms=False`` (``figure11``
+  without the command terms) and ``cva.code_weights=cancor`` (components weighted by
+  their canonical correlations in the quantiser) measured no gain and were removed;
+* ``aic_order``: ``figure11`` with ``cva.keep_beyond_order=False`` (the components beyond
+  the AIC order are 0: the paper's state);
+* ``ball_4``: ``figure11`` with ``cva.n_used_objects=(4, 4, 4)``;
+* ``cva_ball_other``: the CVA states of the ball and the other robot, the goal's current
+  features (``cva.objects=(ball, other)``, ``cva.extra=(goal,)``);
+* ``defaults``: Table 2's state, the ball's CVA state with the goal's and the other
+  robot's current features.
 
 Not an experiment and not a benchmark; run from the repository root:
 
@@ -29,7 +34,7 @@ Not an experiment and not a benchmark; run from the repository root:
 
 Writes ``benchmarks/results/table2_ablation.json``, keeping the rows of earlier
 invocations that this one does not rerun (``--tiny``: a smoke test at toy size that writes
-into ``--out`` only). Cost: about 45 min on 2 cores (12 quick runs). Cited by
+into ``--out`` only). Cost: about 4-7 min per run on 2 cores (a process each). Cited by
 docs/findings/table2_shoot_pass.md.
 """
 
@@ -47,15 +52,21 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 RESULT = ROOT / "benchmarks" / "results" / "table2_ablation.json"
 
+FIGURE11 = {"cva.objects": ("ball", "goal", "other"), "cva.n_used_objects": (8, 4, 4),
+            "cva.extra": ()}
+"""The construction the ablation starts from: a CVA state of every observed object (the
+paper's Figure 11), the ball's 8 components and the others' 4."""
+
+BASE = "figure11"  #: the variant run with every row (its current-feature and oracle rows)
+
 VARIANTS = {
+    "figure11": FIGURE11,
+    "index_ends_actions": FIGURE11,
+    "aic_order": {**FIGURE11, "cva.keep_beyond_order": False},
+    "ball_4": {**FIGURE11, "cva.n_used_objects": (4, 4, 4)},
+    "cva_ball_other": {"cva.objects": ("ball", "other"), "cva.n_used_objects": (8, 4),
+                       "cva.extra": ("goal",)},
     "defaults": {},
-    "index_ends_actions": {},
-    "no_command_terms": {"cva.command_terms": False},
-    "cancor_weights": {"cva.code_weights": "cancor"},
-    "aic_order": {"cva.keep_beyond_order": False},
-    "ball_4": {"cva.n_used_objects": (4, 4, 4)},
-    "cva_ball_only": {"cva.objects": ("ball",), "cva.n_used_objects": (8,),
-                      "cva.extra": ("goal", "other")},
 }
 UPDATES = ("q_learning", "monte_carlo")
 TINY = {"agent.num_envs": 4, "agent.chunk_steps": 10, "env.max_steps": 10,
@@ -102,8 +113,8 @@ def run(variant: str, update: str, out: Path, tiny: bool) -> dict[str, dict]:
 
     exp = experiment(variant)
     sets = dict(VARIANTS[variant], **(TINY if tiny else {}))
-    # the variants change the CVA state only: their current-feature rows are the defaults'
-    sweep = None if variant == "defaults" else {
+    # the variants change the CVA state only: their current-feature rows are the base's
+    sweep = None if variant == BASE else {
         "env.task_pass": [False, True], "cva.use_cva": [True], "ball_velocity": [False, True]}
     if tiny:  # one compilation: both state vectors, no velocity control
         sweep = {"cva.use_cva": [False, True], "ball_velocity": [False]}
@@ -120,7 +131,7 @@ def gaps(results: dict) -> dict:
 
     out = {}
     for update, by_variant in results.items():
-        base = by_variant.get("defaults")
+        base = by_variant.get(BASE)
         if base is None:
             continue
         for variant, r in by_variant.items():
@@ -163,10 +174,10 @@ def table(data: dict) -> str:
                              for t in ("shoot", "pass"))
             lines.append(f"| {update} | {variant} | {_cell(r['shoot, cva']['greedy'])} | "
                          f"{gap[0]} | {_cell(r['pass, cva']['greedy'])} | {gap[1]} | {per} |")
-    lines += ["", "| update | reference row (defaults) | shoot % | pass % | primitives per "
+    lines += ["", "| update | reference row (figure11) | shoot % | pass % | primitives per "
               "decision: shoot / pass |", "|---|---|---|---|---|"]
     for update, by_variant in res.items():
-        r = by_variant.get("defaults", {})
+        r = by_variant.get(BASE, {})
         for state in ("current", "current + true velocity"):
             if f"shoot, {state}" in r:
                 per = " / ".join(f"{np.mean(r[f'{t}, {state}']['primitives_per_decision']):.2f}"

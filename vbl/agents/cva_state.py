@@ -79,7 +79,6 @@ __all__ = [
     "check_collection",
     "prepare_state",
     "state_count",
-    "code_weights",
 ]
 
 #: What the Q-learner sees (static choice). "select": both state vectors are built (zero-padded
@@ -117,15 +116,7 @@ class CVAStateParams:
                                     "its AIC order 4 drops (docs/cva_learning.md)")
     extra: tuple = param((), doc="extra obs_slices appended unfiltered to the state vector "
                          "(e.g. 'lost_side')", static=True)
-    command_terms: bool = param(True, doc="the filtered states hold the learner's command "
-                                "terms (the paper's CVA state, U p with p the past inputs and "
-                                "outputs); False: only the output terms (what the camera "
-                                "gives; the command terms at their data mean)", static=True)
-    code_weights: str = param("equal", doc="how the state's components weigh in the "
-                              "quantiser's distance: 'equal' (each z-scored) or 'cancor' "
-                              "(each CVA component z-scored, then times its canonical "
-                              "correlation: the distance of the predicted future; current "
-                              "features weigh 1)", static=True, choices=("equal", "cancor"))
+
     collect_steps: int = param(2000, doc="random-action steps collected per learner for the "
                                "identification and the quantiser fit", unit="step",
                                static=True, ge=10)
@@ -257,8 +248,7 @@ def history_wrapper(env: Any, p: CVAStateParams, m: int,
     object, state kind and extra slices (its filters are the :class:`ObjectModel` s);
     ``world``: also the state vector without command terms."""
     return HistoryFilterWrapper(env, tuple(p.objects), max(p.ident.lags()), m,
-                                p.n_used_per_object(), p.state, tuple(p.extra), world=world,
-                                commands=p.command_terms)
+                                p.n_used_per_object(), p.state, tuple(p.extra), world=world)
 
 
 def filtered_env(env: Any, p: CVAStateParams, m: int) -> QuantizeWrapper:
@@ -318,22 +308,7 @@ def prepare_state(env: Any, p: CVAStateParams, m: int, key: jax.Array, pp: CVASt
     use_cva = jnp.asarray(pp.use_cva, bool)
     xs = hist.replay(data["obs"], data["u"], data["start"],
                      HistoryParams(env_params, models, use_cva))
-    weights = code_weights(hist, p, models, use_cva) if p.code_weights == "cancor" else None
-    return models, fit_quantizer(k_q, xs, pp.quantizer, groups=groups,
-                                 weights=weights), use_cva
-
-
-def code_weights(hist: HistoryFilterWrapper, p: CVAStateParams, models: tuple,
-                 use_cva: jax.Array) -> jax.Array:
-    """(d,) weights of the state's components in the quantiser: each CVA component's
-    canonical correlation (0 beyond the ones used), 1 for current features and extra
-    slices; 'select': by the traced ``use_cva``."""
-    blocks = []
-    for k, model in zip(hist.block_dims()[:len(p.objects)], models, strict=True):
-        cc = jnp.pad(model.cancor, (0, k - model.cancor.shape[0]))
-        blocks.append(cc if p.state == "cva" else jnp.where(use_cva, cc, 1.0))
-    extra = sum(s.stop - s.start for s in hist.extra)
-    return jnp.concatenate(blocks + [jnp.ones((extra,), jnp.float32)]).astype(jnp.float32)
+    return models, fit_quantizer(k_q, xs, pp.quantizer, groups=groups), use_cva
 
 
 def state_count(env: Any, p: CVAStateParams) -> int:

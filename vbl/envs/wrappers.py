@@ -150,14 +150,11 @@ class HistoryFilterWrapper(Wrapper):
       kind: one of :data:`KINDS`. extra: ``obs_slices`` appended unfiltered.
       filter_fn: ``(filter, hist_u (lag, m), hist_y (lag, q), commands=True) -> (k,)``.
       world: also return the vector without command terms (static).
-      commands: the state vector holds the filters' command terms (static; False: the
-        state is the world vector).
     """
 
     def __init__(self, env: Any, objects: tuple, lag: int, m: int, out_dims: tuple,
                  kind: str = "cva", extra: tuple = (),
-                 filter_fn: Callable = linear_filter, world: bool = False,
-                 commands: bool = True):
+                 filter_fn: Callable = linear_filter, world: bool = False):
         super().__init__(env)
         if kind not in KINDS:
             raise ParamError(f"state kind={kind!r} is not allowed; choose one of {list(KINDS)}")
@@ -169,7 +166,7 @@ class HistoryFilterWrapper(Wrapper):
         if len(out_dims) != len(objects):
             raise ParamError(f"out_dims={out_dims!r} needs one size per object {objects!r}")
         self.kind, self.lag, self.m, self.filter_fn = kind, int(lag), int(m), filter_fn
-        self.world, self.commands = bool(world), bool(commands)
+        self.world = bool(world)
         self.out_dims = tuple(int(k) for k in out_dims)
         self.slices = [slices[o] for o in objects]
         self.extra = [slices[o] for o in extra]
@@ -184,12 +181,10 @@ class HistoryFilterWrapper(Wrapper):
                                                               for s in self.extra)
 
     def state_vector(self, hist_u, hist_y, obs, filters, use_filter=True,
-                     commands: bool | None = None) -> jax.Array:
+                     commands: bool = True) -> jax.Array:
         """(d,) float32: the object blocks then the extra slices; kind 'select': each object
         block zero-padded to :meth:`block_dims` in both vectors, ``use_filter`` picks;
-        ``commands=False``: the filtered blocks without their command terms (default: the
-        wrapper's ``commands``)."""
-        commands = self.commands if commands is None else commands
+        ``commands=False``: the filtered blocks without their command terms."""
         extra = [obs[s].astype(F32) for s in self.extra]
         cur = [obs[s].astype(F32) for s in self.slices]
         if self.kind == "current":

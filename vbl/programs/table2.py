@@ -44,18 +44,19 @@ VELOCITY = " + true velocity"
 
 
 def table2_cva() -> CVAStateParams:
-    """State-construction defaults for the two-robot task (docs/cva_learning.md, "Choices
-    and why")."""
-    # The ball's 8 leading canonical components (keep_beyond_order: its AIC order is 4,
-    # and components 5-8 carry its approach velocity: docs/findings/table2_shoot_pass.md,
-    # "What the CVA state carries (probe)"), the goal's and the other robot's 4 (with 2
-    # their horizontal image position is poorly represented). No unfiltered lost-side
-    # flags. One k-means codebook per object (product VQ): ball 64 x goal 8 x other
-    # robot 8 = 4,096 states for both state vectors (docs/findings/table2_shoot_pass.md,
-    # "How the passing result came about").
+    """State-construction defaults for the two-robot task: the ball's CVA state with the
+    goal's and the other robot's current features (docs/cva_learning.md, "Choices and
+    why")."""
+    # The ball's CVA state, its 8 leading canonical components (keep_beyond_order: its AIC
+    # order is 4, and components 5-8 carry its velocity), beside the goal's and the other
+    # robot's current features: their CVA blocks (4 components each) lost 7-24 points of
+    # greedy success against the velocity oracle (docs/findings/table2_shoot_pass.md,
+    # "Where the CVA state loses information"). So the two rows differ in the ball alone.
+    # One k-means codebook per block (product VQ): ball 64 x goal 8 x other robot 8 =
+    # 4,096 states for both state vectors.
     return CVAStateParams(
-        state="select", objects=("ball", "goal", "other"), n_used=4,
-        n_used_objects=(8, 4, 4), keep_beyond_order=True, extra=(), collect_steps=3000,
+        state="select", objects=("ball",), n_used=4, n_used_objects=(8,),
+        keep_beyond_order=True, extra=("goal", "other"), collect_steps=3000,
         ident=CVAParams(lag=0, lag_max=3, lag_rule="paper", logdet_stop=-100.0),
         quantizer=QuantizerParams(method="product_vq", group_codes=(64, 8, 8),
                                   kmeans_iters=20))

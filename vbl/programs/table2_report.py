@@ -27,9 +27,10 @@ def _row(pt: dict, config) -> tuple[str, str, str]:
 
 
 def report(res) -> ReportSection:
+    objects = " / ".join(res.config.cva.objects)
     rows = ["| task | state vector | greedy % | near-greedy % | random % | last training "
-            "chunk % | primitives per decision: training / greedy | paper % | CVA (l, n*) "
-            "ball / goal / other |", "|---|---|---|---|---|---|---|---|---|"]
+            f"chunk % | primitives per decision: training / greedy | paper % | CVA (l, n*): "
+            f"{objects} |", "|---|---|---|---|---|---|---|---|---|"]
     fin = res.final
     for i, pt in enumerate(res.points):
         task, state, more = _row(pt, res.config)
