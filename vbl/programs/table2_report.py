@@ -5,6 +5,9 @@ numbers for ``vbl reproduce``'s headline table."""
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 
 from vbl.engine.experiment import PaperRow, ReportSection
@@ -14,6 +17,9 @@ from vbl.programs.table2 import POINT_KEYS, VELOCITY, state_label, task_label
 from vbl.programs.tabular import decision_primitives
 
 __all__ = ["ORACLE_MARGIN", "report", "paper_rows"]
+
+#: The ablation probe's results (benchmarks/probes/table2_ablation.py), in a source tree.
+ABLATION = Path(__file__).resolve().parents[2] / "benchmarks" / "results" / "table2_ablation.json"
 
 #: Greedy success points by which the velocity oracle must beat the current features for
 #: the task to show the paper's claim (docs/findings/table2_shoot_pass.md, "Controls").
@@ -55,7 +61,31 @@ def report(res) -> ReportSection:
           "episodes (whole run) and of the greedy policy; an action ends when what the "
           "state map perceives changes (for the CVA state: not its command terms). CVA "
           "column: median selected lag and AIC order.\n\n" + "\n".join(rows))
-    return ReportSection(markdown=md + _differences(res), figures=tuple(res.figures))
+    return ReportSection(markdown=md + _differences(res) + _ablation(),
+                         figures=tuple(res.figures))
+
+
+def _ablation() -> str:
+    """The quick-scale ablation's finding (``benchmarks/probes/table2_ablation.py``) from
+    its committed results file, where the source tree holds it; "" otherwise."""
+    if not ABLATION.is_file():
+        return ""
+    diffs = json.loads(ABLATION.read_text())["differences"].get("q_learning", {})
+    if not {"figure11", "defaults"} <= set(diffs):
+        return ""
+
+    def gap(variant: str, task: str) -> str:
+        return "{:+.1f} ± {:.1f}".format(*diffs[variant][f"{task}: cva + true velocity - oracle"])
+
+    return ("\n\nWhere the CVA state loses information (the ablation at quick scale, one-step "
+            "Q-learning, 16 seeds: `python benchmarks/probes/table2_ablation.py`, "
+            "docs/findings/table2_shoot_pass.md): the CVA state identified with the ball's "
+            "true velocity minus the velocity oracle, greedy success points, is "
+            f"{gap('figure11', 'shoot')} (shooting) and {gap('figure11', 'pass')} (passing) "
+            "with a CVA block per object, and "
+            f"{gap('defaults', 'shoot')} and {gap('defaults', 'pass')} with the ball's CVA "
+            "block beside the goal's and the other robot's current features, the state of "
+            "this experiment's defaults.")
 
 
 def _differences(res) -> str:
