@@ -10,7 +10,7 @@ bootstrapping: a state that aliases situations needing different actions does no
 spread a wrong value to its predecessors. On the on-line learner's boxes Monte Carlo
 values beat one-step Q-learning by far (docs/findings/fig9_incremental.md,
 "Deviations and the evidence for them"); on Table 2's task too
-(docs/findings/table2_shoot_pass.md, "Why shooting is not reproduced").
+(docs/findings/table2_shoot_pass.md, "Controls").
 """
 
 from __future__ import annotations
