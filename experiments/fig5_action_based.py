@@ -132,7 +132,7 @@ EXPERIMENT = register(Experiment(
            "eval.episodes": 64, "eval.grid_baseline": False,
            "refine.iterations": 8, "refine.episodes": 128, "refine.horizon": 100},
     seeds=4, quick_seeds=4, paper_result=True, cost=119.0,  # s, cold --quick (load ~2-3)
-    full_cost={None: 128.0},  # s of the committed full run
+    full_cost={None: 99.0},  # s of the committed full run
     paper={"figure": "5", "claim": "states differ from the programmer's grid; F/B labels"},
     report=report, paper_rows=paper_rows,
 ))
