@@ -41,8 +41,9 @@ def test_fig5_and_fig9_compare_with_grid_shootings_own_config():
     """The grid baseline of Figures 5 and 9 is grid_shooting's default config (the preset of
     vbl.programs.baselines), except the evaluation's start difficulty, pinned to 0.1
     (grid_shooting's own task is fully random starts), and, for Figure 9, the budget (robots,
-    chunks: equal experience) and a curve point every chunk; Figure 9 evaluates at its
-    training episodes' difficulty."""
+    chunks: equal experience), a curve point every chunk and an evaluation of one chunk
+    (its episodes last 150 primitives) over as many starts as grid_shooting's (rounds x
+    robots); Figure 9 evaluates at its training episodes' difficulty."""
     from vbl.engine.registry import get
 
     gs = get("grid_shooting").default_config
@@ -50,8 +51,11 @@ def test_fig5_and_fig9_compare_with_grid_shootings_own_config():
         g = get(name).default_config.baseline
         budget = dict(num_envs=gs.agent.num_envs), dict(num_chunks=gs.train.num_chunks)
         if name == "fig9_incremental":
-            assert g.train.eval_every == 1
-            budget[1]["eval_every"] = gs.train.eval_every
+            assert g.train.eval_every == 1 and g.train.eval_chunks * g.agent.chunk_steps >= 150
+            assert (g.train.eval_rounds * g.agent.num_envs
+                    >= gs.train.eval_rounds * gs.agent.num_envs / 2)
+            budget[1].update(eval_every=gs.train.eval_every, eval_chunks=gs.train.eval_chunks,
+                             eval_rounds=gs.train.eval_rounds)
         assert g.agent.replace(**budget[0]) == gs.agent and g.grid == gs.grid, name
         assert g.train.replace(eval_difficulty=gs.train.eval_difficulty, **budget[1]) == \
             gs.train, name

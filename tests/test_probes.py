@@ -52,7 +52,7 @@ def test_probe_files_all_tested():
 
 
 def test_ball_velocity_r2(capsys):
-    out = run_probe("ball_velocity_r2", ["--tiny", "--set", "cva.n_used_objects=6,4,4"], capsys)
+    out = run_probe("ball_velocity_r2", ["--tiny", "--set", "cva.n_used_objects=(6)"], capsys)
     fits, _, held = out.partition("Held out")
     rows = table(fits)
     assert [r[0].split(" (")[0] for r in rows] == ["steps used", "current", "CVA", "oracle",

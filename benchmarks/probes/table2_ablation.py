@@ -116,8 +116,8 @@ def run(variant: str, update: str, out: Path, tiny: bool) -> dict[str, dict]:
     # the variants change the CVA state only: their current-feature rows are the base's
     sweep = None if variant == BASE else {
         "env.task_pass": [False, True], "cva.use_cva": [True], "ball_velocity": [False, True]}
-    if tiny:  # one compilation: both state vectors, no velocity control
-        sweep = {"cva.use_cva": [False, True], "ball_velocity": [False]}
+    if tiny:  # one compilation: the shooter's two state vectors, no velocity control
+        sweep = {"env.task_pass": [False], "cva.use_cva": [False, True], "ball_velocity": [False]}
     res = run_experiment(exp, sets=sets, sweep=sweep, quick=True, seeds=2 if tiny else None,
                          out=out / f"{variant}-{update}", overwrite=True, quiet=True,
                          plots=False, preset=None if update == "q_learning" else update)
