@@ -49,6 +49,7 @@ training unchanged.
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Any
 
 import jax
@@ -157,6 +158,70 @@ def _stack(first: Any, rest: Any, n: int) -> Any:
         first, rest)
 
 
+def _check_evaluation_length(train: TabularTrainParams, agent: Any, env: Any) -> None:
+    """ParamError when an evaluation is shorter than the env's time limit."""
+    steps = train.eval_chunks * agent.chunk_steps
+    max_steps = getattr(env, "max_steps", None)
+    if isinstance(max_steps, int) and steps < max_steps:
+        raise ParamError(f"train.eval_chunks={train.eval_chunks} x agent.chunk_steps="
+                         f"{agent.chunk_steps} must be >= env.max_steps={max_steps} (every "
+                         "evaluation episode must be able to finish)")
+
+
+def _training_metrics(t: dict, learner: QRunnerState, difficulty: jax.Array) -> dict:
+    """A chunk's metrics (module docstring) from the runner metrics ``t`` of its training
+    sub-chunks, each (eval_every, chunk_steps), and the learner after them."""
+    tot = {k: jnp.sum(t[k]).astype(F32) for k in SUMMED}
+    n = jnp.maximum(tot["episodes"], 1.0)
+    return dict(episodes=tot["episodes"], successes=tot["successes"],
+                train_success=tot["successes"] / n, mean_primitives=tot["primitives"] / n,
+                primitives=tot["primitives"], decisions=tot["actions"],
+                primitives_per_decision=tot["primitives"] / jnp.maximum(tot["actions"], 1.0),
+                difficulty=difficulty.astype(F32), lem_raises=learner.lem.raises.astype(F32),
+                epsilon=t["rate"][-1, -1],
+                td_abs=jnp.mean(jnp.mean(t["td_abs"], axis=1)).astype(F32),
+                learning_rate=t["learning_rate"][-1, -1].astype(F32))
+
+
+def _policy_metrics(evaluate: Any, key: jax.Array, q: jax.Array, starts: QRunnerState,
+                    eval_epsilon: Any) -> dict:
+    """The final evaluation's success metrics: the learned greedy policy, the learned
+    near-greedy one (``eval_epsilon``) and the zero table (uniformly random), each on the
+    same starts (R, ...); ``evaluate(key, q, epsilon, start)`` evaluates one round."""
+    rounds = jax.tree.leaves(starts)[0].shape[0]
+    qs = jnp.stack([q, q, jnp.zeros_like(q)])
+    eps = jnp.stack([jnp.float32(0.0), jnp.asarray(eval_epsilon, F32), jnp.float32(0.0)])
+
+    def policy(k, q_p, e_p):
+        return jax.vmap(lambda kk, st: evaluate(kk, q_p, e_p, st))(
+            jax.random.split(k, rounds), starts)
+
+    res = jax.vmap(policy)(jax.random.split(key, 3), qs, eps)  # each (3, rounds)
+    mean = {k: jnp.mean(v, axis=1).astype(F32) for k, v in res.items()}
+    return dict(greedy_success=mean["success_rate"][0],
+                near_greedy_success=mean["success_rate"][1],
+                random_success=mean["success_rate"][2],
+                greedy_primitives=mean["mean_primitives"][0],
+                greedy_finished=mean["finished"][0],
+                greedy_primitives_per_decision=mean["primitives_per_decision"][0])
+
+
+def _runner(smap: StateMap, agent: Any, c: Any) -> Any:
+    """The runner (static fields of ``agent``) whose state map reads the learner's config
+    ``c``."""
+    return make_qlearning_runner(smap.env, lambda o: smap.index(o, c), agent, None,
+                                 lambda o: smap.perceived(o, c))
+
+
+def _evaluation_setting(smap: StateMap, agent: Any, c: Any, fitted: Any) -> tuple:
+    """(agent params, env params) of an evaluation: fresh starts at eval_difficulty."""
+    d = jnp.asarray(c.train.eval_difficulty, F32)
+    p = c.agent.replace(num_states=agent.num_states)
+    if agent.lem.enabled:  # start (and stay) at the evaluation's difficulty
+        p = p.replace(lem=p.lem.replace(initial_difficulty=d))
+    return p, smap.env_params(fitted, c.env.replace(start_difficulty=d))
+
+
 # shape: a program factory in the purejaxrl mould: init, step and final are short closures
 # over the static config, and the factory's length is theirs.
 def make_tabular_program(smap: StateMap, cfg: Any) -> Program:
@@ -169,29 +234,15 @@ def make_tabular_program(smap: StateMap, cfg: Any) -> Program:
     _require(cfg)
     train = validate(cfg.train, "train.")
     agent = validate(cfg.agent.replace(num_states=int(smap.num_states)), "agent.")
+    _check_evaluation_length(train, agent, cfg.env)
     steps = train.eval_chunks * agent.chunk_steps
-    max_steps = getattr(cfg.env, "max_steps", None)
-    if isinstance(max_steps, int) and steps < max_steps:
-        raise ParamError(f"train.eval_chunks={train.eval_chunks} x agent.chunk_steps="
-                         f"{agent.chunk_steps} must be >= env.max_steps={max_steps} (every "
-                         "evaluation episode must be able to finish)")
     n_train, n_eval, rounds = train.eval_every, train.eval_chunks, train.eval_rounds
 
-    def runner(c):
-        """The runner whose state map reads the learner's config ``c``."""
-        return make_qlearning_runner(smap.env, lambda o: smap.index(o, c), agent, None,
-                                     lambda o: smap.perceived(o, c))
+    runner = partial(_runner, smap, agent)
+    eval_setting = partial(_evaluation_setting, smap, agent)
 
     def params(c):
         return c.agent.replace(num_states=agent.num_states)
-
-    def eval_setting(c, fitted):
-        """(agent params, env params) of an evaluation: fresh starts at eval_difficulty."""
-        d = jnp.asarray(c.train.eval_difficulty, F32)
-        p = params(c)
-        if agent.lem.enabled:  # start (and stay) at the evaluation's difficulty
-            p = p.replace(lem=p.lem.replace(initial_difficulty=d))
-        return p, smap.env_params(fitted, c.env.replace(start_difficulty=d))
 
     def init(key, c) -> TabularCarry:
         fitted = smap.prepare(jax.random.fold_in(key, PREPARE_STREAM), c)
@@ -229,18 +280,9 @@ def make_tabular_program(smap: StateMap, cfg: Any) -> Program:
 
         subs = n_train + (n_eval if train.eval_curve else 0)
         (learner, ev), ms = jax.lax.scan(chunk, (carry.learner, first), jnp.arange(subs))
-        t = jax.tree.map(lambda a: a[:n_train], ms)  # (eval_every, chunk_steps) training
-        tot = {k: jnp.sum(t[k]).astype(F32) for k in SUMMED}
-        n = jnp.maximum(tot["episodes"], 1.0)
-        out = dict(episodes=tot["episodes"], successes=tot["successes"],
-                   train_success=tot["successes"] / n, mean_primitives=tot["primitives"] / n,
-                   primitives=tot["primitives"], decisions=tot["actions"],
-                   primitives_per_decision=tot["primitives"] / jnp.maximum(tot["actions"], 1.0),
-                   difficulty=(learner.lem.difficulty if agent.lem.enabled else
-                               jnp.asarray(c.env.start_difficulty)).astype(F32),
-                   lem_raises=learner.lem.raises.astype(F32), epsilon=t["rate"][-1, -1],
-                   td_abs=jnp.mean(jnp.mean(t["td_abs"], axis=1)).astype(F32),
-                   learning_rate=t["learning_rate"][-1, -1].astype(F32))
+        out = _training_metrics(jax.tree.map(lambda a: a[:n_train], ms), learner,
+                                learner.lem.difficulty if agent.lem.enabled else
+                                jnp.asarray(c.env.start_difficulty))
         if train.eval_curve:
             e = jax.tree.map(lambda a: a[n_train:], ms)
             out["eval_success"] = evaluation_stats(ev, e)["success_rate"]
@@ -250,26 +292,10 @@ def make_tabular_program(smap: StateMap, cfg: Any) -> Program:
         run = runner(c)
         p_eval, e_eval = eval_setting(c, carry.fitted)
         q = carry.learner.q
-        # three policies on the same starts: learned greedy, learned near-greedy
-        # (eval_epsilon), zero table (uniformly random)
-        qs = jnp.stack([q, q, jnp.zeros_like(q)])
-        eps = jnp.stack([jnp.float32(0.0), jnp.asarray(c.train.eval_epsilon, F32),
-                         jnp.float32(0.0)])
-
-        def policy(k, q_p, e_p):
-            return jax.vmap(lambda kk, st: run.evaluate(kk, q_p, p_eval, e_eval, steps, e_p,
-                                                        start=st))(
-                jax.random.split(k, rounds), carry.starts)
-
-        res = jax.vmap(policy)(jax.random.split(key, 3), qs, eps)  # each (3, rounds)
-        mean = {k: jnp.mean(v, axis=1).astype(F32) for k, v in res.items()}
         moved = jnp.any(q != jnp.asarray(c.agent.q_init, F32), axis=1)
-        return dict(greedy_success=mean["success_rate"][0],
-                    near_greedy_success=mean["success_rate"][1],
-                    random_success=mean["success_rate"][2],
-                    greedy_primitives=mean["mean_primitives"][0],
-                    greedy_finished=mean["finished"][0],
-                    greedy_primitives_per_decision=mean["primitives_per_decision"][0],
+        return dict(_policy_metrics(lambda k, q_p, e_p, st: run.evaluate(
+                        k, q_p, p_eval, e_eval, steps, e_p, start=st),
+                        key, q, carry.starts, c.train.eval_epsilon),
                     num_states=jnp.asarray(agent.num_states, F32),
                     states_with_value=jnp.sum(moved).astype(F32),
                     **smap.describe(carry.fitted))
