@@ -137,8 +137,7 @@ def _cva_map(cfg: Any) -> CVAMap:
     return CVAMap(table2_env(cfg.task, cfg.ball_velocity), cfg.cva)
 
 
-def _cva_policy(cfg: Any, q, fitted, title: str) -> Policy:
-    smap = _cva_map(cfg)
+def _cva_policy(cfg: Any, smap: CVAMap, q, fitted, title: str) -> Policy:
     shoot_pass = getattr(smap.base, "unwrapped", smap.base)
     cols = int(np.ceil(np.sqrt(smap.num_states)))
     return Policy(smap.env, smap.env_params(fitted, cfg.env), lambda o: o["index"],
@@ -149,11 +148,10 @@ def _cva_policy(cfg: Any, q, fitted, title: str) -> Policy:
                   tuple(shoot_pass.action_labels), cols, title)
 
 
-def _cva_prepared(cfg: Any, traced: Any, key) -> Any:
+def _cva_prepared(smap: CVAMap, traced: Any, key) -> Any:
     """The CVA map's fitted parameters (models, codebooks) as its run built them:
     ``Program.init``'s key, the learner's traced config ``traced`` (the engine's
     per-learner config arrays)."""
-    smap = _cva_map(cfg)
     return jax.jit(lambda k, c: smap.prepare(jax.random.fold_in(k, PREPARE_STREAM), c))(
         key, traced)
 
@@ -219,12 +217,13 @@ def load_policy(folder: str | Path, policy: str = "learned", point: int = 0,
         q = carry.learner.q if policy == "learned" else jnp.zeros(
             (NUM_GRID_STATES, cfg.agent.num_actions), F32)
         return _grid_policy(cfg, q, title)
+    smap = _cva_map(cfg)
     if policy == "learned":
-        return _cva_policy(cfg, carry.learner.q, carry.fitted, title)
+        return _cva_policy(cfg, smap, carry.learner.q, carry.fitted, title)
     traced = jax.tree.map(lambda x: jnp.asarray(x[j]), group.configs)
-    fitted = _cva_prepared(cfg, traced, jnp.asarray(plan.init_keys[seed]))
-    s = _cva_map(cfg).num_states
-    return _cva_policy(cfg, jnp.zeros((s, cfg.agent.num_actions), F32), fitted, title)
+    fitted = _cva_prepared(smap, traced, jnp.asarray(plan.init_keys[seed]))
+    return _cva_policy(cfg, smap, jnp.zeros((smap.num_states, cfg.agent.num_actions), F32),
+                       fitted, title)
 
 
 # ---------------------------------------------------------------------------- rollout
