@@ -10,8 +10,8 @@ import numpy as np
 
 from vbl.stats import mean_ci95
 
-__all__ = ["point_label", "plot_curves", "plot_names", "is_rate", "band", "save_figure",
-           "FIGURE_DPI"]
+__all__ = ["point_label", "plot_curves", "plot_names", "plot_sweep", "is_rate", "band",
+           "save_figure", "FIGURE_DPI"]
 
 FIGURE_DPI = 120  #: dots per inch of every figure vbl writes
 LINESTYLES = ("-", "--", ":", "-.")  #: one per sweep point (cycled): coinciding lines stay visible
@@ -99,3 +99,78 @@ def plot_curves(curves: dict[str, np.ndarray], points: list[dict[str, Any]], out
         ax.grid(alpha=0.3)
         paths.append(save_figure(fig, Path(out_dir) / _file_name(name)))
     return paths
+
+
+FIGURE_SUFFIXES = (".png", ".svg")  #: the files :func:`plot_sweep` writes
+
+
+def _sweep_lines(records: list[dict[str, Any]], x: str, others: list[str]
+                 ) -> dict[str, list[dict[str, Any]]]:
+    """``records`` of one metric, one list per value of the ``others`` columns (the label
+    of a line), each sorted by ``x``."""
+    lines: dict[str, list[dict[str, Any]]] = {}
+    for r in records:
+        label = point_label({c: r[c] for c in others}) if others else ""
+        lines.setdefault(label, []).append(r)
+    numeric = all(isinstance(r[x], (int, float)) and not isinstance(r[x], bool)
+                  for r in records)
+    for rs in lines.values():
+        if numeric:
+            rs.sort(key=lambda r: r[x])
+    return lines
+
+
+def plot_sweep(run: Any, x: str, y: str, out: str | Path | None = None) -> Path:
+    """Final metric ``y`` of a run folder against its swept parameter ``x``: the mean over
+    seeds and its 95 % interval per sweep point, one line per value of the other swept
+    parameters (:func:`vbl.engine.export.final_stats`: ``Program.final``'s metric, else the
+    last logged chunk's).
+
+    ``run``: a run folder (finished, running or merged) or its
+    :class:`~vbl.engine.export.RunRows`; ``x``: a swept path or its last part; ``out``: a
+    ``.png`` or ``.svg`` file (default ``<y>_vs_<x>.png`` in the current folder). Returns
+    the path. Raises ParamError for an unknown ``x`` or ``y`` or another file type."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    from vbl.engine.export import final_stats, read_run, swept_path
+    from vbl.params import ParamError
+
+    run = read_run(run)
+    path = swept_path(run, x)
+    out = Path(out) if out is not None else Path(_file_name(f"{y}_vs_{path}"))
+    if out.suffix.lower() not in FIGURE_SUFFIXES:
+        raise ParamError(f"{out}: the plot is written as {' or '.join(FIGURE_SUFFIXES)}")
+    stats = final_stats(run)
+    records = ([r for r in stats if r["metric"] == y and r["source"] == "final"]
+               or [r for r in stats if r["metric"] == y])
+    if not records:
+        have = ", ".join(sorted({r["metric"] for r in stats})) or "none yet"
+        raise ParamError(f"{y!r} is not a metric of {run.folder} (metrics: {have})")
+    col = run.column(path)
+    others = [run.column(p) for p in run.sweep if p != path]
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    ticks: dict[str, int] = {}
+    for i, (label, rs) in enumerate(_sweep_lines(records, col, others).items()):
+        xs = [r[col] if isinstance(r[col], (int, float)) and not isinstance(r[col], bool)
+              else ticks.setdefault(str(r[col]), len(ticks)) for r in rs]
+        m = np.array([r["mean"] for r in rs], dtype=np.float64)
+        lo = np.array([r["lower"] for r in rs], dtype=np.float64)
+        hi = np.array([r["upper"] for r in rs], dtype=np.float64)
+        err = np.nan_to_num(np.stack([m - lo, hi - m]))  # no interval: the mean alone
+        ax.errorbar(xs, m, yerr=err, label=label or None, marker="o", capsize=3,
+                    linestyle=LINESTYLES[i % len(LINESTYLES)])
+    if ticks:
+        ax.set_xticks(list(ticks.values()), list(ticks))
+    seeds = max(r["seeds"] for r in records)
+    what = "final" if records[0]["source"] == "final" else "last chunk"
+    ax.set_xlabel(path)
+    ax.set_ylabel(f"{y} ({what})")
+    ax.set_title(f"{run.experiment}: {y} against {path.rsplit('.', 1)[-1]} "
+                 f"({seeds} seeds, 95% interval)", fontsize="medium")
+    if others:
+        ax.legend(fontsize="small")
+    ax.grid(alpha=0.3)
+    return save_figure(fig, out)
