@@ -1,5 +1,5 @@
-"""The ``vbl`` command: list, run, merge, reproduce, report, bench, params (see
-docs/engine.md), render (docs/render.md)."""
+"""The ``vbl`` command: list, run, merge, reproduce, report, export, plot, bench, params
+(see docs/engine.md), render (docs/render.md)."""
 
 from __future__ import annotations
 
@@ -66,6 +66,10 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
                    help="this process's id (or VBL_PROCESS_ID)")
     p.add_argument("--no-memory-check", action="store_true",
                    help="run even when the memory estimate exceeds the memory available")
+    p.add_argument("--tensorboard", default=None, metavar="DIR",
+                   help="also write each sweep point's mean curve and 95%% band per chunk as "
+                        "TensorBoard event files to DIR (tensorboard --logdir DIR; needs "
+                        "tensorboardX)")
     _add_debug(p, argparse.SUPPRESS)
 
 
@@ -88,6 +92,32 @@ def _add_render(sub) -> None:
                    help="frame height (default 128)")
     p.add_argument("--max-steps", type=int, default=None, metavar="T",
                    help="most primitives (frames) per episode (default 200)")
+    _add_debug(p, argparse.SUPPRESS)
+
+
+def _add_data_commands(sub) -> None:
+    """``vbl export`` and ``vbl plot``: a run folder's results as data (docs/engine.md)."""
+    p = sub.add_parser("export", help="a run folder (finished, running or merged) as one "
+                       "table: a row per sweep point, seed, chunk and metric (needs pandas)")
+    p.add_argument("folder", metavar="RUN_DIR", help="a run folder (vbl run --out)")
+    p.add_argument("--format", default=None, choices=("csv", "parquet"),
+                   help="file format (default: --out's extension, else csv)")
+    p.add_argument("--out", default=None, metavar="FILE",
+                   help="the table's file (default RUN_DIR's name and the format's extension, "
+                        "in the current folder)")
+    p.add_argument("--final", action="store_true",
+                   help="the final metrics per sweep point instead: mean, std and 95%% "
+                        "interval over seeds")
+    _add_debug(p, argparse.SUPPRESS)
+    p = sub.add_parser("plot", help="a final metric of a run folder against a swept "
+                       "parameter: mean and 95%% interval, a line per other swept value")
+    p.add_argument("folder", metavar="RUN_DIR", help="a run folder (vbl run --out)")
+    p.add_argument("--x", required=True, metavar="PARAM",
+                   help="the swept parameter (its path, or the path's last part)")
+    p.add_argument("--y", required=True, metavar="METRIC",
+                   help="the metric (Program.final's, else the last chunk's)")
+    p.add_argument("--out", default=None, metavar="FILE",
+                   help="FILE.png or FILE.svg (default METRIC_vs_PARAM.png)")
     _add_debug(p, argparse.SUPPRESS)
 
 
@@ -140,6 +170,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("names", nargs="*", help="benchmark names (default: all)")
     _add_debug(p, argparse.SUPPRESS)
     _add_render(sub)
+    _add_data_commands(sub)
     p = sub.add_parser("params", help="the parameter table of an experiment (Markdown)")
     p.add_argument("experiment", help="experiment name, or path/to/script.py")
     _add_debug(p, argparse.SUPPRESS)
@@ -223,7 +254,7 @@ def _run(experiment, args) -> int:
                             checkpoint_every=args.checkpoint_every,
                             learner_batch=args.learner_batch,
                             memory_check=not args.no_memory_check, preset=args.preset,
-                            shard=shard)
+                            shard=shard, tensorboard=args.tensorboard)
     if primary and shard is not None:
         n = result.summary["learners"]
         print(f"{experiment.name}: shard {shard} ({n} learner{'s' * (n != 1)}) done "
@@ -325,6 +356,34 @@ def _cmd_render(args) -> int:
     return 0
 
 
+def _cmd_export(args) -> int:
+    """``vbl export``: a folder that is not a run folder is bad input (one line, exit 2)."""
+    from vbl.engine.config import EngineError
+    from vbl.engine.export import export_run, read_run
+
+    try:
+        run = read_run(args.folder)
+    except EngineError as e:
+        return _error(str(e), 2)
+    out, rows = export_run(run, args.out, args.format, final=args.final)
+    print(f"table: {out} ({rows:,} rows)")
+    return 0
+
+
+def _cmd_plot(args) -> int:
+    """``vbl plot``: a folder that is not a run folder is bad input (one line, exit 2)."""
+    from vbl.engine.config import EngineError
+    from vbl.engine.export import read_run
+    from vbl.engine.plots import plot_sweep
+
+    try:
+        run = read_run(args.folder)
+    except EngineError as e:
+        return _error(str(e), 2)
+    print(f"plot: {plot_sweep(run, args.x, args.y, args.out)}")
+    return 0
+
+
 def _dispatch(args) -> int:
     if args.command == "list":
         return _cmd_list()
@@ -355,7 +414,7 @@ def _dispatch(args) -> int:
         print(f"report: {report}", flush=True)
         return 0 if ok else _error(f"some experiments failed; see {report}", 1)
     commands = {"merge": _cmd_merge, "bench": _cmd_bench, "report": _cmd_report,
-                "render": _cmd_render}
+                "render": _cmd_render, "export": _cmd_export, "plot": _cmd_plot}
     return commands[args.command](args)
 
 

@@ -142,7 +142,8 @@ def run_experiment(experiment: Experiment, *, sets: Mapping[str, Any] | None = N
                    checkpoint_every: int = DEFAULT_CHECKPOINT_EVERY,
                    learner_batch: int = DEFAULT_LEARNER_BATCH, plots: bool = True,
                    memory_check: bool = True, preset: str | None = None,
-                   shard: Shard | str | None = None) -> RunResult:
+                   shard: Shard | str | None = None,
+                   tensorboard: str | Path | None = None) -> RunResult:
     """Run ``experiment`` over ``sweep`` x ``seeds`` and write its run folder.
 
     Args:
@@ -159,6 +160,8 @@ def run_experiment(experiment: Experiment, *, sets: Mapping[str, Any] | None = N
       shard: ``"i/N"`` (or a :class:`~vbl.engine.sweep.Shard`): run only the i-th of N
         parts of the learners, with the keys of the whole run; its folder holds metric
         rows for :func:`vbl.engine.merge.merge_runs` and no report.
+      tensorboard: a folder for TensorBoard event files: each sweep point's mean curve and
+        95 % band per chunk, written as the run goes (:mod:`vbl.engine.tensorboard`).
     Everything is checked (values, memory, folder) before the folder is written; the folder
     is locked while the run writes it (:mod:`vbl.engine.runfolder`).
     Returns: a :class:`RunResult` (curves/final as NumPy arrays, on process 0; empty for a
@@ -167,6 +170,10 @@ def run_experiment(experiment: Experiment, *, sets: Mapping[str, Any] | None = N
     memory).
     """
     _check_chunking(checkpoint_every, learner_batch)
+    if tensorboard is not None:
+        from vbl.engine.tensorboard import require_tensorboardx
+
+        require_tensorboardx()
     primary = jax.process_index() == 0
     if jax.process_count() > 1 and out is None:
         raise EngineError("a multi-process run needs --out on a shared file system")
@@ -189,7 +196,8 @@ def run_experiment(experiment: Experiment, *, sets: Mapping[str, Any] | None = N
     folder = open_run_folder(out, experiment.name, resume=resume, overwrite=overwrite,
                              primary=primary)
     run = _Run(folder, experiment, config, full_sweep, seeds, base_seed, spec, plan, resume,
-               quick, quiet, checkpoint_every, learner_batch, plots, primary)
+               quick, quiet, checkpoint_every, learner_batch, plots, primary,
+               None if tensorboard is None else Path(tensorboard))
     try:
         return _run_in(run)
     finally:
@@ -241,6 +249,7 @@ class _Run:
     learner_batch: int
     plots: bool
     primary: bool
+    tensorboard: Path | None = None  # TensorBoard event files' folder
 
     @property
     def path(self) -> Path:
@@ -301,10 +310,18 @@ def _run_in(run: _Run) -> RunResult:
     ckpts = _start_folder(run)
     run.folder.record("metrics.jsonl")
     log = MetricsLog(run.path / "metrics.jsonl", enabled=run.primary)
+    if run.tensorboard is not None and run.primary:
+        from vbl.engine.tensorboard import TensorBoardLog
+
+        log = TensorBoardLog(log, run.tensorboard)
     t_start = time.perf_counter()
-    if run.plan is None:
-        return _run_own_loop(run, log, t_start)
-    start = _train(run, ckpts, log)
+    try:
+        if run.plan is None:
+            return _run_own_loop(run, log, t_start)
+        start = _train(run, ckpts, log)
+    finally:
+        if hasattr(log, "close"):
+            log.close()
     return _summarise(run, start, time.perf_counter() - t_start)
 
 
