@@ -208,3 +208,36 @@ def test_table2_ablation(capsys, tmp_path):
     assert note[note.index(begin) + len(begin):note.index(end)] == committed, (
         "docs/findings/table2_shoot_pass.md: the ablation table differs from "
         "`python benchmarks/probes/table2_ablation.py --table`")
+
+
+def test_table2_ablation_whitening():
+    """The whiten variant's transform against NumPy: within each block the whitened states
+    have the identity covariance (correlated, unequally scaled components), the blocks stay
+    apart (no cross-block mixing), and a zero-padded component stays 0 (no NaN)."""
+    import numpy as np
+
+    spec = importlib.util.spec_from_file_location("probe_t2w", PROBES / "table2_ablation.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(4000, 3)) @ np.array([[3.0, 0, 0], [2.0, 0.5, 0], [0, 1.0, 0.1]])
+    b = rng.normal(size=(4000, 2)) * [10.0, 0.01] + [5.0, -1.0]
+    x = np.concatenate([a, b, np.zeros((4000, 1))], axis=1).astype(np.float32)
+    mean, w = (np.asarray(v, np.float64) for v in mod.whitening(x, (3, 2, 1)))
+    z = (x - mean) @ w
+    for lo, hi in ((0, 3), (3, 5)):
+        np.testing.assert_allclose(np.cov(z[:, lo:hi].T, bias=True), np.eye(hi - lo),
+                                   atol=2e-3)
+    assert np.all(w[:3, 3:] == 0) and np.all(w[3:, :3] == 0)
+    assert np.all(np.isfinite(z)) and np.all(z[:, 5] == 0)
+
+
+@pytest.mark.slow
+def test_table2_ablation_whiten_tiny(capsys, tmp_path):
+    """The whiten variant's state map runs through the tabular program at toy size."""
+    import json
+
+    out = tmp_path / "ablation"
+    run_probe("table2_ablation", ["--tiny", "--variants", "whiten", "--out", str(out)], capsys)
+    rows = json.loads((out / "table2_ablation.json").read_text())["results"]["q_learning"]
+    assert set(rows["whiten"]) == {"shoot, current", "shoot, cva"}

@@ -25,7 +25,15 @@ Variants (the current-feature rows do not depend on them and come from ``figure1
 * ``cva_ball_other``: the CVA states of the ball and the other robot, the goal's current
   features (``cva.objects=(ball, other)``, ``cva.extra=(goal,)``);
 * ``defaults``: Table 2's state, the ball's CVA state with the goal's and the other
-  robot's current features.
+  robot's current features;
+* ``whiten``: ``defaults`` with each block of the state vector whitened (its covariance
+  over the collected states made the identity: rotated onto its principal axes and scaled
+  by their standard deviations) instead of z-scored per component before its codebook is
+  fitted (a state map of this probe);
+* ``ball_codes_per_dim``: ``defaults`` with 256 ball codes for the CVA state's 8 ball
+  components, 2 codes per dimension as the oracle's 64 codes over its 6 ball features
+  (``cva.quantizer.group_codes=(256, 8, 8)``; the reference rows keep 64 codes: equal
+  codes per dimension instead of equal codes per object).
 
 Not an experiment and not a benchmark; run from the repository root:
 
@@ -67,30 +75,92 @@ VARIANTS = {
     "cva_ball_other": {"cva.objects": ("ball", "other"), "cva.n_used_objects": (8, 4),
                        "cva.extra": ("goal",)},
     "defaults": {},
+    "whiten": {},
+    "ball_codes_per_dim": {"cva.quantizer.group_codes": (256, 8, 8)},
 }
+MIN_VARIANCE = 1e-6
+"""Whitening: principal variances below this (e.g. the zero padding of the shorter state
+vector) are raised to it, so their axes stay 0 instead of dividing by 0."""
 UPDATES = ("q_learning", "monte_carlo")
 TINY = {"agent.num_envs": 4, "agent.chunk_steps": 10, "env.max_steps": 10,
         "train.num_chunks": 2, "train.eval_rounds": 1, "cva.collect_steps": 600,
         "cva.quantizer.group_codes": (4, 2, 2), "cva.quantizer.kmeans_iters": 1}
 
 
+def whitening(x, groups):
+    """``(mean (d,), w (d, d))``: ``(x - mean) @ w`` has the identity covariance within each
+    block of ``groups`` (sizes of consecutive components) over the rows of ``x`` (N, d)."""
+    import jax.numpy as jnp
+
+    mean = jnp.mean(x, axis=0)
+    w, start = jnp.zeros((x.shape[1],) * 2, jnp.float32), 0
+    for size in groups:
+        xc = x[:, start:start + size] - mean[start:start + size]
+        var, axes = jnp.linalg.eigh(xc.T @ xc / x.shape[0])
+        block = axes / jnp.sqrt(jnp.maximum(var, MIN_VARIANCE))
+        w = w.at[start:start + size, start:start + size].set(block)
+        start += size
+    return mean, w
+
+
+def whitened_map(env, p):
+    """Table 2's state map whose blocks are whitened before the product codebook."""
+    import jax
+    from flax import struct
+
+    from vbl.agents.cva_state import collect, history_wrapper, identify_object
+    from vbl.agents.state_maps import CVAMap
+    from vbl.envs.wrappers import HistoryParams, QuantizeWrapper
+    from vbl.spaces.quantize import Quantizer, fit_quantizer, quantize
+
+    @struct.dataclass
+    class Whitened:
+        quantizer: Quantizer
+        mean: jax.Array
+        w: jax.Array
+
+    class WhitenedCVAMap(CVAMap):
+        def __init__(self, env, p):
+            super().__init__(env, p)
+            self.env = QuantizeWrapper(history_wrapper(env, p, self.m, world=True),
+                                       lambda q, x: quantize(q.quantizer, (x - q.mean) @ q.w))
+
+        def prepare(self, key, c):  # prepare_state, whitened before the codebook
+            hist = history_wrapper(self.base, self.p, self.m)
+            k_col, k_q = jax.random.split(key)
+            data = collect(self.base, k_col, c.env, self.p.collect_steps)
+            models = tuple(identify_object(data["u"], data["obs"][:, sl], c.cva.ident, k,
+                                           c.cva.keep_beyond_order)
+                           for sl, k in zip(hist.slices, self.p.n_used_per_object(),
+                                            strict=True))
+            use_cva = jax.numpy.asarray(c.cva.use_cva, bool)
+            xs = hist.replay(data["obs"], data["u"], data["start"],
+                             HistoryParams(c.env, models, use_cva))
+            mean, w = whitening(xs, hist.block_dims())
+            qz = fit_quantizer(k_q, (xs - mean) @ w, c.cva.quantizer, groups=hist.block_dims())
+            return models, Whitened(qz, mean, w), use_cva
+
+    return WhitenedCVAMap(env, p)
+
+
 def experiment(variant: str):
-    """Table 2's experiment, or it on the state map whose index ends actions."""
+    """Table 2's experiment, or it on a state map of this probe."""
     from vbl.agents.state_maps import CVAMap
     from vbl.engine.registry import load_script
     from vbl.programs.table2 import table2_env
     from vbl.programs.tabular import make_tabular_program
 
     exp = load_script(ROOT / "experiments" / "table2_shoot_pass.py").EXPERIMENT
-    if variant != "index_ends_actions":
+    if variant not in ("index_ends_actions", "whiten"):
         return exp
 
     class IndexEndsActions(CVAMap):
         def perceived(self, obs, c):
             return obs["index"]
 
-    return dataclasses.replace(exp, name="table2_index_ends_actions", make_program=lambda cfg:
-                               make_tabular_program(IndexEndsActions(
+    make_map = IndexEndsActions if variant == "index_ends_actions" else whitened_map
+    return dataclasses.replace(exp, name=f"table2_{variant}", make_program=lambda cfg:
+                               make_tabular_program(make_map(
                                    table2_env(cfg.task, cfg.ball_velocity), cfg.cva), cfg))
 
 
@@ -190,7 +260,8 @@ def table(data: dict) -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="runs/table2_ablation", help="folder of the run folders")
-    ap.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
+    ap.add_argument("--variants", nargs="+", choices=list(VARIANTS),
+                    help="default: every variant (--tiny: index_ends_actions)")
     ap.add_argument("--updates", nargs="+", default=list(UPDATES), choices=list(UPDATES))
     ap.add_argument("--tiny", action="store_true", help="smoke-test size (2 seeds, 2 chunks)")
     ap.add_argument("--table", action="store_true", help="print the table of the committed "
@@ -200,7 +271,8 @@ def main(argv: list[str] | None = None) -> int:
         print(table(json.loads(RESULT.read_text())))
         return 0
     if args.tiny:
-        args.variants, args.updates = ["index_ends_actions"], ["q_learning"]
+        args.variants, args.updates = args.variants or ["index_ends_actions"], ["q_learning"]
+    args.variants = args.variants or list(VARIANTS)
     out = Path(args.out)
     dest = out / "table2_ablation.json" if args.tiny else RESULT
     dest.parent.mkdir(parents=True, exist_ok=True)
