@@ -137,3 +137,28 @@ def test_a_task_must_declare_its_parts():
     with pytest.raises(TypeError):
         class Incomplete(TaskEnv, params=ToyParams, state=ToyState):  # noqa: F841
             pass
+
+
+class TruncatingToyEnv(ToyEnv, params=ToyParams, state=ToyState, fresh_words=FRESH,
+                       pixel_noise_dim=1, option=("kind", ("a", "b"))):
+    """The toy whose episodes end by the time limit only: truncated, never terminated."""
+
+    def _transition(self, eps, state, action, params):
+        state, reward, done, _, info = super()._transition(eps, state, action, params)
+        return state, reward, jnp.zeros((), bool), done, info
+
+
+def test_step_auto_resets_after_a_truncation_too():
+    env = TruncatingToyEnv()
+    _, state = env.reset(jax.random.key(0))
+    step = jax.jit(env.step)
+    for t in range(1, 2 * EPISODE + 1):
+        key = jax.random.key(20 + t)
+        _, nstate, _, terminated, truncated, _ = step(key, state, jnp.int32(0))
+        end = t % EPISODE == 0
+        assert not bool(terminated) and bool(truncated) == end
+        assert int(nstate.step) == (0 if end else t % EPISODE)
+        if end:  # a fresh episode from the words after the slip block
+            np.testing.assert_array_equal(nstate.world.robots[0],
+                                          _fresh_pose(key, SLIP, SLIP + FRESH + 1))
+        state = nstate

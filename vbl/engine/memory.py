@@ -22,7 +22,7 @@ import numpy as np
 from vbl.engine.config import EngineError, traced_dtype
 
 __all__ = ["MemoryError_", "CARRY_COPIES", "available_memory", "estimate", "check_memory",
-           "fmt_bytes"]
+           "check_bytes", "tree_bytes", "fmt_bytes"]
 
 CARRY_COPIES = 4  #: carries held at once per learner (step in + out, host gather, save)
 
@@ -74,7 +74,8 @@ def available_memory() -> int:
     return min(avail, cg) if cg is not None else avail
 
 
-def _nbytes(tree: Any) -> int:
+def tree_bytes(tree: Any) -> int:
+    """Bytes of the arrays (or shape-dtype structs) of ``tree``."""
     return sum(int(np.prod(x.shape, dtype=object)) * np.dtype(x.dtype).itemsize
                for x in jax.tree_util.tree_leaves(tree))
 
@@ -85,10 +86,10 @@ def estimate(plan) -> tuple[int, dict[str, Any]]:
     for g in plan.groups:
         one = jax.tree.map(lambda x: jax.ShapeDtypeStruct(np.shape(x), traced_dtype(x)),
                            g.first_config)
-        carry = _nbytes(jax.eval_shape(g.program.init,
+        carry = tree_bytes(jax.eval_shape(g.program.init,
                                        jax.ShapeDtypeStruct((2,), np.uint32), one))
         n = g.num_learners
-        total = n * (CARRY_COPIES * carry + _nbytes(one) + 16)
+        total = n * (CARRY_COPIES * carry + tree_bytes(one) + 16)
         if total >= worst:
             worst = total
             details = {"group": g.index, "learners": n, "carry_bytes": carry}
@@ -106,4 +107,14 @@ def check_memory(plan) -> int:
             f"{fmt_bytes(d['carry_bytes'])} state each x {CARRY_COPIES} copies) but "
             f"{fmt_bytes(have)} is available; use fewer --seeds, sweep values or "
             f"environments, or --no-memory-check to try anyway")
+    return need
+
+
+def check_bytes(need: int, what: str, advice: str) -> int:
+    """Raise :class:`MemoryError_` (one line: ``what`` ``need`` bytes, what is available,
+    ``advice``) if ``need`` exceeds :func:`available_memory`; return ``need``."""
+    have = available_memory()
+    if have and need > have:
+        raise MemoryError_(f"{what} {fmt_bytes(need)} of memory, and {fmt_bytes(have)} is "
+                           f"available; {advice}")
     return need

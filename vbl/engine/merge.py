@@ -76,7 +76,8 @@ def _merge(folders: list[str | Path], out: Path, overwrite: bool
              for p, vs in whole["sweep"].items()}
     plan = make_plan(exp, config, sweep, whole["seeds"], whole["base_seed"])
     rows = _merged_rows(plan, parts)
-    folder = open_run_folder(out, exp.name, resume=False, overwrite=overwrite)
+    folder = open_run_folder(out, exp.name, resume=False, overwrite=overwrite,
+                             resumable=False)
     try:
         folder.record("config.json", "metrics.jsonl")
         write_json(out / "config.json", whole)
@@ -113,7 +114,37 @@ def _read_part(folder: Path) -> _Part:
         raise ParamError(f"{folder} is a whole run, not a shard (vbl run --shard I/N); "
                          f"there is nothing to merge")
     summary = _finished_summary(folder, sh)
+    _check_metrics(folder, sh, summary)
     return _Part(folder, spec, summary)
+
+
+def _check_metrics(folder: Path, sh: dict[str, Any], summary: dict[str, Any]) -> None:
+    """The shard's ``metrics.jsonl`` is the one it finished with: each line's checksum is
+    the one its ``summary.json`` recorded."""
+    from vbl.engine.runner import metrics_line_sums
+
+    text = f"shard {sh['index']}/{sh['count']} in {folder}"
+    again = "restore it, or run that shard again with --overwrite"
+    want = summary.get("metrics_sha256")
+    if not (isinstance(want, list) and all(isinstance(x, str) for x in want)):
+        raise ParamError(f"{text} records no checksum of its metrics.jsonl (its summary.json "
+                         f"has no metrics_sha256 list), so its values cannot be verified; "
+                         f"run that shard again with --overwrite")
+    try:
+        got = metrics_line_sums(folder / "metrics.jsonl")
+    except OSError as e:
+        raise ParamError(f"{text}: cannot read metrics.jsonl ({e.strerror or e}); "
+                         f"{again}") from None
+    for line, (a, b) in enumerate(zip(got, want, strict=False), 1):
+        if a != b:
+            raise ParamError(f"{text}: metrics.jsonl line {line} was changed after the shard "
+                             f"finished (it does not match the checksum in summary.json); "
+                             f"{again}")
+    if len(got) != len(want):
+        raise ParamError(f"{text}: metrics.jsonl has {len(got)} lines, the shard finished "
+                         f"with {len(want)} (lines were "
+                         f"{'added' if len(got) > len(want) else 'removed'} after it "
+                         f"finished); {again}")
 
 
 def _finished_summary(folder: Path, sh: dict[str, Any]) -> dict[str, Any]:

@@ -46,8 +46,10 @@ def write_json(path: Path, obj: Any) -> None:
     try:
         tmp.write_text(json.dumps(obj, indent=1, default=_clean) + "\n")
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as e:
         tmp.unlink(missing_ok=True)
+        if isinstance(e, OSError) and e.filename is None:
+            e.filename = str(path)  # a failed write names no file: the error line does
         raise
 
 
@@ -66,9 +68,14 @@ class MetricsLog:
         if not self.enabled:
             return
         text = "".join(json.dumps(r, default=_clean) + "\n" for r in rows)
-        with open(self.path, "a") as f:
-            f.write(text)
-            f.flush()
+        try:
+            with open(self.path, "a") as f:
+                f.write(text)
+                f.flush()
+        except OSError as e:
+            if e.filename is None:  # a failed write names no file: the error line does
+                e.filename = str(self.path)
+            raise
 
     def truncate_after(self, step: int) -> int:
         """Keep rows with ``row["step"] <= step`` (a torn last line is dropped; any other

@@ -250,8 +250,10 @@ def _undo(path: Path, created: bool, lock_existed: bool) -> None:
             pass
 
 
-def check_new_folder(path: Path, *, resume: bool, overwrite: bool) -> None:
-    """Refuse, before anything is written, a folder that a run may not use."""
+def check_new_folder(path: Path, *, resume: bool, overwrite: bool,
+                     resumable: bool = True) -> None:
+    """Refuse, before anything is written, a folder that a run may not use (``resumable``:
+    whether the command offers ``--resume``)."""
     if resume and overwrite:
         raise EngineError("--resume and --overwrite exclude each other")
     if path.exists() and not path.is_dir():
@@ -270,25 +272,27 @@ def check_new_folder(path: Path, *, resume: bool, overwrite: bool) -> None:
             raise EngineError(f"cannot --resume {path}: it holds no vbl run (no {MARKER} "
                               f"marker or config.json); pick another --out")
     else:
-        raise EngineError(f"output folder {path} exists and is not empty; use --resume to "
-                          f"continue it, --overwrite to replace it, or another --out")
+        how = "--resume to continue it, " if resumable else ""
+        raise EngineError(f"output folder {path} exists and is not empty; use {how}"
+                          f"--overwrite to replace it, or another --out")
 
 
 def open_run_folder(out: str | Path | None, name: str, *, resume: bool, overwrite: bool,
-                    primary: bool = True) -> RunFolder:
+                    primary: bool = True, resumable: bool = True) -> RunFolder:
     """Create (or reuse, for ``resume``) the run folder, lock it and write its marker.
 
     Never overwrites: an existing non-empty folder needs ``resume`` or ``overwrite``;
     ``overwrite`` only empties folders with vbl's marker, removes only the files the marker
     lists, and never the current folder or one containing it. A folder locked by another
-    run is refused. Process 0 alone checks, creates and locks the folder.
+    run is refused. Process 0 alone checks, creates and locks the folder. ``resumable``:
+    whether the command offers ``--resume`` (its refusal of a taken folder says so).
     """
     stamp = time.strftime("%Y%m%d-%H%M%S")
     path = Path(out) if out is not None else Path("runs") / f"{name}-{stamp}"
     if not primary:
         return RunFolder(path, None)
     _check_parent(path)
-    check_new_folder(path, resume=resume, overwrite=overwrite)
+    check_new_folder(path, resume=resume, overwrite=overwrite, resumable=resumable)
     created = not path.exists()
     try:
         path.mkdir(parents=True, exist_ok=True)
@@ -303,7 +307,7 @@ def open_run_folder(out: str | Path | None, name: str, *, resume: bool, overwrit
     folder = RunFolder(path, fd)
     try:
         # The folder may have changed between the checks and the lock: check again.
-        check_new_folder(path, resume=resume, overwrite=overwrite)
+        check_new_folder(path, resume=resume, overwrite=overwrite, resumable=resumable)
         marker = _read_marker(path)
         if overwrite and marker is not None:
             _check_removable(path, marker["files"])  # nothing deleted if it cannot finish

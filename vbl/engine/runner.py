@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import hashlib
 import math
 import time
 from collections.abc import Mapping, Sequence
@@ -411,9 +412,17 @@ def _summarise(run: _Run, start: int, wall: float) -> RunResult:
     _sync("vbl-run-done")
     how = {"wall_time_s": wall, "resumed_from_step": start, "learners": plan.num_learners,
            "devices": jax.device_count(), "processes": jax.process_count()}
+    steps, done = _steps_to_run(plan, start)
+    recorded = _recorded_summary(run.path) if run.resume and done == steps else None
+    if recorded is not None:  # a finished run resumed: nothing ran, its record stands
+        how.update({k: recorded[k] for k in HOW_RAN if k in recorded})
     if plan.shard is not None:
+        if recorded is not None and "metrics_sha256" in recorded:
+            return RunResult(run.experiment.name, run.path, run.config, plan.sweep,
+                             plan.points, plan.seeds, {}, {}, recorded, [])
         summary = {"experiment": run.experiment.name, "shard": run.spec["shard"],
-                   "chunks": plan.total_steps, **how}
+                   "chunks": plan.total_steps, **how,
+                   "metrics_sha256": metrics_line_sums(run.path / "metrics.jsonl")}
         result = RunResult(run.experiment.name, run.path, run.config, plan.sweep, plan.points,
                            plan.seeds, {}, {}, summary, [])
     else:
@@ -424,6 +433,29 @@ def _summarise(run: _Run, start: int, wall: float) -> RunResult:
         run.folder.record("summary.json")
         write_json(run.path / "summary.json", result.summary)
     return result
+
+
+HOW_RAN = ("wall_time_s", "resumed_from_step", "devices", "processes")
+"""The entries of ``summary.json`` that say how the run ran (kept by a ``--resume`` of a
+finished run, which runs nothing)."""
+
+
+def _recorded_summary(run_dir: Path) -> dict | None:
+    """The ``summary.json`` a finished run wrote, if it is readable."""
+    try:
+        old = read_json(run_dir / "summary.json")
+    except (OSError, ValueError):
+        return None
+    return old if isinstance(old, dict) else None
+
+
+def metrics_line_sums(path: Path) -> list[str]:
+    """The sha256 (first 16 hex digits) of each line of the ``metrics.jsonl`` at ``path``:
+    a shard records them when it finishes, and ``vbl merge`` checks them."""
+    lines = Path(path).read_bytes().split(b"\n")
+    if lines and lines[-1] == b"":
+        lines.pop()
+    return [hashlib.sha256(x).hexdigest()[:16] for x in lines]
 
 
 def _run_group(plan: SweepPlan, group: Group, sharding, ckpts: Checkpoints, log: MetricsLog,

@@ -363,17 +363,62 @@ def write_video(frames: np.ndarray, captions: list[str], out: Path, vp: VideoPar
     even = out.suffix.lower() == ".mp4"  # H.264 in yuv420p needs even sizes: pad with black
     if even:
         kw.update(macro_block_size=MP4_BLOCK)
-    with warnings.catch_warnings(), imageio.get_writer(out, **kw) as w:
-        # imageio-ffmpeg starts ffmpeg with fork + exec at once, which is safe
-        warnings.filterwarnings("ignore", "os.fork", RuntimeWarning)
-        for f, text in zip(frames, captions, strict=True):
-            strip = Image.new("RGB", (f.shape[1], vp.caption), (0, 0, 0))
-            ImageDraw.Draw(strip).text((2, 1), text, fill=CAPTION_RGB)
-            img = np.concatenate([f, np.asarray(strip)], axis=0)
-            if even:
-                img = np.pad(img, ((0, -img.shape[0] % MP4_BLOCK),
-                                   (0, -img.shape[1] % MP4_BLOCK), (0, 0)))
-            w.append_data(img)
+    try:
+        with warnings.catch_warnings(), imageio.get_writer(out, **kw) as w:
+            # imageio-ffmpeg starts ffmpeg with fork + exec at once, which is safe
+            warnings.filterwarnings("ignore", "os.fork", RuntimeWarning)
+            for f, text in zip(frames, captions, strict=True):
+                strip = Image.new("RGB", (f.shape[1], vp.caption), (0, 0, 0))
+                ImageDraw.Draw(strip).text((2, 1), text, fill=CAPTION_RGB)
+                img = np.concatenate([f, np.asarray(strip)], axis=0)
+                if even:
+                    img = np.pad(img, ((0, -img.shape[0] % MP4_BLOCK),
+                                       (0, -img.shape[1] % MP4_BLOCK), (0, 0)))
+                w.append_data(img)
+    except OSError as e:  # a full disk while writing: no half-written video is left
+        out.unlink(missing_ok=True)
+        raise EngineError(f"cannot write {out}: {e.strerror or e}; free some space or pick "
+                          f"another --out") from None
+
+
+FRAME_COPIES = 2  #: copies of the frames held at once (the rendered array, the host's)
+
+
+def _check_out(out: Path) -> None:
+    """EngineError (one line) unless a file can be created in ``out``'s folder (tested
+    with a probe file, before anything is rendered)."""
+    import os
+
+    if not out.parent.is_dir():
+        raise EngineError(f"cannot write {out}: no folder {out.parent}")
+    if out.is_dir():
+        raise EngineError(f"cannot write {out}: it is a folder; --out names a .gif or .mp4 "
+                          f"file")
+    probe = out.parent / f".vbl-probe-{os.getpid()}"
+    try:
+        os.close(os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
+        os.unlink(probe)
+    except OSError as e:
+        raise EngineError(f"cannot write {out}: {e.strerror or e} in {out.parent}; make the "
+                          f"folder writable or pick another --out") from None
+
+
+def _check_render_memory(episodes: int, vp: VideoParams) -> int:
+    """Refuse (one line, before anything is loaded or compiled) a video whose frames may
+    not fit in memory: ``episodes`` x ``max_steps`` frames at most (every episode that
+    runs to the end), each ``height`` x width x 3 bytes, :data:`FRAME_COPIES` copies."""
+    from vbl.engine.memory import available_memory, check_bytes
+
+    cam_w, top_w, panel_w = _sizes(vp)
+    frame = vp.height * (cam_w + top_w + panel_w) * 3
+    per_episode = FRAME_COPIES * vp.max_steps * frame
+    fit = available_memory() // per_episode
+    return check_bytes(
+        episodes * per_episode,
+        f"--episodes {episodes} of up to {vp.max_steps} frames each (--max-steps) at "
+        f"{vp.height} x {cam_w + top_w + panel_w} px may need up to",
+        f"use at most --episodes {fit} at these settings, or a smaller --max-steps or "
+        f"--height" if fit >= 1 else "use a smaller --max-steps or --height")
 
 
 class Video(NamedTuple):
@@ -398,8 +443,8 @@ def render_run(folder: str | Path, out: str | Path, episodes: int, policy: str =
         raise EngineError(f"--out must end in {' or '.join(EXTENSIONS)}, got {out.name!r}")
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
         raise EngineError(f"--episodes must be an int >= 1, got {episodes!r}")
-    if not out.parent.is_dir():
-        raise EngineError(f"cannot write {out}: no folder {out.parent}")
+    _check_out(out)
+    _check_render_memory(episodes, vp)
     with engine_precision():
         pol = load_policy(folder, policy, point, seed)
         traj = trajectories(pol, jax.random.PRNGKey(key), episodes, vp.max_steps)

@@ -1,0 +1,129 @@
+"""`vbl merge` takes only what the shards wrote, and `--resume` of a finished run leaves
+its record alone (issue 50).
+
+Truths: a shard's metrics.jsonl as it finished (a valid JSON edit of one value is a
+changed result, and the line number is that of the edited line); the shard list of a run
+in N parts (1..N); the folders that are a shard whatever path names them (a symlink, a
+``..``); the summary.json a finished run wrote before its ``--resume``.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from tests.engine_helpers import TINY, one_error_line, toy_experiment
+
+RUN = ["run", "toy_bandit", *TINY, "--seeds", "3", "--set", "train.num_chunks=2",
+       "--quiet"]
+
+
+@pytest.fixture(scope="module")
+def toy(tmp_path_factory):
+    yield from toy_experiment(tmp_path_factory.mktemp("exps"))
+
+
+def vbl(*args) -> int:
+    from vbl.cli import main
+
+    return main([str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def shards(toy, tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("parts")
+    folders = [tmp / f"s{i}of2" for i in (1, 2)]
+    for i, f in enumerate(folders, 1):
+        assert vbl(*RUN, "--shard", f"{i}/2", "--out", f) == 0
+    return folders
+
+
+def _edit_value(folder: Path, line: int) -> None:
+    """Change one per-seed value of ``line`` (1-based) of metrics.jsonl, keeping it valid
+    JSON (the row's own statistics are left as they were, as a hand edit would)."""
+    path = folder / "metrics.jsonl"
+    lines = path.read_text().splitlines()
+    row = json.loads(lines[line - 1])
+    metric = next(iter(row["metrics"]))
+    row["metrics"][metric]["per_seed"][0] = 123.0
+    lines[line - 1] = json.dumps(row)
+    path.write_text("\n".join(lines) + "\n")
+
+
+def test_a_hand_edited_metric_is_refused_naming_the_part_and_line(shards, tmp_path, capsys):
+    edited = tmp_path / "edited"
+    shutil.copytree(shards[1], edited)
+    n_lines = len((edited / "metrics.jsonl").read_text().splitlines())
+    assert n_lines >= 2
+    _edit_value(edited, 2)
+    capsys.readouterr()
+    assert vbl("merge", shards[0], edited, "--out", tmp_path / "out") == 2
+    err = one_error_line(capsys.readouterr().err)
+    assert "shard 2/2" in err and str(edited) in err and "line 2 " in err
+    assert not (tmp_path / "out").exists()
+    # a removed last line is a change too
+    shutil.copy(shards[1] / "metrics.jsonl", edited / "metrics.jsonl")
+    text = (edited / "metrics.jsonl").read_text().splitlines(keepends=True)
+    (edited / "metrics.jsonl").write_text("".join(text[:-1]))
+    assert vbl("merge", shards[0], edited, "--out", tmp_path / "out") == 2
+    err = one_error_line(capsys.readouterr().err)
+    assert f"has {n_lines - 1} lines, the shard finished with {n_lines}" in err
+    # restored byte for byte: the merge goes through
+    shutil.copy(shards[1] / "metrics.jsonl", edited / "metrics.jsonl")
+    assert vbl("merge", shards[0], edited, "--out", tmp_path / "out") == 0
+
+
+def test_every_missing_part_is_named_the_last_too(shards, tmp_path, capsys):
+    capsys.readouterr()
+    for given, missing in [((0,), "shard 2/2 missing"), ((1,), "shard 1/2 missing")]:
+        assert vbl("merge", *(shards[i] for i in given), "--out", tmp_path / "o") == 2
+        assert missing in one_error_line(capsys.readouterr().err), given
+        assert not (tmp_path / "o").exists()
+
+
+def test_out_naming_a_shard_by_another_path_is_refused(shards, tmp_path, capsys):
+    before = {p.name: p.read_bytes() for p in shards[0].iterdir() if p.is_file()}
+    link = tmp_path / "link"
+    link.symlink_to(shards[0])
+    dotted = tmp_path / "nowhere" / ".." / ".." / shards[0].parent.name / shards[0].name
+    capsys.readouterr()
+    for out in (link, dotted, shards[0].parent / "." / shards[0].name):
+        assert vbl("merge", *shards, "--out", out, "--overwrite") == 2, out
+        assert "is one of the shards" in one_error_line(capsys.readouterr().err)
+    assert {p.name: p.read_bytes() for p in shards[0].iterdir() if p.is_file()} == before
+
+
+def test_a_taken_out_asks_for_what_merge_accepts(shards, tmp_path, capsys):
+    out = tmp_path / "taken"
+    out.mkdir()
+    (out / "mine.txt").write_text("keep")
+    capsys.readouterr()
+    assert vbl("merge", *shards, "--out", out) == 1
+    err = one_error_line(capsys.readouterr().err)
+    assert "exists and is not empty" in err and "--overwrite" in err
+    assert "--resume" not in err
+    assert (out / "mine.txt").read_text() == "keep"
+
+
+def test_resume_of_a_finished_run_keeps_its_record(toy, shards, tmp_path, capsys):
+    whole = tmp_path / "whole"
+    assert vbl(*RUN, "--out", whole) == 0
+    before = json.loads((whole / "summary.json").read_text())
+    assert before["resumed_from_step"] == 0 and before["wall_time_s"] > 0
+    assert vbl(*RUN, "--out", whole, "--resume") == 0
+    after = json.loads((whole / "summary.json").read_text())
+    assert after == before
+    # a finished shard: its summary (and the checksum of its metrics) stands as written,
+    # so a resume does not make an edited metrics.jsonl pass the merge
+    part = tmp_path / "part"
+    shutil.copytree(shards[1], part)
+    written = (part / "summary.json").read_bytes()
+    _edit_value(part, 1)
+    assert vbl(*RUN, "--shard", "2/2", "--out", part, "--resume") == 0
+    assert (part / "summary.json").read_bytes() == written
+    capsys.readouterr()
+    assert vbl("merge", shards[0], part, "--out", tmp_path / "out") == 2
+    assert "line 1 was changed" in one_error_line(capsys.readouterr().err)

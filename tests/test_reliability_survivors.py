@@ -1,0 +1,173 @@
+"""Behaviour that mutants of issue 50 changed without a test noticing: run folders,
+statistics over seeds, `vbl render`'s checks and Monte Carlo updates past one pass.
+
+Truths: SciPy's Student t interval and hand-computed seed counts; a NumPy every-visit
+Monte Carlo update written in closed form; the documented lock protocol of a
+``vbl reproduce`` folder; the bytes of a video frame from its documented sizes.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import os
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy import stats as sps
+
+from tests.engine_helpers import one_error_line
+from vbl.engine import runfolder
+from vbl.engine.config import EngineError, fingerprint
+from vbl.engine.report import claim
+from vbl.stats import MIN_SEEDS_BOUNDED, bounded_ci95
+
+# ------------------------------------------------------------------ run folders
+
+
+def test_a_config_json_without_its_fingerprint_is_refused():
+    body = {"format": runfolder.RUN_FORMAT, "experiment": "toy_bandit", "config": {"a": 1}}
+    runfolder.check_fingerprint(dict(body, fingerprint=fingerprint(body)), "run")  # intact
+    for spec in (body, dict(body, fingerprint=None), dict(body, fingerprint=7)):
+        with pytest.raises(EngineError, match="run/config.json has no fingerprint"):
+            runfolder.check_fingerprint(spec, "run")
+
+
+def test_a_reproduce_folder_is_refused_to_other_writers_until_allowed(tmp_path, monkeypatch):
+    """A reproduce holds OUT/.vbl-lock (pid and "reproduce" inside); a run folder inside
+    OUT is refused, unless this process may write there (allow_runs_under)."""
+    monkeypatch.setattr(runfolder, "_ALLOWED", set())
+    out = tmp_path / "repro"
+    out.mkdir()
+    (out / runfolder.LOCK).write_text("4242 reproduce\n")
+    fd = os.open(out / runfolder.LOCK, os.O_RDWR)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        with pytest.raises(EngineError, match=r"belongs to a vbl reproduce .*\(pid 4242\)"):
+            runfolder.open_run_folder(out / "run", "toy", resume=False, overwrite=False)
+        assert not (out / "run").exists()
+        runfolder.allow_runs_under(out)
+        runfolder.open_run_folder(out / "run", "toy", resume=False, overwrite=False).release()
+        assert runfolder.is_vbl_run(out / "run")
+    finally:
+        os.close(fd)
+    # the lock released (the reproduce ended): any process may write there
+    monkeypatch.setattr(runfolder, "_ALLOWED", set())
+    runfolder.open_run_folder(out / "run2", "toy", resume=False, overwrite=False).release()
+
+
+# ------------------------------------------------------------------ statistics
+
+
+def _t_interval(x):
+    x = np.asarray(x, float)
+    return sps.t.interval(0.95, x.size - 1, loc=x.mean(), scale=sps.sem(x))
+
+
+@pytest.mark.parametrize("x", [[0.0, 0.0, 0.3], [1.0, 1.0, 0.7], [0.0, 0.5, 1.0]])
+def test_bounded_ci95_gives_no_interval_below_min_seeds_when_either_side_crosses(x):
+    lo, hi = _t_interval(x)
+    assert lo < 0.0 or hi > 1.0  # the t interval crosses the range on one side or both
+    assert len(x) < MIN_SEEDS_BOUNDED
+    assert bounded_ci95(x, 0.0, 1.0) is None
+
+
+@pytest.mark.parametrize("x", [[0.0, 0.0, 0.0, 0.4], [1.0, 1.0, 1.0, 0.6],
+                               [0.0, 0.1, 0.9, 1.0]])
+def test_bounded_ci95_clips_from_min_seeds_on(x):
+    assert len(x) == MIN_SEEDS_BOUNDED == 4  # the documented threshold
+    lo, hi = _t_interval(x)
+    got = bounded_ci95(x, 0.0, 1.0)
+    assert got is not None
+    np.testing.assert_allclose(got, (np.mean(x), max(lo, 0.0), min(hi, 1.0)), rtol=1e-5)
+
+
+def test_bounded_ci95_inside_the_range_with_three_seeds():
+    x = [0.4, 0.5, 0.6]
+    lo, hi = _t_interval(x)
+    np.testing.assert_allclose(bounded_ci95(x, 0.0, 1.0), (0.5, lo, hi), rtol=1e-5)
+
+
+def test_claim_counts_the_seeds_of_the_smaller_arm():
+    rng = np.random.default_rng(0)
+    a, b = rng.normal(0.5, 0.3, 3), rng.normal(0.45, 0.3, 10)
+    says = claim(a, b)
+    assert says.startswith("not resolved at 3 seeds"), says
+    assert claim([0.6], b).startswith("not resolved (1 seed: no interval")
+    assert claim(b, a[:2]).startswith("not resolved at 2 seeds")
+
+
+# ------------------------------------------------------------------ vbl render's checks
+
+
+def _render(*args) -> int:
+    from vbl.cli import main
+
+    return main(["render", *map(str, args)])
+
+
+def test_render_refuses_too_many_episodes_before_anything_runs(tmp_path, monkeypatch, capsys):
+    """Frames of 128 px height: camera 137 (512 x 480 aspect), top view 213 (320 x 192),
+    panel 77 (0.6 x height) -> 427 px wide, 3 bytes a pixel; 200 frames an episode at
+    most, 2 copies: 65,587,200 bytes an episode, so 1 GiB holds 16 episodes."""
+    monkeypatch.setattr("vbl.engine.memory.available_memory", lambda: 1 << 30)
+    out = tmp_path / "v.gif"
+    capsys.readouterr()
+    assert _render(tmp_path / "no-run", "--episodes", 17, "--out", out) == 2
+    err = one_error_line(capsys.readouterr().err)
+    assert "--episodes 17" in err and "use at most --episodes 16 " in err
+    assert _render(tmp_path / "no-run", "--episodes", 16, "--out", out) == 2
+    err = one_error_line(capsys.readouterr().err)
+    assert "memory" not in err and "no-run" in err  # past the check: the folder is next
+    assert not out.exists()
+
+
+def test_render_into_a_folder_it_cannot_write_is_one_line(tmp_path, capsys):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    locked = False
+    try:
+        if os.access(ro, os.W_OK):  # root ignores the mode: make the folder immutable
+            locked = os.system(f"chattr +i {ro} 2>/dev/null") == 0
+            if not locked:
+                pytest.skip("no way to make a folder read-only here")
+        capsys.readouterr()
+        assert _render(tmp_path / "no-run", "--out", ro / "v.gif") == 2
+        err = one_error_line(capsys.readouterr().err)
+        assert f"cannot write {ro / 'v.gif'}" in err and "pick another --out" in err
+    finally:
+        if locked:
+            os.system(f"chattr -i {ro}")
+        ro.chmod(0o755)
+
+
+# ------------------------------------------------------------------ Monte Carlo past one pass
+
+
+def test_mc_update_of_one_key_over_many_passes_matches_the_closed_form():
+    """One (state, action) decided 700 times in one trial (3 passes of 256), another 300
+    times in a second; the count c and the mean return of each key give the new value
+    q + (1 - (1 - lr)**c) * (mean - q), whatever the passes."""
+    from vbl.agents.monte_carlo import MC_PASS_ENTRIES, mc_init, mc_update
+
+    length, lr, gamma = 700, 0.002, 0.99
+    assert length > 2 * MC_PASS_ENTRIES
+    clock = np.arange(length)
+    s = np.zeros((2, length), np.int32)
+    a = np.zeros((2, length), np.int32)
+    s[1], a[1] = 2, 1
+    n = np.array([length, 300])
+    last = np.array([length - 1, 400])
+    q0 = np.array([[0.3, 0.0], [0.0, 0.0], [0.0, 0.7]], np.float32)
+    log = mc_init(2, length).replace(s=jnp.asarray(s), a=jnp.asarray(a),
+                                     clock=jnp.asarray(np.stack([clock, clock]), jnp.int32),
+                                     n=jnp.asarray(n, jnp.int32))
+    q, _, used = mc_update(jnp.asarray(q0), log, jnp.array([True, True]),
+                           jnp.array([True, True]), jnp.asarray(last, jnp.int32), lr, gamma)
+    want = q0.astype(np.float64)
+    for (si, ai), e in (((0, 0), 0), ((2, 1), 1)):
+        rets = gamma ** (last[e] - clock[:n[e]].astype(np.float64))
+        want[si, ai] += (1 - (1 - lr) ** n[e]) * (rets.mean() - want[si, ai])
+    np.testing.assert_allclose(np.asarray(q), want, rtol=1e-5)
+    assert float(used) == length + 300
