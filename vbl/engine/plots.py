@@ -104,20 +104,42 @@ def plot_curves(curves: dict[str, np.ndarray], points: list[dict[str, Any]], out
 FIGURE_SUFFIXES = (".png", ".svg")  #: the files :func:`plot_sweep` writes
 
 
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
 def _sweep_lines(records: list[dict[str, Any]], x: str, others: list[str]
-                 ) -> dict[str, list[dict[str, Any]]]:
+                 ) -> tuple[dict[str, list[dict[str, Any]]], dict[str, int]]:
     """``records`` of one metric, one list per value of the ``others`` columns (the label
-    of a line), each sorted by ``x``."""
+    of a line), each sorted by ``x`` when every ``x`` is a number; with the tick of each
+    ``x`` value that is not (its text -> position)."""
     lines: dict[str, list[dict[str, Any]]] = {}
     for r in records:
         label = point_label({c: r[c] for c in others}) if others else ""
         lines.setdefault(label, []).append(r)
-    numeric = all(isinstance(r[x], (int, float)) and not isinstance(r[x], bool)
-                  for r in records)
-    for rs in lines.values():
-        if numeric:
+    ticks: dict[str, int] = {}
+    if all(_is_number(r[x]) for r in records):
+        for rs in lines.values():
             rs.sort(key=lambda r: r[x])
-    return lines
+    else:
+        for r in records:
+            ticks.setdefault(str(r[x]), len(ticks))
+    return lines, ticks
+
+
+def _metric_records(run: Any, y: str) -> list[dict[str, Any]]:
+    """:func:`vbl.engine.export.final_stats` of metric ``y``: ``Program.final``'s, else the
+    last chunk's; a ParamError listing the metrics when there is none."""
+    from vbl.engine.export import final_stats
+    from vbl.params import ParamError
+
+    stats = final_stats(run)
+    records = ([r for r in stats if r["metric"] == y and r["source"] == "final"]
+               or [r for r in stats if r["metric"] == y])
+    if not records:
+        have = ", ".join(sorted({r["metric"] for r in stats})) or "none yet"
+        raise ParamError(f"{y!r} is not a metric of {run.folder} (metrics: {have})")
+    return records
 
 
 def plot_sweep(run: Any, x: str, y: str, out: str | Path | None = None) -> Path:
@@ -135,7 +157,7 @@ def plot_sweep(run: Any, x: str, y: str, out: str | Path | None = None) -> Path:
     matplotlib.use("Agg", force=True)
     import matplotlib.pyplot as plt
 
-    from vbl.engine.export import final_stats, read_run, swept_path
+    from vbl.engine.export import read_run, swept_path
     from vbl.params import ParamError
 
     run = read_run(run)
@@ -143,33 +165,26 @@ def plot_sweep(run: Any, x: str, y: str, out: str | Path | None = None) -> Path:
     out = Path(out) if out is not None else Path(_file_name(f"{y}_vs_{path}"))
     if out.suffix.lower() not in FIGURE_SUFFIXES:
         raise ParamError(f"{out}: the plot is written as {' or '.join(FIGURE_SUFFIXES)}")
-    stats = final_stats(run)
-    records = ([r for r in stats if r["metric"] == y and r["source"] == "final"]
-               or [r for r in stats if r["metric"] == y])
-    if not records:
-        have = ", ".join(sorted({r["metric"] for r in stats})) or "none yet"
-        raise ParamError(f"{y!r} is not a metric of {run.folder} (metrics: {have})")
+    records = _metric_records(run, y)
     col = run.column(path)
     others = [run.column(p) for p in run.sweep if p != path]
+    lines, ticks = _sweep_lines(records, col, others)
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
-    ticks: dict[str, int] = {}
-    for i, (label, rs) in enumerate(_sweep_lines(records, col, others).items()):
-        xs = [r[col] if isinstance(r[col], (int, float)) and not isinstance(r[col], bool)
-              else ticks.setdefault(str(r[col]), len(ticks)) for r in rs]
-        m = np.array([r["mean"] for r in rs], dtype=np.float64)
-        lo = np.array([r["lower"] for r in rs], dtype=np.float64)
-        hi = np.array([r["upper"] for r in rs], dtype=np.float64)
+    for i, (label, rs) in enumerate(lines.items()):
+        xs = [ticks[str(r[col])] if ticks else r[col] for r in rs]
+        m, lo, hi = (np.array([r[k] for r in rs], dtype=np.float64)
+                     for k in ("mean", "lower", "upper"))
         err = np.nan_to_num(np.stack([m - lo, hi - m]))  # no interval: the mean alone
         ax.errorbar(xs, m, yerr=err, label=label or None, marker="o", capsize=3,
                     linestyle=LINESTYLES[i % len(LINESTYLES)])
     if ticks:
         ax.set_xticks(list(ticks.values()), list(ticks))
-    seeds = max(r["seeds"] for r in records)
     what = "final" if records[0]["source"] == "final" else "last chunk"
     ax.set_xlabel(path)
     ax.set_ylabel(f"{y} ({what})")
     ax.set_title(f"{run.experiment}: {y} against {path.rsplit('.', 1)[-1]} "
-                 f"({seeds} seeds, 95% interval)", fontsize="medium")
+                 f"({max(r['seeds'] for r in records)} seeds, 95% interval)",
+                 fontsize="medium")
     if others:
         ax.legend(fontsize="small")
     ax.grid(alpha=0.3)

@@ -1,0 +1,84 @@
+"""Live curves in TensorBoard (``vbl run --tensorboard DIR``): the event files of a 2-point
+run read back, with tensorboard's own ``EventAccumulator`` (the reader TensorBoard itself
+uses, with nothing on top), as the mean and 95 % band of every chunk in ``metrics.jsonl``."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+import numpy as np
+import pytest
+
+from tests.engine_helpers import TINY_SETS, toy_experiment
+from vbl.engine.config import EngineError
+from vbl.engine.runner import run_experiment
+from vbl.engine.tensorboard import point_run_name
+
+pytest.importorskip("tensorboardX")
+event_accumulator = pytest.importorskip("tensorboard.backend.event_processing.event_accumulator")
+
+
+@pytest.fixture(scope="module")
+def toy(tmp_path_factory):
+    yield from toy_experiment(tmp_path_factory.mktemp("exps"))
+
+
+def _scalars(folder) -> dict[str, dict[int, float]]:
+    acc = event_accumulator.EventAccumulator(str(folder), size_guidance={"scalars": 0})
+    acc.Reload()
+    return {tag: {e.step: e.value for e in acc.Scalars(tag)} for tag in acc.Tags()["scalars"]}
+
+
+def test_event_files_hold_the_runs_means_and_bands(toy, tmp_path):
+    """Per sweep point a TensorBoard run; per chunk and scalar metric its mean, lower and
+    upper (mean -/+ ci95, a rate's clipped to [0, 1]) at step = chunks done; the final
+    metrics under final/ at the last chunk: metrics.jsonl's values as 32-bit floats."""
+    tb = tmp_path / "tb"
+    res = run_experiment(toy, sets=dict(TINY_SETS, **{"train.num_chunks": 3}),
+                         sweep={"agent.epsilon": [0.0, 0.3]}, seeds=3, out=tmp_path / "run",
+                         quiet=True, plots=False, tensorboard=tb)
+    rows = [json.loads(x) for x in (res.out_dir / "metrics.jsonl").read_text().splitlines()]
+    runs = {p: point_run_name(p, v) for p, v in enumerate(res.points)}
+    assert runs == {0: "p0_epsilon=0.0", 1: "p1_epsilon=0.3"}
+    assert sorted(d.name for d in tb.iterdir()) == sorted(runs.values())
+    got = {p: _scalars(tb / name) for p, name in runs.items()}
+    n = 0
+    for r in rows:
+        final = r["chunk"] == "final"
+        step = 3 if final else r["chunk"] + 1
+        for k, st in r["metrics"].items():
+            tag = f"final/{k}" if final else k
+            m, h = st["mean"], st["ci95"]
+            lo, hi = m - h, m + h
+            if "rate" in k:
+                lo, hi = max(lo, 0.0), min(hi, 1.0)
+            for part, want in (("mean", m), ("lower", lo), ("upper", hi)):
+                assert got[r["point"]][f"{tag}/{part}"][step] == np.float32(want), (tag, part)
+                n += 1
+    assert n == sum(len(d) for g in got.values() for d in g.values())  # nothing else
+
+
+def test_the_cli_passes_tensorboard_on(toy, monkeypatch):
+    """vbl run --tensorboard DIR reaches run_experiment(..., tensorboard=DIR)."""
+    from vbl.cli import build_parser, main
+    from vbl.engine import runner
+
+    seen = {}
+
+    def fake(experiment, **kw):
+        seen.update(kw)
+        raise EngineError("stop here")
+
+    monkeypatch.setattr(runner, "run_experiment", fake)
+    monkeypatch.setattr(runner, "describe_sweep", lambda *a: (1, 1, "one point"))
+    assert build_parser().parse_args(["run", "x", "--tensorboard", "d"]).tensorboard == "d"
+    assert main(["run", "toy_bandit", "--tensorboard", "tb-dir", "--quiet"]) == 1
+    assert seen["tensorboard"] == "tb-dir"
+
+
+def test_without_tensorboardx_a_run_stops_before_it_starts(toy, tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "tensorboardX", None)  # import fails
+    with pytest.raises(EngineError, match=r"pip install 'vbl\[tensorboard\]'"):
+        run_experiment(toy, sets=TINY_SETS, out=tmp_path / "run", quiet=True, tensorboard="x")
+    assert not (tmp_path / "run").exists()
