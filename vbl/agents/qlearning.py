@@ -16,7 +16,7 @@ the one field ``update`` (:func:`rule_of`).
 environments. One learner step is: select (:func:`_select`), act (:func:`_act`: the env
 under :class:`~vbl.envs.macro.MacroWrapper` runs every env's whole action, or in async
 mode one primitive of every env's running action), truncation rule (:func:`_truncation`),
-update (the rule), bookkeeping and LEM (:func:`_record`). An evaluation runs the same step
+update (the rule), bookkeeping (:func:`_record`). An evaluation runs the same step
 in evaluation mode (:class:`Evaluation`: epsilon-greedy at a fixed epsilon, step size 0)
 from fresh starts; the runner's env counts each env's first episode
 (:class:`~vbl.envs.wrappers.FirstEpisodeWrapper`), which :func:`evaluation_stats` reads.
@@ -188,7 +188,7 @@ class Evaluation:
     epsilon: Any = 0.0    #: () float32 epsilon of the evaluated policy (0: greedy)
 
 
-class _Spec(NamedTuple):
+class _Runner(NamedTuple):
     """The static parts of a runner (fixed at make time)."""
 
     env: MacroWrapper  #: the learner's env under the macro-action wrapper
@@ -197,11 +197,11 @@ class _Spec(NamedTuple):
     rule: UpdateRule
 
     @property
-    def n_envs(self) -> int:
+    def num_envs(self) -> int:
         return self.params.num_envs
 
 
-class _Moved(NamedTuple):
+class _EnvStep(NamedTuple):
     """What one learner step's (macro) env steps gave, each (E,) unless noted."""
 
     obs: Any
@@ -210,9 +210,19 @@ class _Moved(NamedTuple):
     trunc: jax.Array
     info: Any
     macro: dict         #: ``info["macro"]``: the (ended) action's start, action, reward, n
-    advance: Any        #: async: bool, the action ended here; sync: None
-    prims: Any          #: primitives run at this step (sync: n; async: 1)
-    acts: Any           #: decisions at this step (sync: 1; async: decided)
+    action_ended: Any   #: async: bool, the action ended here; sync: None
+    primitives: Any     #: primitives run at this step (sync: n; async: 1)
+    decisions: Any      #: decisions at this step (sync: 1; async: decided)
+
+
+class _Learned(NamedTuple):
+    """What one learner step's update gave."""
+
+    q: jax.Array        #: (S, A) the table after the update
+    rule_state: Any     #: the update rule's state after it
+    lem: LEMState
+    rate: jax.Array     #: the behaviour policy's epsilon (or temperature) at this step
+    td_abs: jax.Array   #: mean |TD error| of the updated transitions
 
 
 def _check(env: Any, params: QRunnerParams, env_params: Any) -> None:
@@ -227,147 +237,153 @@ def _check(env: Any, params: QRunnerParams, env_params: Any) -> None:
                              f"field; {type(ep).__name__} has none (set lem.enabled=False)")
 
 
-def _states(sp: _Spec, obs: Any) -> jax.Array:
-    return jnp.asarray(jax.vmap(sp.state_fn)(obs), jnp.int32)
+def _states(run: _Runner, obs: Any) -> jax.Array:
+    return jnp.asarray(jax.vmap(run.state_fn)(obs), jnp.int32)
 
 
-def _env_params_at(sp: _Spec, env_params: Any, difficulty: jax.Array) -> Any:
-    if sp.params.lem.enabled:
-        return env_params.replace(start_difficulty=difficulty)
-    return env_params
+def _wrapper_params(run: _Runner, params: QRunnerParams, env_params, difficulty):
+    """The macro wrapper's params, the env's at LEM's start ``difficulty`` (when on)."""
+    if run.params.lem.enabled:
+        env_params = env_params.replace(start_difficulty=difficulty)
+    return macro_env_params(env_params, params.macro, params.discount)
 
 
-def _wrapper_params(sp: _Spec, params: QRunnerParams, env_params, difficulty):
-    return macro_env_params(_env_params_at(sp, env_params, difficulty), params.macro,
-                            params.discount)
-
-
-def _init(sp: _Spec, key, params: QRunnerParams, env_params) -> QRunnerState:
+def _init(run: _Runner, key, params: QRunnerParams, env_params) -> QRunnerState:
     k_reset, key = jax.random.split(key)
     q = init_q(params)
     lem = lem_init(params.lem, q)
-    obs, st = jax.vmap(sp.env.reset, in_axes=(0, None))(
-        jax.random.split(k_reset, sp.n_envs), _wrapper_params(sp, params, env_params,
-                                                              lem.difficulty))
-    zeros = jnp.zeros((sp.n_envs,), jnp.int32)
+    obs, st = jax.vmap(run.env.reset, in_axes=(0, None))(
+        jax.random.split(k_reset, run.num_envs),
+        _wrapper_params(run, params, env_params, lem.difficulty))
+    zeros = jnp.zeros((run.num_envs,), jnp.int32)
     return QRunnerState(key=key, q=q, env_state=st.inner, obs=obs, s=st.index,
                         steps=jnp.int32(0), episodes=jnp.int32(0), ep_primitives=zeros,
                         ep_actions=zeros, perceived=st.key, lem=lem,
-                        rule=sp.rule.init(sp.n_envs), macro=st.running)
+                        rule=run.rule.init(run.num_envs), macro=st.running)
 
 
-def _count(sp: _Spec, steps: jax.Array, episodes: jax.Array) -> jax.Array:
+def _schedule_count(run: _Runner, steps: jax.Array, episodes: jax.Array) -> jax.Array:
     """The exploration schedule's count (learner steps or finished episodes)."""
-    return steps if sp.params.exploration.count_unit == "steps" else episodes
+    return steps if run.params.exploration.count_unit == "steps" else episodes
 
 
-def _select(sp: _Spec, k_act, c: QRunnerState, params: QRunnerParams,
+def _select(run: _Runner, k_act, carry: QRunnerState, params: QRunnerParams,
             mode: Evaluation | None) -> tuple[jax.Array, jax.Array]:
     """(rate, action (E,)): the behaviour policy, or where ``mode`` is active the
     epsilon-greedy policy at its epsilon."""
-    rate = schedule_value(params.exploration, _count(sp, c.steps, c.episodes))
-    action = sp.rule.act(c.rule, select_action(k_act, c.q[c.s], rate,
-                                               sp.params.exploration.policy))
+    rate = schedule_value(params.exploration,
+                          _schedule_count(run, carry.steps, carry.episodes))
+    values = carry.q[carry.s]
+    action = run.rule.act(carry.rule, select_action(k_act, values, rate,
+                                                    run.params.exploration.policy))
     if mode is None:
         return rate, action
-    eps = jnp.asarray(mode.epsilon, jnp.float32)
-    greedy = select_action(k_act, c.q[c.s], eps, "epsilon_greedy")
+    epsilon = jnp.asarray(mode.epsilon, jnp.float32)
+    evaluated = select_action(k_act, values, epsilon, "epsilon_greedy")
     on = jnp.asarray(mode.active, bool)
-    return jnp.where(on, eps, rate), jnp.where(on, greedy, action)
+    return jnp.where(on, epsilon, rate), jnp.where(on, evaluated, action)
 
 
-def _act(sp: _Spec, key, c: QRunnerState, action, params: QRunnerParams,
-         env_params) -> _Moved:
+def _act(run: _Runner, key, carry: QRunnerState, action, params: QRunnerParams,
+         env_params) -> _EnvStep:
     """Every env steps under the macro wrapper: its whole action (sync, or one primitive
     when macro actions are off), or one primitive of its running action (async)."""
-    keys = jax.random.split(key, sp.n_envs)
-    wp = _wrapper_params(sp, params, env_params, c.lem.difficulty)
-    state = MacroState(inner=c.env_state, index=c.s, key=c.perceived, running=c.macro)
-    obs, state, _, term, trunc, info = jax.vmap(sp.env.step, in_axes=(0, 0, 0, None))(
-        keys, state, action, wp)
-    mi = info["macro"]
-    if sp.env.is_async:
-        return _Moved(obs, state, term, trunc, info, mi, mi["ended"], 1,
-                      mi["decided"].astype(jnp.int32))
-    return _Moved(obs, state, term, trunc, info, mi, None, mi["num_primitives"], 1)
+    keys = jax.random.split(key, run.num_envs)
+    wrapper_params = _wrapper_params(run, params, env_params, carry.lem.difficulty)
+    state = MacroState(inner=carry.env_state, index=carry.s, key=carry.perceived,
+                       running=carry.macro)
+    obs, state, _, term, trunc, info = jax.vmap(run.env.step, in_axes=(0, 0, 0, None))(
+        keys, state, action, wrapper_params)
+    macro = info["macro"]
+    if run.env.is_async:
+        return _EnvStep(obs, state, term, trunc, info, macro, action_ended=macro["ended"],
+                        primitives=1, decisions=macro["decided"].astype(jnp.int32))
+    return _EnvStep(obs, state, term, trunc, info, macro, action_ended=None,
+                    primitives=macro["num_primitives"], decisions=1)
 
 
-def _truncation(sp: _Spec, m: _Moved) -> tuple[Any, Any, Any]:
+def _truncation(run: _Runner, moved: _EnvStep) -> tuple[Any, Any, Any]:
     """(terminal, weight, s_boot) of the transitions under ``truncation``."""
-    mode = sp.params.truncation
-    cut, s_next = m.trunc & ~m.term, m.state.index
+    mode = run.params.truncation
+    cut, s_next = moved.trunc & ~moved.term, moved.state.index
     if mode == "skip":
-        return m.term, ~cut, s_next
+        return moved.term, ~cut, s_next
     if mode == "terminal":
-        return m.term | m.trunc, None, s_next
-    if "final_obs" not in m.info:
+        return moved.term | moved.trunc, None, s_next
+    if "final_obs" not in moved.info:
         raise ParamError("truncation='bootstrap' needs info['final_obs'] from the env")
-    return m.term, None, jnp.where(cut, _states(sp, m.info["final_obs"]), s_next)
+    return moved.term, None, jnp.where(cut, _states(run, moved.info["final_obs"]), s_next)
 
 
-def _next_action(sp: _Spec, k_act, c: QRunnerState, m: _Moved,
+def _next_action(run: _Runner, k_act, carry: QRunnerState, moved: _EnvStep,
                  params: QRunnerParams) -> jax.Array:
     """Sarsa: the action each env takes next in ``s_next`` (pre-update table, next rate)."""
-    n_done = jnp.sum(m.term | m.trunc, dtype=jnp.int32)
-    rate = schedule_value(params.exploration, _count(sp, c.steps + 1, c.episodes + n_done))
-    return select_action(jax.random.fold_in(k_act, 1), c.q[m.state.index], rate,
-                         sp.params.exploration.policy)
+    n_done = jnp.sum(moved.term | moved.trunc, dtype=jnp.int32)
+    rate = schedule_value(params.exploration,
+                          _schedule_count(run, carry.steps + 1, carry.episodes + n_done))
+    return select_action(jax.random.fold_in(k_act, 1), carry.q[moved.state.index], rate,
+                         run.params.exploration.policy)
 
 
-def _transition(sp: _Spec, k_act, c: QRunnerState, m: _Moved,
+def _transition(run: _Runner, k_act, carry: QRunnerState, moved: _EnvStep,
                 params: QRunnerParams) -> Transition:
     """The rule's view of this step's transitions."""
-    terminal, weight, s_boot = _truncation(sp, m)
-    done = m.term | m.trunc
-    a_next = _next_action(sp, k_act, c, m, params) if sp.rule.next_action else None
-    return Transition(s=m.macro["start"], a=m.macro["action"], r=m.macro["reward"],
-                      n=m.macro["num_primitives"], s_boot=s_boot, terminal=terminal, done=done,
-                      truncated=m.trunc & ~m.term, weight=weight, advance=m.advance,
-                      decided=m.macro["decided"], clock=c.ep_primitives,
-                      last_clock=c.ep_primitives + m.prims - 1,
-                      scored=jnp.asarray(m.info["success"]).astype(bool) & done, a_next=a_next)
+    terminal, weight, s_boot = _truncation(run, moved)
+    done = moved.term | moved.trunc
+    a_next = _next_action(run, k_act, carry, moved, params) if run.rule.next_action else None
+    macro = moved.macro
+    return Transition(s=macro["start"], a=macro["action"], r=macro["reward"],
+                      n=macro["num_primitives"], s_boot=s_boot, terminal=terminal, done=done,
+                      truncated=moved.trunc & ~moved.term, weight=weight,
+                      advance=moved.action_ended, decided=macro["decided"],
+                      clock=carry.ep_primitives,
+                      last_clock=carry.ep_primitives + moved.primitives - 1,
+                      scored=jnp.asarray(moved.info["success"]).astype(bool) & done,
+                      a_next=a_next)
 
 
-def _record(c: QRunnerState, m: _Moved, key, q, rule_state, lem, rate, td_abs):
+def _record(carry: QRunnerState, moved: _EnvStep, key, learned: _Learned):
     """Episode bookkeeping: (new carry, metrics)."""
-    done = m.term | m.trunc
-    success = jnp.asarray(m.info["success"]).astype(bool) & done
-    ep_prim = c.ep_primitives + m.prims
-    ep_act = c.ep_actions + m.acts
+    done = moved.term | moved.trunc
+    success = jnp.asarray(moved.info["success"]).astype(bool) & done
+    ep_primitives = carry.ep_primitives + moved.primitives
+    ep_actions = carry.ep_actions + moved.decisions
     metrics = dict(
         episodes=jnp.sum(done, dtype=jnp.int32),
         successes=jnp.sum(success, dtype=jnp.int32),
-        primitives=jnp.sum(jnp.where(done, ep_prim, 0), dtype=jnp.int32),
-        actions=jnp.sum(jnp.where(done, ep_act, 0), dtype=jnp.int32),
-        td_abs=td_abs, rate=jnp.asarray(rate, jnp.float32),
-        difficulty=c.lem.difficulty, lem_raises=lem.raises)
-    new = QRunnerState(key=key, q=q, env_state=m.state.inner, obs=m.obs, s=m.state.index,
-                       steps=c.steps + 1, episodes=c.episodes + metrics["episodes"],
-                       ep_primitives=jnp.where(done, 0, ep_prim),
-                       ep_actions=jnp.where(done, 0, ep_act), perceived=m.state.key, lem=lem,
-                       rule=rule_state, macro=m.state.running)
+        primitives=jnp.sum(jnp.where(done, ep_primitives, 0), dtype=jnp.int32),
+        actions=jnp.sum(jnp.where(done, ep_actions, 0), dtype=jnp.int32),
+        td_abs=learned.td_abs, rate=jnp.asarray(learned.rate, jnp.float32),
+        difficulty=carry.lem.difficulty, lem_raises=learned.lem.raises)
+    new = QRunnerState(key=key, q=learned.q, env_state=moved.state.inner, obs=moved.obs,
+                       s=moved.state.index, steps=carry.steps + 1,
+                       episodes=carry.episodes + metrics["episodes"],
+                       ep_primitives=jnp.where(done, 0, ep_primitives),
+                       ep_actions=jnp.where(done, 0, ep_actions),
+                       perceived=moved.state.key, lem=learned.lem,
+                       rule=learned.rule_state, macro=moved.state.running)
     return new, metrics
 
 
-def _step(sp: _Spec, c: QRunnerState, params: QRunnerParams, env_params,
+def _step(run: _Runner, carry: QRunnerState, params: QRunnerParams, env_params,
           mode: Evaluation | None = None):
     """One learner step: select, act, update (step size 0 where ``mode`` is active),
     record."""
-    key, k_act, k_env = jax.random.split(c.key, 3)
-    rate, action = _select(sp, k_act, c, params, mode)
-    m = _act(sp, k_env, c, action, params, env_params)
-    t = _transition(sp, k_act, c, m, params)
+    key, k_act, k_env = jax.random.split(carry.key, 3)
+    rate, action = _select(run, k_act, carry, params, mode)
+    moved = _act(run, k_env, carry, action, params, env_params)
+    t = _transition(run, k_act, carry, moved, params)
     learning = params if mode is None else params.replace(learning_rate=jnp.where(
         jnp.asarray(mode.active, bool), 0.0, params.learning_rate).astype(jnp.float32))
-    q, rule_state, td_abs = sp.rule.update(c.q, c.rule, t, learning)
-    lem = lem_update(c.lem, q, params.lem, jnp.sum(t.done), jnp.sum(t.scored))
-    return _record(c, m, key, q, rule_state, lem, rate, td_abs)
+    q, rule_state, td_abs = run.rule.update(carry.q, carry.rule, t, learning)
+    lem = lem_update(carry.lem, q, params.lem, jnp.sum(t.done), jnp.sum(t.scored))
+    return _record(carry, moved, key, _Learned(q, rule_state, lem, rate, td_abs))
 
 
-def _run_chunk(sp: _Spec, carry: QRunnerState, params: QRunnerParams, env_params,
+def _run_chunk(run: _Runner, carry: QRunnerState, params: QRunnerParams, env_params,
                mode: Evaluation | None = None):
-    return jax.lax.scan(lambda c, _: _step(sp, c, params, env_params, mode), carry, None,
-                        length=sp.params.chunk_steps)
+    return jax.lax.scan(lambda c, _: _step(run, c, params, env_params, mode), carry, None,
+                        length=run.params.chunk_steps)
 
 
 def evaluation_stats(carry: QRunnerState, metrics: dict) -> dict[str, jax.Array]:
@@ -380,16 +396,16 @@ def evaluation_stats(carry: QRunnerState, metrics: dict) -> dict[str, jax.Array]
     counts: EpisodeCounts = carry.env_state
     done = counts.episodes > 0
     f32 = jnp.float32
-    eps = jnp.sum(metrics["episodes"]).astype(f32)
-    prims = jnp.sum(metrics["primitives"]).astype(f32)
+    episodes = jnp.sum(metrics["episodes"]).astype(f32)
+    primitives = jnp.sum(metrics["primitives"]).astype(f32)
     return dict(success_rate=jnp.mean((counts.first_success & done).astype(f32)),
                 finished=jnp.mean(done.astype(f32)),
-                mean_primitives=prims / jnp.maximum(eps, 1.0),
-                primitives_per_decision=prims / jnp.maximum(
+                mean_primitives=primitives / jnp.maximum(episodes, 1.0),
+                primitives_per_decision=primitives / jnp.maximum(
                     jnp.sum(metrics["actions"]).astype(f32), 1.0))
 
 
-def _evaluate(sp: _Spec, key, q, params: QRunnerParams, env_params, num_steps: int = 200,
+def _evaluate(run: _Runner, key, q, params: QRunnerParams, env_params, num_steps: int = 200,
               epsilon: Any = 0.0, start: QRunnerState | None = None):
     """The epsilon-greedy policy of table ``q`` (``epsilon`` 0: greedy; may be traced; > 0
     breaks cycles between aliased states) from fresh starts, ``num_steps`` (static) learner
@@ -397,16 +413,16 @@ def _evaluate(sp: _Spec, key, q, params: QRunnerParams, env_params, num_steps: i
     from ``init``; its key replaced by ``key``) or drawn from ``key`` at ``env_params``'
     start difficulty (LEM's pinned to it)."""
     if start is None:
-        if sp.params.lem.enabled:  # start (and stay) at env_params' own difficulty
+        if run.params.lem.enabled:  # start (and stay) at env_params' own difficulty
             d = jnp.asarray(env_params.start_difficulty, jnp.float32)
             params = params.replace(lem=params.lem.replace(initial_difficulty=d))
         key, k_init = jax.random.split(key)
-        start = _init(sp, k_init, params, env_params)
-    c = start.replace(key=key, q=jnp.asarray(q, jnp.float32))
+        start = _init(run, k_init, params, env_params)
+    carry = start.replace(key=key, q=jnp.asarray(q, jnp.float32))
     mode = Evaluation(active=jnp.bool_(True), epsilon=jnp.asarray(epsilon, jnp.float32))
-    c, m = jax.lax.scan(lambda c, _: _step(sp, c, params, env_params, mode), c, None,
-                        length=num_steps)
-    return evaluation_stats(c, m)
+    carry, metrics = jax.lax.scan(lambda c, _: _step(run, c, params, env_params, mode), carry,
+                                  None, length=num_steps)
+    return evaluation_stats(carry, metrics)
 
 
 def make_qlearning_runner(env: Any, state_fn: Callable, params: QRunnerParams,
@@ -439,11 +455,11 @@ def make_qlearning_runner(env: Any, state_fn: Callable, params: QRunnerParams,
     validate(params)
     _check(env, params, env_params)
     mp = params.macro
-    sp = _Spec(env=MacroWrapper(FirstEpisodeWrapper(env), state_fn, mp, stop_key(mp.stop_on),
-                                perceive_fn),
-               state_fn=state_fn, params=params, rule=rule_of(params))
-    init, run_chunk, evaluate = (partial(_init, sp), partial(_run_chunk, sp),
-                                 partial(_evaluate, sp))
+    run = _Runner(env=MacroWrapper(FirstEpisodeWrapper(env), state_fn, mp,
+                                   stop_key(mp.stop_on), perceive_fn),
+                  state_fn=state_fn, params=params, rule=rule_of(params))
+    init, run_chunk, evaluate = (partial(_init, run), partial(_run_chunk, run),
+                                 partial(_evaluate, run))
     init_batch = jax.jit(jax.vmap(init, in_axes=(0, 0, 0)))
     run_chunk_batch = jax.jit(jax.vmap(run_chunk, in_axes=(0, 0, 0)))
 
