@@ -171,3 +171,20 @@ def test_mc_update_of_one_key_over_many_passes_matches_the_closed_form():
         want[si, ai] += (1 - (1 - lr) ** n[e]) * (rets.mean() - want[si, ai])
     np.testing.assert_allclose(np.asarray(q), want, rtol=1e-5)
     assert float(used) == length + 300
+
+
+# ------------------------------------------------------------------ a full disk
+
+
+@pytest.mark.skipif(not os.path.exists("/dev/full"), reason="no /dev/full")
+def test_a_full_disk_names_the_file_it_could_not_write():
+    """Writing to /dev/full fails with ENOSPC on the write, not the open (as a disk that
+    fills during a run): the one line still names the file."""
+    from pathlib import Path
+
+    from vbl.engine.errors import one_line
+    from vbl.engine.results import MetricsLog
+
+    with pytest.raises(OSError) as e:
+        MetricsLog(Path("/dev/full")).append([{"step": 1, "metrics": {}}])
+    assert one_line(e.value).startswith("cannot write /dev/full: No space left on device")
