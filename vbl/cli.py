@@ -388,14 +388,9 @@ def _dispatch(args) -> int:
     if args.command == "list":
         return _cmd_list()
     if args.command == "params":
-        from vbl.params import markdown_table
+        from vbl.engine.paramdoc import experiment_page
 
-        exp = _experiment(args.experiment)
-        print(markdown_table(exp.default_config))
-        for name, values in sorted(exp.presets.items()):
-            sets = " ".join(f"--set {k}={v}" for k, v in values.items())
-            print(f"\npreset `{name}`: {sets}", end="")
-        print("\n" if exp.presets else "", end="")
+        print(experiment_page(_experiment(args.experiment)))
         return 0
     if args.command == "run":
         _init_distributed(args)

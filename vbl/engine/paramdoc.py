@@ -6,9 +6,10 @@ A doc marks a table it wants generated with a pair of comments::
     | parameter | default | ... |        (generated)
     <!-- /params -->
 
-The table is ``vbl params EXPERIMENT`` (:func:`vbl.params.markdown_table` of the experiment's
-default config), or, for ``EXPERIMENT`` written ``module:Class`` (e.g.
-``vbl.vision.camera:CameraParams``), the table of that parameter class's defaults,
+The table is ``vbl params EXPERIMENT``'s parameter table without its run notes
+(:func:`vbl.params.markdown_table` of the experiment's default config), or, for
+``EXPERIMENT`` written ``module:Class`` (e.g. ``vbl.vision.camera:CameraParams``), the
+table of that parameter class's defaults,
 restricted to the rows whose path equals a ``PREFIX`` or starts with
 ``PREFIX.`` (``learner`` selects the whole ``learner`` section, ``task`` the one field).
 ``tests/test_docs.py`` checks every region against :func:`render`;
@@ -21,7 +22,7 @@ import re
 import sys
 from pathlib import Path
 
-__all__ = ["REGION", "table", "regions", "render", "main"]
+__all__ = ["REGION", "table", "experiment_page", "regions", "render", "main"]
 
 REGION = re.compile(
     r"(?P<open><!-- params:(?P<exp>[\w.:-]+)(?: (?P<prefixes>[\w.,-]+))? -->\n)"
@@ -52,6 +53,48 @@ def table(experiment: str, prefixes: list[str] | tuple[str, ...] = ()) -> str:
     if not keep:
         raise ValueError(f"no parameter of {experiment!r} is under {list(prefixes)}")
     return "\n".join(head + keep)
+
+
+def _values(values) -> str:
+    return ", ".join(str(v) for v in values)
+
+
+def experiment_page(exp) -> str:
+    """``vbl params EXPERIMENT``: what a run of ``exp`` uses, as Markdown. The seeds and the
+    default sweep (with and without ``--quick``), what ``--quick`` and each preset set, then
+    the parameter table, whose ``default`` cell also names every sweep, ``--quick`` or
+    preset value that replaces the default in a run."""
+    from vbl.params import markdown_table
+
+    quick_seeds = exp.quick_seeds or exp.seeds
+    sweep = (" x ".join(f"`{k}` in [{_values(v)}]" for k, v in exp.sweep.items())
+             if exp.sweep else "none (one point)")
+    lines = [f"# {exp.name}: {exp.description}", "",
+             f"* seeds: {exp.seeds} (`--quick`: {quick_seeds}; `--seeds N` sets them)",
+             f"* default sweep: {sweep}; a `--set` of a swept path fixes it, `--sweep` "
+             "replaces its values"]
+    if exp.quick:
+        lines.append("* `--quick` sets: " + ", ".join(f"`{k}={v}`" for k, v in
+                                                       exp.quick.items()))
+    for name, values in sorted(exp.presets.items()):
+        sets = ", ".join(f"`{k}={v}`" for k, v in values.items())
+        lines.append(f"* preset `{name}` (`--preset {name}`): {sets}")
+    notes: dict[str, list[str]] = {}
+    for k, v in exp.sweep.items():
+        notes.setdefault(k, []).append(f"swept: {_values(v)}")
+    for k, v in exp.quick.items():
+        notes.setdefault(k, []).append(f"--quick: {v}")
+    for name, values in sorted(exp.presets.items()):
+        for k, v in values.items():
+            notes.setdefault(k, []).append(f"preset {name}: {v}")
+    table = markdown_table(exp.default_config).splitlines()
+    for i, row in enumerate(table[2:], start=2):
+        cells = row.split(" | ")
+        path = cells[0].strip("| `")
+        if path in notes:
+            cells[1] += " (" + "; ".join(notes.pop(path)) + ")"
+            table[i] = " | ".join(cells)
+    return "\n".join(lines + [""] + table)
 
 
 def regions(text: str) -> list[tuple[str, list[str], str]]:
