@@ -7,7 +7,7 @@ random walk, (d) another robot that moves to the ball (``vbl.envs.collect``). Ea
 ``vbl.sysid.identify`` inside its program (:mod:`vbl.programs.identification`; outputs in
 units of ``y_unit`` px, areas as sqrt(area), see ``docs/two_robot_task.md``); the engine
 vmaps the learners over seeds and sweep points. The report gives l, n, log det R and AIC,
-mean +- std over seeds, beside the paper's Table 1, and checks the qualitative claims.
+mean ± 95 % interval over seeds, beside the paper's Table 1, and checks the qualitative claims.
 The paper's plain CVA recipe beside the projected one: ``--sweep
 ident.method=projected,paper``.
 
@@ -87,8 +87,8 @@ def checks(final: dict, i: int) -> dict[str, str]:
 def table(res: RunResult, i: int) -> str:
     t = {k: row_stats(res.final, i, k) for k in TABLE1_ROWS}
     cfg = res.config
-    lines = [f"Table 1: l, n, log det R, AIC (mean +- std over {res.seeds} seeds, one data "
-             f"set of N = {cfg.collect.num_steps} per row and seed; l and n also as the mode; "
+    lines = [f"Table 1: l, n, log det R, AIC (mean ± 95 % interval over {res.seeds} seeds, one "
+             f"data set of N = {cfg.collect.num_steps} per row and seed; l and n also as the mode; "
              f"outputs in {cfg.y_unit:g} px units)", "",
              "| agent | l (ours) | n (ours) | log det R (ours) | AIC (ours) | "
              "l / n / log det R / AIC (paper) |", "|---|---|---|---|---|---|"]

@@ -18,6 +18,7 @@ from typing import Any
 from vbl.engine.config import EngineError, config_to_dict
 from vbl.engine.experiment import Experiment, ReportSection, RunResult
 from vbl.engine.machine import git_commit, load_average, machine_description
+from vbl.engine.plots import is_rate
 from vbl.engine.registry import all_experiments, discover, import_errors
 from vbl.engine.runfolder import record_files
 from vbl.stats import mean_ci95, t_quantile_975
@@ -30,16 +31,12 @@ __all__ = ["default_section", "default_jobs", "reproduce", "reproduce_jobs", "Jo
 TABLE_COLUMNS = 100  #: the width ``vbl run``'s terminal table keeps to
 
 
-def _fmt(st: dict[str, Any]) -> str:
-    m, ci = st.get("mean"), st.get("ci95")
-    if isinstance(m, int | float) and isinstance(ci, int | float):
-        return f"{m:.4g} ± {ci:.2g}"
-    return str(m)
 
 
 def default_section(result: RunResult) -> ReportSection:
-    """A table of every sweep point's scalar last-chunk and final metrics (mean ± 95% CI);
-    array-valued metrics (e.g. a learned map) stay in ``summary.json`` only."""
+    """A table of every sweep point's scalar last-chunk and final metrics (mean ± 95 %
+    interval over seeds, a rate's kept in [0, 1]: :func:`seeds_cell`); array-valued metrics
+    (e.g. a learned map) stay in ``summary.json`` only."""
     lines = []
     for entry in result.summary.get("points", []):
         label = ", ".join(f"{k}={v}" for k, v in entry["values"].items()) or "default config"
@@ -48,7 +45,8 @@ def default_section(result: RunResult) -> ReportSection:
         stats = {k: v for k, v in stats.items() if not isinstance(v.get("mean"), list)}
         if not lines:
             lines += ["| point | " + " | ".join(stats) + " |", "|---" * (len(stats) + 1) + "|"]
-        lines.append(f"| {label} | " + " | ".join(_fmt(v) for v in stats.values()) + " |")
+        lines.append(f"| {label} | " + " | ".join(_cell(k.split(" (")[0], v)
+                                                   for k, v in stats.items()) + " |")
     if not lines and "result" in result.summary:
         lines = ["```", str(result.summary["result"]), "```"]
     return ReportSection("\n".join(lines), tuple(result.figures))
@@ -129,13 +127,17 @@ def _rerender_readers(todo: list[Job], exps: dict[str, Experiment], out: Path,
                               figures=[str(f) for f in section.figures])
 
 
-def _cell(st: dict[str, Any]) -> str:
-    m, ci = st.get("mean"), st.get("ci95")
+def _cell(name: str, st: dict[str, Any]) -> str:
+    """A summary statistic of metric ``name`` as the reports show it: :func:`seeds_cell` of
+    its per-seed values (a rate's interval kept in [0, 1]), else mean ± its ``ci95``."""
+    m, ci, values = st.get("mean"), st.get("ci95"), st.get("per_seed")
     if not isinstance(m, int | float):
         return str(m)
+    if isinstance(values, list) and values and all(isinstance(v, int | float) for v in values):
+        return seeds_cell(values, bounds=RATE if is_rate(name) else None)
     if not isinstance(ci, int | float) or ci != ci:
         return f"{m:.3g}"
-    return f"{m:.3g} ± {ci:.2g}"
+    return f"{m:.3g} ± {ci:.3g}"
 
 
 def headline_table(result: RunResult, exp: Experiment | None = None,
@@ -208,7 +210,7 @@ def _fit_columns(labels: list[str], names: list[str], points: list[dict[str, Any
     used = max(len("point"), *map(len, labels))
     left = []
     for n in names:
-        cells = [_cell(_lookup(e, n) or {}) for e in points]
+        cells = [_cell(n, _lookup(e, n) or {}) for e in points]
         w = max(len(n), *map(len, cells))
         if used + 3 + w > width:
             left.append(n)

@@ -213,12 +213,12 @@ def identification_program(cfg: Any, scenarios: Callable[[Any], dict[str, Collec
 
 
 def row_stats(final: Mapping[str, Any], point: int, row: str) -> dict:
-    """Mean, population std and (for l and n) the mode over seeds of each quantity of
-    ``row`` at sweep point ``point`` of a run's ``final`` metrics."""
+    """Per-seed values, mean, population std and (for l and n) the mode over seeds of each
+    quantity of ``row`` at sweep point ``point`` of a run's ``final`` metrics."""
     out = {}
     for q in QUANTITIES:
         a = np.asarray(final[f"{q}_{slug(row)}"][point], np.float64)
-        out[q] = {"mean": float(a.mean()), "std": float(a.std())}
+        out[q] = {"values": a, "mean": float(a.mean()), "std": float(a.std())}
         if q in ("l", "n") and np.isfinite(a).all():
             out[q]["mode"] = int(np.bincount(a.astype(int)).argmax())
     return out
@@ -226,10 +226,11 @@ def row_stats(final: Mapping[str, Any], point: int, row: str) -> dict:
 
 def row_markdown(cells: list[str], s: dict, paper: tuple | None, mode: bool = False) -> str:
     """One table row: the leading ``cells``, then l, n (with their modes if ``mode``),
-    log det R, AIC as mean +- std over data sets, then the paper's l / n / log det R / AIC."""
+    log det R, AIC as mean ± 95 % interval over seeds (one data set each), then the paper's
+    l / n / log det R / AIC."""
     def ms(k, f):
         extra = f" (mode {s[k]['mode']})" if mode and "mode" in s[k] else ""
-        return f"{s[k]['mean']:{f}} +- {s[k]['std']:{f}}{extra}"
+        return seeds_cell(s[k]["values"], fmt=f) + extra
 
     p = " / ".join(str(x) for x in paper) if paper else "-"
     return "| " + " | ".join([*cells, ms("l", ".2f"), ms("n", ".2f"), ms("logdet_R", ".3f"),
@@ -253,12 +254,12 @@ def identification_cells(final: Mapping[str, Any], point: int, row: str) -> str:
 def swap_markdown(final: Mapping[str, Any], point: int, observers: tuple[str, ...]) -> list[str]:
     """The lines of the model-swap table (per-seed ``swap_<data>_data_<model>_model``)."""
     lines = ["", "Model swap (ball; log det of the one-step prediction-error covariance on "
-             "each observer's held-out data set, mean +- std over seeds):", "",
+             "each observer's held-out data set, mean ± 95 % interval over seeds):", "",
              "| data | model | log det |", "|---|---|---|"]
     for data in observers:
         for model in sorted(observers, key=lambda o: o != data):
             a = np.asarray(final[f"swap_{data}_data_{model}_model"][point], np.float64)
-            lines.append(f"| {data} data | {model} model | {a.mean():.3f} +- {a.std():.3f} |")
+            lines.append(f"| {data} data | {model} model | {seeds_cell(a, fmt='.3f')} |")
     return lines
 
 

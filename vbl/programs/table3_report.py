@@ -67,9 +67,9 @@ def table(res: RunResult, i: int) -> str:
     t = {k: row_stats(f, i, k) for k in ROWS}
     lines = [f"Table 3 (simulation, {_source(cfg)}, centroid "
              f"eccentricity {cfg.noise.ecc_centroid:g}, rolling wobble "
-             f"{cfg.noise.ecc_turn_std:g} rad, tire slip {cfg.noise.slip_std:g}); mean +- std "
-             f"over {res.seeds} seeds (one data set of N = {cfg.collect.num_steps} per row and "
-             f"seed), outputs in {cfg.y_unit:g} px units", "",
+             f"{cfg.noise.ecc_turn_std:g} rad, tire slip {cfg.noise.slip_std:g}); mean ± 95 % "
+             f"interval over {res.seeds} seeds (one data set of N = {cfg.collect.num_steps} per "
+             f"row and seed), outputs in {cfg.y_unit:g} px units", "",
              "| view | object | l (ours) | n (ours) | log det R (ours) | AIC (ours) | "
              "l / n / log det R / AIC (paper, real robots) |", "|---|---|---|---|---|---|---|"]
     for key, (view, obj) in ROWS.items():
