@@ -161,6 +161,30 @@ def test_headline_table_fits_100_columns():
     assert len(text.splitlines()) == 2 + 2 + 1
 
 
+def test_headline_table_keeps_a_rates_interval_in_its_range():
+    """The terminal shows the reports' statistic: a success rate's interval stays in
+    [0, 1] (clipped, or 'too few' under 4 seeds); another metric's is the t interval."""
+    from vbl.engine.experiment import RunResult
+    from vbl.engine.report import headline_table
+    from vbl.stats import mean_ci95
+
+    def stat(x):
+        m, h = mean_ci95(x)
+        return {"mean": m, "std": 0.0, "ci95": h, "per_seed": x}
+
+    table = {}
+    for seeds in ([0.0, 0.5], [0.0, 0.0, 0.05, 0.6, 0.0, 0.0]):
+        points = [{"values": {}, "final": {"greedy_success": stat(seeds),
+                                           "td_abs": stat([-v for v in seeds])}}]
+        res = RunResult("x", Path("."), None, {}, [{}], len(seeds), {}, {},
+                        {"points": points, "seeds": len(seeds)})
+        table[len(seeds)] = headline_table(res)
+    assert "0.25 (2 seeds: too few for an interval)" in table[2]
+    m, h = mean_ci95([0.0, 0.0, 0.05, 0.6, 0.0, 0.0])
+    assert m - h < 0 and f"0.108 [0, {m + h:.3g}]" in table[6]  # clipped at 0
+    assert f"-0.108 ± {h:.3g}" in table[6]  # not a rate: the t interval
+
+
 @pytest.fixture(scope="module")
 def grid_shooting():
     from vbl.engine.registry import load_script

@@ -137,7 +137,7 @@ def _cell(name: str, st: dict[str, Any]) -> str:
         return seeds_cell(values, bounds=RATE if is_rate(name) else None)
     if not isinstance(ci, int | float) or ci != ci:
         return f"{m:.3g}"
-    return f"{m:.3g} ± {ci:.3g}"
+    return f"{m:.3g} ± {ci:.2g}"
 
 
 def headline_table(result: RunResult, exp: Experiment | None = None,
