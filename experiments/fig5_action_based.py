@@ -131,8 +131,7 @@ EXPERIMENT = register(Experiment(
     quick={"collect.episodes_per_action": 300, "collect.horizon": 60, "cells.start_window": 30,
            "eval.episodes": 64, "eval.grid_baseline": False,
            "refine.iterations": 8, "refine.episodes": 128, "refine.horizon": 100},
-    seeds=4, quick_seeds=4, paper_result=True, cost=119.0,  # s, cold --quick (load ~2-3)
-    full_cost={None: 99.0},  # s of the committed full run
+    seeds=4, quick_seeds=4, paper_result=True,
     paper={"figure": "5", "claim": "states differ from the programmer's grid; F/B labels"},
     report=report, paper_rows=paper_rows,
 ))

@@ -84,8 +84,6 @@ EXPERIMENT = register(Experiment(
              "grid_full_budget": {"baseline.agent.num_envs": 64,
                                   "baseline.train.num_chunks": 100}},
     seeds=8, quick_seeds=8, paper_result=True,
-    cost=49.0,  # s of a cold --quick run on 2 shared cores (compile-dominated)
-    full_cost={None: 509.0},  # s of the committed full run
     paper={"trials": 1110, "ball size change": "twice, around trial 500"},
     report=figs.report, paper_rows=figs.paper_rows,
 ))

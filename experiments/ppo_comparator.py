@@ -79,8 +79,7 @@ EXPERIMENT = register(Experiment(
     report=partial(shoot_pass_section, paper=TABLE2), paper_rows=shoot_pass_rows,
     sweep={"env.task_pass": [False, True], "inputs.index": [0, 1, 2]},
     report_reads=("table2_shoot_pass",),  # the tabular learner's column
-    cost=300.0,  # s, cold --quick on 2 cores (compile-dominated; 1,389 s at load average 12)
-    full_cost={None: 1892.0}))  # s of the committed full run
+))
 
 SHOOTING = register(Experiment(
     name="ppo_shooting",
@@ -91,8 +90,7 @@ SHOOTING = register(Experiment(
     paper_rows=shooting_rows,
     sweep={"ppo.curriculum.enabled": [False, True]},
     report_reads=("grid_shooting",),  # the grid baseline's rows
-    cost=150.0,  # s, cold --quick (guess)
-    full_cost={None: 487.0}))  # s of the committed full run
+))
 
 if __name__ == "__main__":
     from vbl.cli import main_for

@@ -75,8 +75,6 @@ EXPERIMENT = register(Experiment(
                 "and tire slip, from the shooter and the passer, and the model-swap test",
     default_config=Table3Config(),
     make_program=make_program, seeds=64, quick_seeds=16,
-    cost=190.0,  # CPU-s of a cold --quick run (compile-dominated)
-    full_cost={None: 52.0, "pixels": 690.0},  # s of the committed full run
     paper_result=True, paper={"table3": TABLE3}, report=point_report(table),
     paper_rows=paper_rows,
     headline=("l_shooter_ball", "l_passer_ball", "l_shooter_other", "l_noise_free_ball"),

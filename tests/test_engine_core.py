@@ -3,7 +3,6 @@ checkpoint guards, error exit codes of the CLI entry point."""
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from pathlib import Path
 
@@ -248,7 +247,7 @@ toy = importlib.util.module_from_spec(spec); spec.loader.exec_module(toy)
 from vbl.engine import Experiment, register
 register(Experiment(name="{name}", description="toy paper result {name}",
                     default_config=toy.BanditConfig(), make_program=toy.make_program,
-                    quick={quick!r}, quick_seeds=2, paper_result=True, cost={cost}))
+                    quick={quick!r}, quick_seeds=2, paper_result=True))
 """
 
 
@@ -263,9 +262,8 @@ def test_reproduce_in_worker_processes_equals_in_process(tmp_path, monkeypatch):
     d = tmp_path / "exps"
     d.mkdir()
     quick = {**TINY_SETS, "train.num_chunks": 2}
-    for name, cost in (("paper_a", 1.0), ("paper_b", 3.0)):
-        (d / f"{name}.py").write_text(_PAPER_TOY.format(name=name, toy=str(TOY), quick=quick,
-                                                        cost=cost))
+    for name in ("paper_a", "paper_b"):
+        (d / f"{name}.py").write_text(_PAPER_TOY.format(name=name, toy=str(TOY), quick=quick))
     monkeypatch.setenv("VBL_EXPERIMENTS_DIR", str(d))  # inherited by the workers
     monkeypatch.setattr(registry, "_DISCOVERED", set())
     reports = {}
@@ -284,29 +282,42 @@ def test_reproduce_in_worker_processes_equals_in_process(tmp_path, monkeypatch):
     assert reports[1] == reports[2]
 
 
-def test_reproduce_chains_group_experiments_and_start_the_costliest(toy):
-    from vbl.engine.report import Job, _chains, reproduce_jobs
+def test_reproduce_chains_group_experiments_and_start_the_longest(toy, tmp_path):
+    """Chains (a group runs in one worker) start longest first by the committed run's
+    seconds at that scale; a run without a time counts the mean of the others."""
+    from vbl.engine.report import (
+        REPRODUCE_MANIFEST,
+        Job,
+        _chains,
+        committed_seconds,
+        reproduce_jobs,
+    )
 
-    def exp(name, cost, group=None, presets=()):
+    def exp(name, group=None, presets=()):
         return Experiment(name=name, description="", default_config=toy.default_config,
-                          make_program=toy.make_program, cost=cost, group=group,
+                          make_program=toy.make_program, group=group,
                           presets={p: {"agent.epsilon": 0.0} for p in presets},
                           published_presets=tuple(presets))
 
-    exps = {e.name: e for e in (exp("t1", 70, "ident"), exp("grid", 45, presets=("p",)),
-                                exp("t2", 90), exp("t3", 70, "ident"))}
+    exps = {e.name: e for e in (exp("t1", "ident"), exp("grid", presets=("p",)), exp("t2"),
+                                exp("t3", "ident"))}
     jobs = reproduce_jobs(exps)
     assert jobs == [Job("t1"), Job("grid"), Job("grid", "p"), Job("t2"), Job("t3")]
     assert reproduce_jobs(exps, quick=True) == [Job("t1"), Job("grid"), Job("t2"), Job("t3")]
-    assert [[j.folder for j in c] for c in _chains(jobs, exps)] == [
-        ["t1", "t3"], ["t2"], ["grid"], ["grid-p"]]
-    # full scale: each run's full_cost (a preset's own) orders it; quick: cost
-    exps["grid"] = dataclasses.replace(exps["grid"], full_cost={None: 10, "p": 500})
-    exps["t2"] = dataclasses.replace(exps["t2"], full_cost={None: 200})
-    assert [[j.folder for j in c] for c in _chains(jobs, exps)] == [
+    for scale, seconds in (("reproduce", {"t1": 70, "t3": 70, "grid": 10, "grid-p": 500,
+                                          "t2": 200}),
+                           ("reproduce-quick", {"t1": 70, "t3": 70, "grid": 45, "t2": 90})):
+        (tmp_path / scale).mkdir()
+        (tmp_path / scale / REPRODUCE_MANIFEST).write_text(json.dumps({"runs": [
+            {"folder": f, "seconds": t} for f, t in seconds.items()]}))
+    full, quick = committed_seconds(False, tmp_path), committed_seconds(True, tmp_path)
+    assert [[j.folder for j in c] for c in _chains(jobs, exps, full)] == [
         ["grid-p"], ["t2"], ["t1", "t3"], ["grid"]]
-    assert [[j.folder for j in c] for c in _chains(jobs, exps, quick=True)] == [
-        ["t1", "t3"], ["t2"], ["grid"], ["grid-p"]]
+    assert [[j.folder for j in c] for c in _chains(jobs, exps, quick)] == [
+        ["t1", "t3"], ["t2"], ["grid-p"], ["grid"]]  # grid-p: the mean, 68.75 s
+    assert committed_seconds(True, tmp_path / "none") == {}  # an installed package
+    assert [[j.folder for j in c] for c in _chains(jobs, exps, {})] == [
+        ["t1", "t3"], ["grid"], ["grid-p"], ["t2"]]  # no times: the registry's order
 
 
 def test_report_figure_links_resolve_with_a_relative_out_dir(toy, tmp_path, monkeypatch):

@@ -29,17 +29,17 @@ register(Experiment(name="{name}", description="toy paper result {name}",
                     default_config=toy.BanditConfig(), make_program=toy.make_program,
                     quick={{"env.num_arms": 3, "train.pulls_per_chunk": 5,
                            "train.num_chunks": {chunks}}},
-                    quick_seeds=2, paper_result=True, cost={cost}))
+                    quick_seeds=2, paper_result=True))
 """
 
 
 @pytest.fixture(scope="module")
 def env(tmp_path_factory):
     d = tmp_path_factory.mktemp("paper_toys")
-    for name, chunks, cost in (("paper_fast", 2, 1.0), ("paper_slow1", 1_000_000, 5.0),
-                               ("paper_slow2", 1_000_000, 4.0)):
+    for name, chunks in (("paper_fast", 2), ("paper_slow1", 1_000_000),
+                         ("paper_slow2", 1_000_000)):
         (d / f"{name}.py").write_text(_PAPER_TOY.format(name=name, toy=str(TOY),
-                                                        chunks=chunks, cost=cost))
+                                                        chunks=chunks))
     return env_for(d)
 
 

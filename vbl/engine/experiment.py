@@ -159,11 +159,6 @@ class Experiment:
       report: ``RunResult -> ReportSection`` for ``vbl reproduce``.
       sweep: default sweep ``{path: [values]}`` (e.g. the table rows a paper result needs);
         ``--sweep`` on the command line replaces it for the paths it names.
-      cost: rough relative wall time of a ``--quick`` run (any unit); ``vbl reproduce
-        --jobs N`` starts the costliest experiments first so the workers finish together.
-      full_cost: the same for the full-scale runs of ``vbl reproduce``: ``{None: default
-        config, preset name: that published preset}`` (a run without an entry counts
-        ``cost``).
       group: experiments with the same group run one after the other in one worker of
         ``vbl reproduce --jobs N`` (in registry order), so the later ones find the programs
         the first one compiled in the persistent compilation cache (experiments that
@@ -197,8 +192,6 @@ class Experiment:
     paper: Mapping[str, Any] | None = None
     report: Callable[[RunResult], ReportSection] | None = None
     sweep: Mapping[str, tuple[Any, ...] | list[Any]] = field(default_factory=dict)
-    cost: float = 1.0
-    full_cost: Mapping[str | None, float] = field(default_factory=dict)
     group: str | None = None
     headline: tuple[str, ...] = ()
     paper_rows: Callable[[RunResult], list[PaperRow]] | None = None

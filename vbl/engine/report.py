@@ -6,6 +6,7 @@ reads committed run folders into one table of the paper's numbers beside vbl's."
 from __future__ import annotations
 
 import contextlib
+import json
 import math
 import os
 import shlex
@@ -379,20 +380,35 @@ def _kill_workers(workers: dict) -> None:
             p.kill()
 
 
-def _chains(jobs: list[Job], exps: dict[str, Experiment], quick: bool = False
-            ) -> list[list[Job]]:
-    """Jobs grouped by :attr:`Experiment.group` (registry order inside a group), costliest
-    chain first (:attr:`Experiment.cost`, or :attr:`Experiment.full_cost` for a full-scale
-    run)."""
-    def cost(j: Job) -> float:
-        e = exps[j.name]
-        return e.cost if quick else e.full_cost.get(j.preset, e.cost)
+COMMITTED_RUNS = Path(__file__).resolve().parents[2] / "docs" / "results"
+"""A source checkout's committed ``vbl reproduce`` runs (``reproduce`` and
+``reproduce-quick``): their manifests' per-run seconds order the next run's jobs."""
 
+
+def committed_seconds(quick: bool, root: Path = COMMITTED_RUNS) -> dict[str, float]:
+    """``{run folder: seconds}`` of the committed ``vbl reproduce`` run at this scale
+    (``root/reproduce-quick`` or ``root/reproduce``), ``{}`` without one (an installed
+    package)."""
+    path = root / ("reproduce-quick" if quick else "reproduce") / REPRODUCE_MANIFEST
+    try:
+        runs = json.loads(path.read_text())["runs"]
+        return {r["folder"]: float(r["seconds"]) for r in runs if "seconds" in r}
+    except (OSError, ValueError, KeyError, TypeError):
+        return {}
+
+
+def _chains(jobs: list[Job], exps: dict[str, Experiment], seconds: dict[str, float]
+            ) -> list[list[Job]]:
+    """Jobs grouped by :attr:`Experiment.group` (registry order inside a group), longest
+    chain first by ``seconds`` (per run folder, :func:`committed_seconds`; a run without
+    a time counts the mean of the others, so a new result neither starts first nor last)."""
+    default = sum(seconds.values()) / len(seconds) if seconds else 1.0
     chains: dict[str, list[Job]] = {}
     for j in jobs:
         e = exps[j.name]
         chains.setdefault(e.group if e.group is not None else f"\0{j.folder}", []).append(j)
-    return sorted(chains.values(), key=lambda c: -sum(cost(j) for j in c))
+    return sorted(chains.values(), key=lambda c: -sum(seconds.get(j.folder, default)
+                                                      for j in c))
 
 
 def _progress_line(out: Path, running: list[Job], n_done: int, n_all: int, t0: float) -> str:
@@ -425,7 +441,7 @@ def _run_parallel(jobs: list[Job], exps: dict[str, Experiment], workers: int, ou
     started = time.time()
     ctx = multiprocessing.get_context("spawn")  # jax is not fork-safe
     t0 = last = time.perf_counter()
-    chains = _chains(jobs, exps, quick)
+    chains = _chains(jobs, exps, committed_seconds(quick))
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, max_tasks_per_child=1,
                                initializer=_worker_init, initargs=(out,))
     procs = _workers(pool)
