@@ -377,3 +377,37 @@ def test_track_lost_side():
     u = jnp.asarray([-5.0, 3.0, 0.0])
     vis = jnp.asarray([True, True, False])
     np.testing.assert_array_equal(np.asarray(track_lost_side(prev, u, vis)), [-1, 1, 1])
+
+
+def test_hue_distance_wraps_around_zero():
+    """The hue distance is circular: a red of hue 355.6 deg is within 20 deg of a class
+    hue of 4 deg, and a red of 4.4 deg within 20 deg of 350 deg (hues from colorsys)."""
+    import colorsys
+
+    rgb = np.array([[[230, 25, 40], [230, 40, 25], [240, 20, 80], [235, 60, 20]]], np.uint8)
+    hue = np.array([colorsys.rgb_to_hsv(*(c / 255.0))[0] * 360.0 for c in rgb[0]])
+    h, _, _ = (np.asarray(x) for x in rgb_to_hsv(jnp.asarray(rgb)))
+    np.testing.assert_allclose(h[0], hue, atol=1e-3)
+    for ball_hue in (4.0, 350.0):
+        m = np.asarray(colour_masks(jnp.asarray(rgb), BlobParams(ball_hue=ball_hue)))[0, 0]
+        dist = np.abs((hue - ball_hue + 180.0) % 360.0 - 180.0)
+        np.testing.assert_array_equal(m, dist <= BP.hue_tol, err_msg=f"ball_hue {ball_hue}")
+    assert m.tolist() == [True, True, True, False]     # 355.6, 4.4, 343.6 deg within 20
+
+
+@pytest.mark.parametrize("width,height", [(128, 120), (64, 120)])
+def test_blob_stats_are_in_camera_px_at_any_image_size(width, height):
+    """A rectangle of pixels, rows 10-19 and columns 30-49 of a W' x H' image: its box,
+    centroid and area in the 512 x 480 camera's px (pixels 512 / W' px wide, 480 / H'
+    px high), written out from the pixel edges ``u = j 512 / W' - 256``, ``v = 240 -
+    i 480 / H'``."""
+    mask = np.zeros((height, width), bool)
+    mask[10:20, 30:50] = True
+    su, sv = 512.0 / width, 480.0 / height
+    b = jax.jit(blob_stats)(jnp.asarray(mask), CAM)
+    want = dict(u_lo=30 * su - 256, u_hi=50 * su - 256, v_lo=240 - 20 * sv,
+                v_hi=240 - 10 * sv, area=200 * su * sv)
+    want.update(cu=0.5 * (want["u_lo"] + want["u_hi"]), cv=0.5 * (want["v_lo"] + want["v_hi"]))
+    got = {k: float(getattr(b, k)) for k in want}
+    np.testing.assert_allclose([got[k] for k in want], list(want.values()), rtol=1e-6,
+                               atol=1e-3, err_msg=str(got))

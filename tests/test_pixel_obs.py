@@ -236,17 +236,18 @@ def test_brax_adapter_pixels_observation():
 
 # Table 3's pixel rows (collect.num_steps 16, 64 x 60 images, one data set each from
 # collect_many(PRNGKey(5), ..., 1)), recorded with a pixel pipeline that stored nothing
-# once per frame (vbl.vision.fusion.stored changes the speed only): sums of |u|, |ball|,
-# |goal|, |other| and the visible flags per row.
+# once per frame (vbl.vision.fusion.stored changes the speed only), the goal sums with the
+# goal-end widths in image pixels (post_band, min_post): sums of |u|, |ball|, |goal|,
+# |other| and the visible flags per row.
 PIXEL_ROWS_REFERENCE = {
-    "shooter_ball": [27.0, 5796.897, 328734.3, 175303.3, 48.0],
-    "shooter_goal": [20.0, 5828.4, 171974.3, 177824.7, 48.0],
-    "shooter_other": [27.0, 5734.8, 252098.2, 194329.6, 48.0],
-    "passer_ball": [19.0, 4436.8, 176439.1, 222148.2, 48.0],
-    "passer_other": [22.0, 5222.8, 141142.1, 189205.1, 48.0],
-    "noise_free_goal": [25.0, 4692.0, 163034.9, 428765.4, 47.0],
-    "noise_free_ball": [22.0, 4896.0, 117945.9, 141695.3, 48.0],
-    "noise_free_other": [30.0, 5968.0, 269046.2, 227794.5, 47.0],
+    "shooter_ball": [27.0, 5796.897, 328867.2, 175303.3, 48.0],
+    "shooter_goal": [20.0, 5828.4, 172397.9, 177824.7, 48.0],
+    "shooter_other": [27.0, 5734.8, 252602.6, 194329.6, 48.0],
+    "passer_ball": [19.0, 4436.8, 176412.0, 222148.2, 48.0],
+    "passer_other": [22.0, 5222.8, 140894.2, 189205.1, 48.0],
+    "noise_free_goal": [25.0, 4692.0, 163259.5, 428765.4, 47.0],
+    "noise_free_ball": [22.0, 4896.0, 117876.8, 141695.3, 48.0],
+    "noise_free_other": [30.0, 5968.0, 269898.6, 227794.5, 47.0],
 }
 
 

@@ -47,12 +47,13 @@ class BlobParams:
                            le=1.0)
     val_min: float = param(0.25, doc="smallest value (brightness) of a coloured pixel",
                            ge=0.0, le=1.0)
-    post_band: float = param(1.0, doc="goal post pixels: blue pixels within this "
-                             "horizontal distance of the outermost vertical world line "
-                             "through a blue pixel", unit="px", gt=0.0)
-    min_post: float = param(8.0, doc="a post band shorter than this (v extent) is a corner "
-                            "of a goal cut by the image border, not a post: the end is "
-                            "then the border column", unit="px", ge=0.0)
+    post_band: float = param(1.0, doc="goal post pixels: blue pixels within this many "
+                             "image pixels (horizontally) of the outermost vertical world "
+                             "line through a blue pixel", unit="pixel", gt=0.0)
+    min_post: float = param(8.0, doc="a post band shorter than this many image pixels (v "
+                            "extent) is a corner of a goal cut by the image border, not a "
+                            "post: the end is then the border column", unit="pixel",
+                            ge=0.0)
 
 
 def rgb_to_hsv(img):
@@ -175,14 +176,16 @@ def goal_ends(mask, cam: CameraParams, bp: BlobParams):
     """The goal's two ends from its mask (H, W) bool: ``bot`` (2, 2) and ``top`` (2, 2)
     points (u, v) px of the [left, right] ends, and ``ok`` (2,) bool.
 
-    An end is the goal's post: the blue pixels within ``post_band`` px (horizontally) of
-    the outermost image line of a world-vertical line through a blue pixel (the least /
-    greatest bearing ``q``, :func:`_lateral`); its points are that line at the band's
-    lowest and highest pixel edges. A band shorter than ``min_post`` px in v is the
-    corner of a goal cut by the image border: the end is then the border column (u =
-    -W/2 left, +W/2 right) with the v extent of the blue pixels in the image's first
-    (last) pixel column, as the analytic end rule (``docs/vision.md``) uses the border
-    column when the post is out of the image.
+    An end is the goal's post: the blue pixels within ``post_band`` image pixels
+    (horizontally) of the outermost image line of a world-vertical line through a blue
+    pixel (the least / greatest bearing ``q``, :func:`_lateral`); its points are that line
+    at the band's lowest and highest pixel edges. A band shorter than ``min_post`` image
+    pixels in v is the corner of a goal cut by the image border: the end is then the
+    border column (u = -W/2 left, +W/2 right) with the v extent of the blue pixels in the
+    image's first (last) pixel column, as the analytic end rule (``docs/vision.md``) uses
+    the border column when the post is out of the image. Both widths are in image pixels,
+    so the rule is the same at every image size (a band 1 px wide would be a quarter of a
+    pixel at 128 x 120 and cut the posts short).
     """
     h, w = mask.shape
     u, v, (su, sv) = pixel_grid(cam, w, h)
@@ -193,11 +196,11 @@ def goal_ends(mask, cam: CameraParams, bp: BlobParams):
     for side, col, edge in ((-1.0, 0, -hw), (1.0, w - 1, hw)):
         q_end = side * jnp.max(jnp.where(mask, side * q, -_BIG))
         dist = side * (q_end - q) * fu * g             # >= 0 inside, px
-        band = mask & (dist <= bp.post_band)
+        band = mask & (dist <= bp.post_band * su)       # image pixels -> px
         b_lo, b_hi = _extent(jnp.any(band, axis=1), v, sv)
         c_lo, c_hi = _extent(mask[:, col], v, sv)
         has_col = jnp.any(mask[:, col])
-        post = jnp.any(band) & (~has_col | (b_hi - b_lo >= bp.min_post))
+        post = jnp.any(band) & (~has_col | (b_hi - b_lo >= bp.min_post * sv))
         (ub, b_lo), (ut, b_hi) = (_clip_post(q_end, x, cam, su) for x in (b_lo, b_hi))
         ok = post | has_col
         bu = jnp.where(post, ub, edge)

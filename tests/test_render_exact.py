@@ -1,0 +1,71 @@
+"""The renderer's pixel rays, pixel by pixel: the set of ball pixels of a camera image
+equals the set of pixel centres whose ray meets the ball's sphere, computed in float64
+from the documented pixel centres (docs/render.md: pixel ``(i, j)`` of an ``H' x W'``
+image looks through ``u = ((j + 1/2)/W' - 1/2) 512``, ``v = (1/2 - (i + 1/2)/H') 480``)
+and the independent camera of ``tests/reference/camera_np``. A shift of the pixel
+centres by half a pixel changes the set (hundreds of pixels on the outline)."""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from tests.reference.camera_np import to_cam_np
+from vbl.vision.camera import CameraParams
+from vbl.vision.render import BALL_RGB, RenderParams, render_camera
+from vbl.world import WorldParams, goal_corners
+
+WORLD = WorldParams()
+CAM = CameraParams()
+#: Focal lengths from the field of view (67 x 60 deg over 512 x 480 px), written out.
+FU = 256.0 / math.tan(math.radians(67.0 / 2))
+FV = 240.0 / math.tan(math.radians(60.0 / 2))
+#: Pixel centres whose ray passes within this distance (m) of the sphere's surface are
+#: not compared (float32 ray arithmetic in the renderer; a half-pixel shift moves the
+#: outline rays by millimetres).
+MARGIN = 2e-5
+
+
+def expected_ball_pixels(pose, ball_xy, radius, width, height):
+    """(H', W') bool where the ray through the pixel centre meets the sphere, and (H', W')
+    bool where that ray passes within MARGIN of the sphere's surface (undecided)."""
+    b = to_cam_np([ball_xy[0], ball_xy[1], radius], pose, {})
+    u = ((np.arange(width) + 0.5) / width - 0.5) * 512.0
+    v = (0.5 - (np.arange(height) + 0.5) / height) * 480.0
+    d = np.stack(np.broadcast_arrays((u / FU)[None, :], (v / FV)[:, None], 1.0), -1)
+    along = (d @ b) / np.sum(d * d, -1)
+    miss = np.linalg.norm(b - along[..., None] * d, axis=-1)
+    return (along > 0) & (miss <= radius), np.abs(miss - radius) < MARGIN
+
+
+def _ball_pixels(img):
+    """Pixels whose colour is the ball's (shaded: a multiple of BALL_RGB)."""
+    ratio = img / np.asarray(BALL_RGB)
+    return (img[..., 0] > 0.1) & (np.ptp(ratio, axis=-1) < 1e-3 * ratio[..., 0] + 1e-6)
+
+
+@pytest.mark.parametrize("width,height", [(128, 120), (96, 60)])
+def test_ball_pixels_are_the_pixel_centre_rays_that_meet_the_sphere(width, height):
+    rp = RenderParams(width=width, height=height, field_lines=False)
+    gc = goal_corners(WORLD)
+    render = jax.jit(jax.vmap(lambda p, b: render_camera(p, b, WORLD.ball.radius, gc,
+                                                         WORLD.field, CAM, rp)))
+    poses = np.array([[0.0, 0.0, 0.0], [-1.0, 0.5, -0.4], [1.5, -1.0, 2.8]], np.float32)
+    # ball ahead, left of centre, and right and low (partly below the bottom border)
+    offsets = [(0.9, 0.1), (0.6, 0.25), (0.45, -0.15)]
+    balls = np.array([[p[0] + a * math.cos(p[2]) - s * math.sin(p[2]),
+                       p[1] + a * math.sin(p[2]) + s * math.cos(p[2])]
+                      for p, (a, s) in zip(poses, offsets, strict=True)], np.float32)
+    imgs = np.asarray(render(jnp.asarray(poses), jnp.asarray(balls)))
+    for img, pose, ball in zip(imgs, poses, balls, strict=True):
+        want, undecided = expected_ball_pixels(pose.astype(float), ball.astype(float),
+                                               float(WORLD.ball.radius), width, height)
+        got = _ball_pixels(img)
+        assert want.sum() > 100, "the ball covers too few pixels to test the outline"
+        diff = (got != want) & ~undecided
+        assert not diff.any(), (f"{int(diff.sum())} pixels differ of {int(want.sum())} "
+                                f"(pose {pose}, ball {ball}, {width} x {height})")
