@@ -127,3 +127,47 @@ def test_resume_of_a_finished_run_keeps_its_record(toy, shards, tmp_path, capsys
     capsys.readouterr()
     assert vbl("merge", shards[0], part, "--out", tmp_path / "out") == 2
     assert "line 1 was changed" in one_error_line(capsys.readouterr().err)
+
+
+def test_a_summary_copied_from_another_part_is_refused(shards, tmp_path, capsys):
+    part = tmp_path / "part"
+    shutil.copytree(shards[1], part)
+    shutil.copy(shards[0] / "summary.json", part / "summary.json")
+    capsys.readouterr()
+    assert vbl("merge", shards[0], part, "--out", tmp_path / "out") == 2
+    assert f"{part}/summary.json is not shard 2/2's" in one_error_line(capsys.readouterr().err)
+    assert not (tmp_path / "out").exists()
+
+
+def _reseeded(src: Path, dst: Path, lo: int) -> Path:
+    """Shard 2/2 (seeds 1..2 of 3) rewritten by a faulty writer to claim seeds ``lo``..2,
+    one per-seed value per seed, with the checksums of what it wrote."""
+    from vbl.engine.runner import metrics_line_sums
+
+    shutil.copytree(src, dst)
+    rows = [json.loads(x) for x in (dst / "metrics.jsonl").read_text().splitlines()]
+    for row in rows:
+        assert row["seeds"] == [1, 3]
+        row["seeds"] = [lo, 3]
+        for m in row["metrics"].values():
+            m["per_seed"] = ([m["per_seed"][0]] * (3 - lo) + m["per_seed"])[-(3 - lo):]
+    (dst / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    summary = json.loads((dst / "summary.json").read_text())
+    summary["metrics_sha256"] = metrics_line_sums(dst / "metrics.jsonl")
+    (dst / "summary.json").write_text(json.dumps(summary))
+    return dst
+
+
+def test_a_seed_held_twice_or_by_no_part_is_refused(shards, tmp_path, capsys):
+    """Seeds are split 0 | 1, 2 between the two parts; a part that claims 0..2 holds seed 0
+    twice, one that claims 2 only leaves seed 1 to no part."""
+    capsys.readouterr()
+    twice = _reseeded(shards[1], tmp_path / "twice", 0)
+    assert vbl("merge", shards[0], twice, "--out", tmp_path / "out") == 2
+    assert "seed 0 of point 0 at step 1 is in two shards" in one_error_line(
+        capsys.readouterr().err)
+    gap = _reseeded(shards[1], tmp_path / "gap", 2)
+    assert vbl("merge", shards[0], gap, "--out", tmp_path / "out") == 2
+    assert "lacks step 1 (chunk 0) of point 0, seed 1" in one_error_line(
+        capsys.readouterr().err)
+    assert not (tmp_path / "out").exists()

@@ -9,6 +9,7 @@ Monte Carlo update written in closed form; the documented lock protocol of a
 from __future__ import annotations
 
 import fcntl
+import json
 import os
 
 import jax.numpy as jnp
@@ -31,6 +32,16 @@ def test_a_config_json_without_its_fingerprint_is_refused():
     for spec in (body, dict(body, fingerprint=None), dict(body, fingerprint=7)):
         with pytest.raises(EngineError, match="run/config.json has no fingerprint"):
             runfolder.check_fingerprint(spec, "run")
+
+
+def test_a_config_json_without_its_format_is_refused_as_format_1():
+    """Folders written before formats were recorded have no "format": format 1."""
+    runfolder.check_format({"format": runfolder.RUN_FORMAT}, "run")
+    assert runfolder.RUN_FORMAT != 1
+    for spec in ({}, {"format": 1}):
+        with pytest.raises(EngineError, match=r"run is a run folder of format 1; this vbl "
+                                              rf"reads format {runfolder.RUN_FORMAT} only"):
+            runfolder.check_format(spec, "run")
 
 
 def test_a_reproduce_folder_is_refused_to_other_writers_until_allowed(tmp_path, monkeypatch):
@@ -188,3 +199,23 @@ def test_a_full_disk_names_the_file_it_could_not_write():
     with pytest.raises(OSError) as e:
         MetricsLog(Path("/dev/full")).append([{"step": 1, "metrics": {}}])
     assert one_line(e.value).startswith("cannot write /dev/full: No space left on device")
+
+
+def test_overwrite_deletes_nothing_outside_the_folder(tmp_path):
+    """A marker edited to list ``../victim`` (or ``sub/x``): --overwrite removes only the
+    folder's own top-level names."""
+    run = tmp_path / "run"
+    runfolder.open_run_folder(run, "toy", resume=False, overwrite=False).release()
+    (tmp_path / "victim").mkdir()
+    (tmp_path / "victim" / "keep.txt").write_text("keep")
+    (run / "sub").mkdir()
+    (run / "sub" / "x").write_text("keep")
+    (run / "metrics.jsonl").write_text("{}\n")
+    marker = run / runfolder.MARKER
+    m = json.loads(marker.read_text())
+    m["files"] += ["../victim", "sub/x", "metrics.jsonl"]
+    marker.write_text(json.dumps(m))
+    runfolder.open_run_folder(run, "toy", resume=False, overwrite=True).release()
+    assert (tmp_path / "victim" / "keep.txt").read_text() == "keep"
+    assert (run / "sub" / "x").read_text() == "keep"
+    assert not (run / "metrics.jsonl").exists()

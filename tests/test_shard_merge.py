@@ -147,6 +147,13 @@ def test_a_failed_shard_reruns_alone_with_resume(runs, tmp_path, capsys):
     assert json.loads((broken / "summary.json").read_text())["resumed_from_step"] == 2
     assert vbl("merge", *parts, "--out", tmp_path / "m") == 0
     same_run(tmp_path / "m", tmp / "whole")
+    # the merged summary says how the parts ran: the latest step one resumed from, the
+    # sum of their wall times, each part's own record
+    merged = json.loads((tmp_path / "m" / "summary.json").read_text())
+    each = [json.loads((p / "summary.json").read_text()) for p in parts]
+    assert [s["resumed_from_step"] for s in merged["shards"]] == [0, 2, 0]
+    assert merged["resumed_from_step"] == 2
+    assert merged["wall_time_s"] == pytest.approx(sum(s["wall_time_s"] for s in each))
 
 
 def test_resume_as_another_shard_is_refused(runs, tmp_path, capsys):
