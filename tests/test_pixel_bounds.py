@@ -49,8 +49,8 @@ HW, HH = 256.0, 240.0
 SIZE = np.array([2 * WORLD.robot.radius, 2 * WORLD.robot.radius, OTHER_HEIGHT])
 
 #: An end whose visible post piece is shorter than this many image pixels is not
-#: compared (a post piece just crossing a border looks like a goal's corner), nor a
-#: border-column end.
+#: compared (a post piece just crossing a border looks like a goal's corner); border
+#: column ends are.
 MIN_POST_PX = 12.0
 #: Gap (image pixels) between an occluder's box and a region for it to count as clean.
 CLEAR_PX = 3.0
@@ -157,15 +157,16 @@ def _touches(box, axis):
 
 
 def _clean_ends(r, occluders):
-    """Per end (n, 2) bool: a post piece of >= MIN_POST_PX image pixels (not a border
-    column), clear of every occluder box, goal seen in the pixels."""
+    """Per end (n, 2) bool: a border column or a post piece of >= MIN_POST_PX image
+    pixels, clear of every occluder box, goal seen in the pixels."""
     r3, px = r["r3"], r["px"]
     pts = r3[:, 4:12].reshape(-1, 4, 2)
     out = []
     for bot, top in ((pts[:, 0], pts[:, 1]), (pts[:, 3], pts[:, 2])):
         border = (np.abs(bot[:, 0]) >= HW - 1e-3) & (np.abs(top[:, 0]) >= HW - 1e-3)
-        ok = (r3[:, 21] > 0) & (r["p3"][:, 21] > 0) & ~border
-        ok &= top[:, 1] - bot[:, 1] >= MIN_POST_PX * px
+        height = top[:, 1] - bot[:, 1]
+        ok = (r3[:, 21] > 0) & (r["p3"][:, 21] > 0) & (height > 0)
+        ok &= border | (height >= MIN_POST_PX * px)
         lo, hi = np.minimum(bot, top), np.maximum(bot, top)
         for olo, ohi in occluders:
             ok &= _apart(lo, hi, olo, ohi, CLEAR_PX * px)
