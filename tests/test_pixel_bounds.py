@@ -6,8 +6,7 @@ the absolute error within the bounds of docs/render.md ("Bounds at every image s
 and no systematic bias of the goal posts' heights.
 
 CI runs ``SCENES_FAST`` scenes per kind (three times as many facing the goal) at
-128 x 120; ``-m slow`` runs ``SCENES_SLOW``
-per kind (9 kinds: 576 scenes) at both sizes.
+128 x 120; ``-m slow`` runs ``SCENES_SLOW`` per kind (9 kinds: 576 scenes) at both sizes.
 """
 
 from __future__ import annotations
@@ -33,7 +32,9 @@ from vbl.vision.render import RenderParams, render_camera, to_uint8
 from vbl.vision.scenes import OTHER_HEIGHT, SCENE_KINDS, random_scenes
 from vbl.world import WorldParams, goal_corners
 
+#: Scenes per kind in CI (128 x 120 only).
 SCENES_FAST = 8
+#: Scenes per kind of the slow test (both sizes).
 SCENES_SLOW = 64
 #: Extra scene kind: the camera faces the goal (x3, x5 need both posts in view).
 FACING_GOAL = "facing_goal"
