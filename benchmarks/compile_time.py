@@ -55,7 +55,7 @@ import vbl  # noqa: E402,F401
 from benchmarks.hardware import hardware_info, write_results  # noqa: E402
 from vbl.engine import registry  # noqa: E402
 from vbl.engine.jax_setup import engine_precision  # noqa: E402
-from vbl.engine.report import Job, paper_experiments, reproduce_jobs  # noqa: E402
+from vbl.engine.reproduce import Job, paper_experiments, reproduce_jobs  # noqa: E402
 from vbl.engine.runner import _compiled, resolve  # noqa: E402
 from vbl.engine.sharding import learner_sharding, put  # noqa: E402
 from vbl.engine.sweep import make_plan  # noqa: E402

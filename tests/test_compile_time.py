@@ -14,7 +14,7 @@ from benchmarks import compile_time as ct  # noqa: E402
 
 def test_rows_of_one_run_and_an_identical_program_is_shared():
     from vbl.engine import registry
-    from vbl.engine.report import Job
+    from vbl.engine.reproduce import Job
 
     registry.discover()
     first = ct.time_run(Job("toy_bandit"))

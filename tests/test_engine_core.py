@@ -195,7 +195,7 @@ def test_cli_resume_with_another_config_is_refused(toy, swept, capsys):
 
 def test_reproduce_writes_one_report(toy, tmp_path):
     from vbl.engine import ReportSection, register
-    from vbl.engine.report import reproduce
+    from vbl.engine.reproduce import reproduce
 
     def report(res):
         ours = float(res.final["greedy_is_best"].mean())
@@ -218,7 +218,8 @@ def test_reproduce_builds_a_report_again_once_the_runs_it_reads_have_finished(to
     reproduce's report.md and in its own, though its run ended first; its engine figures
     and curves survive the second build."""
     from vbl.engine import ReportSection, register
-    from vbl.engine.report import load_run, reproduce, sibling_result
+    from vbl.engine.rebuild import load_run, sibling_result
+    from vbl.engine.reproduce import reproduce
 
     def reader(res):
         other = sibling_result(res, "toy_read_b")
@@ -257,7 +258,7 @@ def test_reproduce_in_worker_processes_equals_in_process(tmp_path, monkeypatch):
 
     from tests.engine_helpers import TOY
     from vbl.engine import registry
-    from vbl.engine.report import reproduce
+    from vbl.engine.reproduce import reproduce
 
     d = tmp_path / "exps"
     d.mkdir()
@@ -285,13 +286,8 @@ def test_reproduce_in_worker_processes_equals_in_process(tmp_path, monkeypatch):
 def test_reproduce_chains_group_experiments_and_start_the_longest(toy, tmp_path):
     """Chains (a group runs in one worker) start longest first by the committed run's
     seconds at that scale; a run without a time counts the mean of the others."""
-    from vbl.engine.report import (
-        REPRODUCE_MANIFEST,
-        Job,
-        _chains,
-        committed_seconds,
-        reproduce_jobs,
-    )
+    from vbl.engine.rebuild import REPRODUCE_MANIFEST
+    from vbl.engine.reproduce import Job, _chains, committed_seconds, reproduce_jobs
 
     def exp(name, group=None, presets=()):
         return Experiment(name=name, description="", default_config=toy.default_config,
@@ -325,7 +321,7 @@ def test_report_figure_links_resolve_with_a_relative_out_dir(toy, tmp_path, monk
     import re
 
     from vbl.engine import ReportSection, register
-    from vbl.engine.report import reproduce
+    from vbl.engine.reproduce import reproduce
 
     def report(res):  # a path as experiments build it: run_dir / name, run_dir relative
         return ReportSection("fig", figures=(str(res.out_dir / "success_rate.png"),))

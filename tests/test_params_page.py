@@ -9,7 +9,7 @@ import re
 import pytest
 
 from vbl.engine.paramdoc import experiment_page
-from vbl.engine.report import paper_experiments
+from vbl.engine.reproduce import paper_experiments
 from vbl.engine.runner import resolve
 from vbl.params import get_path
 

@@ -158,8 +158,8 @@ def test_a_second_program_compiles_again_and_its_eta_leaves_that_chunk_out(tmp_p
                                             (61.0, "1 min 01 s")])
 def test_reproduce_progress_line_rounds_to_whole_seconds(tmp_path, monkeypatch, elapsed, shown):
     """The elapsed time reads as minutes and seconds 00-59 (never "29 min 60 s")."""
-    from vbl.engine import report
+    from vbl.engine import reproduce
 
-    monkeypatch.setattr(report.time, "perf_counter", lambda: 100.0 + elapsed)
-    line = report._progress_line(tmp_path, [], 3, 10, 100.0)
+    monkeypatch.setattr(reproduce.time, "perf_counter", lambda: 100.0 + elapsed)
+    line = reproduce._progress_line(tmp_path, [], 3, 10, 100.0)
     assert line == f"vbl reproduce [3/10 done, {shown}] finishing"

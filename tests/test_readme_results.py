@@ -35,7 +35,7 @@ def report_folders(text: str) -> list[str]:
 
 
 def results_block(folders: list[str], base: Path = ROOT) -> str:
-    from vbl.engine.report import results_table
+    from vbl.engine.rebuild import results_table
 
     return results_table([ROOT / f for f in folders], link_base=base)
 
@@ -143,7 +143,7 @@ def test_the_committed_reproduce_runs_are_todays_published_configs(folder, quick
     it (a changed default, preset or quick override fails here until the runs are redone),
     and every run finished."""
     from vbl.engine.registry import source_file
-    from vbl.engine.report import paper_experiments, reproduce_jobs
+    from vbl.engine.reproduce import paper_experiments, reproduce_jobs
     from vbl.engine.runner import resolve
 
     manifest = _manifest(folder)
@@ -164,7 +164,7 @@ def test_the_committed_reproduce_runs_are_todays_published_configs(folder, quick
 def test_report_commands_rebuild_the_recorded_config(tmp_path):
     """A fresh run folder: the command `vbl report` rebuilds is the one that was run."""
     from vbl.engine import get, run_experiment
-    from vbl.engine.report import load_run, run_command
+    from vbl.engine.rebuild import load_run, run_command
 
     exp = get("toy_bandit")
     run_experiment(exp, sets={"agent.epsilon": 0.05, "env.num_arms": 4},

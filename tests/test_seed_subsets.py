@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from tests.engine_helpers import REPO, TINY_SETS, toy_experiment
-from vbl.engine.report import load_run
+from vbl.engine.rebuild import load_run
 from vbl.engine.runner import run_experiment
 from vbl.engine.seed_subsets import first_seeds, seeds_report
 from vbl.params import ParamError

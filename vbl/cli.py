@@ -315,7 +315,7 @@ def _cmd_bench(args) -> int:
 
 def _cmd_report(args) -> int:
     from vbl.engine.config import EngineError
-    from vbl.engine.report import results_table
+    from vbl.engine.rebuild import results_table
 
     out = Path(args.out) if args.out is not None else None
     base = out.absolute().parent if out is not None else None
@@ -396,7 +396,7 @@ def _dispatch(args) -> int:
         _init_distributed(args)
         return _run(_experiment(args.experiment), args)
     if args.command == "reproduce":
-        from vbl.engine.report import paper_experiments, reproduce
+        from vbl.engine.reproduce import paper_experiments, reproduce
 
         out = Path(args.out or f"runs/reproduce-{time.strftime('%Y%m%d-%H%M%S')}")
         if not paper_experiments():

@@ -25,7 +25,7 @@ from vbl.params import (
 __all__ = [
     "EngineError", "parse_value", "parse_assignment", "parse_sweep", "split_values",
     "apply_overrides", "is_static", "config_to_dict", "fingerprint", "stack_traced",
-    "traced_dtype", "check_dtypes", "set_value", "INT32", "INT64",
+    "traced_dtype", "check_dtypes", "set_value", "json_value", "INT32", "INT64",
 ]
 
 INT32 = (-2**31, 2**31 - 1)
@@ -236,13 +236,15 @@ def is_static(config: Any, path: str) -> bool:
     return path in static_paths(config)
 
 
-def _jsonable(v: Any) -> Any:
+def json_value(v: Any) -> Any:
+    """``v`` as ``config.json`` holds it: arrays and tuples as lists, NumPy scalars as
+    Python ones, other objects as their repr."""
     if isinstance(v, np.ndarray | jax.Array):
         return np.asarray(v).tolist()
     if isinstance(v, np.generic):
         return v.item()
     if isinstance(v, tuple | list):
-        return [_jsonable(x) for x in v]
+        return [json_value(x) for x in v]
     if isinstance(v, float | int | str | bool) or v is None:
         return v
     return repr(v)
@@ -250,7 +252,7 @@ def _jsonable(v: Any) -> Any:
 
 def config_to_dict(config: Any) -> dict[str, Any]:
     """``{dotted.path: JSON-able value}`` of every parameter."""
-    return {p: _jsonable(v) for p, _, v in iter_params(config)}
+    return {p: json_value(v) for p, _, v in iter_params(config)}
 
 
 def fingerprint(obj: Any) -> str:
@@ -262,7 +264,7 @@ def fingerprint(obj: Any) -> str:
 def _jsonable_tree(obj: Any) -> Any:
     if isinstance(obj, Mapping):
         return {str(k): _jsonable_tree(v) for k, v in obj.items()}
-    return _jsonable(obj)
+    return json_value(obj)
 
 
 def traced_dtype(value: Any) -> np.dtype:

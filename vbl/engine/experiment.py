@@ -176,7 +176,7 @@ class Experiment:
       published_presets: the presets whose results the README publishes: ``vbl reproduce``
         runs each of them beside the default config (into ``<out>/<name>-<preset>``).
       report_reads: run folders beside this run's (in a ``vbl reproduce`` folder) whose
-        results its ``report`` reads (:func:`vbl.engine.report.sibling_result`): ``vbl
+        results its ``report`` reads (:func:`vbl.engine.rebuild.sibling_result`): ``vbl
         reproduce`` builds this run's report again once every run has finished.
     """
 

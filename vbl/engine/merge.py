@@ -208,7 +208,7 @@ def _whole_fingerprint(part: _Part) -> str:
 
 def _experiment_config(folder: Path) -> tuple[Experiment, Any]:
     """The experiment and the config a shard recorded (as ``vbl report`` rebuilds them)."""
-    from vbl.engine.report import load_run
+    from vbl.engine.rebuild import load_run
 
     try:
         exp, result, _ = load_run(folder, shard_ok=True)

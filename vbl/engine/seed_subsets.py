@@ -12,7 +12,8 @@ from pathlib import Path
 from typing import Any
 
 from vbl.engine.experiment import Experiment, RunResult
-from vbl.engine.report import default_section, load_run, results_table, run_folders
+from vbl.engine.rebuild import load_run, results_table, run_folders
+from vbl.engine.report import default_section
 from vbl.engine.results import metric_arrays, point_summaries, read_metrics
 from vbl.params import ParamError
 
@@ -44,7 +45,7 @@ def first_seeds(folder: str | Path, seeds: int, scratch: str | Path
 
 def seeds_report(folders: list[str | Path], seeds: int,
                  link_base: str | Path | None = None) -> str:
-    """Markdown: :func:`~vbl.engine.report.results_table` of the runs' first ``seeds``
+    """Markdown: :func:`~vbl.engine.rebuild.results_table` of the runs' first ``seeds``
     seeds, then each run's report section (its claims) at ``seeds`` seeds, without
     figures and without the columns a report takes from sibling runs."""
     with tempfile.TemporaryDirectory() as scratch:

@@ -21,7 +21,8 @@ import numpy as np
 from vbl.agents.ppo_inputs import INPUTS
 from vbl.engine.experiment import PaperRow, ReportSection, RunResult
 from vbl.engine.plots import band, save_figure
-from vbl.engine.report import rate_cell, seeds_cell, sibling_result
+from vbl.engine.rebuild import sibling_result
+from vbl.engine.report import rate_cell, seeds_cell
 from vbl.programs.curves import LEM_PATH
 from vbl.programs.paper import TABLE2
 from vbl.stats import mean_ci95, seeds_to_resolve, welch_ci95

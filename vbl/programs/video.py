@@ -43,7 +43,7 @@ from vbl.agents.state_maps import CVAMap
 from vbl.engine.checkpoint import Checkpoints
 from vbl.engine.config import EngineError
 from vbl.engine.jax_setup import engine_precision
-from vbl.engine.report import load_run
+from vbl.engine.rebuild import load_run
 from vbl.engine.sweep import make_plan
 from vbl.envs.macro import MacroWrapper, macro_env_params
 from vbl.envs.shooting import ShootingEnv
