@@ -352,3 +352,13 @@ def test_xla_log_level_follows_the_users_request(monkeypatch, env, level):
         monkeypatch.setenv(name, value)
     quiet_xla_env()
     assert os.environ.get("TF_CPP_MIN_LOG_LEVEL") == level
+
+
+def test_a_vbl_folder_in_the_working_directory_is_one_line(tmp_path):
+    """An empty ``vbl/`` folder where the user runs ``python -m vbl.cli`` hides the package
+    (a namespace package); the command says so in one line instead of a TypeError."""
+    (tmp_path / "vbl").mkdir()
+    r = _vbl(["list"], tmp_path)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 1 and len(lines) == 1, r.stderr
+    assert "a folder named vbl" in lines[0] and str((tmp_path / "vbl").resolve()) in lines[0]

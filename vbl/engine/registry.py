@@ -75,6 +75,10 @@ def experiment_dirs() -> list[Path]:
         return [Path(p) for p in env.split(os.pathsep) if p]
     import vbl
 
+    if getattr(vbl, "__file__", None) is None:  # a namespace package: a bare vbl/ folder
+        shadow = ", ".join(str(Path(p).resolve()) for p in getattr(vbl, "__path__", []))
+        raise EngineError(f"a folder named vbl ({shadow}) hides the installed vbl package; "
+                          "run from another folder or rename that one")
     beside = Path(vbl.__file__).resolve().parents[1] / "experiments"
     if (beside / "__init__.py").is_file():
         return [beside]
