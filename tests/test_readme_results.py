@@ -182,18 +182,24 @@ def _unknown_experiment(p: Path) -> Path:
     return p
 
 
-@pytest.mark.parametrize("make, message, code", [
-    (lambda p: p, "is not a finished run folder", 1),
-    (lambda p: p / "missing", "is not a run folder", 1),
-    (_unknown_experiment, "unknown experiment 'nope'", 2),
+@pytest.mark.parametrize("make, message", [
+    (lambda p: p, "is not a finished run folder"),
+    (lambda p: p / "missing", "is not a run folder"),
+    (_unknown_experiment, "unknown experiment 'nope'"),
 ])
-def test_report_errors_are_one_line(tmp_path, capsys, make, message, code):
+def test_report_errors_are_one_line(tmp_path, capsys, make, message):
+    """A bad folder is one line and exit 2, as from vbl render, export and plot."""
     from vbl.cli import main
 
     folder = make(tmp_path)
-    assert main(["report", str(folder)]) == code
-    err = [x for x in capsys.readouterr().err.splitlines() if x.startswith("vbl:")]
-    assert len(err) == 1 and err[0].startswith("vbl: error: ") and message in err[0], err
+    commands = [["report"], ["render", "--out", str(tmp_path / "v.gif")], ["export"]]
+    for command in commands[:2] if make is _unknown_experiment else commands:
+        # (export reads any run folder's rows, whatever its experiment)
+        code = main([*command, str(folder)])
+        err = [x for x in capsys.readouterr().err.splitlines() if x.startswith("vbl:")]
+        assert code == 2 and len(err) == 1 and err[0].startswith("vbl: error: "), \
+            (command, code, err)
+        assert message in err[0] or command[0] != "report", err
 
 
 def test_report_of_an_experiment_without_paper_rows_says_so(tmp_path, capsys):

@@ -319,13 +319,16 @@ def _cmd_report(args) -> int:
 
     out = Path(args.out) if args.out is not None else None
     base = out.absolute().parent if out is not None else None
-    with contextlib.redirect_stdout(sys.stderr):  # what imported scripts print stays apart
-        if args.seeds is None:
-            table = results_table(args.folders, link_base=base)
-        else:
-            from vbl.engine.seed_subsets import seeds_report
+    try:
+        with contextlib.redirect_stdout(sys.stderr):  # what imported scripts print stays apart
+            if args.seeds is None:
+                table = results_table(args.folders, link_base=base)
+            else:
+                from vbl.engine.seed_subsets import seeds_report
 
-            table = seeds_report(args.folders, args.seeds, link_base=base)
+                table = seeds_report(args.folders, args.seeds, link_base=base)
+    except EngineError as e:  # a bad folder: the exit code of render, export and plot
+        return _error(str(e), 2)
     if out is None:
         print(table, end="")
         return 0
