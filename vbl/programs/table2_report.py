@@ -61,24 +61,27 @@ def report(res) -> ReportSection:
           "episodes (whole run) and of the greedy policy; an action ends when what the "
           "state map perceives changes (for the CVA state: not its command terms). CVA "
           "column: median selected lag and AIC order.\n\n" + "\n".join(rows))
-    return ReportSection(markdown=md + _differences(res) + _ablation(),
+    return ReportSection(markdown=md + _differences(res) + _ablation(res.config.agent.update),
                          figures=tuple(res.figures))
 
 
-def _ablation() -> str:
-    """The quick-scale ablation's finding (``benchmarks/probes/table2_ablation.py``) from
-    its committed results file, where the source tree holds it; "" otherwise."""
+def _ablation(update: str) -> str:
+    """The quick-scale ablation's finding for the run's update rule ``update``
+    (``benchmarks/probes/table2_ablation.py``) from its committed results file, where the
+    source tree holds it; "" otherwise."""
     if not ABLATION.is_file():
         return ""
-    diffs = json.loads(ABLATION.read_text())["differences"].get("q_learning", {})
+    diffs = json.loads(ABLATION.read_text())["differences"].get(update, {})
     if not {"figure11", "defaults"} <= set(diffs):
         return ""
 
     def gap(variant: str, task: str) -> str:
         return "{:+.1f} ± {:.1f}".format(*diffs[variant][f"{task}: cva + true velocity - oracle"])
 
-    return ("\n\nWhere the CVA state loses information (the ablation at quick scale, one-step "
-            "Q-learning, 16 seeds: `python benchmarks/probes/table2_ablation.py`, "
+    learner = {"q_learning": "one-step Q-learning", "monte_carlo": "Monte Carlo values"}.get(
+        update, f"agent.update={update}")
+    return ("\n\nWhere the CVA state loses information (the ablation at quick scale, "
+            f"{learner}, 16 seeds: `python benchmarks/probes/table2_ablation.py`, "
             "docs/findings/table2_shoot_pass.md): the CVA state identified with the ball's "
             "true velocity minus the velocity oracle, greedy success points, is "
             f"{gap('figure11', 'shoot')} (shooting) and {gap('figure11', 'pass')} (passing) "
