@@ -1,5 +1,5 @@
-"""The ``vbl`` command: list, run, merge, reproduce, report, export, plot, bench, params
-(see docs/engine.md), render (docs/render.md)."""
+"""The ``vbl`` command: list, run, merge, reproduce, report, export, plot, tune, bench,
+params (see docs/engine.md), render (docs/render.md)."""
 
 from __future__ import annotations
 
@@ -121,6 +121,81 @@ def _add_data_commands(sub) -> None:
     _add_debug(p, argparse.SUPPRESS)
 
 
+def _add_tune(sub) -> None:
+    """The ``vbl tune`` subcommand (docs/engine.md, "Hyperparameter search")."""
+    p = sub.add_parser("tune", help="a hyperparameter search (Optuna): batches of trials x "
+                       "seeds run as one sweep each, optional successive halving, the best "
+                       "trial confirmed on fresh seeds (needs optuna: pip install 'vbl[tune]')")
+    p.add_argument("experiment", help="experiment name, or path/to/script.py")
+    p.add_argument("--space", action="append", default=[], metavar="PATH=SPEC",
+                   help="a searched parameter (repeat): LOW..HIGH (ints when both ends and "
+                        "the parameter are ints), LOW..HIGH:log, or choices a,b,c")
+    p.add_argument("--trials", type=int, required=True, metavar="N", help="trials in all")
+    p.add_argument("--batch", type=int, required=True, metavar="B",
+                   help="trials run at once, as one sweep")
+    p.add_argument("--seeds", type=int, default=None, metavar="S",
+                   help="seeds per trial (default: the experiment's)")
+    p.add_argument("--metric", default=None, metavar="M",
+                   help="the metric (default: the program's progress_metric, else its first "
+                        "final metric); a chunk metric counts at the last chunk")
+    p.add_argument("--direction", default="maximize", choices=("maximize", "minimize"))
+    p.add_argument("--sampler", default="tpe", choices=("tpe", "random", "grid"))
+    p.add_argument("--prune", default="none", choices=("halving", "none"),
+                   help="halving: successive halving inside each batch (the worst trials' "
+                        "learners stop at each rung)")
+    p.add_argument("--reduction-factor", type=int, default=None, metavar="ETA",
+                   help="halving: 1/ETA of the trials go on at each rung (default 3)")
+    p.add_argument("--min-chunks", type=int, default=None, metavar="R",
+                   help="halving: chunks of the first rung (default num_chunks // ETA^2)")
+    p.add_argument("--confirm-seeds", type=int, default=None, metavar="N",
+                   help="fresh seeds of the best trial's confirmation run (default max(S, 8))")
+    p.add_argument("--set", dest="sets", action="append", default=[], metavar="PATH=VALUE",
+                   help="fix a parameter for every trial")
+    p.add_argument("--preset", default=None, metavar="NAME", help="a named variant")
+    p.add_argument("--seed", type=int, default=0,
+                   help="base seed of the search (default 0; the confirmation takes SEED+1)")
+    p.add_argument("--out", default=None, help="the search's folder (default "
+                   "runs/<name>-tune-<time>)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--resume", action="store_true", help="continue a stopped search")
+    g.add_argument("--overwrite", action="store_true", help="replace an earlier search")
+    p.add_argument("--quick", action="store_true", help="the experiment's --quick values")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument("--checkpoint-every", type=int, default=10, metavar="K",
+                   help="chunks between checkpoints (default 10)")
+    _add_debug(p, argparse.SUPPRESS)
+
+
+def _cmd_tune(args) -> int:
+    """``vbl tune``: without optuna, one line (exit 1) before anything else."""
+    from vbl.engine.config import parse_assignment
+    from vbl.engine.tune import require_optuna, tune
+
+    require_optuna()
+    experiment = _experiment(args.experiment)
+    sets = dict(parse_assignment(s, experiment.default_config) for s in args.sets)
+    t0 = time.perf_counter()
+    res = tune(experiment, args.space, trials=args.trials, batch=args.batch,
+               seeds=args.seeds, metric=args.metric, direction=args.direction,
+               sampler=args.sampler, prune=args.prune,
+               reduction_factor=args.reduction_factor, min_chunks=args.min_chunks,
+               sets=sets, seed=args.seed, confirm_seeds=args.confirm_seeds, out=args.out,
+               resume=args.resume, overwrite=args.overwrite, quick=args.quick,
+               preset=args.preset, quiet=True if args.quiet else None,
+               checkpoint_every=args.checkpoint_every, echo=lambda m: print(m, flush=True))
+    sm = res.summary
+    s, c = sm["search"], sm["confirmation"]
+    print(f"best trial {sm['best_trial']}: " + ", ".join(f"{k}={v}" for k, v in
+                                                         res.params.items()))
+    print(f"  {sm['metric']}: search {s['mean']:.4g} ± {s['ci95']:.3g} ({s['seeds']} seeds), "
+          f"confirmation {c['mean']:.4g} ± {c['ci95']:.3g} ({c['seeds']} fresh seeds)")
+    comp = sm["compute"]
+    print(f"  {comp['learner_chunks']:,} learner-chunks of a full grid's "
+          f"{comp['full_grid_learner_chunks']:,}; reproduce the confirmation: {c['command']}")
+    print(f"{experiment.name}: {time.perf_counter() - t0:.1f} s, report: {res.report}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="vbl", description="vbl: vmapped, sharded, checkpointed "
                      "robot-learning experiments")
@@ -171,6 +246,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_debug(p, argparse.SUPPRESS)
     _add_render(sub)
     _add_data_commands(sub)
+    _add_tune(sub)
     p = sub.add_parser("params", help="the parameter table of an experiment (Markdown)")
     p.add_argument("experiment", help="experiment name, or path/to/script.py")
     _add_debug(p, argparse.SUPPRESS)
@@ -412,7 +488,8 @@ def _dispatch(args) -> int:
         print(f"report: {report}", flush=True)
         return 0 if ok else _error(f"some experiments failed; see {report}", 1)
     commands = {"merge": _cmd_merge, "bench": _cmd_bench, "report": _cmd_report,
-                "render": _cmd_render, "export": _cmd_export, "plot": _cmd_plot}
+                "render": _cmd_render, "export": _cmd_export, "plot": _cmd_plot,
+                "tune": _cmd_tune}
     return commands[args.command](args)
 
 

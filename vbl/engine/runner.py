@@ -8,7 +8,7 @@ import functools
 import hashlib
 import math
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -144,7 +144,9 @@ def run_experiment(experiment: Experiment, *, sets: Mapping[str, Any] | None = N
                    learner_batch: int = DEFAULT_LEARNER_BATCH, plots: bool = True,
                    memory_check: bool = True, preset: str | None = None,
                    shard: Shard | str | None = None,
-                   tensorboard: str | Path | None = None) -> RunResult:
+                   tensorboard: str | Path | None = None, zipped: bool = False,
+                   span: tuple[int, int] | None = None,
+                   start_carry: Callable[[Any], Any] | None = None) -> RunResult:
     """Run ``experiment`` over ``sweep`` x ``seeds`` and write its run folder.
 
     Args:
@@ -163,6 +165,13 @@ def run_experiment(experiment: Experiment, *, sets: Mapping[str, Any] | None = N
         rows for :func:`vbl.engine.merge.merge_runs` and no report.
       tensorboard: a folder for TensorBoard event files: each sweep point's mean curve and
         95 % band per chunk, written as the run goes (:mod:`vbl.engine.tensorboard`).
+      zipped: the sweep's values side by side, one point per value (every path the same
+        number of values), not their product: a list of points (``vbl tune``'s trials).
+      span: ``(first, last)``: run only chunks ``first`` to ``last - 1`` of a one-group
+        plan (``Program.final`` only when ``last`` is the program's ``num_chunks``); with
+        ``first > 0`` the carries at chunk ``first`` come from ``start_carry(like)``, a host
+        tree shaped like ``like`` (the group's carries, ``[learners, ...]``). Both are
+        recorded in ``config.json``.
     Everything is checked (values, memory, folder) before the folder is written; the folder
     is locked while the run writes it (:mod:`vbl.engine.runfolder`).
     Returns: a :class:`RunResult` (curves/final as NumPy arrays, on process 0; empty for a
@@ -180,14 +189,16 @@ def run_experiment(experiment: Experiment, *, sets: Mapping[str, Any] | None = N
         raise EngineError("a multi-process run needs --out on a shared file system")
     config, full_sweep, seeds, spec = resolve(experiment, sets, sweep, seeds, base_seed, quick,
                                               preset)
+    spec = _partial_spec(spec, zipped, span)
     if shard is not None:
         shard = shard if isinstance(shard, Shard) else parse_shard(shard)
         if experiment.make_program is None:
             raise ParamError(f"{experiment.name} runs its own loop (Experiment.run): --shard "
                              f"needs an experiment with make_program")
         spec = shard_spec(spec, shard)
-    plan = make_plan(experiment, config, full_sweep, seeds, base_seed, shard) \
+    plan = make_plan(experiment, config, full_sweep, seeds, base_seed, shard, zipped) \
         if experiment.make_program is not None else None
+    _check_span(plan, span, start_carry)
     if plan is not None and memory_check:
         check_memory(plan)
     if plan is not None:
@@ -198,7 +209,8 @@ def run_experiment(experiment: Experiment, *, sets: Mapping[str, Any] | None = N
                              primary=primary)
     run = _Run(folder, experiment, config, full_sweep, seeds, base_seed, spec, plan, resume,
                quick, quiet, checkpoint_every, learner_batch, plots, primary,
-               None if tensorboard is None else Path(tensorboard))
+               None if tensorboard is None else Path(tensorboard),
+               None if span is None else (int(span[0]), int(span[1])), start_carry)
     try:
         return _run_in(run)
     finally:
@@ -209,6 +221,36 @@ def _check_chunking(checkpoint_every: Any, learner_batch: Any) -> None:
     for name, v in (("checkpoint_every", checkpoint_every), ("learner_batch", learner_batch)):
         if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= INT32[1]:
             raise ParamError(f"{name} must be an int in [1, {INT32[1]}], got {v!r}")
+
+
+def _partial_spec(spec: dict, zipped: bool, span: tuple[int, int] | None) -> dict:
+    """``spec`` with ``"zipped"`` and ``"span"`` recorded (when given) and its fingerprint
+    again; unchanged otherwise."""
+    if not zipped and span is None:
+        return spec
+    out = {k: v for k, v in spec.items() if k != "fingerprint"}
+    if zipped:
+        out["zipped"] = True
+    if span is not None:
+        out["span"] = [int(x) for x in span]
+    out["fingerprint"] = fingerprint(out)
+    return out
+
+
+def _check_span(plan: SweepPlan | None, span: Any, start_carry: Any) -> None:
+    """ParamError unless ``span`` is None or ``(first, last)`` within a one-group plan's
+    chunks, with ``start_carry`` when ``first > 0``."""
+    if span is None:
+        return
+    if plan is None or plan.shard is not None or len(plan.groups) != 1:
+        raise ParamError("a span of chunks needs a program run in one compile group, "
+                         "unsharded")
+    first, last = span
+    n = plan.groups[0].num_chunks
+    if not (isinstance(first, int) and isinstance(last, int) and 0 <= first < last <= n):
+        raise ParamError(f"span {span!r}: needs 0 <= first < last <= {n} (the chunks)")
+    if first > 0 and start_carry is None:
+        raise ParamError("a span that starts after chunk 0 needs start_carry")
 
 
 def shard_spec(spec: dict, shard: Shard) -> dict:
@@ -251,6 +293,8 @@ class _Run:
     plots: bool
     primary: bool
     tensorboard: Path | None = None  # TensorBoard event files' folder
+    span: tuple[int, int] | None = None  # chunks [first, last) of a one-group plan
+    start_carry: Callable[[Any], Any] | None = None  # the carries at chunk ``first``
 
     @property
     def path(self) -> Path:
@@ -374,18 +418,19 @@ def _train(run: _Run, ckpts: Checkpoints, log: MetricsLog) -> int:
     plan = run.plan
     start = (ckpts.latest_step() or 0) if run.resume else 0
     run.folder.record(STATUS_FILE)
-    total, done = _steps_to_run(plan, start)
+    total, done = _steps_to_run(plan, start, run.span)
     progress = Progress(total, done, run.experiment.name, run.quiet,
                         status_dir=run.path if run.primary else None)
     sharding = learner_sharding()
     truncate = run.resume and run.primary
     try:
         for i, group in enumerate(g for g in plan.groups if g.num_learners
-                                  and g.step_offset + g.num_chunks > start):
+                                  and g.step_offset + _last(g, run.span) > start):
             if i:
                 progress.compiling()
             _run_group(plan, group, sharding, ckpts, log, progress, start,
-                       run.checkpoint_every, run.learner_batch, truncate)
+                       run.checkpoint_every, run.learner_batch, truncate, run.span,
+                       run.start_carry)
             truncate = False  # once, before the first new row
     except BaseException:
         progress.close()
@@ -397,12 +442,20 @@ def _train(run: _Run, ckpts: Checkpoints, log: MetricsLog) -> int:
     return start
 
 
-def _steps_to_run(plan: SweepPlan, start: int) -> tuple[int, int]:
+def _last(group: Group, span: tuple[int, int] | None) -> int:
+    """The chunk a group's run ends at: its program's last, or the span's."""
+    return group.num_chunks if span is None else span[1]
+
+
+def _steps_to_run(plan: SweepPlan, start: int, span: tuple[int, int] | None = None
+                  ) -> tuple[int, int]:
     """``(steps, steps done)`` of the groups that have learners (a shard's may not), the
-    run resuming from global step ``start``."""
+    run resuming from global step ``start`` (a span's chunks before its first count as
+    done)."""
     groups = [g for g in plan.groups if g.num_learners]
-    return (sum(g.num_chunks for g in groups),
-            sum(min(g.num_chunks, max(0, start - g.step_offset)) for g in groups))
+    first = 0 if span is None else span[0]
+    return (sum(_last(g, span) for g in groups),
+            sum(min(_last(g, span), max(first, start - g.step_offset)) for g in groups))
 
 
 def _summarise(run: _Run, start: int, wall: float) -> RunResult:
@@ -412,7 +465,7 @@ def _summarise(run: _Run, start: int, wall: float) -> RunResult:
     _sync("vbl-run-done")
     how = {"wall_time_s": wall, "resumed_from_step": start, "learners": plan.num_learners,
            "devices": jax.device_count(), "processes": jax.process_count()}
-    steps, done = _steps_to_run(plan, start)
+    steps, done = _steps_to_run(plan, start, run.span)
     recorded = _recorded_summary(run.path) if run.resume and done == steps else None
     if recorded is not None:  # a finished run resumed: nothing ran, its record stands
         how.update({k: recorded[k] for k in HOW_RAN if k in recorded})
@@ -460,10 +513,11 @@ def metrics_line_sums(path: Path) -> list[str]:
 
 def _run_group(plan: SweepPlan, group: Group, sharding, ckpts: Checkpoints, log: MetricsLog,
                progress: Progress, start: int, every: int, learner_batch: int,
-               truncate: bool = False) -> None:
-    """Run ``group`` from global step ``start``; with ``truncate``, drop the rows of
-    ``metrics.jsonl`` past ``start`` once the checkpoint is restored (a checkpoint that
-    cannot be restored leaves the file as it was)."""
+               truncate: bool = False, span: tuple[int, int] | None = None,
+               start_carry: Callable[[Any], Any] | None = None) -> None:
+    """Run ``group`` from global step ``start`` (to the end of ``span`` when given); with
+    ``truncate``, drop the rows of ``metrics.jsonl`` past ``start`` once the checkpoint is
+    restored (a checkpoint that cannot be restored leaves the file as it was)."""
     prog = group.program
     n = group.num_learners
     nb, size = batch_layout(n, len(sharding.mesh.devices.flat), learner_batch)
@@ -482,20 +536,24 @@ def _run_group(plan: SweepPlan, group: Group, sharding, ckpts: Checkpoints, log:
 
     init_fn, step_fn, final_fn = _compiled(prog, sharding)
     cfgs = batches(group.configs)
-    done = max(0, start - group.step_offset)
+    first, end = (0, prog.num_chunks) if span is None else span
+    done = max(first, start - group.step_offset)
     if done > 0:
         shape = jax.eval_shape(jax.vmap(prog.init), jax.ShapeDtypeStruct((n, 2), np.uint32),
                                jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype),
                                             group.configs))
         like = jax.tree.map(lambda s: np.zeros(s.shape, s.dtype), shape)
-        carry_host, _ = ckpts.restore(start, like)
+        if done > first:
+            carry_host, _ = ckpts.restore(start, like)
+        else:
+            carry_host = start_carry(like)
         carries = batches(carry_host)
     else:
         carries = [init_fn(k, c) for k, c in zip(batches(init_keys), cfgs, strict=True)]
     if truncate:
         log.truncate_after(start)
 
-    for chunk in range(done, prog.num_chunks):
+    for chunk in range(done, end):
         t0 = time.perf_counter()
         outs = [step_fn(c, cfg) for c, cfg in zip(carries, cfgs, strict=True)]
         carries = [o[0] for o in outs]
@@ -504,8 +562,8 @@ def _run_group(plan: SweepPlan, group: Group, sharding, ckpts: Checkpoints, log:
         step = group.step_offset + chunk + 1
         log.append(_rows(plan, group, step, chunk, metrics))
         progress.update(metrics, dt, prog.progress_metric)
-        last = chunk + 1 == prog.num_chunks
-        if last and prog.final is not None:
+        last = chunk + 1 == end
+        if chunk + 1 == prog.num_chunks and prog.final is not None:
             fin = gather([final_fn(c, cfg, k) for c, cfg, k in
                           zip(carries, cfgs, batches(final_keys), strict=True)])
             log.append(_rows(plan, group, step, "final", fin))

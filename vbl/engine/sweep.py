@@ -221,13 +221,24 @@ def _members(point_ids: list[int], seeds: int, lo: int, hi: int) -> list[tuple[i
     return out
 
 
+def _zipped_count(sweep: dict[str, list[Any]]) -> int:
+    """The points of a zipped sweep: its paths' common number of values."""
+    counts = {len(v) for v in sweep.values()}
+    if len(counts) > 1:
+        raise ParamError(f"a zipped sweep gives every path one value per point; the paths "
+                         f"have {sorted(counts)} values")
+    return counts.pop() if counts else 1
+
+
 def make_plan(experiment: Experiment, config: Any, sweep: Mapping[str, Sequence[Any]],
-              seeds: int, base_seed: int = 0, shard: Shard | None = None) -> SweepPlan:
+              seeds: int, base_seed: int = 0, shard: Shard | None = None,
+              zipped: bool = False) -> SweepPlan:
     """Validate every sweep value and build the groups (calls ``make_program`` per group).
     Each point's config (validated whole) and the per-learner arrays (keys, stacked
     configs) are built on first use: :meth:`SweepPlan.validate` builds the configs. With
     ``shard``, only its part of the learners runs (ParamError when a part would be
-    empty)."""
+    empty). ``zipped``: the points are the sweep's values side by side (point ``i`` takes
+    the ``i``-th value of every path; the same count for every path), not their product."""
     check_counts(seeds, base_seed)
     sweep = {p: list(v) for p, v in sweep.items()}
     for path, values in sweep.items():
@@ -235,14 +246,15 @@ def make_plan(experiment: Experiment, config: Any, sweep: Mapping[str, Sequence[
             raise ParamError(f"sweep of {path!r} has no values")
         for v in values:
             set_value(config, path, v)  # type/range check with a clear message
-    npoints = math.prod(len(v) for v in sweep.values())
+    npoints = _zipped_count(sweep) if zipped else math.prod(len(v) for v in sweep.values())
     if npoints > MAX_POINTS:
         raise ParamError(f"the sweep has {npoints:,} points (the product of its value "
                          f"counts); at most {MAX_POINTS:,}")
     statics = set(static_paths(config))
     paths = list(sweep)
-    points = [dict(zip(paths, combo, strict=True))
-              for combo in itertools.product(*(sweep[p] for p in paths))]
+    combos = zip(*(sweep[p] for p in paths), strict=True) if zipped else \
+        itertools.product(*(sweep[p] for p in paths))
+    points = [dict(zip(paths, combo, strict=True)) for combo in combos]
     if not points:
         points = [{}]
     by_static: dict[tuple, list[int]] = {}
