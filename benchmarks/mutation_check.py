@@ -275,7 +275,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--issue", action="store_true",
                    help="the mutants issue 50 found surviving, instead of the fresh ones")
     p.add_argument("--list", action="store_true", help="list the mutants and exit")
-    p.add_argument("--timeout", type=float, default=300.0, help="seconds per test run")
+    p.add_argument("--timeout", type=float, default=900.0, help="seconds per test run")
     p.add_argument("--json", metavar="FILE", help="also write the results as JSON")
     args = p.parse_args(argv)
     chosen = ISSUE_MUTANTS if args.issue else MUTANTS
