@@ -115,18 +115,25 @@ def _parse_dim(text: str, config: Any) -> Dim:
                          f"LOW..HIGH:log or a,b,c, e.g. agent.learning_rate=0.01..1:log")
     path, _, spec = (x.strip() for x in text.partition("="))
     get_path(config, path)  # an unknown path lists the valid ones
+    if ".." in spec:
+        return _range_dim(text, path, spec, config)
     default = _field_default(config, path)
-    if ".." not in spec:
-        vals = [parse_value(v, default) for v in split_values(spec)]
-        if not spec or any(v == "" for v in vals):
-            raise ParamError(f"--space {text!r} has an empty value")
-        if any(not isinstance(v, bool | int | float | str) for v in vals):
-            raise ParamError(f"--space {text!r}: choices are numbers, true/false or words")
-        if len({repr(v) for v in vals}) < len(vals):
-            raise ParamError(f"--space {text!r} gives a value twice")
-        for v in vals:
-            set_value(config, path, v)
-        return Dim(path, "choice", spec, choices=tuple(vals))
+    vals = [parse_value(v, default) for v in split_values(spec)]
+    if not spec or any(v == "" for v in vals):
+        raise ParamError(f"--space {text!r} has an empty value")
+    if any(not isinstance(v, bool | int | float | str) for v in vals):
+        raise ParamError(f"--space {text!r}: choices are numbers, true/false or words")
+    if len({repr(v) for v in vals}) < len(vals):
+        raise ParamError(f"--space {text!r} gives a value twice")
+    for v in vals:
+        set_value(config, path, v)
+    return Dim(path, "choice", spec, choices=tuple(vals))
+
+
+def _range_dim(text: str, path: str, spec: str, config: Any) -> Dim:
+    """The :class:`Dim` of ``LOW..HIGH[:log]``: ints when both ends and the parameter are
+    ints."""
+    default = _field_default(config, path)
     rng, _, flag = spec.partition(":")
     if flag not in ("", "log"):
         raise ParamError(f"--space {text!r}: the only range flag is :log")

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import shlex
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -82,7 +83,9 @@ def _compute(s, trials: list) -> dict[str, Any]:
 
 def _importances(optuna, study) -> tuple[dict[str, float], str | None]:
     try:
-        return dict(optuna.importance.get_param_importances(study)), None
+        with warnings.catch_warnings():  # a warning about few trials: the values say it
+            warnings.simplefilter("ignore")
+            return dict(optuna.importance.get_param_importances(study)), None
     except Exception as e:  # noqa: BLE001 - too few or constant trials: the report says so
         return {}, f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"
 

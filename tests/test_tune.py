@@ -1,0 +1,201 @@
+"""``vbl tune`` (docs/engine.md, "Hyperparameter search"): the SPEC grammar, zipped sweeps,
+successive halving that stops learners and equals full runs, the confirmation on fresh
+seeds and its command, a killed search that resumes, and bad input in one line."""
+
+from __future__ import annotations
+
+import json
+import shlex
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tests.engine_helpers import (
+    REPO,
+    TINY_SETS,
+    env_for,
+    experiments_dir,
+    one_error_line,
+    run_vbl,
+    toy_experiment,
+    vbl_cmd,
+)
+from vbl.engine.config import EngineError
+from vbl.engine.runner import run_experiment
+from vbl.engine.sweep import make_plan
+from vbl.engine.tune import parse_space, rungs, tune
+from vbl.params import ParamError
+
+optuna = pytest.importorskip("optuna")
+
+SETS = {**TINY_SETS, "train.num_chunks": 9}
+SPACE = ["agent.learning_rate=0.02..1:log", "agent.epsilon=0..0.4"]
+
+
+@pytest.fixture(scope="module")
+def toy(tmp_path_factory):
+    gen = toy_experiment(tmp_path_factory.mktemp("exps"))
+    yield next(gen)
+    next(gen, None)
+
+
+def test_space_specs_and_rungs(toy):
+    cfg = toy.default_config
+    sp = parse_space(["agent.learning_rate=0.01..1:log", "agent.epsilon=0..0.5",
+                      "env.num_arms=2..5", "agent.initial_value=0,1.5"], cfg)
+    lr, eps, arms, init = sp.values()
+    assert (lr.kind, lr.low, lr.high, lr.log) == ("float", 0.01, 1.0, True)
+    assert (eps.kind, eps.log) == ("float", False)
+    assert (arms.kind, arms.low, arms.high, arms.grid()) == ("int", 2, 5, [2, 3, 4, 5])
+    assert init.kind == "choice" and init.choices == (0, 1.5)
+    assert parse_space(["agent.epsilon=0..1"], cfg)["agent.epsilon"].kind == "float"
+    bad = ["agent.learning_rate", "agent.learning_rate=1..0.5", "agent.learning_rate=0..1:log",
+           "agent.learning_rate=0.1..2", "agent.nope=0..1", "agent.epsilon=a..b",
+           "agent.epsilon=0..1:lin", "env.num_arms=2..4.5", "agent.epsilon=0.1,0.1"]
+    for text in bad:
+        with pytest.raises(ParamError):
+            parse_space([text], cfg)
+    assert rungs(9, 3, 1) == [(0, 1), (1, 3), (3, 9)]
+    assert rungs(4, 3, 5) == [(0, 4)]
+
+
+def test_zipped_plan_takes_points_side_by_side(toy):
+    sweep = {"agent.epsilon": [0.1, 0.2, 0.1], "env.num_arms": [3, 3, 4]}
+    plan = make_plan(toy, toy.default_config, sweep, 2, zipped=True)
+    assert plan.points == [{"agent.epsilon": 0.1, "env.num_arms": 3},
+                           {"agent.epsilon": 0.2, "env.num_arms": 3},
+                           {"agent.epsilon": 0.1, "env.num_arms": 4}]
+    assert [g.point_ids for g in plan.groups] == [[0, 1], [2]]  # static values: groups
+    with pytest.raises(ParamError, match="zipped"):
+        make_plan(toy, toy.default_config, {"agent.epsilon": [0.1], "env.num_arms": [3, 4]},
+                  2, zipped=True)
+
+
+@pytest.fixture(scope="module")
+def halving(toy, tmp_path_factory):
+    out = tmp_path_factory.mktemp("tune") / "halving"
+    res = tune(toy, SPACE, trials=6, batch=3, seeds=3, sets=SETS, sampler="random",
+               prune="halving", min_chunks=1, out=out, confirm_seeds=4)
+    return res
+
+
+def test_halving_stops_learners_and_equals_full_runs(toy, halving):
+    states = optuna.trial.TrialState
+    trials = halving.study.get_trials()
+    assert len(trials) == 6 and {t.user_attrs["batch"] for t in trials} == {0, 1}
+    assert any(t.state == states.PRUNED for t in trials)
+    done = [t for t in trials if t.state == states.COMPLETE]
+    # learner-chunks: counted from what the runs logged, as the rungs imply
+    expect = 0
+    for t in trials:
+        last = 9 if t.state == states.COMPLETE else t.last_step
+        expect += 3 * last
+    comp = halving.summary["compute"]
+    assert comp["learner_chunks"] == expect < comp["full_grid_learner_chunks"] == 6 * 3 * 9
+    # a trial that survived every rung got what a plain run of its values gets
+    t = done[0]
+    plain = run_experiment(toy, sets={**SETS, **t.params}, seeds=3, out=halving.out_dir.parent
+                           / "plain", quiet=True, plots=False)
+    np.testing.assert_allclose(t.user_attrs["per_seed"],
+                               plain.curves["success_rate"][0, -1], rtol=1e-6)
+    # every trial reported its metric per rung to Optuna
+    assert all(t.intermediate_values for t in trials)
+
+
+def test_report_and_confirmation_command(toy, halving, tmp_path):
+    from vbl.cli import _run, build_parser
+
+    sm = halving.summary
+    assert sm["confirmation"]["base_seed"] == 1 and sm["search"]["base_seed"] == 0
+    assert sm["confirmation"]["seeds"] == 4 and sm["search"]["seeds"] == 3
+    text = halving.report.read_text()
+    for want in ("the winner's curse", "confirmation on fresh seeds", "history.png",
+                 "learner-chunks run", sm["confirmation"]["command"]):
+        assert want in text
+    assert (halving.out_dir / "history.png").stat().st_size > 1000
+    argv = shlex.split(sm["confirmation"]["command"])[1:] + ["--out", str(tmp_path / "again"),
+                                                             "--quiet"]
+    assert _run(toy, build_parser().parse_args(argv)) == 0
+    rows = [json.loads(x) for x in (tmp_path / "again" / "metrics.jsonl").read_text()
+            .splitlines()]
+    last = [r for r in rows if r["chunk"] == 8][0]
+    assert last["metrics"]["success_rate"]["per_seed"] == sm["confirmation"]["per_seed"]
+
+
+def test_bad_input_is_one_line(toy, tmp_path):
+    from vbl.cli import _cmd_tune, build_parser
+
+    out = tmp_path / "x"
+    base = ["tune", "toy_bandit", "--trials", "2", "--batch", "2", "--out", str(out)]
+    for extra in (["--space", "agent.nope=0..1"],
+                  ["--space", "agent.epsilon=0..1", "--metric", "nope"],
+                  ["--space", "env.num_arms=2..4", "--prune", "halving"],
+                  ["--space", "agent.epsilon=0..1", "--sampler", "grid"],
+                  ["--space", "agent.epsilon=0,1", "--set", "agent.epsilon=0.5"],
+                  ["--space", "agent.epsilon=0..1", "--confirm-seeds", "1"]):
+        with pytest.raises(ParamError):  # the command's exit 2
+            _cmd_tune(build_parser().parse_args(base + extra))
+    assert not out.exists()
+    env = env_for(experiments_dir(tmp_path))
+    r = run_vbl(base + ["--space", "agent.learning_rate=2..1"], env)
+    assert r.returncode == 2 and "LOW must be below HIGH" in one_error_line(r.stderr)
+    blocker = tmp_path / "no_optuna" / "optuna"
+    blocker.mkdir(parents=True)
+    (blocker / "__init__.py").write_text("raise ImportError('optuna is not installed')\n")
+    r = run_vbl(base + ["--space", "agent.epsilon=0..1"],
+                dict(env, PYTHONPATH=str(tmp_path / "no_optuna")))
+    assert r.returncode == 1 and "pip install 'vbl[tune]'" in one_error_line(r.stderr)
+    assert not out.exists()
+
+
+def _history(out: Path) -> list[tuple]:
+    sm = json.loads((out / "summary.json").read_text())
+    return [(h["trial"], h["state"], h["value"], h["params"]) for h in sm["history"]]
+
+
+def test_killed_search_resumes(toy, tmp_path):
+    """SIGKILL in the middle of the second batch, then --resume: the same trials, each
+    told once, the same values as a search never stopped."""
+    env = env_for(experiments_dir(tmp_path))
+    sets = {**TINY_SETS, "train.num_chunks": 80}
+    args = ["tune", "toy_bandit", "--space", SPACE[1], "--trials", "4", "--batch", "2",
+            "--seeds", "2", "--sampler", "random", "--checkpoint-every", "10",
+            "--confirm-seeds", "2", "--quiet"]
+    for k, v in sets.items():
+        args += ["--set", f"{k}={v}"]
+    out = tmp_path / "killed"
+    proc = subprocess.Popen(vbl_cmd(*args, "--out", str(out)), env=env, cwd=REPO,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        metrics = out / "batch-1" / "metrics.jsonl"
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and proc.poll() is None:
+            if metrics.exists() and len(metrics.read_text().splitlines()) >= 30:
+                break
+            time.sleep(0.02)
+        assert proc.poll() is None, "the search ended before it could be killed"
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert len(metrics.read_text().splitlines()) < 160
+    with pytest.raises(EngineError, match="--resume"):  # a taken folder: never overwritten
+        tune(toy, [SPACE[1]], trials=4, batch=2, seeds=2, sampler="random", sets=sets,
+             out=out)
+    r = run_vbl(args + ["--out", str(out), "--resume"], env)
+    assert r.returncode == 0, r.stderr[-3000:]
+    ref = tmp_path / "whole"
+    tune(toy, [SPACE[1]], trials=4, batch=2, seeds=2, sampler="random", sets=sets,
+         confirm_seeds=2, out=ref, checkpoint_every=10)
+    assert _history(out) == _history(ref)
+    study = optuna.load_study(study_name="vbl-tune", storage=f"sqlite:///{out / 'study.db'}")
+    assert sorted(t.number for t in study.trials) == [0, 1, 2, 3]
+    assert all(t.state == optuna.trial.TrialState.COMPLETE for t in study.trials)
+    rows = [json.loads(x) for x in metrics.read_text().splitlines()]
+    steps = [(r["point"], r["chunk"]) for r in rows if r["chunk"] != "final"]
+    assert sorted(steps) == [(p, c) for p in range(2) for c in range(80)]
