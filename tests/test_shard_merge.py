@@ -92,7 +92,7 @@ def test_merged_shards_equal_the_whole_run(runs, n):
 def test_report_of_one_shard_asks_for_the_merge(runs, capsys):
     tmp, shards = runs
     capsys.readouterr()
-    assert vbl("report", shards[2][0]) == 1  # like any folder that is not a finished run
+    assert vbl("report", shards[2][0]) == 2  # like any folder that is not a finished run
     assert "part 1/2 of a sharded run: merge its parts first" in one_error_line(
         capsys.readouterr().err)
 
