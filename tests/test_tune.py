@@ -193,9 +193,47 @@ def test_killed_search_resumes(toy, tmp_path):
     tune(toy, [SPACE[1]], trials=4, batch=2, seeds=2, sampler="random", sets=sets,
          confirm_seeds=2, out=ref, checkpoint_every=10)
     assert _history(out) == _history(ref)
+    with pytest.raises(EngineError, match="other settings"):  # another search's options
+        tune(toy, [SPACE[1]], trials=4, batch=2, seeds=3, sampler="random", sets=sets,
+             out=out, resume=True)
     study = optuna.load_study(study_name="vbl-tune", storage=f"sqlite:///{out / 'study.db'}")
     assert sorted(t.number for t in study.trials) == [0, 1, 2, 3]
     assert all(t.state == optuna.trial.TrialState.COMPLETE for t in study.trials)
     rows = [json.loads(x) for x in metrics.read_text().splitlines()]
     steps = [(r["point"], r["chunk"]) for r in rows if r["chunk"] != "final"]
     assert sorted(steps) == [(p, c) for p in range(2) for c in range(80)]
+
+
+@pytest.mark.slow
+def test_killed_halving_search_resumes_mid_rung(toy, tmp_path):
+    """SIGKILL while a rung's survivors run (their carries restored from the rung
+    before), then --resume: the history and learner-chunks of a search never stopped."""
+    env = env_for(experiments_dir(tmp_path))
+    args = ["tune", "toy_bandit", "--space", SPACE[0], "--space", SPACE[1], "--trials", "8",
+            "--batch", "4", "--seeds", "2", "--sampler", "random", "--prune", "halving",
+            "--reduction-factor", "2", "--min-chunks", "10", "--checkpoint-every", "5",
+            "--quiet", "--set", "env.num_arms=3", "--set", "train.pulls_per_chunk=5",
+            "--set", "train.num_chunks=80"]
+    out, ref = tmp_path / "killed", tmp_path / "whole"
+    proc = subprocess.Popen(vbl_cmd(*args, "--out", str(out)), env=env, cwd=REPO,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        metrics = out / "batch-0" / "rung-1" / "metrics.jsonl"
+        deadline = time.monotonic() + 300
+        while time.monotonic() < deadline and proc.poll() is None:
+            if metrics.exists() and len(metrics.read_text().splitlines()) >= 6:
+                break
+            time.sleep(0.01)
+        assert proc.poll() is None, "the search ended before it could be killed"
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    r = run_vbl(args + ["--out", str(out), "--resume"], env)
+    assert r.returncode == 0, r.stderr[-3000:]
+    r = run_vbl(args + ["--out", str(ref)], env)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert _history(out) == _history(ref)
+    comp = [json.loads((d / "summary.json").read_text())["compute"] for d in (out, ref)]
+    assert comp[0] == comp[1] and comp[0]["learner_chunks"] < comp[0]["full_grid_learner_chunks"]

@@ -5,9 +5,10 @@ with ``prune="halving"`` stops the worst trials' learners at each rung of chunks
 A search lives in one folder (``RUN``): Optuna's study in ``study.db`` (SQLite), the
 search's settings in ``tune.json``, one vbl run folder per batch (``batch-<k>/``, or
 ``batch-<k>/rung-<j>/`` per rung with halving), the confirmation run of the best trial on
-fresh seeds (``confirm/``), ``summary.json``, ``report.md`` and its figures. A stopped
-search continues with ``resume=True``: the batch that was running resumes from its last
-checkpoint, and every trial is told once.
+fresh seeds (``confirm-trial<N>-<seeds>seeds/``), ``summary.json``, ``report.md`` and its
+figures. A stopped search continues with ``resume=True``: the batch that was running
+resumes from its last checkpoint, and every trial is told once; each batch's sampler is
+seeded by the search's seed and the batch, so it asks what an uninterrupted search asks.
 
 Successive halving, batch-synchronous: the batch runs chunks ``0..r0``; each trial reports
 its metric (mean over seeds at the rung's last chunk) to Optuna; a trial goes on when its
@@ -376,33 +377,33 @@ def _start_spec(path: Path, spec: dict, resume: bool) -> None:
         diff = sorted(k for k in set(old) | set(spec)
                       if k not in _RESUMABLE and old.get(k) != spec.get(k))
         if diff:
-            raise EngineError(f"cannot resume {path}: it was searched with another "
-                              f"{', '.join(diff)}; use the same options (only --trials and "
+            raise EngineError(f"cannot resume {path}: it was searched with other settings "
+                              f"({', '.join(diff)}); use the same options (only --trials and "
                               f"--confirm-seeds may change), or --overwrite / another --out")
     elif resume and any(path.glob("batch-*")):
         raise EngineError(f"cannot resume {path}: its tune.json is missing")
     write_json(f, spec)
 
 
-def _study(optuna, s: _Search):
-    """The study in ``study.db`` (created, or loaded to resume), with a sampler seeded
-    from the search's seed and the trials it already holds."""
-    storage = optuna.storages.RDBStorage(f"sqlite:///{(s.out / 'study.db').absolute()}")
-    try:
-        held = len(optuna.load_study(study_name=STUDY, storage=storage).trials)
-    except KeyError:
-        held = 0
-    seed = (s.spec["seed"] * 1_000_003 + held) % 2**32
+def _sampler(optuna, s: _Search, k: int):
+    """The sampler that asks batch ``k``'s trials, seeded by the search's seed and ``k``:
+    a stopped and resumed search asks what an uninterrupted one asks."""
+    seed = (s.spec["seed"] * 1_000_003 + k) % 2**32
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
         if s.spec["sampler"] == "grid":
-            sampler = optuna.samplers.GridSampler({p: d.grid() for p, d in s.space.items()},
-                                                  seed=seed)
-        elif s.spec["sampler"] == "random":
-            sampler = optuna.samplers.RandomSampler(seed=seed)
-        else:
-            sampler = optuna.samplers.TPESampler(seed=seed, constant_liar=True)
-    return optuna.create_study(storage=storage, study_name=STUDY, sampler=sampler,
+            return optuna.samplers.GridSampler({p: d.grid() for p, d in s.space.items()},
+                                               seed=seed)
+        if s.spec["sampler"] == "random":
+            return optuna.samplers.RandomSampler(seed=seed)
+        return optuna.samplers.TPESampler(seed=seed, constant_liar=True)
+
+
+def _study(optuna, s: _Search):
+    """The study in ``study.db`` (created, or loaded to resume)."""
+    storage = optuna.storages.RDBStorage(f"sqlite:///{(s.out / 'study.db').absolute()}")
+    return optuna.create_study(storage=storage, study_name=STUDY,
+                               sampler=_sampler(optuna, s, 0),
                                direction=s.spec["direction"], load_if_exists=True)
 
 
@@ -423,12 +424,12 @@ def _search(optuna, study, s: _Search, folder) -> None:
         _run_batch(optuna, study, s, folder, k, sorted(members, key=lambda t: t.number))
     dists = {p: d.distribution() for p, d in s.space.items()}
     while True:
-        done = [t for t in study.get_trials(deepcopy=False)
-                if "batch" in t.user_attrs and t.state != states.FAIL]
+        done = [t for t in study.get_trials(deepcopy=False) if "batch" in t.user_attrs]
         left = s.spec["trials"] - len(done)
         if left <= 0:
             return
         k = 1 + max((t.user_attrs["batch"] for t in done), default=-1)
+        study.sampler = _sampler(optuna, s, k)
         asked = []
         for _ in range(min(left, s.spec["batch"])):
             trial = study.ask(fixed_distributions=dists)
@@ -492,10 +493,13 @@ def _finished(study, t) -> bool:
 
 
 def _objective(s: _Search, res, p: int) -> np.ndarray:
-    """Trial ``p``'s per-seed values of the search's metric in a finished run."""
+    """Trial ``p``'s per-seed values of the search's metric in a finished run (a chunk
+    metric's at the point's last logged chunk)."""
     if s.is_final:
         return np.asarray(res.final[s.metric][p], np.float64)
-    return np.asarray(res.curves[s.metric][p, s.num_chunks - 1], np.float64)
+    a = np.asarray(res.curves[s.metric][p], np.float64)  # (chunks, seeds), NaN past its end
+    logged = np.flatnonzero(~np.all(np.isnan(a), axis=1))
+    return a[logged[-1]] if len(logged) else a[-1]
 
 
 def _rung(optuna, study, s: _Search, alive: list, res, last: int) -> set[int]:

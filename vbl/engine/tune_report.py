@@ -56,20 +56,22 @@ def confirm_command(s, params: dict[str, Any]) -> str:
     return " ".join(shlex.quote(w) for w in words)
 
 
-def _confirm(s, folder, params: dict[str, Any]) -> dict[str, Any]:
-    """Run the best trial on ``confirm_seeds`` fresh seeds (base seed ``seed + 1``) into
-    ``confirm/``: its metric's per-seed values and interval."""
-    out = s.out / "confirm"
-    folder.record("confirm")
+def _confirm(s, folder, number: int, params: dict[str, Any]) -> dict[str, Any]:
+    """Run the best trial (``number``) on ``confirm_seeds`` fresh seeds (base seed ``seed +
+    1``) into ``confirm-trial<number>-<seeds>seeds/`` (a resumed search whose best trial or
+    confirmation seeds changed writes a new folder): its metric's values and interval."""
+    name = f"confirm-trial{number}-{s.spec['confirm_seeds']}seeds"
+    out = s.out / name
+    folder.record(name)
     s.echo(f"confirmation: the best trial on {s.spec['confirm_seeds']} fresh seeds")
     res = run_experiment(s.experiment, sets={**s.sets, **params},
                          seeds=s.spec["confirm_seeds"], base_seed=s.spec["seed"] + 1,
                          out=out, resume=out.exists(), quick=s.spec["quick"],
                          preset=s.spec["preset"], quiet=s.quiet, plots=True,
                          checkpoint_every=s.checkpoint_every)
-    vals = res.final[s.metric][0] if s.is_final else res.curves[s.metric][0, s.num_chunks - 1]
+    vals = res.final[s.metric][0] if s.is_final else res.curves[s.metric][0, -1]
     return {**interval(vals, s.metric), "base_seed": s.spec["seed"] + 1,
-            "run": "confirm", "command": confirm_command(s, params)}
+            "run": name, "command": confirm_command(s, params)}
 
 
 def _compute(s, trials: list) -> dict[str, Any]:
@@ -144,8 +146,7 @@ def finish(s, study, folder, wall: float) -> TuneResult:
     ``report.md``."""
     optuna = require_optuna()
     states = optuna.trial.TrialState
-    trials = [t for t in study.get_trials() if "batch" in t.user_attrs
-              and t.state != states.FAIL]
+    trials = [t for t in study.get_trials() if "batch" in t.user_attrs]
     done = [t for t in trials if t.state == states.COMPLETE]
     if not done:
         raise EngineError(f"no trial of {s.out} finished with a finite {s.metric}; nothing "
@@ -153,7 +154,7 @@ def finish(s, study, folder, wall: float) -> TuneResult:
     best = study.best_trial
     params = {p: best.params[p] for p in s.space}
     search = interval(best.user_attrs["per_seed"], s.metric)
-    confirm = _confirm(s, folder, params)
+    confirm = _confirm(s, folder, best.number, params)
     diff, half = welch_ci95(search["per_seed"], confirm["per_seed"])
     importances, why = _importances(optuna, study)
     summary = {
@@ -163,7 +164,8 @@ def finish(s, study, folder, wall: float) -> TuneResult:
                    "point": best.user_attrs.get("point"), "base_seed": s.spec["seed"]},
         "confirmation": confirm, "search_minus_confirmation": {"diff": diff, "ci95": half},
         "trials": {"ran": len(trials), "complete": len(done),
-                   "pruned": sum(t.state == states.PRUNED for t in trials)},
+                   "pruned": sum(t.state == states.PRUNED for t in trials),
+                   "failed": sum(t.state == states.FAIL for t in trials)},
         "compute": _compute(s, trials), "importances": importances,
         "importances_note": why, "wall_time_s": wall,
         "history": [{"trial": t.number, "state": t.state.name, "value": t.value,
@@ -194,7 +196,8 @@ def _markdown(s, sm: dict[str, Any], figures: list[str]) -> str:
     lines = [
         f"# vbl tune: {s.experiment.name}", "",
         f"{sm['trials']['ran']} trials ({sm['trials']['complete']} complete, "
-        f"{sm['trials']['pruned']} pruned) in batches of {s.spec['batch']} x {s.seeds} "
+        f"{sm['trials']['pruned']} pruned, {sm['trials']['failed']} without a finite "
+        f"value) in batches of {s.spec['batch']} x {s.seeds} "
         f"seeds, sampler {s.spec['sampler']}, pruning {s.spec['prune']}; "
         f"{s.spec['direction']} `{s.metric}` (mean over seeds"
         f"{'' if s.is_final else ', last chunk'}). Space: "
@@ -206,7 +209,7 @@ def _markdown(s, sm: dict[str, Any], figures: list[str]) -> str:
         f"{sm['search']['seeds']} ({sm['search']['base_seed']}) | {_cell(sm['search'])} | "
         f"{sm['search']['run']} |",
         f"| confirmation on fresh seeds | {c['seeds']} ({c['base_seed']}) | {_cell(c)} | "
-        f"confirm |", "",
+        f"{c['run']} |", "",
         f"Search minus confirmation: {_num(d['diff'])} ± {_num(d['ci95'])} (Welch 95 %): "
         "the search's estimate of its winner is biased in the winner's favour (the winner's "
         "curse); the confirmation on seeds the search never saw is the estimate to quote.",
