@@ -219,3 +219,35 @@ def test_overwrite_deletes_nothing_outside_the_folder(tmp_path):
     assert (tmp_path / "victim" / "keep.txt").read_text() == "keep"
     assert (run / "sub" / "x").read_text() == "keep"
     assert not (run / "metrics.jsonl").exists()
+
+
+def test_resume_into_a_folder_without_a_run_is_refused(tmp_path):
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("keep")
+    with pytest.raises(EngineError, match=r"cannot --resume .*mine: it holds no vbl run"):
+        runfolder.open_run_folder(mine, "toy", resume=True, overwrite=False)
+    assert sorted(p.name for p in mine.iterdir()) == ["notes.txt"]
+
+
+def test_overwrite_that_could_not_finish_deletes_nothing(tmp_path):
+    """A listed folder that cannot be emptied (immutable, so even root may not write it):
+    --overwrite is refused before any file is deleted."""
+    run = tmp_path / "run"
+    runfolder.open_run_folder(run, "toy", resume=False, overwrite=False).release()
+    runfolder.record_files(run, ["config.json", "metrics.jsonl", "tables"])
+    for name in ("config.json", "metrics.jsonl"):  # removed before "tables" if not checked
+        (run / name).write_text("{}\n")
+    (run / "tables" / "2").mkdir(parents=True)
+    (run / "tables" / "2" / "state").write_text("x")
+    stuck = run / "tables" / "2"
+    if os.system(f"chattr +i {stuck} 2>/dev/null") != 0:
+        pytest.skip("chattr +i is not available here")
+    try:
+        assert not os.access(stuck, os.W_OK)
+        with pytest.raises(EngineError, match="cannot write to output folder"):
+            runfolder.open_run_folder(run, "toy", resume=False, overwrite=True)
+    finally:
+        os.system(f"chattr -i {stuck}")
+    assert (run / "config.json").exists() and (run / "metrics.jsonl").exists()
+    assert (stuck / "state").read_text() == "x"
