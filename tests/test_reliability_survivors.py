@@ -19,7 +19,8 @@ from scipy import stats as sps
 
 from tests.engine_helpers import one_error_line
 from vbl.engine import runfolder
-from vbl.engine.config import EngineError, fingerprint
+from vbl.engine.config import fingerprint
+from vbl.engine.errors import EngineError
 from vbl.engine.report import claim
 from vbl.stats import MIN_SEEDS_BOUNDED, bounded_ci95
 

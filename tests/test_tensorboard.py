@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from tests.engine_helpers import TINY_SETS, toy_experiment
-from vbl.engine.config import EngineError
+from vbl.engine.errors import EngineError
 from vbl.engine.runner import run_experiment
 from vbl.engine.tensorboard import point_run_name
 

@@ -343,8 +343,7 @@ def _run(experiment, args) -> int:
 
 def _report(experiment, result, what: str, t0: float) -> None:
     """Write the run folder's report.md and print the headline table."""
-    from vbl.engine.config import EngineError
-    from vbl.engine.errors import one_line
+    from vbl.engine.errors import EngineError, one_line
     from vbl.engine.report import headline_table, run_report
 
     try:
@@ -390,7 +389,7 @@ def _cmd_bench(args) -> int:
 
 
 def _cmd_report(args) -> int:
-    from vbl.engine.config import EngineError
+    from vbl.engine.errors import EngineError
     from vbl.engine.rebuild import results_table
 
     out = Path(args.out) if args.out is not None else None
@@ -419,7 +418,7 @@ def _cmd_report(args) -> int:
 def _cmd_render(args) -> int:
     """``vbl render``: bad input (not a finished run folder, a policy that cannot be
     rebuilt, a bad extension or count) is one line and exit 2."""
-    from vbl.engine.config import EngineError
+    from vbl.engine.errors import EngineError
     from vbl.params import validate
     from vbl.programs.video import VideoParams, render_run
 
@@ -437,7 +436,7 @@ def _cmd_render(args) -> int:
 
 def _cmd_export(args) -> int:
     """``vbl export``: a folder that is not a run folder is bad input (one line, exit 2)."""
-    from vbl.engine.config import EngineError
+    from vbl.engine.errors import EngineError
     from vbl.engine.export import export_run, read_run
 
     try:
@@ -451,7 +450,7 @@ def _cmd_export(args) -> int:
 
 def _cmd_plot(args) -> int:
     """``vbl plot``: a folder that is not a run folder is bad input (one line, exit 2)."""
-    from vbl.engine.config import EngineError
+    from vbl.engine.errors import EngineError
     from vbl.engine.export import read_run
     from vbl.engine.plots import plot_sweep
 
@@ -498,8 +497,7 @@ def _guarded(fn, *a, debug: bool = False) -> int:
     (with ``debug`` or ``VBL_DEBUG=1`` the traceback comes first)."""
     import traceback
 
-    from vbl.engine.config import EngineError
-    from vbl.engine.errors import debug_requested, one_line, stop_code, stop_message
+    from vbl.engine.errors import EngineError, debug_requested, one_line, stop_code, stop_message
     from vbl.params import ParamError
 
     debug = debug or debug_requested()

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from vbl.engine.config import EngineError
+from vbl.engine.errors import EngineError
 
 __all__ = ["DEFAULT_OUT", "Target", "TARGETS", "bench_dir", "benchmarks", "headline",
            "run_benchmarks"]

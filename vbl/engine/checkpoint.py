@@ -17,7 +17,7 @@ import jax
 import numpy as np
 import orbax.checkpoint as ocp
 
-from vbl.engine.config import EngineError
+from vbl.engine.errors import EngineError
 
 __all__ = ["CheckpointError", "Checkpoints"]
 

@@ -12,6 +12,7 @@ from typing import Any
 import jax
 import numpy as np
 
+from vbl.engine.errors import EngineError
 from vbl.params import (
     ParamError,
     _check_bounds,
@@ -23,7 +24,7 @@ from vbl.params import (
 )
 
 __all__ = [
-    "EngineError", "parse_value", "parse_assignment", "parse_sweep", "split_values",
+    "parse_value", "parse_assignment", "parse_sweep", "split_values",
     "apply_overrides", "is_static", "config_to_dict", "fingerprint", "stack_traced",
     "traced_dtype", "check_dtypes", "set_value", "json_value", "INT32", "INT64",
 ]
@@ -31,11 +32,6 @@ __all__ = [
 INT32 = (-2**31, 2**31 - 1)
 INT64 = (-2**63, 2**63 - 1)
 _F32_MAX = float(np.finfo(np.float32).max)
-
-
-class EngineError(RuntimeError):
-    """A run cannot proceed (bad folder, bad checkpoint, unknown experiment...); the message
-    says what is wrong and what to do."""
 
 
 def _field_default(config: Any, path: str) -> Any:

@@ -9,7 +9,7 @@ import os
 
 import jax
 
-from vbl.engine.config import EngineError
+from vbl.engine.errors import EngineError
 from vbl.params import ParamError
 
 __all__ = ["initialize", "process_index", "process_count", "is_primary", "AUTO"]

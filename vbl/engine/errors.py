@@ -1,4 +1,6 @@
-"""One-line errors for the ``vbl`` command, and XLA's C++ log kept quiet unless asked."""
+"""Errors of the ``vbl`` command: :class:`EngineError` (a run cannot proceed), one-line
+messages for every error, signals that stop a run, and XLA's C++ log kept quiet unless
+asked."""
 
 from __future__ import annotations
 
@@ -14,11 +16,17 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-__all__ = ["one_line", "quiet_xla_env", "quiet_xla_log", "debug_requested", "quiet_library_noise",
-           "Terminated", "STOP_GRACE_S", "stop_code", "stop_message", "install_stop_handlers",
-           "worker_stop_handlers", "on_forced_exit", "new_command", "final_line", "finish"]
+__all__ = ["EngineError", "one_line", "quiet_xla_env", "quiet_xla_log", "debug_requested",
+           "quiet_library_noise", "Terminated", "STOP_GRACE_S", "stop_code", "stop_message",
+           "install_stop_handlers", "worker_stop_handlers", "on_forced_exit", "new_command",
+           "final_line", "finish"]
 
 _DISK = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
+
+
+class EngineError(RuntimeError):
+    """A run cannot proceed (bad folder, bad checkpoint, unknown experiment...); the message
+    says what is wrong and what to do."""
 
 
 def debug_requested() -> bool:

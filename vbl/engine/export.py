@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from vbl.engine.config import EngineError
+from vbl.engine.errors import EngineError
 from vbl.engine.results import read_json, read_metrics
 from vbl.engine.runfolder import check_format
 from vbl.params import ParamError

@@ -19,7 +19,8 @@ from typing import Any
 import jax
 import numpy as np
 
-from vbl.engine.config import EngineError, traced_dtype
+from vbl.engine.config import traced_dtype
+from vbl.engine.errors import EngineError
 
 __all__ = ["MemoryError_", "CARRY_COPIES", "available_memory", "estimate", "check_memory",
            "check_bytes", "tree_bytes", "fmt_bytes"]

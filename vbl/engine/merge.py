@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from vbl.engine.config import EngineError
+from vbl.engine.errors import EngineError
 from vbl.engine.experiment import Experiment, RunResult
 from vbl.engine.jax_setup import engine_precision
 from vbl.engine.results import read_json, read_metrics, seed_stats, write_json

@@ -11,13 +11,13 @@ from pathlib import Path
 from typing import Any
 
 from vbl.engine.config import (
-    EngineError,
     apply_overrides,
     config_to_dict,
     json_value,
     parse_assignment,
     parse_sweep,
 )
+from vbl.engine.errors import EngineError
 from vbl.engine.experiment import Experiment, ReportSection, RunResult
 from vbl.engine.plots import plot_names
 from vbl.engine.registry import get

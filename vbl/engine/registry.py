@@ -14,7 +14,7 @@ import traceback
 from pathlib import Path
 from types import ModuleType
 
-from vbl.engine.config import EngineError
+from vbl.engine.errors import EngineError
 from vbl.engine.experiment import Experiment
 from vbl.params import ParamError
 

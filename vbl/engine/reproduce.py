@@ -15,8 +15,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from vbl.engine.config import EngineError
 from vbl.engine.errors import (
+    EngineError,
     debug_requested,
     on_forced_exit,
     quiet_library_noise,

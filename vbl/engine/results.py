@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from vbl.engine.config import EngineError
+from vbl.engine.errors import EngineError
 from vbl.stats import mean_ci95
 
 __all__ = ["MetricsLog", "seed_stats", "read_metrics", "metric_arrays", "point_summaries",

@@ -23,7 +23,7 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
-from vbl.engine.config import EngineError
+from vbl.engine.errors import EngineError
 
 __all__ = ["RUN_FORMAT", "check_format", "LOCK", "MARKER", "RunFolder", "open_run_folder",
            "record_files", "is_vbl_run", "check_new_folder", "lock_reproduce_folder",

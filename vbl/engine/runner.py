@@ -18,13 +18,8 @@ import numpy as np
 from jax.experimental import multihost_utils
 
 from vbl.engine.checkpoint import Checkpoints
-from vbl.engine.config import (
-    INT32,
-    EngineError,
-    apply_overrides,
-    config_to_dict,
-    fingerprint,
-)
+from vbl.engine.config import INT32, apply_overrides, config_to_dict, fingerprint
+from vbl.engine.errors import EngineError
 from vbl.engine.experiment import Experiment, RunContext, RunResult
 from vbl.engine.jax_setup import COMPILER_OPTIONS, engine_precision
 from vbl.engine.memory import check_memory

@@ -41,7 +41,7 @@ from flax import struct
 from vbl.agents.exploration import select_action
 from vbl.agents.state_maps import CVAMap
 from vbl.engine.checkpoint import Checkpoints
-from vbl.engine.config import EngineError
+from vbl.engine.errors import EngineError
 from vbl.engine.jax_setup import engine_precision
 from vbl.engine.rebuild import load_run
 from vbl.engine.sweep import make_plan
