@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from vbl.engine.config import EngineError
+from vbl.engine.errors import EngineError
 from vbl.engine.plots import is_rate, point_label
 
 __all__ = ["TensorBoardLog", "require_tensorboardx", "point_run_name"]
