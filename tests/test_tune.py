@@ -24,7 +24,7 @@ from tests.engine_helpers import (
     toy_experiment,
     vbl_cmd,
 )
-from vbl.engine.config import EngineError
+from vbl.engine.errors import EngineError
 from vbl.engine.runner import run_experiment
 from vbl.engine.sweep import make_plan
 from vbl.engine.tune import parse_space, rungs, tune
@@ -124,6 +124,21 @@ def test_report_and_confirmation_command(toy, halving, tmp_path):
             .splitlines()]
     last = [r for r in rows if r["chunk"] == 8][0]
     assert last["metrics"]["success_rate"]["per_seed"] == sm["confirmation"]["per_seed"]
+
+
+def test_grid_over_static_and_traced_values_with_a_final_metric(toy, tmp_path):
+    """The grid sampler visits every point once, batch after batch; a static parameter
+    splits a batch into compile groups; a final metric, minimised."""
+    res = tune(toy, ["agent.epsilon=0,0.3", "env.num_arms=3..4"], trials=4, batch=3, seeds=2,
+               sets={"train.pulls_per_chunk": 5, "train.num_chunks": 2}, sampler="grid",
+               metric="value_error",
+               direction="minimize", confirm_seeds=2, out=tmp_path / "grid")
+    hist = res.summary["history"]
+    assert sorted((h["params"]["agent.epsilon"], h["params"]["env.num_arms"]) for h in hist) \
+        == [(0, 3), (0, 4), (0.3, 3), (0.3, 4)]
+    assert res.summary["best_trial"] == min(hist, key=lambda h: h["value"])["trial"]
+    cfg = json.loads((res.out_dir / "batch-0" / "config.json").read_text())
+    assert cfg["zipped"] is True and len(cfg["sweep"]["env.num_arms"]) == 3
 
 
 def test_bad_input_is_one_line(toy, tmp_path):

@@ -33,14 +33,8 @@ import jax
 import numpy as np
 
 from vbl.engine.checkpoint import Checkpoints
-from vbl.engine.config import (
-    EngineError,
-    _field_default,
-    _parse_scalar,
-    parse_value,
-    set_value,
-    split_values,
-)
+from vbl.engine.config import _field_default, _parse_scalar, parse_value, set_value, split_values
+from vbl.engine.errors import EngineError
 from vbl.engine.experiment import Experiment
 from vbl.engine.jax_setup import engine_precision
 from vbl.engine.results import read_json, read_metrics, write_json
@@ -391,9 +385,9 @@ def _sampler(optuna, s: _Search, k: int):
     seed = (s.spec["seed"] * 1_000_003 + k) % 2**32
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
-        if s.spec["sampler"] == "grid":
+        if s.spec["sampler"] == "grid":  # its seed orders the grid: one for every batch
             return optuna.samplers.GridSampler({p: d.grid() for p, d in s.space.items()},
-                                               seed=seed)
+                                               seed=s.spec["seed"])
         if s.spec["sampler"] == "random":
             return optuna.samplers.RandomSampler(seed=seed)
         return optuna.samplers.TPESampler(seed=seed, constant_liar=True)
@@ -417,7 +411,7 @@ def _search(optuna, study, s: _Search, folder) -> None:
             if "batch" in t.user_attrs:
                 running.setdefault(t.user_attrs["batch"], []).append(t)
             else:  # asked, never run: a stop between ask and the batch's record
-                study.tell(t.number, state=states.FAIL)
+                _tell(study, t.number, state=states.FAIL)
     for k in sorted(running):
         members = [t for t in study.get_trials(deepcopy=False)
                    if t.user_attrs.get("batch") == k]
@@ -482,8 +476,18 @@ def _run_batch(optuna, study, s: _Search, folder, k: int, members: list) -> None
             tr.set_user_attr("run", str(out.relative_to(s.out)))
             tr.set_user_attr("point", p)
             mean = float(np.mean(vals))
-            study.tell(t.number, mean if math.isfinite(mean) else None,
+            _tell(study, t.number, mean if math.isfinite(mean) else None,
                        state=None if math.isfinite(mean) else optuna.trial.TrialState.FAIL)
+
+
+def _tell(study, number: int, value: float | None = None, state=None) -> None:
+    """``study.tell``; the grid sampler stops the study when its grid is done, which
+    outside ``optimize`` raises after the trial is stored (the search ends by count)."""
+    try:
+        study.tell(number, value, state=state)
+    except RuntimeError as e:
+        if "Study.stop" not in str(e):
+            raise
 
 
 def _finished(study, t) -> bool:
@@ -523,7 +527,7 @@ def _rung(optuna, study, s: _Search, alive: list, res, last: int) -> set[int]:
         if bar is not None and math.isfinite(v) and (v >= bar if best else v <= bar):
             keep.add(t.number)
         elif not _finished(study, t):
-            study.tell(t.number, state=optuna.trial.TrialState.PRUNED)
+            _tell(study, t.number, state=optuna.trial.TrialState.PRUNED)
     s.echo(f"  rung at chunk {last}: {len(keep)} of {len(alive)} trials go on")
     return keep
 
