@@ -162,3 +162,23 @@ def test_step_auto_resets_after_a_truncation_too():
             np.testing.assert_array_equal(nstate.world.robots[0],
                                           _fresh_pose(key, SLIP, SLIP + FRESH + 1))
         state = nstate
+
+
+class RuledToyEnv(ToyEnv, params=ToyParams, state=ToyState, fresh_words=FRESH,
+                  pixel_noise_dim=1, option=("kind", ("a", "b"))):
+    """The toy with a consistency rule of its own: episodes of at most 5 steps."""
+
+    def check_params(self, params):
+        if params.max_steps > 5:
+            raise ParamError(f"max_steps={params.max_steps}: this task allows at most 5")
+
+
+def test_a_tasks_own_rules_are_checked_outside_jit():
+    env = RuledToyEnv()
+    long = env.default_params.replace(max_steps=6)
+    for call in (lambda: env.reset(jax.random.key(0), long),
+                 lambda: env.step(jax.random.key(0), env.reset(jax.random.key(0))[1],
+                                  jnp.int32(0), long)):
+        with pytest.raises(ParamError, match="at most 5"):
+            call()
+    env.reset(jax.random.key(0), env.default_params.replace(max_steps=5))

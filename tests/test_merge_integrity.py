@@ -171,3 +171,28 @@ def test_a_seed_held_twice_or_by_no_part_is_refused(shards, tmp_path, capsys):
     assert "lacks step 1 (chunk 0) of point 0, seed 1" in one_error_line(
         capsys.readouterr().err)
     assert not (tmp_path / "out").exists()
+
+
+def test_a_resume_after_the_last_checkpoint_equals_the_whole_run(toy, tmp_path, capsys):
+    """--checkpoint-every 2 over 4 chunks checkpoints chunks 2 and 4 (docs/engine.md). A run
+    that died after writing chunk 4's rows but before its checkpoint resumes from chunk 2:
+    its metrics.jsonl ends as the uninterrupted run's, no row twice."""
+    args = [*RUN[:-3], "--set", "train.num_chunks=4", "--checkpoint-every", "2", "--quiet"]
+    whole = tmp_path / "whole"
+    assert vbl(*args, "--out", whole) == 0
+    assert sorted(p.name for p in (whole / "checkpoints").iterdir()
+                  if p.name.isdigit()) == ["2", "4"]
+    died = tmp_path / "died"
+    shutil.copytree(whole, died)
+    shutil.rmtree(died / "checkpoints" / "4")
+    (died / "summary.json").unlink()
+    assert vbl(*args, "--out", died, "--resume") == 0
+    assert (died / "metrics.jsonl").read_bytes() == (whole / "metrics.jsonl").read_bytes()
+    assert json.loads((died / "summary.json").read_text())["resumed_from_step"] == 2
+    # a resume with other seeds is another run: refused, the folder unchanged
+    before = (died / "metrics.jsonl").read_bytes()
+    capsys.readouterr()
+    assert vbl(*[a if a != "3" else "4" for a in args], "--out", died, "--resume") == 1
+    err = one_error_line(capsys.readouterr().err)
+    assert "it was run with another config" in err and "seeds" in err
+    assert (died / "metrics.jsonl").read_bytes() == before
