@@ -75,6 +75,18 @@ def test_zipped_plan_takes_points_side_by_side(toy):
                   2, zipped=True)
 
 
+def test_span_is_checked(toy, tmp_path):
+    """``run_experiment(span=...)``: chunks within the program, one compile group, and
+    ``start_carry`` when the span starts after chunk 0; refused before a folder exists."""
+    out = tmp_path / "span"
+    for kw in ({"span": (0, 10)}, {"span": (2, 2)}, {"span": (1, 3)},
+               {"span": (0, 2), "sweep": {"env.num_arms": [3, 4]}}):
+        with pytest.raises(ParamError):
+            run_experiment(toy, sets={"train.num_chunks": 3},
+                           **{"sweep": None, **kw}, seeds=2, out=out, quiet=True)
+    assert not out.exists()
+
+
 @pytest.fixture(scope="module")
 def halving(toy, tmp_path_factory):
     out = tmp_path_factory.mktemp("tune") / "halving"

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from vbl.engine.config import EngineError
+from vbl.engine.errors import EngineError
 from vbl.engine.results import write_json
 from vbl.engine.runner import run_experiment
 from vbl.engine.tune import TuneResult, learner_chunks, require_optuna
@@ -205,14 +205,15 @@ def _markdown(s, sm: dict[str, Any], figures: list[str]) -> str:
         f"**Best trial {sm['best_trial']}**: {params}.", "",
         "| estimate | seeds (base seed) | mean ± 95 % CI [interval] | run |",
         "|---|---|---|---|",
-        f"| the search's (the winner among {sm['trials']['complete']}) | "
+        f"| the search's (the winner of {sm['trials']['ran']} trials) | "
         f"{sm['search']['seeds']} ({sm['search']['base_seed']}) | {_cell(sm['search'])} | "
         f"{sm['search']['run']} |",
         f"| confirmation on fresh seeds | {c['seeds']} ({c['base_seed']}) | {_cell(c)} | "
         f"{c['run']} |", "",
-        f"Search minus confirmation: {_num(d['diff'])} ± {_num(d['ci95'])} (Welch 95 %): "
-        "the search's estimate of its winner is biased in the winner's favour (the winner's "
-        "curse); the confirmation on seeds the search never saw is the estimate to quote.",
+        f"Search minus confirmation: {_num(d['diff'])} ± {_num(d['ci95'])} (Welch 95 %). "
+        "The search's estimate of its winner is the best of many noisy estimates, biased in "
+        "the winner's favour on average (the winner's curse); the confirmation, on seeds "
+        "the search never saw, is the estimate to quote.",
         "", f"Reproduce the confirmation run: `{c['command']}`", "",
         f"Compute: {comp['learner_chunks']:,} learner-chunks run, a full grid of the same "
         f"trials {comp['full_grid_learner_chunks']:,} ({100 * comp['saved']:.1f} % saved; "
@@ -221,7 +222,8 @@ def _markdown(s, sm: dict[str, Any], figures: list[str]) -> str:
     if sm["importances_note"]:
         lines += ["", f"Parameter importances: not computable ({sm['importances_note']})."]
     elif sm["importances"]:
-        lines += ["", "Parameter importances (Optuna): " + ", ".join(
+        lines += ["", f"Parameter importances (Optuna's, from the "
+                  f"{sm['trials']['complete']} complete trials): " + ", ".join(
             f"`{k}` {v:.2f}" for k, v in sm["importances"].items()) + "."]
     sign = -1.0 if s.spec["direction"] == "maximize" else 1.0
     rows = sorted(sm["history"], key=lambda h: (
