@@ -130,7 +130,7 @@ def _figures(s, optuna, trials: list, importances: dict[str, float],
     plt.close(fig)
     names = ["history.png"]
     if importances:
-        fig, ax = plt.subplots(figsize=(6, 0.5 + 0.45 * len(importances)))
+        fig, ax = plt.subplots(figsize=(6, 1.2 + 0.45 * len(importances)))
         items = list(importances.items())[::-1]
         ax.barh([k for k, _ in items], [v for _, v in items])
         ax.set(xlabel="importance (Optuna, normalised)", title="parameter importances")
