@@ -11,8 +11,8 @@ resumes from its last checkpoint, and every trial is told once; each batch's sam
 seeded by the search's seed and the batch, so it asks what an uninterrupted search asks.
 
 Successive halving, batch-synchronous: the batch runs chunks ``0..r0``; each trial reports
-its metric (mean over seeds at the rung's last chunk) to Optuna; a trial goes on when its
-value is among the best ``1/eta`` of every trial's value at that rung (Optuna's
+its metric (mean over seeds) to Optuna at every chunk; a trial goes on when its value at
+the rung's last chunk is among the best ``1/eta`` of every trial's value there (Optuna's
 ``SuccessiveHalvingPruner`` rule, decided once the whole batch reached the rung), the
 others are told ``PRUNED``; the survivors' carries, restored from the rung's checkpoint,
 start a run of the next rung (``r0 * eta``, ...), until the program's last chunk. Only the
@@ -458,8 +458,10 @@ def _run_batch(optuna, study, s: _Search, folder, k: int, members: list) -> None
                              checkpoint_every=s.checkpoint_every,
                              span=None if len(s.rungs) == 1 else (first, last),
                              start_carry=start)
+        for p, t in enumerate(alive):
+            _report_chunks(optuna, study, s, t, res, p, first, last)
         if last < s.num_chunks:
-            keep = _rung(optuna, study, s, alive, res, last)
+            keep = _rung(optuna, study, s, alive, last)
             prev = (out, [i for i, t in enumerate(alive) if t.number in keep])
             alive = [t for t in alive if t.number in keep]
             continue
@@ -468,16 +470,12 @@ def _run_batch(optuna, study, s: _Search, folder, k: int, members: list) -> None
                 continue
             vals = _objective(s, res, p)
             tr = optuna.trial.Trial(study, t._trial_id)
-            stored = study._storage.get_trial(t._trial_id).intermediate_values
-            if s.rung_metric is not None and s.num_chunks not in stored:
-                v = float(np.mean(res.curves[s.rung_metric][p, s.num_chunks - 1]))
-                tr.report(v if math.isfinite(v) else float("nan"), s.num_chunks)
             tr.set_user_attr("per_seed", [float(v) for v in vals])
             tr.set_user_attr("run", str(out.relative_to(s.out)))
             tr.set_user_attr("point", p)
             mean = float(np.mean(vals))
             _tell(study, t.number, mean if math.isfinite(mean) else None,
-                       state=None if math.isfinite(mean) else optuna.trial.TrialState.FAIL)
+                  state=None if math.isfinite(mean) else optuna.trial.TrialState.FAIL)
 
 
 def _tell(study, number: int, value: float | None = None, state=None) -> None:
@@ -506,15 +504,25 @@ def _objective(s: _Search, res, p: int) -> np.ndarray:
     return a[logged[-1]] if len(logged) else a[-1]
 
 
-def _rung(optuna, study, s: _Search, alive: list, res, last: int) -> set[int]:
-    """Report each trial's rung value (step ``last``), keep the best ``1/eta`` of every
-    trial's value at that step, tell the others ``PRUNED``; the kept trials' numbers."""
-    for p, t in enumerate(alive):
-        frozen = study._storage.get_trial(t._trial_id)  # as stored now
-        if last not in frozen.intermediate_values and not frozen.state.is_finished():
-            v = float(np.mean(res.curves[s.rung_metric][p, last - 1]))
-            optuna.trial.Trial(study, t._trial_id).report(v if math.isfinite(v) else
-                                                          float("nan"), last)
+def _report_chunks(optuna, study, s: _Search, t, res, p: int, first: int, last: int
+                   ) -> None:
+    """With halving, report trial ``t``'s (point ``p`` of ``res``) rung metric, its mean
+    over seeds, at every chunk ``first..last - 1`` (step = chunks done) that the study does
+    not hold yet (a resumed rung reports only what its stopped run did not)."""
+    frozen = study._storage.get_trial(t._trial_id)  # as stored now
+    if s.rung_metric is None or frozen.state.is_finished():
+        return
+    trial = optuna.trial.Trial(study, t._trial_id)
+    curve = np.asarray(res.curves[s.rung_metric][p], np.float64)
+    for c in range(first, last):
+        if c + 1 not in frozen.intermediate_values:
+            v = float(np.mean(curve[c]))
+            trial.report(v if math.isfinite(v) else float("nan"), c + 1)
+
+
+def _rung(optuna, study, s: _Search, alive: list, last: int) -> set[int]:
+    """Keep the trials whose value at step ``last`` is among the best ``1/eta`` of every
+    trial's value there, tell the others ``PRUNED``; the kept trials' numbers."""
     at = {t.number: t.intermediate_values[last] for t in study.get_trials(deepcopy=False)
           if last in t.intermediate_values}
     competing = sorted(v for v in at.values() if math.isfinite(v))
