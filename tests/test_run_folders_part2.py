@@ -205,7 +205,7 @@ def test_hand_edited_config_json_is_refused_by_report_and_resume(setup, done):
                        ("seeds", "seeds is 8, the run had 4")):
         rc, out, err = run(["report", str(edited[name])], env)
         line = one_error_line(err)
-        assert rc == 1 and "changed after the run" in line and says in line, line
+        assert rc == 2 and "changed after the run" in line and says in line, line
         assert out == ""
     # --resume with the original options names exactly what the file changed
     before = tree(edited["lr"])
