@@ -215,8 +215,9 @@ def _copy_repo(dst: Path) -> None:
             shutil.copy2(src, dst / name)
 
 
-def _pytest(root: Path, tests: tuple[str, ...], timeout: float) -> tuple[str, float]:
-    """Run ``tests`` in ``root``: ("pass" | "fail" | "timeout" | "error", seconds)."""
+def _pytest(root: Path, tests: tuple[str, ...], timeout: float) -> tuple[str, float, str]:
+    """Run ``tests`` in ``root``: ("pass" | "fail" | "timeout" | "error", seconds, the
+    summary lines of pytest's output)."""
     env = dict(os.environ, PYTHONPATH=str(root), PYTHONDONTWRITEBYTECODE="1")
     cmd = [sys.executable, "-m", "pytest", "-n", "0", "-q", "-x", "-p", "no:cacheprovider",
            "--timeout", str(int(timeout)), *tests]
@@ -225,11 +226,13 @@ def _pytest(root: Path, tests: tuple[str, ...], timeout: float) -> tuple[str, fl
         r = subprocess.run(cmd, cwd=root, env=env, capture_output=True, text=True,
                            timeout=timeout + 30)
     except subprocess.TimeoutExpired:
-        return "timeout", time.perf_counter() - t0
+        return "timeout", time.perf_counter() - t0, ""
     code = {0: "pass", 1: "fail"}.get(r.returncode, "error")
     if code == "fail" and "Timeout" in r.stdout[-5000:]:
         code = "timeout"
-    return code, time.perf_counter() - t0
+    said = "\n".join(x for x in r.stdout.splitlines()
+                     if x.startswith(("FAILED", "ERROR")) or " passed" in x or " failed" in x)
+    return code, time.perf_counter() - t0, said
 
 
 def _check_copy_is_imported(root: Path) -> None:
@@ -250,16 +253,16 @@ def run(mutants: list[Mutant], timeout: float) -> list[dict]:
         for m in mutants:
             _apply(originals[m.file], m)  # every snippet found before anything runs
         for tests in sorted({m.tests for m in mutants}):
-            status, secs = _pytest(root, tests, timeout)
+            status, secs, said = _pytest(root, tests, timeout)
             print(f"baseline {' '.join(tests)}: {status} ({secs:.0f} s)", flush=True)
             if status != "pass":
-                raise SystemExit(f"mutation_check: the tests fail unmutated: {tests}")
+                raise SystemExit(f"mutation_check: the tests fail unmutated: {tests}\n{said}")
         results = []
         for m in mutants:
             path = root / m.file
             try:
                 path.write_text(_apply(originals[m.file], m))
-                status, secs = _pytest(root, m.tests, timeout)
+                status, secs, _ = _pytest(root, m.tests, timeout)
             finally:
                 path.write_text(originals[m.file])
             verdict = "survived" if status == "pass" else "caught"
