@@ -206,6 +206,7 @@ class _Search:
     echo: Callable[[str], None]
     quiet: bool
     checkpoint_every: int
+    command_name: str | None = None
 
     @property
     def seeds(self) -> int:
@@ -321,7 +322,8 @@ def tune(experiment: Experiment, space: Sequence[str] | Mapping[str, str], *,
          confirm_seeds: int | None = None, out: str | Path | None = None,
          resume: bool = False, overwrite: bool = False, quick: bool = False,
          preset: str | None = None, quiet: bool | None = True, checkpoint_every: int = 10,
-         echo: Callable[[str], None] | None = None) -> TuneResult:
+         echo: Callable[[str], None] | None = None,
+         command_name: str | None = None) -> TuneResult:
     """Search ``space`` (``["PATH=SPEC", ...]``: ``LOW..HIGH``, ``LOW..HIGH:log``,
     ``a,b,c``) with ``trials`` Optuna trials, ``batch`` at a time, each over ``seeds``
     seeds (base seed ``seed``), for ``metric`` (default: the program's
@@ -332,7 +334,9 @@ def tune(experiment: Experiment, space: Sequence[str] | Mapping[str, str], *,
     ``prune="halving"``: successive halving inside each batch (reduction factor
     ``reduction_factor``, default 3; first rung at ``min_chunks`` chunks, default
     ``num_chunks // 9``). ``out``, ``resume``, ``overwrite`` as for ``vbl run`` (a resume
-    may raise ``trials``). Everything is checked before the folder is written.
+    may raise ``trials``). ``echo`` gets a line per batch and rung; ``command_name``: the
+    experiment as the confirmation's ``vbl run`` command names it (default its name; a
+    script's path). Everything is checked before the folder is written.
     """
     optuna = require_optuna()
     spec, space, sets, (metric, is_final, rung_metric, chunks) = _plan_search(
@@ -348,7 +352,7 @@ def tune(experiment: Experiment, space: Sequence[str] | Mapping[str, str], *,
         s = _Search(experiment, space, spec, sets, metric, rung_metric, is_final, chunks,
                     rungs(chunks, spec["reduction_factor"], spec["min_chunks"])
                     if prune == "halving" else [(0, chunks)], folder.path,
-                    echo or (lambda _: None), quiet, checkpoint_every)
+                    echo or (lambda _: None), quiet, checkpoint_every, command_name)
         study = _study(optuna, s)
         t0 = time.perf_counter()
         _search(optuna, study, s, folder)

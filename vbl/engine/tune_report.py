@@ -45,7 +45,7 @@ def _cli_value(v: Any) -> str:
 
 def confirm_command(s, params: dict[str, Any]) -> str:
     """The ``vbl run`` command of the confirmation run (into a folder of its own)."""
-    words = ["vbl", "run", s.experiment.name]
+    words = ["vbl", "run", s.command_name or s.experiment.name]
     if s.spec["quick"]:
         words.append("--quick")
     if s.spec["preset"]:
