@@ -4,6 +4,7 @@ seeds and its command, a killed search that resumes, and bad input in one line."
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shlex
 import signal
@@ -142,11 +143,16 @@ def test_report_and_confirmation_command(toy, halving, tmp_path):
 
 def test_grid_over_static_and_traced_values_with_a_final_metric(toy, tmp_path):
     """The grid sampler visits every point once, batch after batch; a static parameter
-    splits a batch into compile groups; a final metric, minimised."""
-    res = tune(toy, ["agent.epsilon=0,0.3", "env.num_arms=3..4"], trials=4, batch=3, seeds=2,
-               sets={"train.pulls_per_chunk": 5, "train.num_chunks": 2}, sampler="grid",
-               metric="value_error",
-               direction="minimize", confirm_seeds=2, out=tmp_path / "grid")
+    splits a batch into compile groups; a final metric, minimised; the experiment's default
+    sweep is fixed at the config's value."""
+    swept = dataclasses.replace(toy, sweep={"agent.initial_value": [1.0, 0.0]})
+    said: list[str] = []
+    res = tune(swept, ["agent.epsilon=0,0.3", "env.num_arms=3..4"], trials=4, batch=3,
+               seeds=2, sets={"train.pulls_per_chunk": 5, "train.num_chunks": 2},
+               sampler="grid", metric="value_error", direction="minimize", confirm_seeds=2,
+               out=tmp_path / "grid", echo=said.append)
+    assert "agent.initial_value=0.0" in said[0]  # the default sweep, fixed and said so
+    assert "--set agent.initial_value=0.0" in res.summary["confirmation"]["command"]
     hist = res.summary["history"]
     assert sorted((h["params"]["agent.epsilon"], h["params"]["env.num_arms"]) for h in hist) \
         == [(0, 3), (0, 4), (0.3, 3), (0.3, 4)]

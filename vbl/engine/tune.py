@@ -339,6 +339,7 @@ def tune(experiment: Experiment, space: Sequence[str] | Mapping[str, str], *,
     script's path). Everything is checked before the folder is written.
     """
     optuna = require_optuna()
+    sets_in = sets
     spec, space, sets, (metric, is_final, rung_metric, chunks) = _plan_search(
         experiment, space, trials=trials, batch=batch, seeds=seeds, metric=metric,
         direction=direction, sampler=sampler, prune=prune,
@@ -353,6 +354,10 @@ def tune(experiment: Experiment, space: Sequence[str] | Mapping[str, str], *,
                     rungs(chunks, spec["reduction_factor"], spec["min_chunks"])
                     if prune == "halving" else [(0, chunks)], folder.path,
                     echo or (lambda _: None), quiet, checkpoint_every, command_name)
+        fixed = [p for p in experiment.sweep if p not in space and p not in (sets_in or {})]
+        if fixed:
+            s.echo("fixed at the config's value (the experiment sweeps it; --set or --space "
+                   "it): " + ", ".join(f"{p}={s.sets[p]!r}" for p in fixed))
         study = _study(optuna, s)
         t0 = time.perf_counter()
         _search(optuna, study, s, folder)
