@@ -151,7 +151,8 @@ def test_grid_over_static_and_traced_values_with_a_final_metric(toy, tmp_path):
                seeds=2, sets={"train.pulls_per_chunk": 5, "train.num_chunks": 2},
                sampler="grid", metric="value_error", direction="minimize", confirm_seeds=2,
                out=tmp_path / "grid", echo=said.append)
-    assert "agent.initial_value=0.0" in said[0]  # the default sweep, fixed and said so
+    assert said[0].startswith("toy_bandit: 4 trials in batches of 3 x 2 seeds")
+    assert "agent.initial_value=0.0" in said[1]  # the default sweep, fixed and said so
     assert "--set agent.initial_value=0.0" in res.summary["confirmation"]["command"]
     hist = res.summary["history"]
     assert sorted((h["params"]["agent.epsilon"], h["params"]["env.num_arms"]) for h in hist) \

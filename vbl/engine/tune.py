@@ -354,6 +354,7 @@ def tune(experiment: Experiment, space: Sequence[str] | Mapping[str, str], *,
                     rungs(chunks, spec["reduction_factor"], spec["min_chunks"])
                     if prune == "halving" else [(0, chunks)], folder.path,
                     echo or (lambda _: None), quiet, checkpoint_every, command_name)
+        s.echo(_describe(s))
         fixed = [p for p in experiment.sweep if p not in space and p not in (sets_in or {})]
         if fixed:
             s.echo("fixed at the config's value (the experiment sweeps it; --set or --space "
@@ -366,6 +367,17 @@ def tune(experiment: Experiment, space: Sequence[str] | Mapping[str, str], *,
         return finish(s, study, folder, time.perf_counter() - t0)
     finally:
         folder.release()
+
+
+def _describe(s: _Search) -> str:
+    """What a search does, said before it starts."""
+    sp = s.spec
+    how = "no pruning" if sp["prune"] == "none" else (
+        f"successive halving, 1/{sp['reduction_factor']} go on at chunks "
+        + ", ".join(str(last) for _, last in s.rungs[:-1]))
+    return (f"{s.experiment.name}: {sp['trials']} trials in batches of {sp['batch']} x "
+            f"{s.seeds} seeds ({s.num_chunks} chunks each), sampler {sp['sampler']}, {how}; "
+            f"{sp['direction']} {s.metric}; study in {s.out / 'study.db'}")
 
 
 def _start_spec(path: Path, spec: dict, resume: bool) -> None:
