@@ -252,3 +252,36 @@ def test_overwrite_that_could_not_finish_deletes_nothing(tmp_path):
         os.system(f"chattr -i {stuck}")
     assert (run / "config.json").exists() and (run / "metrics.jsonl").exists()
     assert (stuck / "state").read_text() == "x"
+
+
+def test_a_video_write_that_fails_midway_is_one_line_and_leaves_no_file(tmp_path,
+                                                                         monkeypatch):
+    """A disk that fills while the frames are written: EngineError naming the file, and
+    no half-written video."""
+    import errno
+
+    import imageio.v2 as imageio
+
+    from vbl.programs.video import VideoParams, write_video
+
+    out = tmp_path / "v.gif"
+
+    class FullDisk:
+        def __init__(self, path, **kw):
+            self.path = path
+            open(path, "wb").close()
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return False
+
+        def append_data(self, img):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(imageio, "get_writer", FullDisk)
+    frames = np.zeros((2, 32, 40, 3), np.uint8)
+    with pytest.raises(EngineError, match=rf"cannot write {out}: No space left on device"):
+        write_video(frames, ["a", "b"], out, VideoParams(height=32))
+    assert not out.exists()
