@@ -220,6 +220,9 @@ def test_killed_search_resumes(toy, tmp_path):
         if proc.poll() is None:
             proc.kill()
     assert len(metrics.read_text().splitlines()) < 160
+    with pytest.raises(EngineError, match="no search"):  # a run folder is not a search
+        tune(toy, [SPACE[1]], trials=4, batch=2, seeds=2, sets=sets, out=out / "batch-0",
+             resume=True)
     with pytest.raises(EngineError, match="--resume"):  # a taken folder: never overwritten
         tune(toy, [SPACE[1]], trials=4, batch=2, seeds=2, sampler="random", sets=sets,
              out=out)

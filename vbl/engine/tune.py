@@ -395,8 +395,9 @@ def _start_spec(path: Path, spec: dict, resume: bool) -> None:
             raise EngineError(f"cannot resume {path}: it was searched with other settings "
                               f"({', '.join(diff)}); use the same options (only --trials and "
                               f"--confirm-seeds may change), or --overwrite / another --out")
-    elif resume and any(path.glob("batch-*")):
-        raise EngineError(f"cannot resume {path}: its tune.json is missing")
+    elif resume and (any(path.glob("batch-*")) or (path / "config.json").exists()):
+        raise EngineError(f"cannot resume {path}: it holds no search (no tune.json); pick "
+                          f"another --out")
     write_json(f, spec)
 
 
