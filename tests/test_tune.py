@@ -132,6 +132,9 @@ def test_report_and_confirmation_command(toy, halving, tmp_path):
                  "learner-chunks run", sm["confirmation"]["command"]):
         assert want in text
     assert (halving.out_dir / "history.png").stat().st_size > 1000
+    on_disk = json.loads((halving.out_dir / "summary.json").read_text(),
+                         parse_constant=lambda c: pytest.fail(f"{c} in summary.json"))
+    assert on_disk["compute"] == sm["compute"] and on_disk["params"] == halving.params
     argv = shlex.split(sm["confirmation"]["command"])[1:] + ["--out", str(tmp_path / "again"),
                                                              "--quiet"]
     assert _run(toy, build_parser().parse_args(argv)) == 0
