@@ -1,4 +1,4 @@
-"""benchmarks/mutation_check.py: every mutant still applies to today's code, and one
+"""tests/mutation_check.py: every mutant still applies to today's code, and one
 mutant runs end to end (slow)."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import pytest
 from tests.engine_helpers import REPO
 
 _spec = importlib.util.spec_from_file_location("mutation_check",
-                                               REPO / "benchmarks" / "mutation_check.py")
+                                               REPO / "tests" / "mutation_check.py")
 mc = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(mc)
 
@@ -33,7 +33,7 @@ def test_mutant_names_are_unique_and_the_fresh_ones_are_many():
 @pytest.mark.slow
 def test_one_mutant_is_caught_and_the_tree_is_untouched():
     before = (REPO / "vbl" / "stats.py").read_bytes()
-    r = subprocess.run([sys.executable, str(REPO / "benchmarks" / "mutation_check.py"),
+    r = subprocess.run([sys.executable, str(REPO / "tests" / "mutation_check.py"),
                         "--only", "stats-ddof"], capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stdout + r.stderr
     assert "score: 1/1 caught" in r.stdout

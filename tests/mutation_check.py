@@ -8,11 +8,11 @@ alone, runs its tests (stopping at the first failure, with a timeout) and restor
 file. A mutant is *caught* when its tests fail (or time out), *survived* when they pass.
 The working tree is never touched, so other work in it goes on.
 
-    .venv/bin/python benchmarks/mutation_check.py                 # every mutant
-    .venv/bin/python benchmarks/mutation_check.py --only stats-ddof merge-unsorted
-    .venv/bin/python benchmarks/mutation_check.py --issue         # issue 50's survivors
-    .venv/bin/python benchmarks/mutation_check.py --list
-    .venv/bin/python benchmarks/mutation_check.py --json results.json
+    .venv/bin/python tests/mutation_check.py                 # every mutant
+    .venv/bin/python tests/mutation_check.py --only stats-ddof merge-unsorted
+    .venv/bin/python tests/mutation_check.py --issue         # issue 50's survivors
+    .venv/bin/python tests/mutation_check.py --list
+    .venv/bin/python tests/mutation_check.py --json results.json
 
 Exit status: 0 when every mutant run was caught, 1 when one survived, 2 for a bad mutant
 (its snippet is not in its file exactly once) or tests that fail unmutated.
