@@ -144,7 +144,7 @@ def test_sigkill_then_resume_equals_uninterrupted(setup):
 
 
 def test_vbl_host_devices_sets_the_jax_device_count(monkeypatch):
-    from vbl.cli import use_all_cores
+    from vbl.engine.process import use_all_cores
 
     monkeypatch.delenv("XLA_FLAGS", raising=False)
     monkeypatch.delenv("VBL_HOST_DEVICES", raising=False)
@@ -175,7 +175,7 @@ def test_vbl_host_devices_sets_the_jax_device_count(monkeypatch):
     # in a fresh process the flag really gives that many JAX devices
     env = dict(os.environ, VBL_HOST_DEVICES="2")
     env.pop("XLA_FLAGS", None)
-    code = ("from vbl.cli import use_all_cores; use_all_cores(); import jax; "
+    code = ("from vbl.engine.process import use_all_cores; use_all_cores(); import jax; "
             "print(jax.device_count())")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
                          timeout=TIMEOUT)
