@@ -281,6 +281,17 @@ def test_reproduce_in_worker_processes_equals_in_process(tmp_path, monkeypatch):
         assert all(r["status"] == "ok" and r["peak_rss_mb"] > 0 for r in manifest["runs"])
     assert f"{jobs} worker processes" in path.read_text()
     assert reports[1] == reports[2]
+    # a --resume of the finished reproduce runs nothing: its runs keep their recorded
+    # times in the manifest (the runs table and the scheduler read them)
+    before = json.loads((tmp_path / "rep1" / "reproduce.json").read_text())["runs"]
+    summaries = {r["folder"]: (tmp_path / "rep1" / r["folder"] / "summary.json").read_bytes()
+                 for r in before}
+    _, ok = reproduce(tmp_path / "rep1", quick=True, quiet=True, jobs=1, resume=True,
+                      names=["paper_a", "paper_b"])
+    after = json.loads((tmp_path / "rep1" / "reproduce.json").read_text())["runs"]
+    assert ok and after == before
+    assert all((tmp_path / "rep1" / f / "summary.json").read_bytes() == b
+               for f, b in summaries.items())
 
 
 def test_reproduce_chains_group_experiments_and_start_the_longest(toy, tmp_path):

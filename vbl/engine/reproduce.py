@@ -365,10 +365,24 @@ def reproduce(out: Path, *, quick: bool, quiet: bool | None, resume: bool = Fals
         lock.release()
 
 
+def _finished_times(out: Path, todo: list[Job]) -> dict[str, dict[str, float]]:
+    """``{folder: {seconds, peak_rss_mb}}`` from ``out``'s manifest for the runs that had
+    finished before a ``--resume`` (their ``summary.json`` is there): the resume runs
+    nothing for them, and the manifest keeps what they took."""
+    try:
+        runs = json.loads((out / REPRODUCE_MANIFEST).read_text())["runs"]
+        before = {r["folder"]: r for r in runs if r.get("status") == "ok"}
+    except (OSError, ValueError, KeyError, TypeError):
+        return {}
+    return {j.folder: {"seconds": float(before[j.folder]["seconds"]),
+                       "peak_rss_mb": float(before[j.folder]["peak_rss_mb"])}
+            for j in todo if j.folder in before and (out / j.folder / "summary.json").is_file()}
+
+
 def _reproduce(exps: dict[str, Experiment], out: Path, quick: bool, quiet: bool | None,
                resume: bool, overwrite: bool, jobs: int | None) -> tuple[Path, bool]:
-
     todo = reproduce_jobs(exps, quick)
+    kept = _finished_times(out, todo) if resume else {}
     workers = default_jobs(len(todo)) if jobs is None else max(1, min(int(jobs), len(todo)))
     load_start, t_start = _load(), time.perf_counter()
     if quiet is not True:
@@ -385,6 +399,9 @@ def _reproduce(exps: dict[str, Experiment], out: Path, quick: bool, quiet: bool 
         except KeyboardInterrupt as e:  # SIGINT / SIGTERM: the finished runs are kept
             raise type(e)(_stopped(e, out, len(done), len(todo))) from None
     _rerender_readers(todo, exps, out, done)
+    for folder, times in kept.items():  # a resume ran nothing for them: their own times
+        if done[folder]["status"] == "ok":
+            done[folder].update(times)
     wall = time.perf_counter() - t_start
     manifest = {"quick": quick, "commit": git_commit(), "machine": machine_description(),
                 "workers": workers, "wall_s": round(wall, 1),
