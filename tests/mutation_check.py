@@ -1,5 +1,6 @@
 """Mutation check: do the tests notice realistic bugs in the engine's run folders, merge and
-resume, the statistics over seeds and the env base?
+resume, the statistics over seeds, the env base and the pixel pipeline (colour blobs, goal
+ends, the renderer's pixels)?
 
 Each mutant is one edit (a snippet of a file and what replaces it) that a person could
 make by mistake. The check copies the repository's code and tests to a temporary folder,
@@ -54,7 +55,7 @@ ENV_TESTS = ("tests/test_env_base.py",)
 M, RF, RN = "vbl/engine/merge.py", "vbl/engine/runfolder.py", "vbl/engine/runner.py"
 ST, EB = "vbl/stats.py", "vbl/envs/base.py"
 
-MUTANTS = [
+ENGINE_MUTANTS = [
     # ------------------------------------------------------------------ merge
     Mutant("merge-overlap-off-by-one", M, "        if lo < at:\n", "        if lo < at - 1:\n",
            MERGE_TESTS, "a seed held by two shards is merged twice"),
@@ -165,6 +166,45 @@ MUTANTS = [
            "validate(params)  # fields and every section's check() rule", ENV_TESTS,
            "a task's own consistency rules are skipped"),
 ]
+
+BL, RD = "vbl/vision/blobs.py", "vbl/vision/render.py"
+VISION_TESTS = ("tests/test_blobs.py", "tests/test_render_exact.py", "tests/test_pixel_bounds.py",
+                "tests/test_pixel_obs.py")
+
+#: Realistic bugs in the pixel pipeline (colour blobs, goal ends, the renderer's pixels).
+VISION_MUTANTS = [
+    Mutant("blobs-hue-mirrored", BL, "h = jnp.where(mx == r, (g - b) / safe,",
+           "h = jnp.where(mx == r, (b - g) / safe,", VISION_TESTS,
+           "hues next to red mirrored (orange reads as magenta)"),
+    Mutant("blobs-dark-pixels-coloured", BL, "coloured = (s >= bp.sat_min) & (v >= bp.val_min)",
+           "coloured = s >= bp.sat_min", VISION_TESTS, "dark pixels count as coloured"),
+    Mutant("blobs-extent-from-centres", BL,
+           "lo = jnp.min(jnp.where(any_px, centres, _BIG)) - 0.5 * size",
+           "lo = jnp.min(jnp.where(any_px, centres, _BIG))", VISION_TESTS,
+           "a blob's extent starts at its first pixel's centre, not its edge"),
+    Mutant("blobs-centroid-unweighted", BL, "cu=jnp.sum(cols * u) * inv",
+           "cu=jnp.sum((cols > 0) * u) / jnp.maximum(jnp.sum(cols > 0), 1.0)", VISION_TESTS,
+           "the centroid averages columns, not pixels"),
+    Mutant("blobs-row-factor-sign", BL, "return jnp.cos(tau) - (v / fv) * jnp.sin(tau)",
+           "return jnp.cos(tau) + (v / fv) * jnp.sin(tau)", VISION_TESTS,
+           "the post lines' slant for a tilted camera has the wrong sign"),
+    Mutant("blobs-post-band-camera-px", BL, "band = mask & (dist <= bp.post_band * su)",
+           "band = mask & (dist <= bp.post_band)", VISION_TESTS,
+           "the post band in camera px: posts short at 128 x 120"),
+    Mutant("blobs-clip-at-border", BL, "out = jnp.abs(u) > hw - 0.5 * su",
+           "out = jnp.abs(u) > hw", VISION_TESTS,
+           "a post leaving the image is not moved onto the border"),
+    Mutant("render-rows-upside-down", RD,
+           "v = (0.5 - (jnp.arange(height, dtype=F32) + 0.5) / height) * ch",
+           "v = ((jnp.arange(height, dtype=F32) + 0.5) / height - 0.5) * ch", VISION_TESTS,
+           "row 0 is the image's bottom"),
+    Mutant("render-pixel-height-from-width", RD, "return u, v, (cw / width, ch / height)",
+           "return u, v, (cw / width, cw / height)", VISION_TESTS,
+           "a pixel's height taken from the image width"),
+]
+
+#: The fresh mutants the check runs by default.
+MUTANTS = ENGINE_MUTANTS + VISION_MUTANTS
 
 SURVIVORS = ("tests/test_merge_integrity.py", "tests/test_reliability_survivors.py")
 
