@@ -190,13 +190,19 @@ def _cmd_tune(args) -> int:
                sets=sets, seed=args.seed, confirm_seeds=args.confirm_seeds, out=args.out,
                resume=args.resume, overwrite=args.overwrite, quick=args.quick,
                preset=args.preset, quiet=True if args.quiet else None,
-               checkpoint_every=args.checkpoint_every, echo=lambda m: print(m, flush=True))
+               checkpoint_every=args.checkpoint_every, echo=lambda m: print(m, flush=True),
+               command_name=args.experiment)
     sm = res.summary
     s, c = sm["search"], sm["confirmation"]
+
+    def est(iv: dict, fresh: str = "") -> str:
+        n = iv["seeds"]
+        half = f" ± {iv['ci95']:.3g}" if iv["ci95"] == iv["ci95"] else ""
+        return f"{iv['mean']:.4g}{half} ({n} {fresh}seed{'s' * (n != 1)})"
+
     print(f"best trial {sm['best_trial']}: " + ", ".join(f"{k}={v}" for k, v in
                                                          res.params.items()))
-    print(f"  {sm['metric']}: search {s['mean']:.4g} ± {s['ci95']:.3g} ({s['seeds']} seeds), "
-          f"confirmation {c['mean']:.4g} ± {c['ci95']:.3g} ({c['seeds']} fresh seeds)")
+    print(f"  {sm['metric']}: search {est(s)}, confirmation {est(c, 'fresh ')}")
     comp = sm["compute"]
     print(f"  {comp['learner_chunks']:,} learner-chunks of a full grid's "
           f"{comp['full_grid_learner_chunks']:,}; reproduce the confirmation: {c['command']}")
