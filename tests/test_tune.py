@@ -191,6 +191,19 @@ def test_bad_input_is_one_line(toy, tmp_path):
     assert not out.exists()
 
 
+def test_cli_names_a_script_by_its_path(tmp_path, capsys):
+    from vbl.cli import _cmd_tune, build_parser
+
+    script = str(experiments_dir(tmp_path) / "toy_bandit.py")
+    argv = ["tune", script, "--space", "agent.epsilon=0..0.4", "--trials", "1", "--batch", "1",
+            "--seeds", "2", "--confirm-seeds", "2", "--set", "train.num_chunks=1", "--quiet",
+            "--out", str(tmp_path / "s")]
+    assert _cmd_tune(build_parser().parse_args(argv)) == 0
+    out = capsys.readouterr().out
+    assert f"reproduce the confirmation: vbl run {script} --set agent.epsilon=" in out
+    assert "(2 fresh seeds)" in out
+
+
 def _history(out: Path) -> list[tuple]:
     sm = json.loads((out / "summary.json").read_text())
     return [(h["trial"], h["state"], h["value"], h["params"]) for h in sm["history"]]
