@@ -24,8 +24,8 @@ from vbl.params import (
 )
 
 __all__ = [
-    "parse_value", "parse_assignment", "parse_sweep", "split_values",
-    "apply_overrides", "is_static", "config_to_dict", "fingerprint", "stack_traced",
+    "parse_value", "parse_scalar", "field_default", "parse_assignment", "parse_sweep",
+    "split_values", "apply_overrides", "is_static", "config_to_dict", "fingerprint", "stack_traced",
     "traced_dtype", "check_dtypes", "set_value", "json_value", "INT32", "INT64",
 ]
 
@@ -34,7 +34,9 @@ INT64 = (-2**63, 2**63 - 1)
 _F32_MAX = float(np.finfo(np.float32).max)
 
 
-def _field_default(config: Any, path: str) -> Any:
+def field_default(config: Any, path: str) -> Any:
+    """The declared default of the field at dotted ``path`` of ``config`` (None without
+    one): its type tells how a command-line value is parsed."""
     parent_path, _, name = path.rpartition(".")
     parent = get_path(config, parent_path) if parent_path else config
     f = next(f for f in dataclasses.fields(parent) if f.name == name)
@@ -58,7 +60,8 @@ def split_values(text: str) -> list[str]:
     return out
 
 
-def _parse_scalar(text: str) -> Any:
+def parse_scalar(text: str) -> Any:
+    """A command-line scalar: a bool, an int, a float, or a string (quotes removed)."""
     t = text.strip()
     if t.lower() in ("true", "false"):
         return t.lower() == "true"
@@ -84,8 +87,8 @@ def parse_value(text: str, default: Any = None) -> Any:
         inner = t[1:-1].strip()
         return tuple(parse_value(x) for x in split_values(inner)) if inner else ()
     if isinstance(default, tuple) and "," in t:
-        return tuple(_parse_scalar(x) for x in split_values(t))
-    return _parse_scalar(t)
+        return tuple(parse_scalar(x) for x in split_values(t))
+    return parse_scalar(t)
 
 
 def parse_assignment(text: str, config: Any) -> tuple[str, Any]:
@@ -95,7 +98,7 @@ def parse_assignment(text: str, config: Any) -> tuple[str, Any]:
     path, _, value = text.partition("=")
     path = path.strip()
     get_path(config, path)  # unknown names list the valid ones
-    return path, parse_value(value, _field_default(config, path))
+    return path, parse_value(value, field_default(config, path))
 
 
 def parse_sweep(text: str, config: Any) -> tuple[str, list[Any]]:
@@ -106,7 +109,7 @@ def parse_sweep(text: str, config: Any) -> tuple[str, list[Any]]:
     path, _, values = text.partition("=")
     path = path.strip()
     get_path(config, path)
-    default = _field_default(config, path)
+    default = field_default(config, path)
     texts = split_values(values)
     vals = [parse_value(v, default) for v in texts]
     if not vals or any(v == "" for v in vals):

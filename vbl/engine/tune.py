@@ -33,7 +33,7 @@ import jax
 import numpy as np
 
 from vbl.engine.checkpoint import Checkpoints
-from vbl.engine.config import _field_default, _parse_scalar, parse_value, set_value, split_values
+from vbl.engine.config import field_default, parse_scalar, parse_value, set_value, split_values
 from vbl.engine.errors import EngineError
 from vbl.engine.experiment import Experiment
 from vbl.engine.jax_setup import engine_precision
@@ -96,7 +96,7 @@ class Dim:
 
 
 def _number(text: str, what: str) -> int | float:
-    v = _parse_scalar(text)
+    v = parse_scalar(text)
     if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
         raise ParamError(f"--space {what}: {text!r} is not a number (SPEC: LOW..HIGH, "
                          f"LOW..HIGH:log or a,b,c)")
@@ -112,7 +112,7 @@ def _parse_dim(text: str, config: Any) -> Dim:
     get_path(config, path)  # an unknown path lists the valid ones
     if ".." in spec:
         return _range_dim(text, path, spec, config)
-    default = _field_default(config, path)
+    default = field_default(config, path)
     vals = [parse_value(v, default) for v in split_values(spec)]
     if not spec or any(v == "" for v in vals):
         raise ParamError(f"--space {text!r} has an empty value")
@@ -128,7 +128,7 @@ def _parse_dim(text: str, config: Any) -> Dim:
 def _range_dim(text: str, path: str, spec: str, config: Any) -> Dim:
     """The :class:`Dim` of ``LOW..HIGH[:log]``: ints when both ends and the parameter are
     ints."""
-    default = _field_default(config, path)
+    default = field_default(config, path)
     rng, _, flag = spec.partition(":")
     if flag not in ("", "log"):
         raise ParamError(f"--space {text!r}: the only range flag is :log")
