@@ -357,3 +357,15 @@ def test_progress_is_quiet_in_ci(monkeypatch, capsys):
     p.update({"episodes": np.full(3, 10.0), "success_rate": np.full(3, 0.5)}, 0.5)
     p.close()
     assert "episodes/s=60" in capsys.readouterr().err  # 3 learners x 10 episodes / 0.5 s
+
+
+def test_a_resumed_run_says_where_it_goes_on(toy, tmp_path, capsys):
+    """A resume names the chunk whose checkpoint it continues after (not quiet)."""
+    sets = {**TINY_SETS, "train.num_chunks": 4}
+    run_experiment(toy, sets=sets, seeds=2, out=tmp_path / "r", quiet=True,
+                   checkpoint_every=2)
+    capsys.readouterr()
+    run_experiment(toy, sets=sets, seeds=2, out=tmp_path / "r", quiet=False, resume=True,
+                   checkpoint_every=2)
+    assert f"resuming after chunk 4 (its checkpoint in {tmp_path / 'r'})" in \
+        capsys.readouterr().err

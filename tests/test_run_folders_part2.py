@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import shlex
 import shutil
 import signal
 import subprocess
@@ -141,13 +142,19 @@ def test_sigterm_stops_a_run_like_sigint_and_resume_finishes_it(setup):
         if p.poll() is None:
             p.kill()
     assert p.returncode == 143 and took < 5.0, (p.returncode, took)
-    assert "terminated" in one_error_line(err)
+    line = one_error_line(err)
+    assert "terminated" in line and f"the checkpoint of chunk {checkpoint_steps(out)} is kept" \
+        in line, line
     assert not list(out.rglob("*.tmp")), "a temporary file was left behind"
     steps = rows(out)
     assert steps == list(range(1, len(steps) + 1))
-    # the checkpoint state is consistent: --resume continues from it, no step twice
-    p = subprocess.Popen(vbl_cmd(*LONG, "--out", str(out), "--resume"), env=env, cwd=REPO,
-                         text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    # the checkpoint state is consistent: the line's own command continues from it, no step
+    # twice
+    command = shlex.split(line.split("continue with: ", 1)[1])
+    assert command[:3] == ["vbl", "run", "toy_bandit"] and command[-3:] == [
+        "--out", str(out), "--resume"], command
+    p = subprocess.Popen(vbl_cmd(*command[1:], "--quiet"), env=env, cwd=REPO, text=True,
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     try:
         wait_until(lambda: len(rows(out)) >= len(steps) + 3, "3 resumed rows", p)
         p.send_signal(signal.SIGINT)

@@ -314,7 +314,6 @@ def _after_dead_worker(job: Job, e: BaseException, exps: dict[str, Experiment], 
 
 
 def _stopped(e: BaseException, out: Path, n_done: int, n_all: int) -> str:
-
     return (f"{stop_message(e)}; {n_done} of {n_all} runs finished and are kept in {out}; "
             f"continue with vbl reproduce --resume --out {out}")
 

@@ -7,6 +7,8 @@ import contextlib
 import functools
 import hashlib
 import math
+import shlex
+import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -359,10 +361,31 @@ def _run_in(run: _Run) -> RunResult:
         if run.plan is None:
             return _run_own_loop(run, log, t_start)
         start = _train(run, ckpts, log)
+    except KeyboardInterrupt as e:  # SIGINT, or SIGTERM (Terminated): say how to go on
+        if run.primary:
+            raise type(e)(_stopped_line(run, e)) from None
+        raise
     finally:
         if hasattr(log, "close"):
             log.close()
     return _summarise(run, start, time.perf_counter() - t_start)
+
+
+def _stopped_line(run: _Run, e: BaseException) -> str:
+    """The stopped run's line: the chunk whose checkpoint is kept and the command that
+    continues it (``vbl run ... --out FOLDER --resume``)."""
+    from vbl.engine.errors import stop_message
+    from vbl.engine.rebuild import run_command  # rebuild imports this module
+
+    steps = [int(d.name) for d in (run.path / "checkpoints").glob("*") if d.name.isdigit()]
+    kept = (f"the checkpoint of chunk {max(steps)} is kept in {run.path}" if steps else
+            f"no chunk was checkpointed yet in {run.path}")
+    try:
+        command = run_command(run.experiment, run.spec)
+    except Exception:  # noqa: BLE001 - the line must not fail; a shorter command then
+        command = f"vbl run {run.experiment.name} ..."
+    return (f"{stop_message(e)}; {kept}; continue with: {command} --out "
+            f"{shlex.quote(str(run.path))} --resume")
 
 
 def _start_folder(run: _Run) -> Checkpoints | None:
@@ -412,6 +435,9 @@ def _train(run: _Run, ckpts: Checkpoints, log: MetricsLog) -> int:
     step the run started from."""
     plan = run.plan
     start = (ckpts.latest_step() or 0) if run.resume else 0
+    if start and run.primary and not run.quiet:
+        print(f"{run.experiment.name}: resuming after chunk {start} (its checkpoint in "
+              f"{run.path})", file=sys.stderr, flush=True)
     run.folder.record(STATUS_FILE)
     total, done = _steps_to_run(plan, start, run.span)
     progress = Progress(total, done, run.experiment.name, run.quiet,
