@@ -188,7 +188,8 @@ def time_size(exp, sets: list[str], n: int, chunks: int, reps: int) -> dict:
     """One row: ``n`` learners' compiled chunk, timed as the module says."""
     import jax
 
-    from vbl.engine.runner import DEFAULT_CHECKPOINT_EVERY, _compiled
+    from vbl.engine.runfolder import DEFAULT_CHECKPOINT_EVERY
+    from vbl.engine.runner import _compiled
     from vbl.engine.sharding import learner_sharding, pad_index, put, to_host
 
     load0 = os.getloadavg()[0]

@@ -362,3 +362,18 @@ def test_a_vbl_folder_in_the_working_directory_is_one_line(tmp_path):
     lines = r.stderr.strip().splitlines()
     assert r.returncode == 1 and len(lines) == 1, r.stderr
     assert "a folder named vbl" in lines[0] and str((tmp_path / "vbl").resolve()) in lines[0]
+
+
+def test_a_taken_out_is_refused_before_jax_loads(tmp_path):
+    """`vbl run X --out TAKEN` answers before the experiment (and JAX) is imported."""
+    taken = tmp_path / "taken"
+    taken.mkdir()
+    (taken / "notes.txt").write_text("mine")
+    code = ("import sys; from vbl.cli import main; "
+            f"code = main(['run', 'grid_shooting', '--out', {str(taken)!r}]); "
+            "print(code, 'jax' in sys.modules, 'vbl.experiments' in str(sys.modules))")
+    r = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=_env(),
+                       capture_output=True, text=True, timeout=TIMEOUT)
+    assert r.stdout.split() == ["1", "False", "False"], (r.stdout, r.stderr)
+    assert "exists and is not empty; use --resume" in r.stderr
+    assert (taken / "notes.txt").read_text() == "mine"

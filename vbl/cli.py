@@ -35,7 +35,7 @@ def _add_debug(p: argparse.ArgumentParser, default=False) -> None:
 
 
 def _add_run_options(p: argparse.ArgumentParser) -> None:
-    from vbl.engine.runner import DEFAULT_CHECKPOINT_EVERY, DEFAULT_LEARNER_BATCH
+    from vbl.engine.runfolder import DEFAULT_CHECKPOINT_EVERY, DEFAULT_LEARNER_BATCH
 
     p.add_argument("--set", dest="sets", action="append", default=[], metavar="PATH=VALUE",
                    help="override a parameter, e.g. --set agent.learning_rate=0.1 (a path "
@@ -387,6 +387,16 @@ def _experiment(name: str):
     return load_experiment_file(name) if is_script_path(name) else get(name)
 
 
+def _check_out_early(args) -> None:
+    """A taken ``--out`` is refused before the experiment (and JAX) is imported; the run
+    checks it again (a multi-process run's other processes find the folder made)."""
+    from vbl.engine.runfolder import check_new_folder
+
+    single = not (args.coordinator or os.environ.get("VBL_COORDINATOR") or args.num_processes)
+    if args.out is not None and single:
+        check_new_folder(Path(args.out), resume=args.resume, overwrite=args.overwrite)
+
+
 def _init_distributed(args) -> None:
     from vbl.engine.distributed import initialize
 
@@ -512,7 +522,6 @@ def _guarded(fn, *a, debug: bool = False) -> int:
     import traceback
 
     from vbl.engine.errors import EngineError, debug_requested, one_line, stop_code, stop_message
-    from vbl.params import ParamError
 
     debug = debug or debug_requested()
     try:
@@ -532,10 +541,12 @@ def _guarded(fn, *a, debug: bool = False) -> int:
     except Exception as e:  # noqa: BLE001 - the command's last word on any failure
         if debug:
             traceback.print_exc()
-        if isinstance(e, ParamError):
-            return _error(str(e), 2)
         if isinstance(e, EngineError):
             return _error(str(e), 1)
+        from vbl.params import ParamError  # imports JAX: only for an error that may be one
+
+        if isinstance(e, ParamError):
+            return _error(str(e), 2)
         return _error(one_line(e), 1)
 
 
@@ -553,6 +564,8 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
 
     def go() -> int:
+        if args.command == "run":
+            _check_out_early(args)  # before JAX loads
         quiet_xla()
         return _dispatch(args)
 
@@ -584,6 +597,7 @@ def main_for(experiment, argv: list[str] | None = None) -> None:
     quiet_process(sys.argv[1:] if argv is None else argv)
 
     def go() -> int:
+        _check_out_early(args)  # before JAX loads
         quiet_xla()
         _init_distributed(args)
         return _run(experiment, args)

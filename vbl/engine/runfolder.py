@@ -25,6 +25,12 @@ from typing import Any
 
 from vbl.engine.errors import EngineError
 
+DEFAULT_CHECKPOINT_EVERY = 10
+"""Chunks between a run's checkpoints (and one at the end of each compile group)."""
+
+DEFAULT_LEARNER_BATCH = 4096
+"""Most learners in one compiled call of a run (larger groups run in batches of this)."""
+
 __all__ = ["RUN_FORMAT", "check_format", "LOCK", "MARKER", "RunFolder", "open_run_folder",
            "record_files", "is_vbl_run", "check_new_folder", "lock_reproduce_folder",
            "allow_runs_under", "check_fingerprint"]

@@ -37,6 +37,8 @@ from vbl.engine.results import (
     write_json,
 )
 from vbl.engine.runfolder import (
+    DEFAULT_CHECKPOINT_EVERY,
+    DEFAULT_LEARNER_BATCH,
     RUN_FORMAT,
     RunFolder,
     check_fingerprint,
@@ -51,8 +53,6 @@ from vbl.params import ParamError
 __all__ = ["run_experiment", "resolve", "describe_sweep", "load_result", "defaults_spec",
            "shard_spec", "whole_spec"]
 
-DEFAULT_CHECKPOINT_EVERY = 10  # chunks between checkpoints (and one at the end of a group)
-DEFAULT_LEARNER_BATCH = 4096  # most learners in one compiled call
 ONCE_LEARNER_BATCH = 64
 """Most learners per device that a program's ``init`` and ``final`` (run once per group)
 compute at once: larger batches run as a loop over vmapped batches of this size
