@@ -47,7 +47,7 @@ class Mutant(NamedTuple):
 
 MERGE_TESTS = ("tests/test_merge_integrity.py", "tests/test_shard_merge.py")
 FOLDER_TESTS = ("tests/test_reliability_survivors.py", "tests/test_run_folder_safety.py",
-                "tests/test_run_folders_part2.py")
+                "tests/test_cli_processes.py")
 RESUME_TESTS = ("tests/test_merge_integrity.py", "tests/test_engine_core.py")
 STATS_TESTS = ("tests/test_stats.py", "tests/test_reliability_survivors.py")
 ENV_TESTS = ("tests/test_env_base.py",)

@@ -11,7 +11,7 @@ import re
 
 import pytest
 
-from tests.test_first_hour import REPO, _tree_digest, _vbl
+from tests.test_cli_first_use import REPO, _tree_digest, _vbl
 from vbl.engine.bench import TARGETS, headline
 
 OWN_TESTS = {"sweep_scaling", "compile_time", "render_throughput"}

@@ -1,11 +1,9 @@
-"""Run folders, part 2 (issue 40, items 2-6), through real `vbl` processes, one after the
-other: SIGTERM like SIGINT, a hand-edited config.json, --overwrite into a folder it cannot
+"""Real `vbl` processes, one after the other: SIGTERM like SIGINT (the stop line's own
+command resumes the run), a hand-edited config.json, --overwrite into a folder it cannot
 write, broken pipes, ASCII output, sys.exit at a script's import, duplicate sweep values,
 bad VBL_HOST_DEVICES, an empty HOME, URL-encoded report links, and two guards (the memory
-estimate in bytes, the float32 bounds check on the rounded value).
-
-Item 1 (`vbl reproduce`) is tests/test_reproduce_signals.py.
-"""
+estimate in bytes, the float32 bounds check on the rounded value). `vbl reproduce`'s
+signals: tests/test_reproduce_signals.py."""
 
 from __future__ import annotations
 
@@ -112,7 +110,7 @@ def copy(done: Path, name: str) -> Path:
     return d
 
 
-# ------------------------------------------------------------------ item 2: SIGTERM
+# ------------------------------------------------------------------ SIGTERM
 
 
 def checkpoint_steps(out: Path) -> int:
@@ -192,7 +190,7 @@ def test_sigterm_stops_vbl_bench_and_leaves_nothing_behind(setup):
     assert sorted(p.relative_to(bench.parent) for p in bench.parent.rglob("*")) == before
 
 
-# ------------------------------------------------------------------ item 3: config.json
+# ------------------------------------------------------------------ config.json
 
 
 def test_hand_edited_config_json_is_refused_by_report_and_resume(setup, done):
@@ -232,7 +230,7 @@ def test_hand_edited_config_json_is_refused_by_report_and_resume(setup, done):
     assert rc == 1 and "differs in ['base_seed', 'agent.epsilon']" in line, line
 
 
-# ------------------------------------------------------------------ item 4: --overwrite
+# ------------------------------------------------------------------ --overwrite
 
 
 @pytest.fixture
@@ -275,7 +273,7 @@ def test_overwrite_with_a_bad_value_deletes_nothing(setup, done):
     assert tree(d) == before
 
 
-# ------------------------------------------------------------------ item 5: small items
+# ------------------------------------------------------------------ small items
 
 
 def test_broken_pipe_exits_quietly(setup):
@@ -354,7 +352,7 @@ def test_report_links_are_url_encoded(setup):
     assert "[my run (1) #2](my%20run%20%281%29%20%232/report.md)" in out, out
 
 
-# ------------------------------------------------------------------ item 6: two guards
+# ------------------------------------------------------------------ two guards
 
 
 def test_float32_bounds_checked_on_the_rounded_value(setup):
