@@ -208,7 +208,7 @@ def test_report_of_an_experiment_without_paper_rows_says_so(tmp_path, capsys):
 
     run_experiment(get("toy_bandit"), seeds=2, out=tmp_path / "run", quick=True, quiet=True,
                    plots=False)
-    assert main(["report", str(tmp_path / "run")]) == 1
+    assert main(["report", str(tmp_path / "run")]) == 2  # bad input, as every bad folder
     assert "declares no paper rows" in capsys.readouterr().err
 
 
