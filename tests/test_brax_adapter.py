@@ -153,6 +153,7 @@ def test_shoot_pass_difficulty_through_input_wrapper():
     np.testing.assert_allclose(cos, 1.0, atol=1e-5)
 
 
+@pytest.mark.slow  # 31 s: two compilations of the whole adapter
 @pytest.mark.parametrize("x64", [False, True])
 def test_float32_whatever_x64(x64):
     for env in (ShootingEnv(), ShootPassEnv("pass")):

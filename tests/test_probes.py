@@ -188,10 +188,10 @@ def test_probe_has_tiny_option(name):
     assert "--tiny" in (PROBES / f"{name}.py").read_text()
 
 
+@pytest.mark.slow  # 44 s: the probe's tiny run compiles the tabular program twice
 def test_table2_ablation(capsys, tmp_path):
     """The ablation probe at toy size: its state map whose index ends actions runs through
-    the tabular program and its results file holds per-seed rows; the findings' table is
-    the committed results file's."""
+    the tabular program and its results file holds per-seed rows."""
     import json
 
     out = tmp_path / "ablation"
@@ -202,6 +202,10 @@ def test_table2_ablation(capsys, tmp_path):
     for r in rows.values():
         assert len(r["greedy"]) == 2 and all(0.0 <= g <= 100.0 for g in r["greedy"])
         assert all(p >= 1.0 for p in r["primitives_per_decision"])  # a decision >= 1 primitive
+
+
+def test_table2_ablation_table_is_the_committed_results(capsys):
+    """The findings' ablation table is the committed results file's."""
     committed = run_probe("table2_ablation", ["--table"], capsys).strip()
     note = (PROBES.parents[1] / "docs" / "findings" / "table2_shoot_pass.md").read_text()
     begin, end = "<!-- table2_ablation -->\n", "\n<!-- /table2_ablation -->"

@@ -173,6 +173,7 @@ def test_goal_and_robot_pixels_lie_in_the_analytic_regions():
     assert checked >= 5
 
 
+@pytest.mark.slow  # 42 s: a compilation per size and batch
 def test_shapes_dtypes_sizes_and_batching():
     rp = RenderParams(width=64, height=60)
     pose, ball = jnp.asarray([0.0, 0.0, 0.0]), jnp.asarray([1.0, 0.0])

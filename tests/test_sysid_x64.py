@@ -12,6 +12,7 @@ import textwrap
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from reference.sysid_systems import simulate_batch
 
 from vbl.sysid import CVAParams, aic, fit_one, identify
@@ -62,6 +63,7 @@ def _in_process(u, y) -> dict:
     return out
 
 
+@pytest.mark.slow  # 16 s: identification compiled twice (x64 on and off)
 def test_identify_same_numbers_with_x64_off(tmp_path):
     rng = np.random.default_rng(3)
     u, y, _ = simulate_batch(rng, np.array([1, 3, 5]), 400, 2, 2, noise=0.05,
