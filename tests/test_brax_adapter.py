@@ -128,6 +128,7 @@ def test_difficulty_in_state_drives_fresh_starts():
         set_difficulty(no_d, 0.5)
 
 
+@pytest.mark.slow  # 25 s: the two-robot env under the frame stack, compiled twice
 def test_shoot_pass_difficulty_through_input_wrapper():
     """The two-robot task's start difficulty, read through InputEnv's params (``inner``):
     at difficulty 0 a pass start rolls the ball at the slowest speed straight at the
