@@ -411,3 +411,21 @@ def test_blob_stats_are_in_camera_px_at_any_image_size(width, height):
     got = {k: float(getattr(b, k)) for k in want}
     np.testing.assert_allclose([got[k] for k in want], list(want.values()), rtol=1e-6,
                                atol=1e-3, err_msg=str(got))
+
+
+def test_dark_pixels_are_no_colour():
+    """A fully saturated red pixel darker than ``val_min`` (a shadow, the image's black
+    border) is in no mask; the same hue at full brightness is the ball's. The values are
+    the HSV definition's (V = max channel / 255)."""
+    bp = BlobParams()
+    below = int(255 * bp.val_min) - 2   # V just under val_min
+    above = int(255 * bp.val_min) + 2
+    img = np.zeros((1, 3, 3), np.uint8)
+    img[0, 0] = (below, 0, 0)
+    img[0, 1] = (above, 0, 0)
+    img[0, 2] = (255, 0, 0)
+    masks = np.asarray(colour_masks(jnp.asarray(img), bp))
+    assert masks.shape == (3, 1, 3)
+    assert not masks[:, 0, 0].any()                  # dark: no colour at all
+    assert masks[0, 0, 1] and masks[0, 0, 2]         # bright enough: the ball's red
+    assert not masks[1:, 0, 1:].any()
