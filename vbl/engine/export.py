@@ -16,8 +16,8 @@ from typing import Any
 import numpy as np
 
 from vbl.engine.errors import EngineError
-from vbl.engine.results import read_json, read_metrics
-from vbl.engine.runfolder import check_format
+from vbl.engine.results import read_metrics
+from vbl.engine.runfolder import read_run_spec
 from vbl.params import ParamError
 from vbl.stats import bounded_ci95, mean_ci95
 
@@ -60,17 +60,7 @@ def read_run(folder: str | Path | RunRows) -> RunRows:
     if isinstance(folder, RunRows):
         return folder
     folder = Path(folder)
-    if not folder.is_dir():
-        raise EngineError(f"{folder} is not a run folder (no such folder)")
-    if not (folder / "config.json").is_file():
-        raise EngineError(f"{folder} is not a run folder (no config.json)")
-    try:
-        spec = read_json(folder / "config.json")
-    except (OSError, ValueError) as e:
-        raise EngineError(f"{folder}/config.json is unreadable: {e}") from e
-    if not isinstance(spec, dict) or "experiment" not in spec:
-        raise EngineError(f"{folder}/config.json is not a vbl run's config")
-    check_format(spec, folder)
+    spec = read_run_spec(folder)
     rows = read_metrics(folder / "metrics.jsonl")
     for i, r in enumerate(rows, 1):
         ok = (isinstance(r.get("point"), int) and isinstance(r.get("values"), dict)

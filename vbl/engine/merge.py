@@ -93,19 +93,13 @@ def _merge(folders: list[str | Path], out: Path, overwrite: bool
 
 def _read_part(folder: Path) -> _Part:
     """A finished shard's ``config.json`` (format and fingerprint checked) and summary."""
-    from vbl.engine.runfolder import check_fingerprint, check_format
+    from vbl.engine.runfolder import check_fingerprint, read_run_spec
     from vbl.engine.runner import defaults_spec
 
-    if not (folder / "config.json").is_file():
-        raise ParamError(f"{folder} is not a run folder (no config.json)")
-    try:
-        spec = read_json(folder / "config.json")
-    except (OSError, ValueError) as e:
-        raise ParamError(f"{folder}/config.json is unreadable: {e}") from None
-    if not isinstance(spec, dict) or "experiment" not in spec or "config" not in spec:
-        raise ParamError(f"{folder}/config.json is not a vbl run's config")
-    try:
-        check_format(spec, folder)
+    try:  # a folder given that is no shard is bad input: ParamError, exit 2
+        spec = read_run_spec(folder)
+        if "config" not in spec:
+            raise EngineError(f"{folder}/config.json is not a vbl run's config")
         check_fingerprint(spec, folder, defaults_spec(spec))
     except EngineError as e:
         raise ParamError(str(e)) from None

@@ -46,6 +46,24 @@ MARKER = ".vbl-run"
 ENGINE_FILES = ("config.json", "metrics.jsonl", "summary.json", "checkpoints")
 
 
+def read_run_spec(folder: Path) -> dict[str, Any]:
+    """The ``config.json`` content of run folder ``folder`` (its format checked); an
+    EngineError that says what is wrong when it is no run folder or its config is not a
+    vbl run's."""
+    if not folder.is_dir():
+        raise EngineError(f"{folder} is not a run folder (no such folder)")
+    if not (folder / "config.json").is_file():
+        raise EngineError(f"{folder} is not a run folder (no config.json)")
+    try:
+        spec = json.loads((folder / "config.json").read_text())
+    except (OSError, ValueError) as e:
+        raise EngineError(f"{folder}/config.json is unreadable: {e}") from None
+    if not isinstance(spec, dict) or "experiment" not in spec:
+        raise EngineError(f"{folder}/config.json is not a vbl run's config")
+    check_format(spec, folder)
+    return spec
+
+
 def check_format(spec: dict[str, Any], folder: str | Path) -> None:
     """Raise an EngineError unless the ``config.json`` content ``spec`` of ``folder`` has
     format :data:`RUN_FORMAT` (folders written before formats were recorded count as 1)."""
