@@ -209,6 +209,24 @@ def _history(out: Path) -> list[tuple]:
     return [(h["trial"], h["state"], h["value"], h["params"]) for h in sm["history"]]
 
 
+def _kill_when_written(proc: subprocess.Popen, metrics: Path, lines: int, timeout: float,
+                       poll: float) -> None:
+    """SIGKILL ``proc`` once ``metrics`` holds ``lines`` lines (polled every ``poll`` s);
+    fail if it ends first."""
+    try:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline and proc.poll() is None:
+            if metrics.exists() and len(metrics.read_text().splitlines()) >= lines:
+                break
+            time.sleep(poll)
+        assert proc.poll() is None, "the search ended before it could be killed"
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+
+
 def test_killed_search_resumes(toy, tmp_path):
     """SIGKILL in the middle of the second batch, then --resume: the same trials, each
     told once, the same values as a search never stopped."""
@@ -222,19 +240,8 @@ def test_killed_search_resumes(toy, tmp_path):
     out = tmp_path / "killed"
     proc = subprocess.Popen(vbl_cmd(*args, "--out", str(out)), env=env, cwd=REPO,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    try:
-        metrics = out / "batch-1" / "metrics.jsonl"
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and proc.poll() is None:
-            if metrics.exists() and len(metrics.read_text().splitlines()) >= 30:
-                break
-            time.sleep(0.02)
-        assert proc.poll() is None, "the search ended before it could be killed"
-        proc.send_signal(signal.SIGKILL)
-        proc.wait(timeout=30)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
+    metrics = out / "batch-1" / "metrics.jsonl"
+    _kill_when_written(proc, metrics, 30, timeout=120, poll=0.02)
     assert len(metrics.read_text().splitlines()) < 160
     with pytest.raises(EngineError, match="no search"):  # a run folder is not a search
         tune(toy, [SPACE[1]], trials=4, batch=2, seeds=2, sets=sets, out=out / "batch-0",
@@ -272,19 +279,8 @@ def test_killed_halving_search_resumes_mid_rung(toy, tmp_path):
     out, ref = tmp_path / "killed", tmp_path / "whole"
     proc = subprocess.Popen(vbl_cmd(*args, "--out", str(out)), env=env, cwd=REPO,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    try:
-        metrics = out / "batch-0" / "rung-1" / "metrics.jsonl"
-        deadline = time.monotonic() + 300
-        while time.monotonic() < deadline and proc.poll() is None:
-            if metrics.exists() and len(metrics.read_text().splitlines()) >= 6:
-                break
-            time.sleep(0.01)
-        assert proc.poll() is None, "the search ended before it could be killed"
-        proc.send_signal(signal.SIGKILL)
-        proc.wait(timeout=30)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
+    metrics = out / "batch-0" / "rung-1" / "metrics.jsonl"
+    _kill_when_written(proc, metrics, 6, timeout=300, poll=0.01)
     r = run_vbl(args + ["--out", str(out), "--resume"], env)
     assert r.returncode == 0, r.stderr[-3000:]
     r = run_vbl(args + ["--out", str(ref)], env)
