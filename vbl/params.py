@@ -207,13 +207,17 @@ def describe(obj_or_cls: Any, prefix: str = "") -> list[dict[str, Any]]:
     return rows
 
 
-def markdown_table(obj_or_cls: Any, prefix: str = "") -> str:
-    """A Markdown table of :func:`describe` rows (for ``docs/``)."""
+def markdown_table(obj_or_cls: Any, prefix: str = "",
+                   notes: dict[str, str] | None = None) -> str:
+    """A Markdown table of :func:`describe` rows (for ``docs/``); ``notes`` (path -> text)
+    are shown in brackets after a row's default."""
     lines = ["| parameter | default | unit | source | static | meaning | allowed |",
              "|---|---|---|---|---|---|---|"]
     for r in describe(obj_or_cls, prefix):
         d = r["default"]
         d = f"{d:g}" if isinstance(d, float) and math.isfinite(d) else d
+        if notes and r["path"] in notes:
+            d = f"{d} ({notes[r['path']]})"
         lines.append(f"| `{r['path']}` | {d} | {r['unit']} | {r['source']} | "
                      f"{'yes' if r['static'] else ''} | {r['doc']} | {r['bounds']} |")
     return "\n".join(lines)

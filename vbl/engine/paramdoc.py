@@ -87,14 +87,9 @@ def experiment_page(exp) -> str:
     for name, values in sorted(exp.presets.items()):
         for k, v in values.items():
             notes.setdefault(k, []).append(f"preset {name}: {v}")
-    table = markdown_table(exp.default_config).splitlines()
-    for i, row in enumerate(table[2:], start=2):
-        cells = row.split(" | ")
-        path = cells[0].strip("| `")
-        if path in notes:
-            cells[1] += " (" + "; ".join(notes.pop(path)) + ")"
-            table[i] = " | ".join(cells)
-    return "\n".join(lines + [""] + table)
+    table = markdown_table(exp.default_config,
+                           notes={k: "; ".join(v) for k, v in notes.items()})
+    return "\n".join([*lines, "", table])
 
 
 def regions(text: str) -> list[tuple[str, list[str], str]]:
