@@ -182,7 +182,6 @@ NOT_YET = {"docs/findings/camera_cost.md", "docs/findings/compile_cost.md",
            "docs/findings/learner_cost.md", "docs/findings/reproduce_budget.md",
            "docs/findings/fig5_action_based.md", "docs/findings/fig9_incremental.md",
            "docs/findings/ppo_comparator.md", "docs/findings/pruned_variants.md",
-           "docs/findings/table1_identification.md", "docs/findings/table3_noisy.md",
            "docs/findings/table2_shoot_pass.md", "docs/findings/grid_shooting.md"}
 
 
