@@ -177,8 +177,7 @@ def unbacked(doc: Path) -> list[tuple[str, str]]:
 
 
 #: documents whose prose is still being backed by committed files (empties as they pass)
-NOT_YET = {"docs/findings/camera_cost.md", "docs/findings/compile_cost.md",
-           "docs/findings/cva_cost.md", "docs/findings/env_step_cost.md",
+NOT_YET = {"docs/findings/cva_cost.md", "docs/findings/env_step_cost.md",
            "docs/findings/learner_cost.md", "docs/findings/reproduce_budget.md",
            "docs/findings/fig5_action_based.md", "docs/findings/fig9_incremental.md",
            "docs/findings/ppo_comparator.md", "docs/findings/pruned_variants.md",
