@@ -183,8 +183,7 @@ def unbacked(doc: Path) -> list[tuple[str, str]]:
 
 
 #: documents whose prose is still being backed by committed files (empties as they pass)
-NOT_YET = {"docs/findings/fig9_incremental.md",
-           "docs/findings/pruned_variants.md",
+NOT_YET = {"docs/findings/pruned_variants.md",
            "docs/findings/grid_shooting.md"}
 
 
