@@ -144,6 +144,29 @@ def test_report_and_confirmation_command(toy, halving, tmp_path):
     assert last["metrics"]["success_rate"]["per_seed"] == sm["confirmation"]["per_seed"]
 
 
+def test_the_defaults_run_on_the_confirmation_seeds(toy, halving):
+    """The config's values of the searched parameters run on the confirmation's fresh seeds:
+    what a plain run of the defaults on those seeds gives, and the gain against it is the
+    difference of the two runs' means."""
+    from vbl.engine.runner import resolve
+    from vbl.params import get_path
+
+    sm = halving.summary
+    base, conf = sm["defaults"], sm["confirmation"]
+    config = resolve(toy, SETS, None, 4, 1, False, None)[0]
+    assert base["params"] == {p: get_path(config, p) for p in
+                              ("agent.learning_rate", "agent.epsilon")}
+    assert base["seeds"] == conf["seeds"] == 4 and base["base_seed"] == conf["base_seed"] == 1
+    assert "--set agent.learning_rate" not in base["command"]
+    plain = run_experiment(toy, sets=SETS, seeds=4, base_seed=1, quiet=True, plots=False,
+                           out=halving.out_dir.parent / "plain-defaults")
+    np.testing.assert_allclose(base["per_seed"], plain.curves["success_rate"][0, -1],
+                               rtol=1e-6)
+    gain = sm["confirmation_minus_defaults"]["diff"]
+    assert gain == pytest.approx(np.mean(conf["per_seed"]) - np.mean(base["per_seed"]))
+    assert "on the same fresh seeds" in halving.report.read_text()
+
+
 def test_grid_over_static_and_traced_values_with_a_final_metric(toy, tmp_path):
     """The grid sampler visits every point once, batch after batch; a static parameter
     splits a batch into compile groups; a final metric, minimised; the experiment's default

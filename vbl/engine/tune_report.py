@@ -16,6 +16,7 @@ from vbl.engine.errors import EngineError
 from vbl.engine.results import write_json
 from vbl.engine.runner import run_experiment
 from vbl.engine.tune import TuneResult, learner_chunks, require_optuna
+from vbl.params import get_path
 from vbl.stats import bounded_ci95, mean_ci95, welch_ci95
 
 __all__ = ["finish", "interval", "confirm_command"]
@@ -56,14 +57,14 @@ def confirm_command(s, params: dict[str, Any]) -> str:
     return " ".join(shlex.quote(w) for w in words)
 
 
-def _confirm(s, folder, number: int, params: dict[str, Any]) -> dict[str, Any]:
-    """Run the best trial (``number``) on ``confirm_seeds`` fresh seeds (base seed ``seed +
-    1``) into ``confirm-trial<number>-<seeds>seeds/`` (a resumed search whose best trial or
-    confirmation seeds changed writes a new folder): its metric's values and interval."""
-    name = f"confirm-trial{number}-{s.spec['confirm_seeds']}seeds"
+def _confirm(s, folder, name: str, what: str, params: dict[str, Any]) -> dict[str, Any]:
+    """Run ``params`` (the best trial's values, or ``{}`` for the config's own) on
+    ``confirm_seeds`` fresh seeds (base seed ``seed + 1``) into the folder ``name`` (a
+    resumed search whose best trial or confirmation seeds changed writes a new folder):
+    its metric's values and interval."""
     out = s.out / name
     folder.record(name)
-    s.echo(f"confirmation: the best trial on {s.spec['confirm_seeds']} fresh seeds")
+    s.echo(f"confirmation: {what} on {s.spec['confirm_seeds']} fresh seeds")
     res = run_experiment(s.experiment, sets={**s.sets, **params},
                          seeds=s.spec["confirm_seeds"], base_seed=s.spec["seed"] + 1,
                          out=out, resume=out.exists(), quick=s.spec["quick"],
@@ -71,7 +72,13 @@ def _confirm(s, folder, number: int, params: dict[str, Any]) -> dict[str, Any]:
                          checkpoint_every=s.checkpoint_every)
     vals = res.final[s.metric][0] if s.is_final else res.curves[s.metric][0, -1]
     return {**interval(vals, s.metric), "base_seed": s.spec["seed"] + 1,
-            "run": name, "command": confirm_command(s, params)}
+            "run": name, "command": confirm_command(s, params),
+            "params": {p: _listed(get_path(res.config, p)) for p in s.space}}
+
+
+def _listed(v: Any) -> Any:
+    """A config value as JSON writes it (tuples as lists)."""
+    return list(v) if isinstance(v, tuple) else v
 
 
 def _compute(s, trials: list) -> dict[str, Any]:
@@ -154,8 +161,13 @@ def finish(s, study, folder, wall: float) -> TuneResult:
     best = study.best_trial
     params = {p: best.params[p] for p in s.space}
     search = interval(best.user_attrs["per_seed"], s.metric)
-    confirm = _confirm(s, folder, best.number, params)
+    seeds = s.spec["confirm_seeds"]
+    confirm = _confirm(s, folder, f"confirm-trial{best.number}-{seeds}seeds", "the best trial",
+                       params)
+    defaults = _confirm(s, folder, f"confirm-defaults-{seeds}seeds",
+                        "the config's values of the searched parameters", {})
     diff, half = welch_ci95(search["per_seed"], confirm["per_seed"])
+    gain, gain_half = welch_ci95(confirm["per_seed"], defaults["per_seed"])
     importances, why = _importances(optuna, study)
     summary = {
         "experiment": s.experiment.name, "metric": s.metric,
@@ -163,6 +175,8 @@ def finish(s, study, folder, wall: float) -> TuneResult:
         "search": {**search, "run": best.user_attrs.get("run"),
                    "point": best.user_attrs.get("point"), "base_seed": s.spec["seed"]},
         "confirmation": confirm, "search_minus_confirmation": {"diff": diff, "ci95": half},
+        "defaults": defaults,
+        "confirmation_minus_defaults": {"diff": gain, "ci95": gain_half},
         "trials": {"ran": len(trials), "complete": len(done),
                    "pruned": sum(t.state == states.PRUNED for t in trials),
                    "failed": sum(t.state == states.FAIL for t in trials)},
@@ -201,9 +215,9 @@ def _cell(iv: dict[str, Any]) -> str:
 
 
 def _markdown(s, sm: dict[str, Any], figures: list[str]) -> str:
-    c, comp = sm["confirmation"], sm["compute"]
+    c, comp, base = sm["confirmation"], sm["compute"], sm["defaults"]
     params = ", ".join(f"`{p}` = {v!r}" for p, v in sm["params"].items())
-    d = sm["search_minus_confirmation"]
+    d, g = sm["search_minus_confirmation"], sm["confirmation_minus_defaults"]
     lines = [
         f"# vbl tune: {s.experiment.name}", "",
         f"{sm['trials']['ran']} trials ({sm['trials']['complete']} complete, "
@@ -220,11 +234,17 @@ def _markdown(s, sm: dict[str, Any], figures: list[str]) -> str:
         f"{sm['search']['seeds']} ({sm['search']['base_seed']}) | {_cell(sm['search'])} | "
         f"{sm['search']['run']} |",
         f"| confirmation on fresh seeds | {c['seeds']} ({c['base_seed']}) | {_cell(c)} | "
-        f"{c['run']} |", "",
+        f"{c['run']} |",
+        "| the config's values ("
+        + ", ".join(f"`{p}` = {v!r}" for p, v in base["params"].items())
+        + f") on the same fresh seeds | {base['seeds']} ({base['base_seed']}) | "
+        f"{_cell(base)} | {base['run']} |", "",
         f"Search minus confirmation: {_num(d['diff'])} ± {_num(d['ci95'])} (Welch 95 %). "
         "The search's estimate of its winner is the best of many noisy estimates, biased in "
         "the winner's favour on average (the winner's curse); the confirmation, on seeds "
-        "the search never saw, is the estimate to quote.",
+        "the search never saw, is the estimate to quote.", "",
+        f"Confirmation minus the config's values: {_num(g['diff'])} ± {_num(g['ci95'])} "
+        "(Welch 95 %, the same seeds): what the search gained over the defaults.",
         "", f"Reproduce the confirmation run: `{c['command']}`", "",
         f"Compute: {comp['learner_chunks']:,} learner-chunks run, a full grid of the same "
         f"trials {comp['full_grid_learner_chunks']:,} ({100 * comp['saved']:.1f} % saved; "
