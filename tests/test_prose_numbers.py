@@ -183,8 +183,7 @@ def unbacked(doc: Path) -> list[tuple[str, str]]:
 
 
 #: documents whose prose is still being backed by committed files (empties as they pass)
-NOT_YET = {"docs/findings/pruned_variants.md",
-           "docs/findings/grid_shooting.md"}
+NOT_YET = {"docs/findings/grid_shooting.md"}
 
 
 @pytest.mark.parametrize("doc", [d for d in CHECKED if _rel(d) not in NOT_YET], ids=_rel)
