@@ -204,6 +204,26 @@ def test_table2_ablation(capsys, tmp_path):
         assert all(p >= 1.0 for p in r["primitives_per_decision"])  # a decision >= 1 primitive
 
 
+@pytest.mark.slow  # about 3 CPU-min: a tiny vbl tune compiles the tabular program 3 times
+def test_table2_tuned_tiny(capsys, tmp_path):
+    """The tuning probe at toy size: one row's search, its confirmation and the defaults
+    on the same fresh seeds, read into the results file with the command that reran it."""
+    import json
+
+    out = tmp_path / "tuned"
+    printed = run_probe("table2_tuned", ["--tiny", "--out", str(out)], capsys)
+    row = json.loads((out / "table2_tuned.json").read_text())["rows"]["shoot, current"]
+    assert len(row["tuned"]) == len(row["default"]) == 2
+    from vbl.engine.registry import get
+    from vbl.engine.runner import resolve
+    from vbl.params import get_path
+
+    config = resolve(get("table2_shoot_pass"), quick=True)[0]
+    assert row["defaults"] == {p: get_path(config, p) for p in row["best"]}
+    assert 0.05 <= row["best"]["agent.learning_rate"] <= 0.8
+    assert "--set env.task_pass=false" in row["command"] and "| shoot, current |" in printed
+
+
 def test_table2_ablation_table_is_the_committed_results(capsys):
     """The findings' ablation table is the committed results file's."""
     committed = run_probe("table2_ablation", ["--table"], capsys).strip()

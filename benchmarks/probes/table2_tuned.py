@@ -1,0 +1,136 @@
+"""Probe: Table 2 with each row's learner tuned at an equal budget (``vbl tune``).
+
+Table 2's defaults (one-step Q-learning's step size, discount and final exploration rate)
+were chosen by the mean over its rows, so no row has its own best learner. Here each of
+the eight rows (task x state vector) gets its own search at ``--quick`` scale with the
+same budget: ``TRIALS`` random settings of ``SPACE`` x ``SEEDS`` seeds in one batch (one
+compilation), then the best setting and the config's own values on ``CONFIRM`` fresh
+seeds (``vbl tune``'s confirmation, the same seeds for both). The comparison between
+state vectors is then made between their confirmed best learners.
+
+Not an experiment and not a benchmark; run from the repository root:
+
+    python benchmarks/probes/table2_tuned.py [--out runs/table2_tuned] [--rows NAME ...]
+    python benchmarks/probes/table2_tuned.py --table    # the note's table, from the JSON
+    python benchmarks/probes/table2_tuned.py --tiny --out DIR   # a smoke test
+
+Each row is one ``vbl tune`` process (its command is in the results file); the probe
+writes ``benchmarks/results/table2_tuned.json`` (per row: the search's settings, the best
+values, the per-seed greedy success of the best values and of the defaults on the fresh
+seeds), keeping rows of earlier invocations it does not rerun (``--tiny`` writes into
+``--out`` only). Cited by docs/findings/table2_shoot_pass.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+RESULTS = ROOT / "benchmarks" / "results" / "table2_tuned.json"
+EXPERIMENT = "table2_shoot_pass"
+#: the searched parameters of the one-step learner (defaults 0.25, 0.99, 0.05)
+SPACE = ("agent.learning_rate=0.05..0.8:log", "agent.discount=0.9..0.999",
+         "agent.exploration.end_value=0.01..0.2")
+TRIALS, SEEDS, CONFIRM = 12, 8, 16
+METRIC = "greedy_success"
+STATES = {"current": (False, False), "current + true velocity": (False, True),
+          "cva": (True, False), "cva + true velocity": (True, True)}
+ROWS = {f"{task}, {state}": {"env.task_pass": task == "pass", "cva.use_cva": cva,
+                             "ball_velocity": vel}
+        for task in ("shoot", "pass") for state, (cva, vel) in STATES.items()}
+TINY = {"agent.num_envs": 4, "agent.chunk_steps": 10, "env.max_steps": 10,
+        "train.num_chunks": 2, "train.eval_rounds": 1, "cva.collect_steps": 600,
+        "cva.quantizer.group_codes": (4, 2, 2), "cva.quantizer.kmeans_iters": 1}
+
+
+def _value(v) -> str:
+    if isinstance(v, tuple):
+        return "(" + ",".join(map(str, v)) + ")"
+    return str(v).lower() if isinstance(v, bool) else str(v)
+
+
+def command(row: str, out: Path, tiny: bool) -> list[str]:
+    """The ``vbl tune`` command of ``row`` into ``out``."""
+    sets = {**ROWS[row], **(TINY if tiny else {})}
+    trials, seeds, confirm = (2, 2, 2) if tiny else (TRIALS, SEEDS, CONFIRM)
+    argv = ["vbl", "tune", EXPERIMENT, "--quick", "--trials", str(trials), "--batch",
+            str(trials), "--seeds", str(seeds), "--confirm-seeds", str(confirm),
+            "--sampler", "random", "--metric", METRIC, "--quiet", "--out", str(out)]
+    for s in SPACE:
+        argv += ["--space", s]
+    for p, v in sets.items():
+        argv += ["--set", f"{p}={_value(v)}"]
+    return argv
+
+
+def run(row: str, out: Path, tiny: bool) -> dict:
+    """Tune ``row`` into ``out / <row>`` (a finished search is read, not run again)."""
+    folder = out / row.replace(", ", "-").replace(" + ", "+").replace(" ", "_")
+    argv = command(row, folder, tiny)
+    if not (folder / "summary.json").exists():
+        vbl = [sys.executable, "-m", "vbl.cli"]  # the installed `vbl` of this interpreter
+        subprocess.run(vbl + argv[1:] + (["--resume"] if folder.exists() else []),
+                       check=True, cwd=ROOT)
+    sm = json.loads((folder / "summary.json").read_text())
+    return {"command": " ".join(argv[:-2] + ["--out", f"runs/table2_tuned/{folder.name}"]),
+            "best": sm["params"], "defaults": sm["defaults"]["params"],
+            "tuned": sm["confirmation"]["per_seed"], "default": sm["defaults"]["per_seed"],
+            "search": sm["search"]["per_seed"], "learner_chunks":
+            sm["compute"]["learner_chunks"]}
+
+
+def _cell(values) -> str:
+    from vbl.stats import mean_ci95
+
+    m, h = mean_ci95(100 * np.asarray(values, np.float64))
+    return f"{m:.1f} ± {h:.1f}"
+
+
+def table(data: dict) -> str:
+    """Per row: the defaults' and the tuned learner's greedy success % on the same fresh
+    seeds, their difference (Welch 95 %) and the best values."""
+    from vbl.stats import welch_ci95
+
+    lines = ["| row | defaults % | tuned % | tuned − defaults | step size | discount | "
+             "final epsilon |", "|---|---|---|---|---|---|---|"]
+    for row, r in data["rows"].items():
+        d, h = welch_ci95(100 * np.asarray(r["tuned"]), 100 * np.asarray(r["default"]))
+        b = r["best"]
+        lines.append(f"| {row} | {_cell(r['default'])} | {_cell(r['tuned'])} | "
+                     f"{d:+.1f} ± {h:.1f} | {b['agent.learning_rate']:.3f} | "
+                     f"{b['agent.discount']:.3f} | {b['agent.exploration.end_value']:.3f} |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--out", type=Path, default=ROOT / "runs" / "table2_tuned")
+    p.add_argument("--rows", nargs="+", choices=list(ROWS), default=list(ROWS))
+    p.add_argument("--tiny", action="store_true", help="a smoke test at toy size")
+    p.add_argument("--table", action="store_true", help="print the table of the results file")
+    args = p.parse_args(argv)
+    if args.table:
+        print(table(json.loads(RESULTS.read_text())))
+        return 0
+    rows = ["shoot, current"] if args.tiny else args.rows
+    target = args.out / "table2_tuned.json" if args.tiny else RESULTS
+    data = json.loads(target.read_text()) if target.exists() else {}
+    data.update({"experiment": EXPERIMENT, "space": list(SPACE), "trials": TRIALS,
+                 "seeds": SEEDS, "confirm_seeds": CONFIRM, "metric": METRIC})
+    data.setdefault("rows", {})
+    for row in rows:
+        data["rows"][row] = run(row, args.out, args.tiny)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_text(json.dumps(data, indent=1) + "\n")
+    print(table(data))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
