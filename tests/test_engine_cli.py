@@ -144,8 +144,10 @@ def test_sigkill_then_resume_equals_uninterrupted(setup):
 
 
 def test_vbl_host_devices_sets_the_jax_device_count(monkeypatch):
+    from vbl.engine import process
     from vbl.engine.process import use_all_cores
 
+    monkeypatch.setattr(process, "jax_started", lambda: False)  # as before JAX starts
     monkeypatch.delenv("XLA_FLAGS", raising=False)
     monkeypatch.delenv("VBL_HOST_DEVICES", raising=False)
     cores = len(os.sched_getaffinity(0))

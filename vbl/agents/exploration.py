@@ -16,15 +16,17 @@ Greedy choices break ties uniformly at random with an explicit key.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 from flax import struct
 
 from vbl.params import ParamError, param
+
+if TYPE_CHECKING:  # optax loads with to_optax, not with the module (vbl's start-up)
+    import optax
 
 __all__ = [
     "SCHEDULE_KINDS",
@@ -127,6 +129,8 @@ def schedule_value(p: ScheduleParams, count: Any) -> jax.Array:
 
 def to_optax(p: ScheduleParams) -> optax.Schedule:
     """The equivalent optax schedule (needs concrete Python numbers, not traced ones)."""
+    import optax
+
     init, end = float(p.init_value), float(p.end_value)
     steps, begin = float(p.transition_steps), float(p.transition_begin)
     if p.schedule == "constant":

@@ -10,7 +10,7 @@ _EXPORTS = {
     "RunContext": "experiment", "RunResult": "experiment", "EngineError": "errors",
     "register": "registry", "get": "registry", "discover": "registry",
     "all_experiments": "registry", "run_experiment": "runner",
-    "CheckpointError": "checkpoint",
+    "CheckpointError": "checkpoint", "use_all_cores": "process",
 }
 __all__ = list(_EXPORTS)
 

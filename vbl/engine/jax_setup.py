@@ -11,17 +11,26 @@
   duration of a run (``jax.enable_x64``, a context manager: the user's own JAX code
   outside a run is untouched).
 * :data:`COMPILER_OPTIONS`: the XLA options the engine compiles its programs with.
+* :func:`compile_shared`: with the cache on, processes that share it (the shards of a run
+  started together on one machine) compile each program once: the first compiles and
+  writes the cache while the others wait, then read it.
 """
 
 from __future__ import annotations
 
 import contextlib
+import fcntl
+import hashlib
 import os
+import time
+from collections.abc import Iterator
+from pathlib import Path
 
 import jax
 
 __all__ = ["use_compilation_cache", "engine_precision", "CACHE_MIN_COMPILE_S",
-           "COMPILER_OPTIONS"]
+           "COMPILER_OPTIONS", "compile_shared", "program_lock", "COMPILE_WAIT_S",
+           "LOCKS_DIR"]
 
 CACHE_MIN_COMPILE_S = 1.0  #: s; programs that compile faster are not written to the cache
 
@@ -51,3 +60,64 @@ def engine_precision() -> contextlib.AbstractContextManager:
     """Context in which the engine plans, compiles and runs an experiment (64-bit types
     enabled, restored on exit)."""
     return jax.enable_x64(True)
+
+
+COMPILE_WAIT_S = 3600.0
+"""Seconds a process waits for another's compilation of the same program before it
+compiles the program itself (a compilation of the largest programs takes minutes)."""
+
+LOCKS_DIR = "vbl-locks"  #: the lock files' folder in the compilation cache's folder
+
+
+@contextlib.contextmanager
+def program_lock(path: str | os.PathLike, wait_s: float = COMPILE_WAIT_S,
+                 poll_s: float = 0.2) -> Iterator[bool]:
+    """Hold the exclusive ``flock`` of the file ``path`` (made when missing) in the
+    ``with`` block, waiting at most ``wait_s`` seconds for another holder; yields whether
+    it is held. A lock that cannot be made or taken (a read-only folder, a file system
+    without locks) or that stays taken yields False: the block runs unlocked, as it would
+    without the lock. The lock ends with the block, or with the process."""
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError:
+        yield False
+        return
+    try:
+        held, end = False, time.monotonic() + wait_s
+        while True:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                held = True
+                break
+            except BlockingIOError:
+                if time.monotonic() >= end:
+                    break
+                time.sleep(poll_s)
+            except OSError:
+                break
+        yield held
+    finally:
+        os.close(fd)  # drops the lock
+
+
+def _cache_in_use() -> str | None:
+    """The compilation cache's folder this process writes (None: no cache)."""
+    return jax.config.jax_compilation_cache_dir or None
+
+
+def compile_shared(fn, *args) -> None:
+    """Compile the jitted ``fn`` for ``args`` (its next call runs the compiled program)
+    holding a lock named by the program's hash in the compilation cache's folder: of
+    several processes compiling the same program at once, the first compiles it and writes
+    it to the cache, the others wait and then read it (a program that compiles in less than
+    :data:`CACHE_MIN_COMPILE_S` is not cached: they compile it again). Without the cache,
+    or in a multi-process run, ``fn`` compiles at its first call as usual."""
+    where = _cache_in_use()
+    if not where or jax.process_count() > 1:
+        return
+    lowered = fn.lower(*args)
+    key = hashlib.sha256(lowered.as_text().encode()).hexdigest()[:32]
+    with program_lock(Path(where) / LOCKS_DIR / f"{key}.lock"):
+        lowered.compile()

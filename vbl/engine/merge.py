@@ -22,6 +22,7 @@ import numpy as np
 from vbl.engine.errors import EngineError
 from vbl.engine.experiment import Experiment, RunResult
 from vbl.engine.jax_setup import engine_precision
+from vbl.engine.report import write_report
 from vbl.engine.results import read_json, read_metrics, seed_stats, write_json
 from vbl.engine.runfolder import differing, open_run_folder
 from vbl.engine.sweep import Shard, SweepPlan, make_plan
@@ -56,7 +57,8 @@ def merge_runs(folders: list[str | Path], out: str | Path, overwrite: bool = Fal
     run folder ``out`` (never an existing one, unless ``overwrite`` and vbl wrote it:
     :func:`vbl.engine.runfolder.open_run_folder`).
 
-    Returns ``(experiment, RunResult)`` as ``run_experiment`` returns it for the whole run.
+    Writes ``report.md`` as ``run_experiment`` does for the whole run, and returns
+    ``(experiment, RunResult)`` as it does.
     Raises ParamError (one line) for folders that are not the finished parts of one run,
     EngineError when ``out`` cannot be written.
     """
@@ -86,6 +88,7 @@ def _merge(folders: list[str | Path], out: Path, overwrite: bool
         result.summary.update(_how(parts, plan))
         folder.record("summary.json")
         write_json(out / "summary.json", result.summary)
+        write_report(exp, result, "merge")
     finally:
         folder.release()
     return exp, result

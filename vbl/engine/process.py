@@ -19,7 +19,7 @@ from vbl.engine.errors import (
 
 __all__ = ["use_all_cores", "usable_cores", "MAX_DEVICES_PER_CORE", "COLLECTIVE_TIMEOUT_S",
            "quiet_xla", "end_process", "safe_streams", "home_for_caches", "quiet_process",
-           "rerun_with_quiet_xla"]
+           "rerun_with_quiet_xla", "jax_started", "one_device_hint"]
 
 
 def usable_cores() -> int:
@@ -39,19 +39,35 @@ COLLECTIVE_TIMEOUT_S = 3600
 thread can wait that long for a core)."""
 
 
+def jax_started() -> bool:
+    """Whether JAX has made its devices (its first computation, or ``jax.devices()``): from
+    then on ``XLA_FLAGS`` no longer changes them."""
+    if "jax" not in sys.modules:
+        return False
+    try:
+        from jax._src import xla_bridge
+
+        return bool(xla_bridge.backends_are_initialized())
+    except (ImportError, AttributeError):  # another JAX: assume the worst
+        return True
+
+
 def use_all_cores() -> int:
-    """Expose every usable CPU core as a JAX host device (call before JAX starts).
+    """Expose every usable CPU core as a JAX host device. The ``vbl`` command calls it
+    first; a script calls it before its first JAX computation (``import jax`` before it is
+    fine): ``from vbl.engine import use_all_cores; use_all_cores()``.
 
     Sets ``--xla_force_host_platform_device_count=N`` with N = the cores this process may
     use, or ``VBL_HOST_DEVICES=N`` when given (1: one device, as plain JAX), and, with
     N > 1, the wait at collectives to ``COLLECTIVE_TIMEOUT_S`` unless ``XLA_FLAGS`` sets
     it. The engine shards the learner axis over the N devices (results do not depend on N,
     up to the last-bit effect of the per-device batch size described in docs/engine.md).
-    An ``XLA_FLAGS`` that already sets the count wins. Returns the count set (0 when
-    nothing was changed).
+    An ``XLA_FLAGS`` that already sets the count wins. Once JAX has started
+    (:func:`jax_started`) nothing changes. Returns the count set (0 when nothing was
+    changed).
     """
     flags = os.environ.get("XLA_FLAGS", "")
-    if "xla_force_host_platform_device_count" in flags:
+    if "xla_force_host_platform_device_count" in flags or jax_started():
         return 0
     cores = usable_cores()
     raw = os.environ.get("VBL_HOST_DEVICES", "").strip() or str(cores)
@@ -71,6 +87,29 @@ def use_all_cores() -> int:
         flags += f" --xla_cpu_collective_call_terminate_timeout_seconds={COLLECTIVE_TIMEOUT_S}"
     os.environ["XLA_FLAGS"] = flags.strip()
     return n
+
+
+_HINTED: list[bool] = []
+
+
+def one_device_hint() -> str | None:
+    """The hint ``run_experiment`` prints once per process when JAX runs on one CPU
+    device and more cores are usable, and neither ``VBL_HOST_DEVICES`` nor ``XLA_FLAGS``
+    chose the device count (None otherwise, and after the first time)."""
+    import jax
+
+    if (_HINTED or jax.default_backend() != "cpu" or jax.local_device_count() != 1
+            or "xla_force_host_platform_device_count" in os.environ.get("XLA_FLAGS", "")
+            or os.environ.get("VBL_HOST_DEVICES", "").strip()):
+        return None
+    cores = usable_cores()
+    if cores < 2:
+        return None
+    _HINTED.append(True)
+    return (f"vbl: hint: this run uses 1 of the {cores} usable CPU cores; to use them all "
+            f"(as `vbl run` does), call vbl.engine.use_all_cores() at the start of the "
+            f"script, before its first JAX computation (VBL_HOST_DEVICES=1 keeps one device "
+            f"and silences this)")
 
 
 def quiet_xla() -> None:

@@ -37,9 +37,20 @@ def bar_width() -> int | None:
 
 
 def auto_quiet() -> bool:
-    """True when stderr is not a terminal or ``CI`` is set to true."""
+    """True when ``CI`` is set to true, or stderr is not a terminal and the process is
+    no Jupyter (IPython) kernel, whose cells show the bar (``tqdm.auto``)."""
     ci = os.environ.get("CI", "").strip().lower() in ("1", "true", "yes")
-    return ci or not sys.stderr.isatty()
+    return ci or not (sys.stderr.isatty() or _in_kernel())
+
+
+def _in_kernel() -> bool:
+    """Whether this process is an IPython kernel (a Jupyter notebook's)."""
+    ipython = sys.modules.get("IPython")
+    try:
+        shell = ipython.get_ipython() if ipython is not None else None
+    except Exception:  # noqa: BLE001 - a broken IPython is no kernel
+        return False
+    return shell is not None and "IPKernelApp" in getattr(shell, "config", {})
 
 
 class Progress:

@@ -188,9 +188,32 @@ def all_experiments() -> dict[str, Experiment]:
     return dict(sorted(_REGISTRY.items()))
 
 
+def _load_named(name: str) -> None:
+    """Import ``<name>.py`` of :func:`experiment_dirs` alone, when there is one: the script
+    that usually registers experiment ``name`` (a failure is recorded as by
+    :func:`discover`, which then skips the file)."""
+    if not name.isidentifier() or name.startswith("_"):
+        return
+    for d in experiment_dirs():
+        path = (d / f"{name}.py").resolve()
+        if not path.is_file():
+            continue
+        if path not in _DISCOVERED and str(path) not in _SOURCES.values():
+            _DISCOVERED.add(path)
+            try:
+                load_script(path)
+            except Exception as e:  # noqa: BLE001 - as discover(): recorded, then listed
+                _IMPORT_ERRORS[str(path)] = "".join(
+                    traceback.format_exception_only(type(e), e)).strip()
+        return
+
+
 def get(name: str) -> Experiment:
-    """The experiment called ``name`` (discovering scripts first); an unknown name is a
-    ParamError that lists the valid ones."""
+    """The experiment called ``name`` (the script ``<name>.py`` of the experiment folders
+    first, then every script); an unknown name is a ParamError that lists the valid
+    ones."""
+    if name not in _REGISTRY:
+        _load_named(name)
     if name not in _REGISTRY:
         discover()
     if name not in _REGISTRY:

@@ -11,13 +11,14 @@ from typing import Any
 
 import numpy as np
 
+from vbl.engine.errors import EngineError, one_line
 from vbl.engine.experiment import Experiment, ReportSection, RunResult
 from vbl.engine.plots import is_rate
 from vbl.engine.runfolder import record_files
 from vbl.stats import bounded_ci95, mean_ci95, seeds_to_resolve, t_quantile_975, welch_ci95
 
-__all__ = ["default_section", "run_report", "headline_table", "TABLE_COLUMNS", "stat_cell",
-           "seeds_cell", "rate_cell", "RATE", "claim", "url_path", "figure_path"]
+__all__ = ["default_section", "run_report", "write_report", "headline_table", "TABLE_COLUMNS",
+           "stat_cell", "seeds_cell", "rate_cell", "RATE", "claim", "url_path", "figure_path"]
 
 
 TABLE_COLUMNS = 100  #: the width ``vbl run``'s terminal table keeps to
@@ -79,6 +80,17 @@ def run_report(exp: Experiment, result: RunResult) -> tuple[ReportSection, Path]
     finally:
         record_files(out_dir, {p.name for p in out_dir.iterdir()} - before)
     return ReportSection(section.markdown, figs), path
+
+
+def write_report(exp: Experiment, result: RunResult, what: str = "run") -> Path:
+    """:func:`run_report` as ``run_experiment`` and ``vbl merge`` write it after the
+    ``what`` (the results are written by then): a report that fails is an EngineError
+    saying so. Returns ``report.md``."""
+    try:
+        return run_report(exp, result)[1]
+    except Exception as e:  # noqa: BLE001 - the results are written; say so
+        raise EngineError(f"the {what} finished (results in {result.out_dir}) but its "
+                          f"report failed: {one_line(e)}") from e
 
 
 def _cell(name: str, st: dict[str, Any]) -> str:

@@ -116,7 +116,8 @@ def _run_one(job: Job, out: Path, quick: bool, quiet: bool | None, resume: bool,
         if exp is None:
             exp = paper_experiments()[job.name]
         result = run_experiment(exp, out=folder, quick=quick, quiet=quiet, preset=job.preset,
-                                resume=resume and folder.exists(), overwrite=overwrite)
+                                resume=resume and folder.exists(), overwrite=overwrite,
+                                report=False)  # its section, built here, goes in both
         section, _ = run_report(exp, result)
         status = "ok"
     except Exception as e:  # noqa: BLE001 - report and continue with the others

@@ -13,20 +13,21 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 import numpy as np
 from jax.experimental import multihost_utils
 
-from vbl.engine.checkpoint import Checkpoints
 from vbl.engine.config import INT32, apply_overrides, config_to_dict, fingerprint
 from vbl.engine.errors import EngineError
 from vbl.engine.experiment import Experiment, RunContext, RunResult
-from vbl.engine.jax_setup import COMPILER_OPTIONS, engine_precision
+from vbl.engine.jax_setup import COMPILER_OPTIONS, compile_shared, engine_precision
 from vbl.engine.memory import check_memory
 from vbl.engine.plots import plot_curves, plot_names
+from vbl.engine.process import one_device_hint
 from vbl.engine.progress import STATUS_FILE, Progress, auto_quiet
+from vbl.engine.report import write_report
 from vbl.engine.results import (
     MetricsLog,
     metric_arrays,
@@ -49,6 +50,9 @@ from vbl.engine.runfolder import (
 from vbl.engine.sharding import batch_layout, learner_sharding, pad_index, put, to_host
 from vbl.engine.sweep import Group, Shard, SweepPlan, make_plan, parse_shard
 from vbl.params import ParamError
+
+if TYPE_CHECKING:  # the checkpoint library loads with the first run, not with the module
+    from vbl.engine.checkpoint import Checkpoints
 
 __all__ = ["run_experiment", "resolve", "describe_sweep", "load_result", "defaults_spec",
            "shard_spec", "whole_spec"]
@@ -143,8 +147,10 @@ def run_experiment(experiment: Experiment, *, sets: Mapping[str, Any] | None = N
                    shard: Shard | str | None = None,
                    tensorboard: str | Path | None = None, zipped: bool = False,
                    span: tuple[int, int] | None = None,
-                   start_carry: Callable[[Any], Any] | None = None) -> RunResult:
-    """Run ``experiment`` over ``sweep`` x ``seeds`` and write its run folder.
+                   start_carry: Callable[[Any], Any] | None = None,
+                   report: bool = True) -> RunResult:
+    """Run ``experiment`` over ``sweep`` x ``seeds`` and write its run folder, with its
+    ``report.md`` as ``vbl run`` writes it.
 
     Args:
       sets: ``{dotted.path: value}`` overrides (validated). ``sweep``: ``{path: [values]}``
@@ -169,6 +175,11 @@ def run_experiment(experiment: Experiment, *, sets: Mapping[str, Any] | None = N
         ``first > 0`` the carries at chunk ``first`` come from ``start_carry(like)``, a host
         tree shaped like ``like`` (the group's carries, ``[learners, ...]``). Both are
         recorded in ``config.json``.
+      quiet: no progress bar (None: quiet when stderr is no terminal or Jupyter kernel,
+        or ``CI`` is set), as ``vbl run``. Not quiet, a run on one CPU device of a
+        machine with more cores prints one hint: :func:`vbl.engine.use_all_cores`.
+      report: write ``report.md`` (:func:`vbl.engine.report.run_report`; a shard writes
+        none).
     Everything is checked (values, memory, folder) before the folder is written; the folder
     is locked while the run writes it (:mod:`vbl.engine.runfolder`).
     Returns: a :class:`RunResult` (curves/final as NumPy arrays, on process 0; empty for a
@@ -176,31 +187,19 @@ def run_experiment(experiment: Experiment, *, sets: Mapping[str, Any] | None = N
     Raises: ParamError (bad overrides), EngineError / CheckpointError (folder, checkpoint,
     memory).
     """
-    _check_chunking(checkpoint_every, learner_batch)
-    if tensorboard is not None:
-        from vbl.engine.tensorboard import require_tensorboardx
-
-        require_tensorboardx()
+    _check_options(checkpoint_every, learner_batch, tensorboard, out)
     primary = jax.process_index() == 0
-    if jax.process_count() > 1 and out is None:
-        raise EngineError("a multi-process run needs --out on a shared file system")
     config, full_sweep, seeds, spec = resolve(experiment, sets, sweep, seeds, base_seed, quick,
                                               preset)
-    spec = _partial_spec(spec, zipped, span)
-    if shard is not None:
-        shard = shard if isinstance(shard, Shard) else parse_shard(shard)
-        if experiment.make_program is None:
-            raise ParamError(f"{experiment.name} runs its own loop (Experiment.run): --shard "
-                             f"needs an experiment with make_program")
-        spec = shard_spec(spec, shard)
-    plan = make_plan(experiment, config, full_sweep, seeds, base_seed, shard, zipped) \
-        if experiment.make_program is not None else None
+    shard = shard if shard is None or isinstance(shard, Shard) else parse_shard(shard)
+    spec, plan = _plan(experiment, config, full_sweep, seeds, base_seed,
+                       _partial_spec(spec, zipped, span), shard, zipped)
     _check_span(plan, span, start_carry)
     if plan is not None and memory_check:
         check_memory(plan)
     if plan is not None:
         plan.validate()
-    quiet = (auto_quiet() if quiet is None else quiet) or not primary
+    quiet = _quiet(quiet, primary)
 
     folder = open_run_folder(out, experiment.name, resume=resume, overwrite=overwrite,
                              primary=primary)
@@ -209,9 +208,47 @@ def run_experiment(experiment: Experiment, *, sets: Mapping[str, Any] | None = N
                None if tensorboard is None else Path(tensorboard),
                None if span is None else (int(span[0]), int(span[1])), start_carry)
     try:
-        return _run_in(run)
+        result = _run_in(run)
+        if report and primary and shard is None:
+            write_report(experiment, result, "run")
+        return result
     finally:
         folder.release()
+
+
+def _plan(experiment: Experiment, config: Any, sweep: dict, seeds: int, base_seed: int,
+          spec: dict, shard: Shard | None, zipped: bool) -> tuple[dict, SweepPlan | None]:
+    """``(spec, plan)``: a shard's spec (:func:`shard_spec`) and the sweep's plan (None for
+    an experiment's own loop, which cannot be sharded)."""
+    if shard is not None:
+        if experiment.make_program is None:
+            raise ParamError(f"{experiment.name} runs its own loop (Experiment.run): --shard "
+                             f"needs an experiment with make_program")
+        spec = shard_spec(spec, shard)
+    if experiment.make_program is None:
+        return spec, None
+    return spec, make_plan(experiment, config, sweep, seeds, base_seed, shard, zipped)
+
+
+def _quiet(quiet: bool | None, primary: bool) -> bool:
+    """Whether the run shows no progress (the rule of ``vbl run``); not quiet, a run on
+    one CPU device of a machine with more cores prints how to use them, once."""
+    quiet = (auto_quiet() if quiet is None else quiet) or not primary
+    hint = None if quiet else one_device_hint()
+    if hint:
+        print(hint, file=sys.stderr, flush=True)
+    return quiet
+
+
+def _check_options(checkpoint_every: Any, learner_batch: Any, tensorboard: Any,
+                   out: Any) -> None:
+    _check_chunking(checkpoint_every, learner_batch)
+    if tensorboard is not None:
+        from vbl.engine.tensorboard import require_tensorboardx
+
+        require_tensorboardx()
+    if jax.process_count() > 1 and out is None:
+        raise EngineError("a multi-process run needs --out on a shared file system")
 
 
 def _check_chunking(checkpoint_every: Any, learner_batch: Any) -> None:
@@ -393,6 +430,8 @@ def _start_folder(run: _Run) -> Checkpoints | None:
     has_config = run.resume and run.primary and _check_config_json(run.path, run.spec)
     ckpts = None
     if run.plan is not None:
+        from vbl.engine.checkpoint import Checkpoints
+
         ckpts = Checkpoints(run.path / "checkpoints", run.spec["fingerprint"])
         run.folder.record("checkpoints")
         if run.resume and not has_config and ckpts.latest_step() is not None:
@@ -570,10 +609,14 @@ def _run_group(plan: SweepPlan, group: Group, sharding, ckpts: Checkpoints, log:
             carry_host = start_carry(like)
         carries = batches(carry_host)
     else:
-        carries = [init_fn(k, c) for k, c in zip(batches(init_keys), cfgs, strict=True)]
+        keys = batches(init_keys)
+        compile_shared(init_fn, keys[0], cfgs[0])
+        carries = [init_fn(k, c) for k, c in zip(keys, cfgs, strict=True)]
     if truncate:
         log.truncate_after(start)
 
+    if done < end:
+        compile_shared(step_fn, carries[0], cfgs[0])
     for chunk in range(done, end):
         t0 = time.perf_counter()
         outs = [step_fn(c, cfg) for c, cfg in zip(carries, cfgs, strict=True)]
@@ -585,8 +628,10 @@ def _run_group(plan: SweepPlan, group: Group, sharding, ckpts: Checkpoints, log:
         progress.update(metrics, dt, prog.progress_metric)
         last = chunk + 1 == end
         if chunk + 1 == prog.num_chunks and prog.final is not None:
+            keys = batches(final_keys)
+            compile_shared(final_fn, carries[0], cfgs[0], keys[0])
             fin = gather([final_fn(c, cfg, k) for c, cfg, k in
-                          zip(carries, cfgs, batches(final_keys), strict=True)])
+                          zip(carries, cfgs, keys, strict=True)])
             log.append(_rows(plan, group, step, "final", fin))
         if last or (chunk + 1) % every == 0:
             ckpts.save(step, gather(carries), {"group": group.index, "chunk": chunk + 1})

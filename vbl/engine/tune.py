@@ -477,7 +477,7 @@ def _run_batch(optuna, study, s: _Search, folder, k: int, members: list) -> None
                              seeds=s.seeds, base_seed=s.spec["seed"], out=out,
                              resume=out.exists(), quick=s.spec["quick"],
                              preset=s.spec["preset"], quiet=s.quiet, plots=False,
-                             checkpoint_every=s.checkpoint_every,
+                             report=False, checkpoint_every=s.checkpoint_every,
                              span=None if len(s.rungs) == 1 else (first, last),
                              start_carry=start)
         for p, t in enumerate(alive):

@@ -8,7 +8,9 @@ primitive); a caption names the episode, the time, the state index and the actio
 
 * **Policies.** ``learned``: the final Q table of one learner of the run (one sweep point,
   one seed), restored from the run folder's last checkpoint (``checkpoints/``, which every
-  ``vbl run`` writes at the end of a run), on the learner's own state space (grid cells;
+  ``vbl run`` writes at the end of a run; a shard's folder, ``vbl run --shard``, holds
+  its own learners' and renders them; a merged run, ``vbl merge``, keeps none and names
+  the shard folder to render instead), on the learner's own state space (grid cells;
   CVA models and codebooks). ``random``: the all-zero table with random tie-breaking in the
   same action space (the ``random_success`` policy of the programs); it needs no
   checkpoint (a CVA learner's models and codebooks are rebuilt from the run's config and
@@ -44,7 +46,7 @@ from vbl.engine.checkpoint import Checkpoints
 from vbl.engine.errors import EngineError
 from vbl.engine.jax_setup import engine_precision
 from vbl.engine.rebuild import load_run
-from vbl.engine.sweep import make_plan
+from vbl.engine.sweep import Shard, make_plan
 from vbl.envs.macro import MacroWrapper, macro_env_params
 from vbl.envs.shooting import ShootingEnv
 from vbl.params import param, validate
@@ -186,14 +188,56 @@ def _final_carry(folder: Path, spec: dict, group, learner: int) -> Any:
     return jax.tree.map(lambda x: jnp.asarray(x[learner]), carry)
 
 
+def _part_of(count: int, learners: int, learner: int) -> Shard:
+    """The part of ``count`` that holds global learner ``learner`` of ``learners``."""
+    return next(sh for sh in (Shard(i, count) for i in range(1, count + 1))
+                if learner < sh.learner_range(learners)[1])
+
+
+def _shard_learner(folder: Path, spec: dict, exp, plan, group, point: int, seed: int
+                   ) -> tuple[Any, int]:
+    """``(group, learner)`` of (``point``, ``seed``) in the checkpoints of the shard folder
+    ``folder``: its part's group and the learner's index there; EngineError (one line)
+    naming the part to render when this one does not hold it."""
+    shard = Shard(int(spec["shard"]["index"]), int(spec["shard"]["count"]))
+    splan = make_plan(exp, plan.config, plan.sweep, plan.seeds, plan.base_seed, shard)
+    part = next(g for g in splan.groups if g.index == group.index)
+    at = 0
+    for p, lo, hi in part.members:
+        if p == point and lo <= seed < hi:
+            return part, at + seed - lo
+        at += hi - lo
+    lo, hi = shard.learner_range(plan.num_learners)
+    other = _part_of(shard.count, plan.num_learners, point * plan.seeds + seed)
+    raise EngineError(f"{folder} is part {shard} of a sharded run (learners {lo}-{hi - 1}, "
+                      f"learner = point x {plan.seeds} + seed): point {point} seed {seed} "
+                      f"is in part {other}; render that part's folder with the same "
+                      f"--point and --seed")
+
+
+def _merged_has_no_checkpoints(folder: Path, summary: dict, plan, point: int, seed: int
+                               ) -> EngineError:
+    """The error of a merged run's learned policy: its shards keep the checkpoints."""
+    shards = [x for x in summary.get("shards") or [] if isinstance(x, dict)]
+    part = _part_of(max(len(shards), 1), plan.num_learners, point * plan.seeds + seed)
+    name = next((x.get("folder") for x in shards if x.get("shard") == str(part)), None)
+    where = f" (its folder: {name})" if name else ""
+    return EngineError(f"{folder} is a merged run (vbl merge), which keeps no checkpoints/ "
+                       f"(the final Q tables); its shards keep theirs: render part {part}"
+                       f"{where}, which holds point {point} seed {seed}, with the same "
+                       f"--point and --seed, or render --policy random")
+
+
 def load_policy(folder: str | Path, policy: str = "learned", point: int = 0,
                 seed: int = 0) -> Policy:
     """The ``policy`` ("learned" or "random") of sweep point ``point``, seed ``seed`` of the
-    finished run folder ``folder``; EngineError (one line) when it cannot be built."""
+    finished run folder ``folder`` (a whole run, one of its shards, or their merge;
+    ``point`` and ``seed`` are the whole run's); EngineError (one line) when it cannot be
+    built."""
     if policy not in POLICIES:
         raise EngineError(f"--policy must be one of {list(POLICIES)}, got {policy!r}")
     folder = Path(folder)
-    exp, res, spec = load_run(folder)
+    exp, res, spec = load_run(folder, shard_ok=True)
     kind = RENDERABLE.get(exp.name)
     if kind is None:
         raise EngineError(f"{folder} is a run of {exp.name}, whose policy vbl render cannot "
@@ -212,7 +256,11 @@ def load_policy(folder: str | Path, policy: str = "learned", point: int = 0,
     title = f"{exp.name}{' ' + values if values else ''}, seed {seed}, {policy} policy"
     j = group.point_ids.index(point) * plan.seeds + seed  # the learner in the group
     if policy == "learned":
-        carry = _final_carry(folder, spec, group, j)
+        if "shards" in res.summary and not (folder / "checkpoints").is_dir():
+            raise _merged_has_no_checkpoints(folder, res.summary, plan, point, seed)
+        part, k = (group, j) if "shard" not in spec else _shard_learner(
+            folder, spec, exp, plan, group, point, seed)
+        carry = _final_carry(folder, spec, part, k)
     if kind == "grid":
         q = carry.learner.q if policy == "learned" else jnp.zeros(
             (NUM_GRID_STATES, cfg.agent.num_actions), F32)

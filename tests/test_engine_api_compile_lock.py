@@ -1,0 +1,78 @@
+"""Processes sharing the compilation cache compile a program once: the lock around a
+compilation (``vbl.engine.jax_setup.program_lock`` / ``compile_shared``) makes a second
+compiler of the same program wait for the first, then read the cache. ``flock`` locks of
+two opens of one file exclude each other also within one process, so threads stand in for
+the processes here."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import jax
+import jax.numpy as jnp
+
+from vbl.engine import jax_setup
+from vbl.engine.jax_setup import LOCKS_DIR, compile_shared, program_lock
+
+
+def _hold(path, seconds: float, started: threading.Event) -> threading.Thread:
+    def run():
+        with program_lock(path) as held:
+            assert held
+            started.set()
+            time.sleep(seconds)
+
+    t = threading.Thread(target=run)
+    t.start()
+    assert started.wait(10)
+    return t
+
+
+def test_the_lock_waits_for_its_holder_then_is_taken(tmp_path):
+    path = tmp_path / "locks" / "k.lock"  # its folder is made
+    t = _hold(path, 0.6, threading.Event())
+    t0 = time.monotonic()
+    with program_lock(path, poll_s=0.02) as held:
+        waited = time.monotonic() - t0
+        assert held
+    t.join()
+    assert waited >= 0.3, waited
+
+
+def test_a_lock_that_stays_taken_or_cannot_be_made_runs_the_block_unlocked(tmp_path):
+    path = tmp_path / "k.lock"
+    t = _hold(path, 1.0, threading.Event())
+    with program_lock(path, wait_s=0.1, poll_s=0.02) as held:
+        assert held is False
+    t.join()
+    (tmp_path / "file").write_text("")
+    with program_lock(tmp_path / "file" / "k.lock") as held:  # no folder can be made
+        assert held is False
+
+
+def test_compile_shared_compiles_under_the_programs_lock(tmp_path, monkeypatch):
+    monkeypatch.setattr(jax_setup, "_cache_in_use", lambda: str(tmp_path))
+    f = jax.jit(lambda x: jnp.sin(x) * 3.0)
+    x = jnp.ones(7)
+    compile_shared(f, x)
+    locks = list((tmp_path / LOCKS_DIR).glob("*.lock"))
+    assert len(locks) == 1  # one program, one lock file named by its hash
+    # the same program compiled while another holds its lock waits for it
+    g = jax.jit(lambda x: jnp.sin(x) * 3.0)
+    t = _hold(locks[0], 0.6, threading.Event())
+    t0 = time.monotonic()
+    compile_shared(g, x)
+    assert time.monotonic() - t0 >= 0.3
+    t.join()
+    assert g(x).tolist() == f(x).tolist()
+    compile_shared(jax.jit(lambda x: x + 1.0), x)  # another program: another lock
+    assert len(list((tmp_path / LOCKS_DIR).glob("*.lock"))) == 2
+
+
+def test_without_the_cache_nothing_is_locked(tmp_path, monkeypatch):
+    monkeypatch.setattr(jax_setup, "_cache_in_use", lambda: None)
+    calls = []
+    monkeypatch.setattr(jax_setup, "program_lock", lambda *a, **k: calls.append(a))
+    compile_shared(jax.jit(lambda x: x * 2.0), jnp.ones(3))
+    assert calls == []
