@@ -10,6 +10,7 @@ numbers are finite and in range.
 from __future__ import annotations
 
 import importlib.util
+import json
 import math
 import re
 from pathlib import Path
@@ -19,6 +20,7 @@ import pytest
 
 PROBES = Path(__file__).resolve().parents[1] / "benchmarks" / "probes"
 NUMBER = re.compile(r"-?\d+(?:\.\d+)?(?:e[+-]?\d+)?")
+PHASES = ("shooter still", "approach", "after contact", "all rolling")
 
 
 def run_probe(name: str, argv: list[str], capsys) -> str:
@@ -51,8 +53,9 @@ def test_probe_files_all_tested():
     assert {p.stem for p in PROBES.glob("*.py")} <= tested
 
 
-def test_ball_velocity_r2(capsys):
-    out = run_probe("ball_velocity_r2", ["--tiny", "--set", "cva.n_used_objects=(6)"], capsys)
+def test_ball_velocity_r2(capsys, tmp_path):
+    out = run_probe("ball_velocity_r2", ["--tiny", "--set", "cva.n_used_objects=(6)",
+                                         "--out", str(tmp_path)], capsys)
     fits, _, held = out.partition("Held out")
     rows = table(fits)
     assert [r[0].split(" (")[0] for r in rows] == ["steps used", "current", "CVA", "oracle",
@@ -77,6 +80,14 @@ def test_ball_velocity_r2(capsys):
         for cell in r[1:]:
             vals = numbers(cell)
             assert len(vals) == 2 and all(math.isfinite(v) and v <= 1.0 for v in vals), r
+    # --tiny writes its results file into --out only, keyed by the invocation's options
+    data = json.loads((tmp_path / "ball_velocity_r2.json").read_text())
+    entry = data["seed=0, envs=8, steps=40, collect_steps=600, set=cva.n_used_objects=(6)"]
+    assert entry["steps_used"] == dict(zip(PHASES, map(int, rows[0][1:]), strict=True))
+    assert list(entry["r2"]) == [r[0].split(" (")[0] for r in rows[1:]]
+    assert [f"{v:.2f}" for v in entry["r2"]["CVA"]["approach"]] == rows[2][2].split(" / ")
+    assert list(entry["held_out"]) == [r[0] for r in held_rows]
+    assert entry["cpu_seconds"] > 0
 
 
 def test_ball_velocity_r2_bad_set(capsys):
@@ -146,15 +157,19 @@ def test_fig5_by_start(capsys):
         assert vals and all(0.0 <= v <= 1.0 for v in vals), r
 
 
-def test_grid_hand_table(capsys):
-    out = run_probe("grid_hand_table", ["--tiny"], capsys)
+def test_grid_hand_table(capsys, tmp_path):
+    out = run_probe("grid_hand_table", ["--tiny", "--out", str(tmp_path)], capsys)
     found = re.findall(r"^(.*): success (\S+) \(64 starts\)$", out, re.M)
     assert [n for n, _ in found] == ["hand-written table", "random policy (all-zero table)"]
     assert all(0.0 <= float(v) <= 1.0 for _, v in found)
+    data = json.loads((tmp_path / "grid_hand_table.json").read_text())
+    assert list(data) == ["max_steps=30, starts=64"]
+    assert [f"{v:.3f}" for v in data["max_steps=30, starts=64"]["success"].values()] == [
+        v for _, v in found]
 
 
-def test_grid_onestep_unlearns(capsys):
-    out = run_probe("grid_onestep_unlearns", ["--tiny"], capsys)
+def test_grid_onestep_unlearns(capsys, tmp_path):
+    out = run_probe("grid_onestep_unlearns", ["--tiny", "--out", str(tmp_path)], capsys)
     found = re.findall(r"^(.*): greedy success per chunk (.*); greedy actions changed in "
                        r"(\d+) of 319 states$", out, re.M)
     assert len(found) == 2 and found[0][0] == "one-step Q-learning"
@@ -162,6 +177,12 @@ def test_grid_onestep_unlearns(capsys):
         vals = [float(v) for v in curve.split(", ")]
         assert len(vals) == 2 and all(0.0 <= v <= 1.0 for v in vals)  # start + 1 chunk
         assert 0 <= int(changed) <= 319
+    data = json.loads((tmp_path / "grid_onestep_unlearns.json").read_text())
+    learners = data["max_steps=30, chunks=1, starts=64, chunk_steps=10"]["learners"]
+    assert list(learners) == [name for name, _, _ in found]
+    for name, curve, changed in found:
+        assert ", ".join(f"{v:.3f}" for v in learners[name]["greedy_success"]) == curve
+        assert learners[name]["greedy_actions_changed"] == int(changed)
 
 
 def test_lag_rule_comparison(capsys):

@@ -49,23 +49,32 @@ Not an experiment (``vbl reproduce`` does not run it) and not a benchmark (``vbl
 reads ``benchmarks/*.py`` only). Run from the repository root:
 
     python benchmarks/probes/ball_velocity_r2.py [--seed 0] [--envs 64] [--steps 100]
-        [--collect-steps N] [--set PATH=VALUE ...] [--tiny]
+        [--collect-steps N] [--set PATH=VALUE ...] [--out runs/ball_velocity_r2] [--tiny]
 
+Writes ``benchmarks/results/ball_velocity_r2.json``: per invocation (key: the seed, then
+the options that differ from their defaults, e.g. ``seed=0``, ``seed=1,
+set=cva.collect_steps=10000``) the header's figures (lag, order, the share of steps with
+the ball lying still), the steps used and both tables' R^2 (forward, lateral; null for
+"-"), and the run's CPU and wall-clock seconds, keeping the entries of other invocations.
 ``--tiny`` (a smoke test: 8 envs x 40 steps, 600 identification steps) checks that the
-probe runs; its numbers mean little. Cost: about a minute of CPU at the defaults, mostly
-compilation. Cited by docs/findings/table2_shoot_pass.md.
+probe runs and writes into ``--out`` only; its numbers mean little. Cost: about a minute of
+CPU at the defaults, mostly compilation. Cited by docs/findings/table2_shoot_pass.md.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
+RESULT = ROOT / "benchmarks" / "results" / "ball_velocity_r2.json"
 
 #: Rolling: ball speed above this, m/s.
 ROLLING = 0.1
@@ -139,7 +148,7 @@ class _WithObs:
         return obs, st, r, term, trunc, {**info, "y": obs}
 
 
-def main(argv: list[str] | None = None) -> int:
+def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--envs", type=int, default=64)
@@ -148,28 +157,45 @@ def main(argv: list[str] | None = None) -> int:
                     help="identification steps (default: Table 2's cva.collect_steps)")
     ap.add_argument("--set", action="append", default=[], metavar="PATH=VALUE",
                     help="override a path of Table 2's config (repeatable)")
+    ap.add_argument("--out", default="runs/ball_velocity_r2",
+                    help="--tiny: the folder of the results file")
     ap.add_argument("--tiny", action="store_true",
                     help="smoke-test size: 8 envs x 40 steps, 600 identification steps")
-    args = ap.parse_args(argv)
-    if args.tiny:
-        args.envs, args.steps, args.collect_steps = 8, 40, 600
+    return ap
 
-    from types import SimpleNamespace
 
-    from vbl.agents.state_maps import CVAMap
+def invocation_key(args: argparse.Namespace) -> str:
+    """The results file's key of an invocation: the seed, then the options that differ from
+    their defaults (``--set`` assignments joined by spaces, in their order)."""
+    parts = [f"seed={args.seed}"]
+    parts += [f"{k}={v}" for k, v, d in (("envs", args.envs, 64), ("steps", args.steps, 100),
+                                         ("collect_steps", args.collect_steps, None)) if v != d]
+    if args.set:
+        parts.append("set=" + " ".join(args.set))
+    return ", ".join(parts)
+
+
+def write_entry(dest: Path, key: str, entry: dict) -> None:
+    """Write ``entry`` under ``key`` into ``dest``, keeping the other keys' entries."""
+    data = json.loads(dest.read_text()) if dest.exists() else {}
+    data[key] = entry
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    dest.write_text(json.dumps(dict(sorted(data.items())), indent=1) + "\n")
+
+
+def _setup(args: argparse.Namespace) -> SimpleNamespace | None:
+    """Table 2's config with the ``--set`` overrides, and the ball-only CVA parameters of
+    the probe; None (after printing why) for an invalid override."""
     from vbl.engine.config import apply_overrides, parse_assignment
-    from vbl.engine.jax_setup import engine_precision
     from vbl.engine.registry import load_script
-    from vbl.envs.shoot_pass import OBS_SLICES, ShootPassEnv
     from vbl.params import ParamError
-    from vbl.spaces.quantize import QuantizerParams, fit_quantizer, quantize
 
     cfg = load_script(ROOT / "experiments" / "table2_shoot_pass.py").EXPERIMENT.default_config
     try:
         cfg = apply_overrides(cfg, [parse_assignment(t, cfg) for t in args.set])
     except ParamError as e:
         print(f"error: {e}")
-        return 2
+        return None
     cva = cfg.cva
     ball_codes = int(cva.quantizer.group_codes[list(cva.objects).index("ball")])
     n_ball = cva.n_used_per_object()[list(cva.objects).index("ball")]
@@ -178,8 +204,19 @@ def main(argv: list[str] | None = None) -> int:
                                                     kmeans_iters=1, group_codes=()))
     if args.collect_steps is not None:
         p = p.replace(collect_steps=args.collect_steps)
+    return SimpleNamespace(cva=cva, p=p, ep=cfg.env.replace(task_pass=False), n_ball=n_ball,
+                           ball_codes=ball_codes)
+
+
+def _rollouts(args: argparse.Namespace, s: SimpleNamespace):
+    """Identify the ball, then run the shooter still and driving at random: ``(recs, fp)``,
+    ``recs[still]`` the steps' records (flattened over envs), ``fp`` the env parameters."""
+    from vbl.agents.state_maps import CVAMap
+    from vbl.engine.jax_setup import engine_precision
+    from vbl.envs.shoot_pass import OBS_SLICES, ShootPassEnv
+
+    p, ep = s.p, s.ep
     env = ShootPassEnv("shoot")
-    ep = cfg.env.replace(task_pass=False)
     smap = CVAMap(_WithObs(env), p)
     fenv = smap.env
     ball, vis = OBS_SLICES["ball"], OBS_SLICES["visible"].start  # the ball's flag first
@@ -188,7 +225,6 @@ def main(argv: list[str] | None = None) -> int:
     with engine_precision():
         fp = jax.jit(lambda k: smap.env_params(smap.prepare(k, SimpleNamespace(cva=p, env=ep)),
                                                ep))(k_prep)
-        lag, order = int(fp.inner.filters[0].lag), int(fp.inner.filters[0].n)
 
         def rollout(k, still, fp):
             def one(k):
@@ -221,9 +257,11 @@ def main(argv: list[str] | None = None) -> int:
         for still in (True, False):
             recs[still] = jax.tree_util.tree_map(lambda a: np.asarray(a, np.float64).reshape(
                 (-1,) + a.shape[2:]), run(k_run, jnp.bool_(still), fp))
+    return recs, fp
 
-    moving = recs[False]
-    rest = float(np.mean(moving["speed"] <= ROLLING))
+
+def phase_masks(recs: dict) -> dict:
+    """Per phase, ``(record, mask)``: the run's records and its steps of that phase."""
     masks = {}
     for name in PHASES:
         rec = recs[name == "shooter still"]
@@ -231,48 +269,63 @@ def main(argv: list[str] | None = None) -> int:
         touched = rec["touched"] > 0
         masks[name] = (rec, rolling & ~touched if name in ("shooter still", "approach")
                        else rolling & touched if name == "after contact" else rolling)
+    return masks
 
-    def state(rec, kind):
-        if kind == "history y+u":
-            return np.concatenate([rec["raw"], rec["raw_u"]], axis=1)
-        if kind == "current":
-            return rec["cur"]
-        if kind == "CVA":
-            return rec["cva"]
-        if kind == "CVA, first 4":
-            return rec["cva"][:, :4]
-        if kind == "raw history":
-            return rec["raw"]
-        return np.concatenate([rec["cur"], rec["vel"] * rec["seen"][:, None]], axis=1)
 
-    print(f"Table 2 shooter, seed {args.seed}: {args.envs} envs x {args.steps} steps per "
-          f"phase run; ball CVA lag {lag}, AIC order {order}, {n_ball} components kept; "
-          f"identification {p.collect_steps} steps; overrides: "
-          f"{', '.join(args.set) or 'none'}. The ball lies "
-          f"still (speed <= {ROLLING} m/s, velocity 0: no R^2) in {rest:.0%} of the driving "
-          "run's steps.")
-    print("R^2 of the ball's true velocity in the shooter's frame (forward / lateral) on "
-          "the steps where the ball is visible and rolling:")
+def state(rec: dict, kind: str) -> np.ndarray:
+    """The state vector ``kind`` (a row of ``STATES``) of every step of ``rec``."""
+    if kind == "history y+u":
+        return np.concatenate([rec["raw"], rec["raw_u"]], axis=1)
+    if kind == "current":
+        return rec["cur"]
+    if kind == "CVA":
+        return rec["cva"]
+    if kind == "CVA, first 4":
+        return rec["cva"][:, :4]
+    if kind == "raw history":
+        return rec["raw"]
+    return np.concatenate([rec["cur"], rec["vel"] * rec["seen"][:, None]], axis=1)
+
+
+def _cells(c: np.ndarray, row: list) -> str:
+    """A table cell ``forward / lateral`` ("-" for NaN); appends the values (None for NaN)
+    to ``row``."""
+    row.append([None if np.isnan(v) else round(float(v), 6) for v in c])
+    return " / ".join("-" if np.isnan(v) else f"{v:.2f}" for v in c)
+
+
+def fit_table(recs: dict, masks: dict, n_ball: int) -> dict:
+    """Print the in-sample table; return its steps used, dims and R^2 per state and phase."""
     print("| state | " + " | ".join(PHASES) + " |")
     print("|---|" + "---|" * len(PHASES))
     print("| steps used | " + " | ".join(str(int(m.sum())) for _, m in masks.values()) + " |")
     dims = {"current": 4, "CVA": n_ball, "oracle": 6, "CVA, first 4": 4,
             "raw history": recs[False]["raw"].shape[1],
             "history y+u": recs[False]["raw"].shape[1] + recs[False]["raw_u"].shape[1]}
+    out = {}
     for kind in STATES:
-        cells = []
-        for rec, m in masks.values():
-            c = r2(state(rec, kind)[m], rec["vel"][m])
-            cells.append(" / ".join("-" if np.isnan(v) else f"{v:.2f}" for v in c))
+        vals: list = []
+        cells = [_cells(r2(state(rec, kind)[m], rec["vel"][m]), vals) for rec, m in
+                 masks.values()]
+        out[kind] = dict(zip(PHASES, vals, strict=True))
         print(f"| {kind} ({dims[kind]}) | " + " | ".join(cells) + " |")
+    return {"steps_used": {n: int(m.sum()) for n, (_, m) in masks.items()},
+            "dims": {k: int(v) for k, v in dims.items()}, "r2": out}
 
-    # held out: fitted on the first half of the envs, scored on the second
+
+def held_out_table(args: argparse.Namespace, s: SimpleNamespace, recs: dict, masks: dict,
+                   fp) -> dict:
+    """Print the held-out table (fitted on the first half of the envs, scored on the
+    second); return its R^2 per row and phase."""
+    from vbl.spaces.quantize import QuantizerParams, fit_quantizer, quantize
+
+    moving = recs[False]
     half = {still: np.arange(len(recs[still]["vel"])) < len(recs[still]["vel"]) // 2
             for still in (True, False)}
     cancor = np.asarray(fp.inner.filters[0].cancor, np.float64)
     weights = {"current": None, "CVA": None, "CVA, cancor-weighted": cancor}
-    qp = QuantizerParams(method="vq", num_codes=ball_codes,
-                         kmeans_iters=cva.quantizer.kmeans_iters)
+    qp = QuantizerParams(method="vq", num_codes=s.ball_codes,
+                         kmeans_iters=s.cva.quantizer.kmeans_iters)
     k_code = jax.random.PRNGKey(args.seed + 1)
     fit_on = (moving["seen"] > 0) & half[False]
     codes = {}
@@ -283,12 +336,13 @@ def main(argv: list[str] | None = None) -> int:
                        for still in (True, False)}
     print(f"Held out (fitted on envs 0-{args.envs // 2 - 1}, scored on the others): R^2 of "
           f"the same velocity (forward / lateral) by a {KNN}-nearest-neighbour regression "
-          f"and by the mean of its cell in a {ball_codes}-code k-means codebook of the "
+          f"and by the mean of its cell in a {s.ball_codes}-code k-means codebook of the "
           "ball's state:")
     print("| held out | " + " | ".join(PHASES) + " |")
     print("|---|" + "---|" * len(PHASES))
+    out = {}
     for kind in ("k-NN on history y+u",) + tuple(f"codes of {c}" for c in CODE_STATES):
-        cells = []
+        cells, vals = [], []
         for name, (rec, m) in masks.items():
             h = half[name == "shooter still"][m]
             if kind.startswith("k-NN"):
@@ -296,8 +350,42 @@ def main(argv: list[str] | None = None) -> int:
             else:
                 c = code_r2(codes[kind.removeprefix("codes of ")][name == "shooter still"][m],
                             rec["vel"][m], h)
-            cells.append(" / ".join("-" if np.isnan(v) else f"{v:.2f}" for v in c))
+            cells.append(_cells(c, vals))
+        out[kind] = dict(zip(PHASES, vals, strict=True))
         print(f"| {kind} | " + " | ".join(cells) + " |")
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    if args.tiny:
+        args.envs, args.steps, args.collect_steps = 8, 40, 600
+    cpu0, wall0 = time.process_time(), time.perf_counter()
+    s = _setup(args)
+    if s is None:
+        return 2
+    recs, fp = _rollouts(args, s)
+    lag, order = int(fp.inner.filters[0].lag), int(fp.inner.filters[0].n)
+    rest = float(np.mean(recs[False]["speed"] <= ROLLING))
+    masks = phase_masks(recs)
+    print(f"Table 2 shooter, seed {args.seed}: {args.envs} envs x {args.steps} steps per "
+          f"phase run; ball CVA lag {lag}, AIC order {order}, {s.n_ball} components kept; "
+          f"identification {s.p.collect_steps} steps; overrides: "
+          f"{', '.join(args.set) or 'none'}. The ball lies "
+          f"still (speed <= {ROLLING} m/s, velocity 0: no R^2) in {rest:.0%} of the driving "
+          "run's steps.")
+    print("R^2 of the ball's true velocity in the shooter's frame (forward / lateral) on "
+          "the steps where the ball is visible and rolling:")
+    fits = fit_table(recs, masks, s.n_ball)
+    held = held_out_table(args, s, recs, masks, fp)
+    entry = {"seed": args.seed, "envs": args.envs, "steps": args.steps, "set": args.set,
+             "collect_steps": int(s.p.collect_steps), "lag": lag, "order": order,
+             "ball_components": int(s.n_ball), "ball_codes": s.ball_codes,
+             "still_share": round(rest, 6), **fits, "held_out": held,
+             "cpu_seconds": round(time.process_time() - cpu0, 1),
+             "wall_seconds": round(time.perf_counter() - wall0, 1)}
+    write_entry(Path(args.out) / RESULT.name if args.tiny else RESULT, invocation_key(args),
+                entry)
     return 0
 
 

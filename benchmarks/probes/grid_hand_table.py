@@ -12,10 +12,13 @@ Not an experiment (``vbl reproduce`` does not run it) and not a benchmark (``vbl
 reads ``benchmarks/*.py`` only). Run from the repository root:
 
     python benchmarks/probes/grid_hand_table.py [--starts 256] [--seed 0] [--max-steps 300]
-        [--tiny]
+        [--out runs/grid_hand_table] [--tiny]
 
-``--tiny`` (a smoke test: 64 starts, episodes of at most 30 primitives) checks that the
-probe runs; its numbers mean little.
+Writes ``benchmarks/results/grid_hand_table.json``: per invocation (key: the episode limit
+in primitives, then the options that differ from their defaults, e.g. ``max_steps=1000``,
+``max_steps=300``) each table's success and the run's CPU seconds, keeping the entries of
+other invocations. ``--tiny`` (a smoke test: 64 starts, episodes of at most 30 primitives)
+checks that the probe runs and writes into ``--out`` only; its numbers mean little.
 
 Cost: about a minute of CPU, mostly compilation. Cited by docs/findings/grid_shooting.md.
 """
@@ -23,7 +26,9 @@ Cost: about a minute of CPU, mostly compilation. Cited by docs/findings/grid_sho
 from __future__ import annotations
 
 import argparse
+import json
 import sys
+import time
 from pathlib import Path
 
 import jax
@@ -31,6 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
+RESULT = ROOT / "benchmarks" / "results" / "grid_hand_table.json"
 
 
 SYNC_EVAL_STEPS = 400
@@ -61,15 +67,33 @@ def hand_table(labels: tuple[str, ...]) -> np.ndarray:
     return q
 
 
+def invocation_key(max_steps: int, starts: int, seed: int) -> str:
+    """The results file's key of an invocation: the episode limit, then the options that
+    differ from their defaults."""
+    extra = [f"{k}={v}" for k, v, d in (("starts", starts, 256), ("seed", seed, 0)) if v != d]
+    return ", ".join([f"max_steps={max_steps}", *extra])
+
+
+def write_entry(dest: Path, key: str, entry: dict) -> None:
+    """Write ``entry`` under ``key`` into ``dest``, keeping the other keys' entries."""
+    data = json.loads(dest.read_text()) if dest.exists() else {}
+    data[key] = entry
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    dest.write_text(json.dumps(dict(sorted(data.items())), indent=1) + "\n")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--starts", type=int, default=256, help="fresh starts (multiple of 64)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--max-steps", type=int, default=None,
                     help="episode time limit in primitives (default: the experiment's, 1000)")
+    ap.add_argument("--out", default="runs/grid_hand_table",
+                    help="--tiny: the folder of the results file")
     ap.add_argument("--tiny", action="store_true",
                     help="smoke-test size: 64 starts, 30-primitive episodes")
     args = ap.parse_args(argv)
+    t0 = time.process_time()
     if args.tiny:
         args.starts, args.max_steps = 64, 30
 
@@ -95,11 +119,19 @@ def main(argv: list[str] | None = None) -> int:
               "random policy (all-zero table)": jnp.zeros((NUM_GRID_STATES, 9), jnp.float32)}
     print(f"grid_shooting task: start difficulty {float(TASK_DIFFICULTY)}, "
           f"{int(env_params.max_steps)} primitives, {args.starts} fresh starts, seed {args.seed}")
+    success = {}
     for name, q in tables.items():
         keys = jax.random.split(jax.random.PRNGKey(args.seed), args.starts // n_envs)
         s = [float(ev(k, q, agent, env_params, SYNC_EVAL_STEPS)["success_rate"])
              for k in keys]
+        success[name] = float(np.mean(s))
         print(f"{name}: success {np.mean(s):.3f} ({args.starts} starts)")
+    max_steps = int(env_params.max_steps)
+    dest = Path(args.out) / RESULT.name if args.tiny else RESULT
+    write_entry(dest, invocation_key(max_steps, args.starts, args.seed), {
+        "max_steps": max_steps, "starts": args.starts, "seed": args.seed,
+        "start_difficulty": float(TASK_DIFFICULTY), "success": success,
+        "cpu_seconds": round(time.process_time() - t0, 1)})
     return 0
 
 

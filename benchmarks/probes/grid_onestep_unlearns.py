@@ -13,10 +13,15 @@ Not an experiment (``vbl reproduce`` does not run it) and not a benchmark (``vbl
 reads ``benchmarks/*.py`` only). Run from the repository root:
 
     python benchmarks/probes/grid_onestep_unlearns.py [--chunks 4] [--starts 128] [--seed 0]
-        [--chunk-steps 100] [--max-steps N] [--tiny]
+        [--chunk-steps 100] [--max-steps N] [--out runs/grid_onestep_unlearns] [--tiny]
 
+Writes ``benchmarks/results/grid_onestep_unlearns.json``: per invocation (key: the episode
+limit in primitives, then the options that differ from their defaults, e.g.
+``max_steps=1000``) each learner's greedy success before and after every chunk, the greedy
+actions it changed and the run's CPU seconds, keeping the entries of other invocations.
 ``--tiny`` (a smoke test: one chunk of 10 learner steps, 64 starts, episodes of at most 30
-primitives) checks that the probe runs; its numbers mean little.
+primitives) checks that the probe runs and writes into ``--out`` only; its numbers mean
+little.
 
 Cost: about two minutes of CPU, mostly compilation. Cited by
 docs/findings/grid_shooting.md.
@@ -25,6 +30,8 @@ docs/findings/grid_shooting.md.
 from __future__ import annotations
 
 import argparse
+import json
+import time
 from pathlib import Path
 
 import jax
@@ -32,6 +39,23 @@ import jax.numpy as jnp
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
+RESULT = ROOT / "benchmarks" / "results" / "grid_onestep_unlearns.json"
+DEFAULTS = {"chunks": 4, "starts": 128, "seed": 0, "chunk_steps": 100}
+
+
+def invocation_key(max_steps: int, **options: int) -> str:
+    """The results file's key of an invocation: the episode limit, then the options that
+    differ from their defaults (``DEFAULTS``)."""
+    extra = [f"{k}={v}" for k, v in options.items() if v != DEFAULTS[k]]
+    return ", ".join([f"max_steps={max_steps}", *extra])
+
+
+def write_entry(dest: Path, key: str, entry: dict) -> None:
+    """Write ``entry`` under ``key`` into ``dest``, keeping the other keys' entries."""
+    data = json.loads(dest.read_text()) if dest.exists() else {}
+    data[key] = entry
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    dest.write_text(json.dumps(dict(sorted(data.items())), indent=1) + "\n")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -42,9 +66,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--chunk-steps", type=int, default=100, help="learner steps per chunk")
     ap.add_argument("--max-steps", type=int, default=None,
                     help="episode time limit in primitives (default: the experiment's, 1000)")
+    ap.add_argument("--out", default="runs/grid_onestep_unlearns",
+                    help="--tiny: the folder of the results file")
     ap.add_argument("--tiny", action="store_true", help="smoke-test size: 1 chunk of 10 "
                     "learner steps, 64 starts, 30-primitive episodes")
     args = ap.parse_args(argv)
+    t0 = time.process_time()
     if args.tiny:
         args.chunks, args.starts, args.chunk_steps, args.max_steps = 1, 64, 10, 30
 
@@ -87,6 +114,7 @@ def main(argv: list[str] | None = None) -> int:
             return np.mean([float(ev(k, q, base, env_params, hand.SYNC_EVAL_STEPS)[
                 "success_rate"]) for k in jax.random.split(k_eval, rounds)])
 
+        learners = {}
         for name, update in variants.items():
             p = base.replace(update=update)
             runner = make_qlearning_runner(ShootingEnv(), lambda o: grid_state(o, grid), p)
@@ -97,8 +125,17 @@ def main(argv: list[str] | None = None) -> int:
                 carry, _ = run(carry, p, env_params)
                 row.append(greedy(carry.q))
             changed = int(np.sum(np.argmax(np.asarray(carry.q), 1) != np.argmax(q0, 1)))
+            learners[name] = {"greedy_success": [float(v) for v in row],
+                              "greedy_actions_changed": changed}
             print(f"{name}: greedy success per chunk " + ", ".join(f"{v:.3f}" for v in row)
                   + f"; greedy actions changed in {changed} of {NUM_GRID_STATES} states")
+    max_steps = int(env_params.max_steps)
+    options = {k: getattr(args, k) for k in DEFAULTS}
+    dest = Path(args.out) / RESULT.name if args.tiny else RESULT
+    write_entry(dest, invocation_key(max_steps, **options), {
+        "max_steps": max_steps, **options, "robots": n_envs, "evaluation_starts": rounds * n_envs,
+        "num_states": NUM_GRID_STATES, "learners": learners,
+        "cpu_seconds": round(time.process_time() - t0, 1)})
     return 0
 
 
