@@ -226,7 +226,7 @@ def test_table2_ablation(capsys, tmp_path):
 
 
 @pytest.mark.slow  # about 3 CPU-min: a tiny vbl tune compiles the tabular program 3 times
-def test_table2_tuned_tiny(capsys, tmp_path):
+def test_table2_tuned(capsys, tmp_path):
     """The tuning probe at toy size: one row's search, its confirmation and the defaults
     on the same fresh seeds, read into the results file with the command that reran it."""
     import json

@@ -182,11 +182,7 @@ def unbacked(doc: Path) -> list[tuple[str, str]]:
     return [(t, c) for t, c in prose_numbers(text) if not backed(t, values)]
 
 
-#: documents whose prose is still being backed by committed files (empties as they pass)
-NOT_YET = {"docs/findings/grid_shooting.md"}
-
-
-@pytest.mark.parametrize("doc", [d for d in CHECKED if _rel(d) not in NOT_YET], ids=_rel)
+@pytest.mark.parametrize("doc", CHECKED, ids=_rel)
 def test_every_prose_number_is_in_a_cited_committed_file(doc: Path):
     bad = unbacked(doc)
     assert not bad, (f"{_rel(doc)}: {len(bad)} numbers in no file it cites "
