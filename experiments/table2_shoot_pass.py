@@ -60,6 +60,7 @@ EXPERIMENT = register(Experiment(
     quick_seeds=16,
     paper_result=True,
     paper=TABLE2,
+    percent=True,  # the paper's Table 2 is in %
     report=report,
     paper_rows=paper_rows,
     # Monte Carlo action values instead of one-step Q-learning, with the step size and

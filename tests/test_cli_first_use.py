@@ -185,6 +185,32 @@ def test_headline_table_keeps_a_rates_interval_in_its_range():
     assert f"-0.108 ± {h:.3g}" in table[6]  # not a rate: the t interval
 
 
+def test_one_unit_per_metric_in_the_terminal_and_the_report():
+    """An experiment whose paper gives a result in % (Table 2, PPO) shows its success rates
+    in % in the terminal table and the default report (heading marked), other metrics as
+    they are; one that does not keeps fractions. The README's rows agree: Table 2's are in
+    %, the grid baseline's in fractions."""
+    from vbl.engine.experiment import RunResult
+    from vbl.engine.registry import get
+    from vbl.engine.report import default_section, headline_table
+
+    x = [0.25, 0.5, 0.75, 0.5]  # mean 0.5, sd 0.2041: t(0.975, 3) 3.182 x sd / 2 = 0.3249
+    st = {"mean": 0.5, "std": 0.0, "ci95": 0.3249, "per_seed": x}
+    points = [{"values": {}, "final": {"greedy_success": st, "greedy_primitives": st}}]
+    res = RunResult("x", Path("."), None, {}, [{}], 4, {}, {}, {"points": points, "seeds": 4})
+    table2, grid = get("table2_shoot_pass"), get("grid_shooting")
+    assert table2.percent and get("ppo_comparator").percent and not grid.percent
+    in_pct, as_rate = headline_table(res, table2), headline_table(res, grid)
+    assert "greedy_success %" in in_pct and "50.0 ± 32.5" in in_pct
+    assert "0.5 ± 0.325" in in_pct  # greedy_primitives: not a rate, as it is
+    assert "greedy_success %" not in as_rate and "50.0" not in as_rate
+    report = default_section(res, percent=True).markdown
+    assert "greedy_success % (final)" in report and "50.0 ± 32.5" in report
+    readme = (REPO / "README.md").read_text()
+    assert "Table 2, shooting, current features: greedy success %" in readme
+    assert "Grid baseline (319 states), with LEM: greedy / near-greedy success |" in readme
+
+
 @pytest.fixture(scope="module")
 def grid_shooting():
     from vbl.engine.registry import load_script

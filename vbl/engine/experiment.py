@@ -163,6 +163,10 @@ class Experiment:
         ``vbl reproduce --jobs N`` (in registry order), so the later ones find the programs
         the first one compiled in the persistent compilation cache (experiments that
         build the same programs).
+      percent: show success rates (:func:`vbl.engine.plots.is_rate`) in % in the terminal
+        table, the default report and the curve plots, where the paper gives this result
+        in % (Table 2); the data (``metrics.jsonl``, ``summary.json``, exports) keep
+        fractions. One unit per metric: an experiment's own ``report`` follows it too.
       headline: metric names ``vbl run`` prints per sweep point after a run (mean and 95 %
         interval; a ``final`` metric, else the last chunk's); default: the scalar ``final``
         metrics, then the last chunk's, as many as fit 100 columns. Every metric stays in
@@ -193,6 +197,7 @@ class Experiment:
     report: Callable[[RunResult], ReportSection] | None = None
     sweep: Mapping[str, tuple[Any, ...] | list[Any]] = field(default_factory=dict)
     group: str | None = None
+    percent: bool = False
     headline: tuple[str, ...] = ()
     paper_rows: Callable[[RunResult], list[PaperRow]] | None = None
     presets: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)

@@ -57,8 +57,9 @@ def point_label(values: dict[str, Any]) -> str:
 
 
 def plot_curves(curves: dict[str, np.ndarray], points: list[dict[str, Any]], out_dir: Path,
-                title: str = "") -> list[Path]:
-    """Write ``<metric>.png`` for every scalar metric of ``curves[metric][point, chunk, seed]``.
+                title: str = "", percent: bool = False) -> list[Path]:
+    """Write ``<metric>.png`` for every scalar metric of ``curves[metric][point, chunk, seed]``
+    (with ``percent``, a rate's curve in %).
 
     The x axis is cumulative episodes (mean over seeds) when an ``episodes`` metric exists,
     else the chunk number. Bands: :func:`band`. Each sweep point has its own line style, so
@@ -76,6 +77,7 @@ def plot_curves(curves: dict[str, np.ndarray], points: list[dict[str, Any]], out
             continue
         fig, ax = plt.subplots(figsize=(6.4, 4.0))
         seeds = arr.shape[2]
+        scale = 100.0 if percent and is_rate(name) else 1.0
         for p, values in enumerate(points):
             y = arr[p]
             ok = ~np.all(np.isnan(y), axis=1)
@@ -86,13 +88,13 @@ def plot_curves(curves: dict[str, np.ndarray], points: list[dict[str, Any]], out
             else:
                 x = np.arange(1, y.shape[0] + 1)
                 xlabel = "chunk"
-            m, lo, hi = band(name, y)
+            m, lo, hi = (scale * v for v in band(name, y))
             (line,) = ax.plot(x, m, label=point_label(values),
                               linestyle=LINESTYLES[p % len(LINESTYLES)], lw=1.5 + 0.5 * (p == 0))
             if seeds > 1:
                 ax.fill_between(x, lo, hi, color=line.get_color(), alpha=0.2, lw=0)
         ax.set_xlabel(xlabel)
-        ax.set_ylabel(name)
+        ax.set_ylabel(f"{name} (%)" if scale != 1.0 else name)
         ax.set_title(f"{title} ({seeds} seeds, 95% band)" if title else f"{seeds} seeds")
         if len(points) > 1 or points[0]:
             ax.legend(fontsize="small")

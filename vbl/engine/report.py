@@ -26,10 +26,11 @@ TABLE_COLUMNS = 100  #: the width ``vbl run``'s terminal table keeps to
 
 
 
-def default_section(result: RunResult) -> ReportSection:
+def default_section(result: RunResult, percent: bool = False) -> ReportSection:
     """A table of every sweep point's scalar last-chunk and final metrics (mean ± 95 %
-    interval over seeds, a rate's kept in [0, 1]: :func:`seeds_cell`); array-valued metrics
-    (e.g. a learned map) stay in ``summary.json`` only."""
+    interval over seeds, a rate's kept in [0, 1]: :func:`seeds_cell`; with ``percent``, rates
+    in % and their headings marked so); array-valued metrics (e.g. a learned map) stay in
+    ``summary.json`` only."""
     lines = []
     for entry in result.summary.get("points", []):
         label = ", ".join(f"{k}={v}" for k, v in entry["values"].items()) or "default config"
@@ -37,8 +38,10 @@ def default_section(result: RunResult) -> ReportSection:
                  **{f"{k} (final)": v for k, v in entry.get("final", {}).items()}}
         stats = {k: v for k, v in stats.items() if not isinstance(v.get("mean"), list)}
         if not lines:
-            lines += ["| point | " + " | ".join(stats) + " |", "|---" * (len(stats) + 1) + "|"]
-        lines.append(f"| {label} | " + " | ".join(_cell(k.split(" (")[0], v)
+            heads = [_heading(k.split(" (")[0], percent) + k[len(k.split(" (")[0]):]
+                     for k in stats]
+            lines += ["| point | " + " | ".join(heads) + " |", "|---" * (len(stats) + 1) + "|"]
+        lines.append(f"| {label} | " + " | ".join(_cell(k.split(" (")[0], v, percent)
                                                    for k, v in stats.items()) + " |")
     if not lines and "result" in result.summary:
         lines = ["```", str(result.summary["result"]), "```"]
@@ -71,7 +74,8 @@ def run_report(exp: Experiment, result: RunResult) -> tuple[ReportSection, Path]
     out_dir = Path(result.out_dir)
     before = {p.name for p in out_dir.iterdir()}
     try:
-        section = exp.report(result) if exp.report is not None else default_section(result)
+        section = (exp.report(result) if exp.report is not None
+                   else default_section(result, exp.percent))
         figs = tuple(figure_path(f, out_dir) for f in section.figures)
         links = [f"![{f.stem}]({url_path(os.path.relpath(f, out_dir.absolute()))})" for f in figs]
         path = out_dir / "report.md"
@@ -93,13 +97,16 @@ def write_report(exp: Experiment, result: RunResult, what: str = "run") -> Path:
                           f"report failed: {one_line(e)}") from e
 
 
-def _cell(name: str, st: dict[str, Any]) -> str:
+def _cell(name: str, st: dict[str, Any], percent: bool = False) -> str:
     """A summary statistic of metric ``name`` as the reports show it: :func:`seeds_cell` of
-    its per-seed values (a rate's interval kept in [0, 1]), else mean ± its ``ci95``."""
+    its per-seed values (a rate's interval kept in [0, 1]; with ``percent``, a rate in %),
+    else mean ± its ``ci95``."""
     m, ci, values = st.get("mean"), st.get("ci95"), st.get("per_seed")
     if not isinstance(m, int | float):
         return str(m)
     if isinstance(values, list) and values and all(isinstance(v, int | float) for v in values):
+        if percent and is_rate(name):
+            return rate_cell(values, 100.0, ".1f")
         return seeds_cell(values, bounds=RATE if is_rate(name) else None)
     if not isinstance(ci, int | float) or ci != ci:
         return f"{m:.3g}"
@@ -117,7 +124,8 @@ def headline_table(result: RunResult, exp: Experiment | None = None,
     if not points:
         return _result_line(result.summary.get("result"), width)
     labels = _point_labels(points)
-    cols, left = _fit_columns(labels, _headline_names(points[0], exp), points, width)
+    percent = exp is not None and exp.percent
+    cols, left = _fit_columns(labels, _headline_names(points[0], exp), points, width, percent)
     seeds = result.summary.get("seeds", result.seeds)
     note = f"mean ± 95% interval over {seeds} seeds"
     if left:
@@ -167,8 +175,14 @@ def _point_labels(points: list[dict[str, Any]]) -> list[str]:
     return full if max(map(len, full)) <= 40 else short
 
 
+def _heading(name: str, percent: bool) -> str:
+    """A metric's column heading: its name, with `` %`` when its values are shown in %."""
+    return f"{name} %" if percent and is_rate(name) else name
+
+
 def _fit_columns(labels: list[str], names: list[str], points: list[dict[str, Any]],
-                 width: int) -> tuple[list[tuple[str, list[str]]], list[str]]:
+                 width: int, percent: bool = False
+                 ) -> tuple[list[tuple[str, list[str]]], list[str]]:
     """``([(heading, cells)], metrics left out)``: the point column, then each metric's
     column while the table stays within ``width`` columns (a metric too wide is left out,
     a narrower one after it may still fit)."""
@@ -176,12 +190,13 @@ def _fit_columns(labels: list[str], names: list[str], points: list[dict[str, Any
     used = max(len("point"), *map(len, labels))
     left = []
     for n in names:
-        cells = [_cell(n, _lookup(e, n) or {}) for e in points]
-        w = max(len(n), *map(len, cells))
+        cells = [_cell(n, _lookup(e, n) or {}, percent) for e in points]
+        head = _heading(n, percent)
+        w = max(len(head), *map(len, cells))
         if used + 3 + w > width:
             left.append(n)
             continue
-        cols.append((n, cells))
+        cols.append((head, cells))
         used += 3 + w
     return cols, left
 

@@ -707,7 +707,8 @@ def load_result(run_dir: Path, experiment: Experiment, config: Any, plan: SweepP
     if plots and curves:
         if folder is not None:
             folder.record(*plot_names(curves))
-        figures = plot_curves(curves, plan.points, run_dir, experiment.name)
+        figures = plot_curves(curves, plan.points, run_dir, experiment.name,
+                              experiment.percent)
     else:
         figures = sorted(run_dir.glob("*.png"))
     summary = {"experiment": experiment.name, "seeds": plan.seeds, "sweep": plan.sweep,

@@ -60,7 +60,8 @@ def seeds_report(folders: list[str | Path], seeds: int,
                  results_table(folders, link_base, load=load)]
         for folder in run_folders(folders):
             exp, res, _ = load(folder)
-            section = exp.report(res) if exp.report is not None else default_section(res)
+            section = (exp.report(res) if exp.report is not None
+                       else default_section(res, exp.percent))
             body = "\n".join(ln for ln in section.markdown.splitlines()
                              if not ln.startswith("!["))
             parts += [f"## {Path(folder).name}, first {seeds} of its seeds", "",
