@@ -76,3 +76,17 @@ def test_without_the_cache_nothing_is_locked(tmp_path, monkeypatch):
     monkeypatch.setattr(jax_setup, "program_lock", lambda *a, **k: calls.append(a))
     compile_shared(jax.jit(lambda x: x * 2.0), jnp.ones(3))
     assert calls == []
+
+
+def test_each_kind_of_cpu_has_its_own_cache_folder(monkeypatch, tmp_path):
+    """Programs compiled for one CPU's instruction set are never read on another: the cache
+    folder is keyed by the CPU's feature flags (in any order), and off means no folder."""
+    from vbl.engine.jax_setup import _cache_dir, machine_key
+
+    avx = "processor : 0\nflags : fpu sse2 avx2 avx512f\n"
+    assert machine_key(avx) == machine_key("flags\t: avx512f avx2 fpu sse2\n")
+    assert machine_key(avx) != machine_key("processor : 0\nflags : fpu sse2 avx2\n")
+    monkeypatch.setenv("VBL_JAX_CACHE", str(tmp_path))
+    assert _cache_dir() == str(tmp_path / machine_key())
+    monkeypatch.setenv("VBL_JAX_CACHE", "0")
+    assert _cache_dir() is None

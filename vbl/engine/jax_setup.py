@@ -1,10 +1,10 @@
 """Process-wide JAX settings that belong to the ``vbl`` command and the engine, never to
 ``import vbl``.
 
-* :func:`use_compilation_cache`: keep compiled programs on disk (``~/.cache/vbl/jax``), so
-  the second run of an experiment starts at once. The ``vbl`` command and its worker
-  processes call it; a library user opts in by calling it. ``VBL_JAX_CACHE=0`` turns it
-  off, ``VBL_JAX_CACHE=DIR`` moves it.
+* :func:`use_compilation_cache`: keep compiled programs on disk (``~/.cache/vbl/jax``, a
+  folder per kind of CPU), so the second run of an experiment starts at once. The ``vbl``
+  command and its worker processes call it; a library user opts in by calling it.
+  ``VBL_JAX_CACHE=0`` turns it off, ``VBL_JAX_CACHE=DIR`` moves it.
 * :func:`engine_precision`: the scope in which the engine builds and runs programs. vbl's
   hot paths create float32 / int32 arrays explicitly; identification statistics and the
   on-line learner's regressions are float64, so the engine enables 64-bit types for the
@@ -22,13 +22,14 @@ import contextlib
 import fcntl
 import hashlib
 import os
+import platform
 import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import jax
 
-__all__ = ["use_compilation_cache", "engine_precision", "CACHE_MIN_COMPILE_S",
+__all__ = ["use_compilation_cache", "machine_key", "engine_precision", "CACHE_MIN_COMPILE_S",
            "COMPILER_OPTIONS", "compile_shared", "program_lock", "COMPILE_WAIT_S",
            "LOCKS_DIR"]
 
@@ -41,10 +42,33 @@ compiles the largest programs in 10-30 % less CPU time at the same run time, wit
 equal to float rounding (the measurements: docs/engine.md, "CLI reference")."""
 
 
+def machine_key(cpuinfo: str | None = None) -> str:
+    """``cpu-<hash>`` of this machine's CPU (architecture and instruction-set features, from
+    ``cpuinfo``, the text of ``/proc/cpuinfo`` by default). XLA compiles a cached program
+    for the CPU it ran on; one read back on a CPU without those features could stop the
+    process (SIGILL), so each kind of CPU that shares a home folder keeps programs in a
+    cache folder of its own."""
+    if cpuinfo is None:
+        cpuinfo = ""
+        with contextlib.suppress(OSError):
+            cpuinfo = Path("/proc/cpuinfo").read_text(errors="replace")
+    flags = ""
+    for line in cpuinfo.splitlines():
+        if line.startswith(("flags", "Features")):
+            flags = line.split(":", 1)[1]
+            break
+    text = " ".join(sorted(flags.split()) + [platform.machine(), platform.processor()])
+    return "cpu-" + hashlib.sha256(text.encode()).hexdigest()[:12]
+
+
 def _cache_dir() -> str | None:
+    """The compilation cache's folder: ``VBL_JAX_CACHE`` (default ``~/.cache/vbl/jax``)
+    / :func:`machine_key`; None when it is off."""
     raw = os.environ.get("VBL_JAX_CACHE",
                          os.path.join(os.path.expanduser("~"), ".cache", "vbl", "jax"))
-    return None if raw.strip().lower() in ("0", "", "off") else raw
+    if raw.strip().lower() in ("0", "", "off"):
+        return None
+    return os.path.join(raw, machine_key())
 
 
 def use_compilation_cache() -> None:
