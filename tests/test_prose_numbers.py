@@ -1,5 +1,6 @@
 """Prose that cannot drift: every number in the README's and the findings' prose is in a
-committed file the text cites.
+committed file the text cites, and every figure the docs show comes from a committed
+command (a run's or benchmark's output folder, or an ``--out PATH`` the text gives).
 
 A number in prose (outside fenced code, inline code, HTML comments, the generated blocks
 -- ``vbl`` blocks and the probe tables that ``tests/test_probes.py`` pins to their
@@ -220,6 +221,42 @@ def test_sources_are_cited_results_and_code_never_prose(tmp_path: Path):
     assert "benchmarks/results/table2_ablation.json" in got
     assert "vbl/programs/paper.py" in got
     assert not [p for p in got if p.endswith(".md") and not p.startswith(RESULT_DIRS)]
+
+
+IMAGE = re.compile(r"!\[[^\]]*\]\(([^)\s]+)\)")
+WRITTEN_BY_RUNS = ("docs/results/", "benchmarks/results/")
+
+
+def figures_without_command(doc: Path, text: str) -> list[str]:
+    """The images ``doc`` shows that no committed command makes: an image is a run's or a
+    benchmark's output (under WRITTEN_BY_RUNS), or the document gives the command that
+    writes it (``--out PATH``, the image's path from the repository root)."""
+    outs = set(re.findall(r"--out\s+([^\s`),;]+)", text))
+    bad = []
+    for m in IMAGE.finditer(text):
+        target = (doc.parent / m.group(1)).resolve()
+        if ROOT not in target.parents:
+            bad.append(m.group(1))
+            continue
+        rel = _rel(target)
+        if not rel.startswith(WRITTEN_BY_RUNS) and rel not in outs:
+            bad.append(m.group(1))
+    return bad
+
+
+@pytest.mark.parametrize("doc", CHECKED + sorted((ROOT / "docs").glob("*.md")), ids=_rel)
+def test_every_figure_comes_from_a_committed_command(doc: Path):
+    bad = figures_without_command(doc, doc.read_text())
+    assert not bad, f"{_rel(doc)}: figures without a run folder or an --out command: {bad}"
+
+
+def test_a_figure_without_its_command_fails():
+    doc = ROOT / "docs" / "render.md"
+    text = doc.read_text()
+    assert not figures_without_command(doc, text)
+    cut = text.replace("--out docs/images/grid_learned.gif", "")
+    assert figures_without_command(doc, cut) == ["images/grid_learned.gif"]
+    assert not figures_without_command(doc, "![a](results/reproduce/x/y.png)")
 
 
 def _main(argv: list[str]) -> int:
