@@ -9,11 +9,16 @@ alone, runs its tests (stopping at the first failure, with a timeout) and restor
 file. A mutant is *caught* when its tests fail (or time out), *survived* when they pass.
 The working tree is never touched, so other work in it goes on.
 
-    .venv/bin/python tests/mutation_check.py                 # every mutant
+    .venv/bin/python tests/mutation_check.py                 # the default set
     .venv/bin/python tests/mutation_check.py --only stats-ddof merge-unsorted
     .venv/bin/python tests/mutation_check.py --issue         # issue 50's survivors
+    .venv/bin/python tests/mutation_check.py --fresh --json fresh.json  # the second set
     .venv/bin/python tests/mutation_check.py --list
     .venv/bin/python tests/mutation_check.py --json results.json
+
+``--fresh`` runs a second set written from the code alone, before its tests were read; its
+score before any test was written for it, and after, is in
+``benchmarks/results/mutation_fresh.json`` (from the ``--fresh --json`` command above).
 
 Exit status: 0 when every mutant run was caught, 1 when one survived, 2 for a bad mutant
 (its snippet is not in its file exactly once) or tests that fail unmutated.
@@ -33,7 +38,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 REPO = Path(__file__).resolve().parents[1]
-COPIED = ("vbl", "tests", "experiments", "docs", "pyproject.toml")
+COPIED = ("vbl", "tests", "experiments", "docs", "benchmarks", "pyproject.toml")
 
 
 class Mutant(NamedTuple):
@@ -203,7 +208,7 @@ VISION_MUTANTS = [
            "a pixel's height taken from the image width"),
 ]
 
-#: The fresh mutants the check runs by default.
+#: The mutants the check runs by default.
 MUTANTS = ENGINE_MUTANTS + VISION_MUTANTS
 
 SURVIVORS = ("tests/test_merge_integrity.py", "tests/test_reliability_survivors.py")
@@ -235,6 +240,139 @@ ISSUE_MUTANTS = [
            "a key's count is not zeroed after its first write"),
     Mutant("issue-env-reset-on-terminated", EB, 'done = info["episode_done"]',
            "done = terminated", ENV_TESTS, "truncated episodes never reset"),
+]
+
+
+RP, CAM = "vbl/vision/render.py", "vbl/vision/camera.py"
+CK, RS, RE = "vbl/engine/checkpoint.py", "vbl/engine/results.py", "vbl/engine/report.py"
+EX, TU = "vbl/engine/export.py", "vbl/engine/tune.py"
+RUNNER_TESTS = ("tests/test_engine_core.py", "tests/test_merge_integrity.py",
+                "tests/test_shard_merge.py")
+REPORT_TESTS = ("tests/test_reliability_survivors.py", "tests/test_engine_core.py")
+RENDER_TESTS = VISION_TESTS + ("tests/test_render.py",)
+CAMERA_TESTS = ("tests/test_camera.py",) + RENDER_TESTS
+
+#: A second, independent set of realistic bugs in the same modules (``--fresh``), written
+#: from the code alone, before reading the tests: its score before any test was written for
+#: it is the honest measure of the tests (``benchmarks/results/mutation_fresh.json``).
+FRESH_MUTANTS = [
+    # ------------------------------------------------------------------ statistics
+    Mutant("stats-t-dof-n", ST, "t_quantile_975(n - 1) * x.std(axis=axis, ddof=1)",
+           "t_quantile_975(n) * x.std(axis=axis, ddof=1)", STATS_TESTS,
+           "the mean's interval takes n degrees of freedom, not n - 1: too narrow"),
+    Mutant("stats-cornish-fisher-sign", ST,
+           "return z + g1 / df + g2 / df**2 + g3 / df**3",
+           "return z + g1 / df - g2 / df**2 + g3 / df**3", STATS_TESTS,
+           "t quantiles beyond 30 degrees of freedom too small"),
+    Mutant("stats-welch-var-ddof0", ST,
+           "va, vb = a.var(ddof=1) / a.size, b.var(ddof=1) / b.size",
+           "va, vb = a.var() / a.size, b.var() / b.size", STATS_TESTS,
+           "Welch's interval from population variances: too narrow"),
+    Mutant("stats-resolve-rounds-down", ST,
+           "math.ceil(n * (1.1 * half / abs(diff)) ** 2)",
+           "int(n * (1.1 * half / abs(diff)) ** 2)", STATS_TESTS,
+           "the seeds that would resolve a difference are rounded down"),
+    Mutant("stats-last-change-ends-early", ST,
+           "end = changes[i + 1] if i + 1 < len(changes) else n",
+           "end = changes[i + 1] if i + 1 < len(changes) else n - 1", STATS_TESTS,
+           "the last change's recovery ends one trial before the run does"),
+    # ------------------------------------------------------------------ engine
+    Mutant("merge-final-row-step", M,
+           'keys += [(g.step_offset + g.num_chunks, "final", p, g.index)',
+           'keys += [(g.step_offset + g.num_chunks + 1, "final", p, g.index)', MERGE_TESTS,
+           "the merge expects a program's final rows one step late"),
+    Mutant("merge-devices-max", M, '"devices": sum(num("devices"))',
+           '"devices": max(num("devices"), default=0)', MERGE_TESTS,
+           "the merged summary counts the largest shard's devices, not all"),
+    Mutant("folder-marker-full-paths", RF, "{Path(n).name for n in names}",
+           "{str(n) for n in names}", FOLDER_TESTS,
+           "a file recorded by its path is never removed by --overwrite"),
+    Mutant("runner-rows-first-point-seeds", RN,
+           "seed_stats(np.asarray(v)[at:at + hi - lo])", "seed_stats(np.asarray(v)[lo:hi])",
+           RUNNER_TESTS, "every sweep point's row holds the first point's seeds"),
+    Mutant("runner-set-keeps-default-sweep", RN,
+           "for p, v in experiment.sweep.items() if p not in (sets or {})}",
+           "for p, v in experiment.sweep.items()}", RUNNER_TESTS,
+           "--set PATH=V of a default-swept path is swept over anyway"),
+    Mutant("runner-empty-span", RN, "0 <= first < last <= n):",
+           "0 <= first <= last <= n):", RUNNER_TESTS + ("tests/test_tune.py",),
+           "a span of no chunks is accepted"),
+    Mutant("checkpoint-leaf-names-unpadded", CK, 'out[f"leaf_{i:04d}"]',
+           'out[f"leaf_{i}"]', RESUME_TESTS,
+           "a carry of more than 10 leaves is restored in another order"),
+    Mutant("results-truncate-drops-checkpoint-row", RS, 'if row["step"] <= step]',
+           'if row["step"] < step]', RESUME_TESTS,
+           "--resume drops the rows of the checkpointed chunk"),
+    Mutant("report-claim-tie-is-yes", RE, "    if d - h > 0:", "    if d - h >= 0:",
+           REPORT_TESTS, "two constant equal arms are claimed different"),
+    Mutant("report-stat-cell-sqrt-n", RE, "sd / math.sqrt(n - 1)", "sd / math.sqrt(n)",
+           REPORT_TESTS, "an interval from a population std is too narrow"),
+    Mutant("tune-grid-misses-high", TU, "int(self.high) + 1))", "int(self.high)))",
+           ("tests/test_tune.py",), "a grid over an int range leaves out its high end"),
+    Mutant("export-shard-seeds-from-zero", EX,
+           "seeds.append(np.arange(first, first + v.size))", "seeds.append(np.arange(v.size))",
+           ("tests/test_export.py",), "a shard's seeds are numbered from 0 in its table"),
+    # ------------------------------------------------------------------ vision
+    Mutant("blobs-hue-not-circular", BL,
+           "dh = jnp.abs(jnp.mod(h - hue + 180.0, 360.0) - 180.0)", "dh = jnp.abs(h - hue)",
+           VISION_TESTS, "a red of hue 355 deg is not the ball's hue 4 deg"),
+    Mutant("blobs-blue-hue-mirrored", BL, "4.0 + (r - g) / safe", "4.0 + (g - r) / safe",
+           VISION_TESTS, "blue hues mirrored about 240 deg: the goal (228) reads 252"),
+    Mutant("blobs-area-image-pixels", BL, "area=n * su * sv", "area=n", VISION_TESTS,
+           "a blob's area counts image pixels, not camera px^2"),
+    Mutant("blobs-min-post-camera-px", BL, "(b_hi - b_lo >= bp.min_post * sv)",
+           "(b_hi - b_lo >= bp.min_post)", VISION_TESTS,
+           "min_post taken in camera px, not image pixels"),
+    Mutant("blobs-sec3-corner-order", BL,
+           "gpts = jnp.stack([bot[0], top[0], top[1], bot[1]])",
+           "gpts = jnp.stack([bot[0], top[0], bot[1], top[1]])", VISION_TESTS,
+           "Section 3's goal corners out of their order"),
+    Mutant("blobs-x5-sign", BL, "x5 = jnp.clip((hgt[0] - hgt[1])",
+           "x5 = jnp.clip((hgt[1] - hgt[0])", VISION_TESTS,
+           "the goal's perspective feature x5 has the wrong sign"),
+    Mutant("render-ball-far-root", RP,
+           "lam = (-b - jnp.sqrt(jnp.maximum(disc, 0.0))) / a",
+           "lam = (-b + jnp.sqrt(jnp.maximum(disc, 0.0))) / a", RENDER_TESTS,
+           "rays hit the ball's far side"),
+    Mutant("render-goal-bias-sign", RP, "jnp.where(hit, lam - GOAL_DEPTH_BIAS, _FAR)",
+           "jnp.where(hit, lam + GOAL_DEPTH_BIAS, _FAR)", RENDER_TESTS,
+           "the wall, not the goal, wins their tie: no goal pixels"),
+    Mutant("render-uint8-truncates", RP,
+           "return jnp.round(jnp.clip(img, 0.0, 1.0) * 255.0).astype(jnp.uint8)",
+           "return (jnp.clip(img, 0.0, 1.0) * 255.0).astype(jnp.uint8)", RENDER_TESTS,
+           "to_uint8 truncates instead of rounding"),
+    Mutant("render-top-upside-down", RP,
+           "y = ((0.5 * th - jnp.arange(th, dtype=F32) - 0.5) * scale)[:, None]",
+           "y = ((jnp.arange(th, dtype=F32) + 0.5 - 0.5 * th) * scale)[:, None]",
+           RENDER_TESTS, "the top view's +y points down"),
+    Mutant("camera-fv-from-hfov", CAM, "jnp.asarray(cam.vfov_deg, F32)",
+           "jnp.asarray(cam.hfov_deg, F32)", CAMERA_TESTS,
+           "the vertical focal length from the horizontal field of view"),
+    Mutant("camera-no-near-clamp", CAM,
+           "zs = jnp.maximum(z, jnp.asarray(cam.near_plane, F32))", "zs = z", CAMERA_TESTS,
+           "points behind the camera project to inf / flipped pixels"),
+    Mutant("camera-offset-sideways", CAM, "c = jnp.stack([x + off * ct, y + off * st,",
+           "c = jnp.stack([x + off * st, y + off * ct,", CAMERA_TESTS,
+           "the camera's forward offset along the wrong axis"),
+    # ------------------------------------------------------------------ env base
+    Mutant("env-image-shape-swapped", EB, "return (rp.height, rp.width, 3)",
+           "return (rp.width, rp.height, 3)", ENV_TESTS,
+           "image_shape gives (W, H, 3) for a non-square image"),
+    Mutant("env-ball-shape-unchecked", EB, "if robots != (n, 3) or ball != (2,):",
+           "if robots != (n, 3):", ENV_TESTS, "a state with a batch of balls passes the check"),
+    Mutant("env-autoreset-swapped", EB, "jnp.where(done, a, b), fresh, nstate)",
+           "jnp.where(done, a, b), nstate, fresh)", ENV_TESTS,
+           "step resets episodes that go on and continues those that ended"),
+    Mutant("env-constructor-unvalidated", EB,
+           "self._default_params = self.validate(self.defaults() if params is None else params)",
+           "self._default_params = self.defaults() if params is None else params", ENV_TESTS,
+           "the constructor takes bad default parameters"),
+    Mutant("env-reset-ignores-params", EB,
+           "        params = self._default_params if params is None else params\n"
+           "        state, eps = self.reset_state(key, params)",
+           "        params = self._default_params\n"
+           "        state, eps = self.reset_state(key, params)", ENV_TESTS,
+           "reset ignores the parameters it is given"),
 ]
 
 
@@ -312,25 +450,36 @@ def run(mutants: list[Mutant], timeout: float) -> list[dict]:
     return results
 
 
+def _set_of(m: Mutant) -> str:
+    """The option that runs ``m``'s set: "default", "--issue" or "--fresh"."""
+    return "--issue" if m in ISSUE_MUTANTS else "--fresh" if m in FRESH_MUTANTS else "default"
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--only", nargs="+", metavar="NAME", help="run these mutants only")
-    p.add_argument("--issue", action="store_true",
-                   help="the mutants issue 50 found surviving, instead of the fresh ones")
+    which = p.add_mutually_exclusive_group()
+    which.add_argument("--issue", action="store_true",
+                       help="the mutants issue 50 found surviving, instead of the default ones")
+    which.add_argument("--fresh", action="store_true",
+                       help="the second, independent set (FRESH_MUTANTS), instead of the "
+                            "default ones")
     p.add_argument("--list", action="store_true", help="list the mutants and exit")
     p.add_argument("--timeout", type=float, default=900.0, help="seconds per test run")
     p.add_argument("--json", metavar="FILE", help="also write the results as JSON")
     args = p.parse_args(argv)
-    chosen = ISSUE_MUTANTS if args.issue else MUTANTS
+    chosen = ISSUE_MUTANTS if args.issue else FRESH_MUTANTS if args.fresh else MUTANTS
     if args.only:
-        names = {m.name for m in MUTANTS + ISSUE_MUTANTS}
-        bad = [n for n in args.only if n not in names]
+        every = MUTANTS + ISSUE_MUTANTS + FRESH_MUTANTS
+        bad = [n for n in args.only if n not in {m.name for m in every}]
         if bad:
             p.error(f"no mutant {', '.join(bad)}; --list shows them")
-        chosen = [m for m in MUTANTS + ISSUE_MUTANTS if m.name in args.only]
+        chosen = [m for m in every if m.name in args.only]
     if args.list:
-        for m in chosen:
-            print(f"{m.name:34s} {m.file:22s} {m.why}")
+        shown = chosen if args.only or args.issue or args.fresh else (
+            MUTANTS + ISSUE_MUTANTS + FRESH_MUTANTS)
+        for m in shown:
+            print(f"{_set_of(m):7s} {m.name:38s} {m.file:26s} {m.why}")
         return 0
     try:
         results = run(chosen, args.timeout)

@@ -76,6 +76,23 @@ def test_behind_camera_has_negative_depth_and_finite_uv():
     assert float(depth[0]) < 0 and np.all(np.isfinite(np.asarray(uv)))
 
 
+def test_points_behind_or_nearer_than_the_near_plane_divide_by_it():
+    """Documented: for a depth below near_plane the division uses near_plane (finite, never
+    NaN): u = fu X / near, v = fv Y / near, as the NumPy reference computes; a point at the
+    camera centre projects to the image centre."""
+    pose = np.array([0.4, -0.2, 0.7])
+    f, r, a = _axes(pose[2])
+    c = _centre(pose)
+    pts = np.stack([c - 0.5 * f + 0.2 * r + 0.1 * a, c + 0.004 * f - 0.3 * r - 0.2 * a, c])
+    uv, depth = project(jnp.asarray(pts, jnp.float32), jnp.asarray(pose, jnp.float32), CAM)
+    ruv, rd = project_points_np(pts, pose, CAM)
+    np.testing.assert_allclose(np.asarray(depth), [-0.5, 0.004, 0.0], atol=1e-5)
+    np.testing.assert_allclose(np.asarray(uv), ruv, rtol=1e-4, atol=1e-2)
+    np.testing.assert_allclose(np.asarray(uv[1]), [-0.3 * FU / CAM.near_plane,
+                                                   -0.2 * FV / CAM.near_plane], rtol=1e-3)
+    np.testing.assert_array_equal(np.asarray(uv[2]), [0.0, 0.0])
+
+
 def test_matches_numpy_reference():
     rng = np.random.default_rng(0)
     poses = np.c_[rng.uniform(-3, 3, (20, 2)), rng.uniform(-np.pi, np.pi, 20)]

@@ -152,6 +152,42 @@ def test_checkpoint_guards(tmp_path):
                                                          "k": tree["k"]})
 
 
+def test_a_carry_of_many_leaves_comes_back_in_its_order(tmp_path):
+    """12 leaves of one shape and dtype (shape checks cannot tell them apart): each comes
+    back from the checkpoint as the leaf it was."""
+    tree = {f"x{i:02d}": np.full((3, 2), i, np.float32) for i in range(12)}
+    ck = Checkpoints(tmp_path / "ck", fingerprint="aaaa")
+    ck.save(1, tree, {"group": 0})
+    ck.close()
+    back, _ = Checkpoints(tmp_path / "ck", "aaaa").restore(1, tree)
+    assert {k: float(v[0, 0]) for k, v in back.items()} == {k: float(i) for i, k in
+                                                             enumerate(tree)}
+
+
+def test_set_fixes_a_path_of_the_default_sweep(toy):
+    """A path of the experiment's default sweep that --set fixes leaves the sweep: one
+    value, the one set (resolve's documented rule)."""
+    import dataclasses
+
+    from vbl.engine.runner import resolve
+
+    exp = dataclasses.replace(toy, sweep={"agent.epsilon": [0.1, 0.2]})
+    assert resolve(exp)[1] == {"agent.epsilon": [0.1, 0.2]}
+    config, sweep, _, spec = resolve(exp, sets={"agent.epsilon": 0.3})
+    assert sweep == {} and spec["sweep"] == {}
+    assert config.agent.epsilon == pytest.approx(0.3)
+
+
+@pytest.mark.parametrize("span", [(0, 0), (2, 2), (3, 1), (0, 4)])
+def test_a_span_of_no_chunks_or_past_the_end_is_refused(toy, tmp_path, span):
+    """span (first, last) runs chunks first..last-1 of the 3: an empty or reversed span,
+    or one past the last chunk, is refused before any folder is written."""
+    with pytest.raises(ParamError, match=r"span .* needs 0 <= first < last <= 3"):
+        run_experiment(toy, sets={**TINY_SETS, "train.num_chunks": 3}, seeds=1,
+                       out=tmp_path / "r", quiet=True, span=span, start_carry=lambda x: x)
+    assert not (tmp_path / "r").exists()
+
+
 def test_cli_errors_exit_nonzero(toy, tmp_path, capsys):
     from vbl.cli import main
 

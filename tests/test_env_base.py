@@ -133,6 +133,59 @@ def test_checks_outside_jit_and_none_inside():
     jax.jit(env.step)(key, state, jnp.int32(5))
 
 
+def test_the_constructor_refuses_bad_default_parameters():
+    """params= of the constructor become every call's defaults: checked there, as
+    validate() checks them (type, bounds)."""
+    with pytest.raises(ParamError, match="ToyParams"):
+        ToyEnv("a", WorldParams())
+    with pytest.raises(ParamError, match="slip_std"):
+        ToyEnv("a", ToyParams(world=WorldParams().replace(
+            robot=WorldParams().robot.replace(slip_std=-1.0))))
+    assert ToyEnv("a", ToyParams(max_steps=5)).default_params.max_steps == 5
+
+
+def test_a_state_with_a_batch_of_balls_is_refused():
+    """One env's state holds one ball (2,): a batch of balls outside vmap is refused, as a
+    batch of robots is."""
+    env = ToyEnv()
+    _, state = env.reset(jax.random.key(0))
+    bad = state.replace(world=state.world.replace(ball=jnp.zeros((4, 2))))
+    for call in (env.step, env.step_env):
+        with pytest.raises(ValueError, match=r"ball \(4, 2\); expected \(1, 3\) / \(2,\)"):
+            call(jax.random.key(1), bad, jnp.int32(0))
+
+
+class _PixelToy(ToyEnv, params=ToyParams, state=ToyState, fresh_words=FRESH,
+               pixel_noise_dim=1, option=("kind", ("a", "b"))):
+    """ToyEnv with a camera image of H x W = 12 x 16 (rows differ from columns)."""
+
+    def camera_image(self, state, params):
+        rp = params.pixels.render
+        return jnp.full((rp.height, rp.width, 3), 0.5, jnp.float32)
+
+    def image_noise_std(self, params):
+        return 0.1
+
+
+def test_image_shape_and_pixel_noise_are_the_camera_images():
+    """image_shape is (H, W, 3) of the image the env renders; under pixels its noise has one
+    normal per channel of each pixel, laid out as that image."""
+    from types import SimpleNamespace
+
+    from vbl.vision.render import RenderParams
+
+    env = _PixelToy()
+    params = SimpleNamespace(pixels=SimpleNamespace(render=RenderParams(width=16, height=12)),
+                             obs_source="pixels")
+    _, state = env.reset(jax.random.key(0))
+    assert env.image_shape(params) == env.camera_image(state, params).shape == (12, 16, 3)
+    assert env.pixel_noise_size(params) == 12 * 16 * 3
+    eps = jnp.zeros(env.pixel_noise_size(params)).at[16 * 3 + 2].set(1.0)  # row 1, col 0, B
+    img = np.asarray(env.get_pixels(state, params, eps))
+    assert img.shape == (12, 16, 3) and img[1, 0, 2] == round(255 * 0.6) and \
+        (img == 128).sum() == img.size - 1
+
+
 def test_a_task_must_declare_its_parts():
     with pytest.raises(TypeError):
         class Incomplete(TaskEnv, params=ToyParams, state=ToyState):  # noqa: F841

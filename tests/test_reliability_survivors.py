@@ -21,7 +21,7 @@ from tests.engine_helpers import one_error_line
 from vbl.engine import runfolder
 from vbl.engine.config import fingerprint
 from vbl.engine.errors import EngineError
-from vbl.engine.report import claim
+from vbl.engine.report import claim, stat_cell
 from vbl.stats import MIN_SEEDS_BOUNDED, bounded_ci95
 
 # ------------------------------------------------------------------ run folders
@@ -107,6 +107,22 @@ def test_claim_counts_the_seeds_of_the_smaller_arm():
     assert says.startswith("not resolved at 3 seeds"), says
     assert claim([0.6], b).startswith("not resolved (1 seed: no interval")
     assert claim(b, a[:2]).startswith("not resolved at 2 seeds")
+
+
+def test_claim_of_two_equal_constant_arms_is_not_yes():
+    """Equal arms have a difference of exactly 0 (interval [0, 0]): mean(a) > mean(b) is
+    false, never "yes"; a constant gap above 0 is "yes"."""
+    assert claim([1.0, 1.0, 1.0], [1.0, 1.0, 1.0]).startswith("not resolved at 3 seeds")
+    assert claim([2.0, 2.0, 2.0], [1.0, 1.0, 1.0]).startswith("yes")
+
+
+def test_stat_cell_from_a_population_std_is_the_student_t_interval():
+    """stat_cell(..., n=) gets a population std (ddof 0): its interval is SciPy's Student t
+    95 % half-width of the mean of the values the std came from."""
+    x = np.array([0.3, 0.9, 0.4, 0.7, 0.2])
+    half = sps.t.ppf(0.975, x.size - 1) * x.std(ddof=1) / np.sqrt(x.size)
+    cell = stat_cell({"mean": float(x.mean()), "std": float(x.std())}, fmt=".6f", n=x.size)
+    assert cell == f"{x.mean():.6f} ± {half:.6f}"
 
 
 # ------------------------------------------------------------------ vbl render's checks
@@ -202,6 +218,42 @@ def test_a_full_disk_names_the_file_it_could_not_write():
     assert one_line(e.value).startswith("cannot write /dev/full: No space left on device")
 
 
+# the checkpoint library's error for a full disk: no filename, a temporary file in its text
+_LIBRARY_FULL = ('OUT_OF_RANGE: Error writing "leaf_0000/0" in OCDBT database at local file '
+                 '"/x/1.orbax-checkpoint-tmp/": Failed to write 7 bytes to file 11: No space '
+                 "left on device [os_error_code='28']")
+
+
+@pytest.mark.parametrize("raised", ["OSError", "library"])
+def test_a_full_disk_while_a_checkpoint_is_saved_names_its_folder(raised, tmp_path,
+                                                                  monkeypatch, capsys):
+    """ENOSPC while a checkpoint is written: exit 1 with one line naming the step's folder
+    (as a permission error's line names its file), no traceback."""
+    import errno
+
+    import orbax.checkpoint as ocp
+
+    from tests.engine_helpers import TINY, experiments_dir
+    from vbl.cli import main
+
+    monkeypatch.setenv("VBL_EXPERIMENTS_DIR", str(experiments_dir(tmp_path)))
+
+    def full(self, step, *a, **kw):
+        if raised == "OSError":
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        raise ValueError(_LIBRARY_FULL)
+
+    monkeypatch.setattr(ocp.CheckpointManager, "save", full)
+    out = tmp_path / "run"
+    code = main(["run", "toy_bandit", "--quiet", *TINY, "--set", "train.num_chunks=2",
+                 "--seeds", "2", "--checkpoint-every", "1", "--out", str(out)])
+    line = one_error_line(capsys.readouterr().err)
+    assert code == 1
+    assert line.startswith(f"vbl: error: cannot write {out / 'checkpoints' / '1'}: No space "
+                           f"left on device; free some space"), line
+    assert line.endswith("continue the run with --resume"), line
+
+
 def test_overwrite_deletes_nothing_outside_the_folder(tmp_path):
     """A marker edited to list ``../victim`` (or ``sub/x``): --overwrite removes only the
     folder's own top-level names."""
@@ -220,6 +272,22 @@ def test_overwrite_deletes_nothing_outside_the_folder(tmp_path):
     assert (tmp_path / "victim" / "keep.txt").read_text() == "keep"
     assert (run / "sub" / "x").read_text() == "keep"
     assert not (run / "metrics.jsonl").exists()
+
+
+def test_files_recorded_by_their_path_are_replaced_by_overwrite(tmp_path):
+    """record_files (and RunFolder.record) take a file's path as well as its name: the
+    marker lists its top-level name, so --overwrite removes it."""
+    run = tmp_path / "run"
+    folder = runfolder.open_run_folder(run, "toy", resume=False, overwrite=False)
+    for name in ("curve.png", "table.csv"):
+        (run / name).write_text("x")
+    runfolder.record_files(run, [run / "curve.png"])
+    folder.record(run / "table.csv")
+    folder.release()
+    assert {"curve.png", "table.csv"} <= set(json.loads((run / runfolder.MARKER).read_text())
+                                             ["files"])
+    runfolder.open_run_folder(run, "toy", resume=False, overwrite=True).release()
+    assert not (run / "curve.png").exists() and not (run / "table.csv").exists()
 
 
 def test_resume_into_a_folder_without_a_run_is_refused(tmp_path):

@@ -87,6 +87,10 @@ def test_merged_shards_equal_the_whole_run(runs, n):
     summary = json.loads((out / "summary.json").read_text())
     assert [s["shard"] for s in summary["shards"]] == [f"{i}/{n}" for i in range(1, n + 1)]
     assert summary["learners"] == 6 and sum(s["learners"] for s in summary["shards"]) == 6
+    # the run used every shard's devices and processes: the sums of the shards' own records
+    each = [json.loads((f / "summary.json").read_text()) for f in shards[n]]
+    assert [summary[k] for k in ("devices", "processes")] == \
+        [sum(e[k] for e in each) for k in ("devices", "processes")] and summary["devices"] >= n
 
 
 def test_report_of_one_shard_asks_for_the_merge(runs, capsys):

@@ -9,6 +9,8 @@ silently different result).
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import hashlib
 from pathlib import Path
 from typing import Any
@@ -53,6 +55,29 @@ def _corrupt(where: Path, e: Exception | str, fallback: str) -> CheckpointError:
                            f"unreadable ({why}); {fallback}")
 
 
+@contextlib.contextmanager
+def _naming(where: Path):
+    """A full disk (quota, file size limit) met while the checkpoint library writes becomes
+    an OSError naming ``where`` (the step's folder): the library's own error names a
+    temporary file, or none (:func:`vbl.engine.errors.one_line` then names no file)."""
+    from vbl.engine.errors import _disk_full
+
+    try:
+        yield
+    except Exception as e:
+        if isinstance(e, OSError) and e.filename is not None:
+            raise
+        why = _disk_full(e)
+        if why is None:
+            raise
+        code = e.errno if isinstance(e, OSError) and e.errno else _DISK_CODES.get(
+            why, errno.ENOSPC)
+        raise OSError(code, why, str(where)) from e
+
+
+_DISK_CODES = {"File too large": errno.EFBIG, "Disk quota exceeded": errno.EDQUOT}
+
+
 def _first_line(text: str) -> str:
     lines = [x for x in text.strip().splitlines() if x.strip()]
     return lines[0] if lines else ""
@@ -64,6 +89,7 @@ class Checkpoints:
     def __init__(self, directory: Path, fingerprint: str, max_to_keep: int = 2):
         self.directory = Path(directory).absolute()
         self.fingerprint = fingerprint
+        self._writing = self.directory  # the step folder an asynchronous save writes
         options = ocp.CheckpointManagerOptions(max_to_keep=max_to_keep, save_interval_steps=1,
                                                create=True, cleanup_tmp_directories=True)
         try:
@@ -89,8 +115,12 @@ class Checkpoints:
         state, _ = _to_storable(carry)
         meta = dict(meta, fingerprint=self.fingerprint, step=int(step),
                     sha256={k: _sha256(v) for k, v in state.items()})
-        self._mngr.save(int(step), args=ocp.args.Composite(
-            state=ocp.args.StandardSave(state), meta=ocp.args.JsonSave(meta)), force=True)
+        with _naming(self._writing):  # the save before this one may fail here
+            self._mngr.wait_until_finished()
+        self._writing = self.directory / str(int(step))
+        with _naming(self._writing):
+            self._mngr.save(int(step), args=ocp.args.Composite(
+                state=ocp.args.StandardSave(state), meta=ocp.args.JsonSave(meta)), force=True)
 
     def check_meta(self, step: int) -> dict[str, Any]:
         """The metadata of ``step``; CheckpointError if unreadable or of another config."""
@@ -136,8 +166,10 @@ class Checkpoints:
         return jax.tree_util.tree_unflatten(treedef, leaves), meta
 
     def wait(self) -> None:
-        self._mngr.wait_until_finished()
+        with _naming(self._writing):
+            self._mngr.wait_until_finished()
 
     def close(self) -> None:
-        self._mngr.wait_until_finished()
+        with _naming(self._writing):
+            self._mngr.wait_until_finished()
         self._mngr.close()
