@@ -245,6 +245,37 @@ def test_table2_tuned(capsys, tmp_path):
     assert "--set env.task_pass=false" in row["command"] and "| shoot, current |" in printed
 
 
+def test_table2_tuned_table_is_the_committed_results(capsys):
+    """The findings' table of each row's tuned learner is the committed results file's."""
+    committed = run_probe("table2_tuned", ["--table"], capsys).strip()
+    note = (PROBES.parents[1] / "docs" / "findings" / "table2_shoot_pass.md").read_text()
+    begin, end = "<!-- table2_tuned -->\n", "\n<!-- /table2_tuned -->"
+    assert note[note.index(begin) + len(begin):note.index(end)] == committed, (
+        "docs/findings/table2_shoot_pass.md: the tuned-learner table differs from "
+        "`python benchmarks/probes/table2_tuned.py --table`")
+
+
+def test_table2_tuned_comparisons_against_numpy():
+    """The between-row differences are Welch's: checked against a NumPy computation on
+    made-up per-seed values (and a missing row leaves its comparisons out)."""
+    import numpy as np
+
+    sps = pytest.importorskip("scipy.stats")  # a peer library as the reference
+    spec = importlib.util.spec_from_file_location("probe_t2t", PROBES / "table2_tuned.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    a, b = np.array([0.2, 0.4, 0.3, 0.5]), np.array([0.1, 0.1, 0.2, 0.2])
+    rows = {"pass, cva": {"default": list(a), "tuned": list(b)},
+            "pass, current": {"default": list(b), "tuned": list(a)}}
+    va, vb = a.var(ddof=1) / 4, b.var(ddof=1) / 4
+    dof = (va + vb) ** 2 / (va**2 / 3 + vb**2 / 3)
+    # Welch's dof rounded down below 30, as vbl.stats documents (a conservative interval)
+    half = 100 * sps.t.ppf(0.975, np.floor(dof)) * np.sqrt(va + vb)
+    lines = mod.comparisons(rows)
+    assert lines[2:] == [f"| pass | CVA − current | {100 * (a - b).mean():+.1f} ± {half:.1f} | "
+                         f"{100 * (b - a).mean():+.1f} ± {half:.1f} |"]
+
+
 def test_table2_ablation_table_is_the_committed_results(capsys):
     """The findings' ablation table is the committed results file's."""
     committed = run_probe("table2_ablation", ["--table"], capsys).strip()

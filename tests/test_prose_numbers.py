@@ -54,7 +54,7 @@ NOT_A_QUANTITY = re.compile(
 INTERVAL_LEVEL = re.compile(r"\s*%\s*(?:\w+\s+)?(?:interval|confidence|CI)", re.I)
 #: a table a probe writes from its committed results file, which tests/test_probes.py
 #: compares with that file (the means of per-seed values, which the file does not hold)
-PROBE_TABLE = re.compile(r"<!-- (table2_ablation) -->.*?<!-- /\1 -->", re.S)
+PROBE_TABLE = re.compile(r"<!-- (table2_ablation|table2_tuned) -->.*?<!-- /\1 -->", re.S)
 CITED = re.compile(r"\]\(([^)\s#]+)[^)]*\)|`([\w./-]+)`")
 DECLARED = re.compile(r"<!--\s*sources:(.*?)-->", re.S)
 RESULT_DIRS = ("docs/results/", "benchmarks/results/")
@@ -63,7 +63,7 @@ RUN_FILES = ("summary.json", "config.json", "report.md", "reproduce.json", "tune
 #: unit changes a prose number may carry against its source value
 SCALES = (1.0, 100.0, 0.01, 1 / 60, 1 / 3600, 1e3, 1e-3, 1e6, 1e-6, 1e9, 1e-9)
 SMALL_COUNT = 10
-FILE_NUMBER = re.compile(r"(?<![\w.])\d[\d,]*(?:\.\d+)?(?:e-?\d+)?")
+FILE_NUMBER = re.compile(r"(?<!\w)(?<![^.]\.)\d[\d,]*(?:\.\d+)?(?:e-?\d+)?")
 
 
 def _rel(path: Path) -> str:

@@ -17,14 +17,16 @@ Not an experiment and not a benchmark; run from the repository root:
 Each row is one ``vbl tune`` process (its command is in the results file); the probe
 writes ``benchmarks/results/table2_tuned.json`` (per row: the search's settings, the best
 values, the per-seed greedy success of the best values and of the defaults on the fresh
-seeds), keeping rows of earlier invocations it does not rerun (``--tiny`` writes into
-``--out`` only). Cited by docs/findings/table2_shoot_pass.md.
+seeds; the table's means and differences in points under ``statistics``), keeping rows
+of earlier invocations it does not rerun (``--tiny`` writes into ``--out`` only). Cited by
+docs/findings/table2_shoot_pass.md.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -78,7 +80,8 @@ def run(row: str, out: Path, tiny: bool) -> dict:
         subprocess.run(vbl + argv[1:] + (["--resume"] if folder.exists() else []),
                        check=True, cwd=ROOT)
     sm = json.loads((folder / "summary.json").read_text())
-    return {"command": " ".join(argv[:-2] + ["--out", f"runs/table2_tuned/{folder.name}"]),
+    shown = command(row, Path("runs") / "table2_tuned" / folder.name, tiny)
+    return {"command": " ".join(shlex.quote(w) for w in shown),
             "best": sm["params"], "defaults": sm["defaults"]["params"],
             "tuned": sm["confirmation"]["per_seed"], "default": sm["defaults"]["per_seed"],
             "search": sm["search"]["per_seed"], "learner_chunks":
@@ -105,7 +108,53 @@ def table(data: dict) -> str:
         lines.append(f"| {row} | {_cell(r['default'])} | {_cell(r['tuned'])} | "
                      f"{d:+.1f} ± {h:.1f} | {b['agent.learning_rate']:.3f} | "
                      f"{b['agent.discount']:.3f} | {b['agent.exploration.end_value']:.3f} |")
-    return "\n".join(lines)
+    return "\n".join(lines + [""] + comparisons(data["rows"]))
+
+
+#: Table 2's comparisons: (name, row a, row b) within a task, a minus b
+COMPARISONS = (("CVA − current", "cva", "current"),
+               ("velocity oracle − current", "current + true velocity", "current"),
+               ("CVA + true velocity − velocity oracle", "cva + true velocity",
+                "current + true velocity"))
+
+
+def statistics(rows: dict) -> dict:
+    """The table's numbers in greedy success points: per row the defaults' and the tuned
+    learner's mean and 95 % half-width and their Welch difference; per task and comparison
+    the Welch differences between rows, with the defaults and tuned."""
+    from vbl.stats import mean_ci95, welch_ci95
+
+    pct = {row: {k: 100 * np.asarray(r[k], np.float64) for k in ("default", "tuned")}
+           for row, r in rows.items()}
+    out = {"rows": {row: {"defaults": list(mean_ci95(v["default"])),
+                          "tuned": list(mean_ci95(v["tuned"])),
+                          "tuned - defaults": list(welch_ci95(v["tuned"], v["default"]))}
+                    for row, v in pct.items()}, "comparisons": {}}
+    for task in ("shoot", "pass"):
+        for name, a, b in COMPARISONS:
+            ra, rb = pct.get(f"{task}, {a}"), pct.get(f"{task}, {b}")
+            if ra is not None and rb is not None:
+                out["comparisons"][f"{task}: {name}"] = {
+                    k: list(welch_ci95(ra[k], rb[k])) for k in ("default", "tuned")}
+    return out
+
+
+def comparisons(rows: dict) -> list[str]:
+    """Table 2's differences between rows (greedy success points, Welch 95 %), between the
+    rows' default learners and between their tuned ones."""
+    from vbl.stats import welch_ci95
+
+    lines = ["| task | comparison | defaults | tuned |", "|---|---|---|---|"]
+    for task in ("shoot", "pass"):
+        for name, a, b in COMPARISONS:
+            ra, rb = rows.get(f"{task}, {a}"), rows.get(f"{task}, {b}")
+            if ra is None or rb is None:
+                continue
+            cells = ["{:+.1f} ± {:.1f}".format(*welch_ci95(100 * np.asarray(ra[k]),
+                                                           100 * np.asarray(rb[k])))
+                     for k in ("default", "tuned")]
+            lines.append(f"| {task} | {name} | {cells[0]} | {cells[1]} |")
+    return lines
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -126,6 +175,7 @@ def main(argv: list[str] | None = None) -> int:
     data.setdefault("rows", {})
     for row in rows:
         data["rows"][row] = run(row, args.out, args.tiny)
+        data["statistics"] = statistics(data["rows"])
         target.parent.mkdir(parents=True, exist_ok=True)
         target.write_text(json.dumps(data, indent=1) + "\n")
     print(table(data))
