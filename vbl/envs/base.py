@@ -1,54 +1,17 @@
-"""The base of the task environments (:class:`~vbl.envs.shooting.ShootingEnv`,
-:class:`~vbl.envs.shoot_pass.ShootPassEnv`), in the mould of gymnax 1.0's
-``environment.Environment``.
+"""The base of the task environments, in the mould of gymnax 1.0's ``Environment``.
 
-:class:`TaskEnv` holds what every task shares: the default parameters, the input checks,
-the random layout of a call, ``reset``, ``step_env`` (no auto-reset), the auto-reset
-``step`` and their observation-free forms ``reset_state`` / ``step_state``. A task
-subclass gives only its parts:
+:class:`TaskEnv` holds what :class:`~vbl.envs.shooting.ShootingEnv` and
+:class:`~vbl.envs.shoot_pass.ShootPassEnv` share: the default parameters, ``reset``,
+``step`` (auto-reset), ``step_env`` (no auto-reset), their observation-free forms
+``reset_state`` / ``step_state``, ``get_obs`` (analytic or from pixels, by
+``params.obs_source``), ``get_pixels`` (H, W, 3) uint8, the input checks (outside ``jit``)
+and the random layout of a call (one hash per call, :func:`vbl.draws.draw_blocks`). A task
+subclass gives only its parts: class keywords, its fresh episode (``_fresh``), one
+transition (``_transition``), the draw blocks of its noise (``transition_blocks``) and its
+observations. :class:`NoiseOn` holds the static switches of the noise sources every task
+has (``slip``, ``pixel``); a source that is off draws and computes nothing.
 
-* class keywords (:class:`TaskEnv`): ``params`` and ``state`` (its :mod:`flax.struct`
-  dataclasses), ``fresh_words`` (random words of a fresh episode), ``pixel_noise_dim``
-  (standard normals of its camera's pixel noise) and ``option`` (the name of its static
-  constructor option and its choices);
-* ``name``, ``num_actions``, ``action_labels`` and ``observation_shape``;
-* ``defaults()`` (optional): its default parameters when they depend on the option;
-* ``transition_blocks(params)``: the draw blocks ``(n, on)`` of one transition's standard
-  normals, ``on`` the static noise switch of that source;
-* ``_fresh(words, params)``: a fresh episode's state from ``fresh_words`` uint32 words;
-* ``_transition(eps, state, action, params)``: one primitive, ``eps`` the normals of the
-  transition blocks (None where a source is off), returning (state, reward, terminated,
-  truncated, info) with ``info["episode_done"]``;
-* ``analytic_obs(state, params, eps)``: the observation from the analytic camera, ``eps``
-  the pixel noise's normals or None; ``camera_image(state, params)``: the learner's camera
-  image (float RGB in [0, 1], :mod:`vbl.vision.render`); ``image_obs(img, state,
-  params)``: the observation from that image (uint8, colour blobs, :mod:`vbl.vision.blobs`);
-  ``image_noise_std(params)``: the std of its image noise;
-* ``check_params(params)`` (optional): consistency rules the env adds to its parameters.
-
-Observation source: ``params.obs_source`` (static) is ``"analytic"`` (``get_obs`` is
-``analytic_obs``) or ``"pixels"`` (``get_obs`` renders the learner's camera image at
-``params.pixels.render``'s size, adds the image noise, rounds it to uint8 and extracts the
-same features from it by colour blobs, :mod:`vbl.envs.pixels`); the pixel noise's normals
-are then one per colour channel of each pixel. ``get_pixels`` gives that image (H, W, 3)
-uint8 in either mode (with image noise only under ``"pixels"``), for learners that see
-pixels (the brax adapter's ``obs="pixels"``).
-
-Random numbers: each call hashes its key once (:func:`vbl.draws.draw_blocks`). ``reset``
-lays out [fresh episode, pixel noise]; ``step_env`` [transition blocks, pixel noise]; ``step``
-[transition blocks, fresh episode, pixel noise].
-
-Noise switches: ``params.noise_on`` (:class:`NoiseOn`, or a subclass with the task's
-further sources) holds a static switch per random noise source of the task. A source that
-is off draws no random numbers and computes nothing (its std must then be 0: validation
-refuses a std above 0 with its switch off, which ``jit`` with traced parameters skips); one
-that is on draws them whatever its std, so a sweep over the std (0 included) is one
-compiled program. The draws of a source are the same whichever other sources are on
-(:func:`vbl.draws.draw_blocks`).
-
-Input checks: ``reset``/``step`` called outside ``jit`` with concrete values check the
-parameters (:class:`vbl.params.ParamError`), the action and the state (ValueError naming
-what is allowed). Inside ``jit``/``vmap`` the values are traced and the checks are skipped.
+See docs/envs.md, "The task base" (a task's parts) and docs/world.md, "Random numbers".
 """
 
 from __future__ import annotations

@@ -1,47 +1,16 @@
 """Present a vbl env (gymnax style, discrete actions) as a ``brax.envs.base.Env``.
 
-Conventions (those of brax's training wrappers, ``brax.envs.wrappers.training.wrap``):
+:class:`BraxAdapter` follows the conventions of brax's training wrappers: ``done`` is 1.0
+only on termination and the env's time limit sets ``info["truncation"]`` (pass
+``adapter.episode_length`` as brax's ``episode_length``); an action is an integer index
+``()`` or a float vector ``(num_actions,)`` taken by argmax; a step observes once, the
+state it ends in; with ``fresh_starts`` every episode under brax's ``AutoResetWrapper``
+starts from a new draw; the start difficulty is ``info["difficulty"]`` () float32
+(:func:`set_difficulty`) and the key ``info["rng"]``. Observations, rewards and flags are
+float32, or with ``obs="pixels"`` the observation is the learner's camera image (H, W, 3)
+uint8. ``state.pipeline_state`` holds the vbl env state; ``metrics`` has ``success``.
 
-* ``done`` is 1.0 only on **termination** (goal, ball out, ...); reaching the env's
-  ``max_steps`` sets ``state.info["truncation"]`` to 1.0 with ``done`` 0. Under brax's
-  ``EpisodeWrapper`` use ``episode_length = adapter.episode_length`` (the env's
-  ``max_steps``): the wrapper then ends the episode and flags the truncation at the same
-  step, and PPO bootstraps the value there (``brax.training.agents.ppo.losses.compute_gae``).
-* Actions: an integer primitive index ``()`` (e.g. from
-  :class:`vbl.agents.ppo.CategoricalDistribution`), or a float vector ``(num_actions,)``
-  whose argmax is the primitive (ties to the lowest index).
-* Observation: the adapter takes the env's dynamics and its observation apart
-  (``reset_state`` / ``step_state`` and ``get_obs``, as
-  :class:`~vbl.envs.shooting.ShootingEnv` has them) and observes once per step, the state
-  the step ends in (after the restart below, when there is one), so a compiled step holds
-  the env's camera once. A wrapper whose state records what it sees (e.g.
-  :class:`vbl.agents.ppo_inputs.InputEnv`) defines ``observe(state, params, eps) -> (obs,
-  state)`` instead of ``get_obs``.
-* Fresh starts (``fresh_starts=True``, default): when brax's ``AutoResetWrapper`` is
-  present, every step also draws the next start from the adapter's own key, and an episode
-  that ends (``terminated | truncated`` of the env) continues from that draw; the adapter
-  writes the state it ends in to ``info["first_pipeline_state"]`` / ``info["first_obs"]``,
-  so the wrapper's own selection keeps it (this needs the wrapper's ``episode_length`` to
-  be the env's ``max_steps``, as above). Costs one start draw per step, no observation.
-  Without fresh starts the wrapper restores the start drawn at ``reset``. Without the
-  wrapper (evaluation) an ended episode continues as the env's own ``step_state`` restarts
-  it.
-* Start difficulty: tasks whose params have ``start_difficulty``
-  (:class:`vbl.envs.shooting.ShootingEnv`, :class:`vbl.envs.shoot_pass.ShootPassEnv`,
-  also through a wrapper whose params keep the task's in ``inner``, e.g.
-  :class:`vbl.agents.ppo_inputs.InputParams`) keep it in ``state.info["difficulty"]`` ()
-  float32; fresh starts are drawn at that value, so a curriculum sets it with
-  :func:`set_difficulty`. ``adapter.has_difficulty`` says whether the task has one.
-* Randomness: brax's ``step`` takes no key; the adapter keeps one in ``info["rng"]`` and
-  splits it per step into the env step's key (the words of the env's ``step_state``
-  layout, :mod:`vbl.draws`), the fresh start's key and the next one.
-* Observations, rewards and flags are float32 whatever ``jax_enable_x64`` says; with
-  ``obs="pixels"`` the observation is instead the learner's camera image (H, W, 3) uint8
-  (the env's ``get_pixels(state, params, eps)``, with the image noise of its pixel
-  observations; ``observation_size`` is then the image shape ``env.image_shape(params)``),
-  for learners that see pixels.
-
-``state.pipeline_state`` holds the vbl env state; ``metrics`` has ``success``.
+See docs/ppo.md, "The brax adapter" and docs/render.md, "Pixel observations".
 """
 
 from __future__ import annotations

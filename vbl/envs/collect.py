@@ -1,35 +1,16 @@
 """Batched identification-data collection (Section 3.1, step 1 of Figure 11).
 
-A learner (robot 0, 4-wheel steering, the *observer*) moves with random actions while
-its camera observes the goal, the ball and another robot (robot 1, a scripted
-behaviour of :mod:`vbl.envs.other_agents`). One data set is the sequence of its motor
-commands ``u(t) = FOUR_WHEEL_U[a(t)]`` (N, 2) and the Section 3 features of each object
-(ball (N, 4), goal (N, 11), other robot (N, 5), in px / px^2), with ``y(t)`` observed
-*before* ``u(t)`` is applied. :func:`collect` vmaps a ``lax.scan`` over B data sets.
+A learner (robot 0, 4-wheel steering, the observer) moves with random actions that keep
+its ``focus`` object in view while its camera observes the goal, the ball and another
+robot (a scripted behaviour of :mod:`vbl.envs.other_agents`); an invisible third party
+kicks the ball through the view. One data set is the motor commands ``u(t) =
+FOUR_WHEEL_U[a(t)]`` (N, 2) and the Section 3 features of each object (ball (N, 4), goal
+(N, 11), other robot (N, 5), in px / px^2), ``y(t)`` observed before ``u(t)`` is applied;
+:func:`collect` vmaps a ``lax.scan`` over B data sets. The features are analytic or from
+the rendered camera image (``obs_source``).
 
-Observer policy (random, view-keeping, documented in ``docs/two_robot_task.md``): each
-step an action is drawn uniformly from the 7 primitives, restricted so that the
-``focus`` object stays in view and at a useful distance:
-
-* if the focus bearing ``|b| > keep_bearing_deg``, only the two actions that turn
-  towards it (FL/BR when it is on the left, FR/BL on the right) are allowed;
-* if its centre distance exceeds ``max_dist`` backward actions are removed, below
-  ``min_dist`` forward actions are removed.
-
-The restriction is a feedback from y to u (as in any closed-loop data); it keeps the
-objects in the image, which the features need (a lost object's features are 0).
-
-Observations (``obs_source``): the analytic Section 3 features (default), or the same
-features from the rendered camera image with image noise through the colour-blob detector
-(``"pixels"``, :mod:`vbl.envs.pixels`; the image noise is ``noise.pixel_std``, each step's
-(H, W, 3) normals from the key ``fold_in(key, PIXEL_STREAM)``, so the analytic draws stay
-the same).
-
-The ball is kicked by an invisible third party (the "rolling ball" of Table 1 (b)):
-whenever its speed is below ``kick_below_speed``, with probability ``kick_prob`` per step
-it gets a speed uniform in ``[kick_speed_min, kick_speed_max]`` towards a point drawn
-uniformly in a disc of radius ``aim_radius`` around the point ``aim_ahead`` in front of
-the observer, so it rolls through the observer's view.
+See docs/two_robot_task.md, "Identification data" (the observer's policy, the kicks) and
+docs/render.md, "Pixel observations".
 """
 
 from __future__ import annotations

@@ -1,32 +1,15 @@
 """The noise model of the real-robot experiments (Section 3.4.2); every part off by default.
 
-The paper names three causes of the longer histories it needed on the real robots:
-noise of the image processing, the eccentricity of the ball's centroid, and real
-dynamics (tire slip). :class:`NoiseParams` has one knob per cause:
+The paper names three causes of the longer histories it needed on the real robots: noise
+of the image processing, the eccentricity of the ball's centroid, and real dynamics (tire
+slip). :class:`NoiseParams` has one knob per cause, and pixel noise for pixel
+observations: ``image_std`` [px] (feature noise, :func:`noisy_camera`); ``ecc_centroid``
+(fraction of the ball's image half-size, :func:`eccentric_centroid`) and ``ecc_turn_std``
+(rad per sqrt(revolution), :func:`perturb_ball_velocity`), both driven by the ball's
+rolling phase (:func:`advance_phase`); ``pixel_std`` (fraction of full scale); ``slip_std``
+(relative, :func:`noisy_world`). :data:`NOISE_ON` is Table 3's setting.
 
-* **image noise** ``image_std`` [px]: independent Gaussian noise on every pixel feature
-  of a visible object. It is combined with the camera's own ``pixel_noise_std`` as
-  independent noise, ``sqrt(cam^2 + image_std^2)`` (:func:`noisy_camera`); the camera
-  module draws it.
-* **ball centroid eccentricity**, two effects of an off-centre ball centre of mass /
-  uneven paint, both driven by the ball's rolling phase ``psi`` (rad, advanced by
-  ``distance rolled / ball radius``, :func:`advance_phase`):
-
-  - ``ecc_centroid`` (fraction of the ball's image half-size): the observed centroid is
-    displaced by ``ecc_centroid * (w/2 cos psi, h/2 sin psi)`` px, where ``w, h`` are the
-    ball's bounding width and height (:func:`eccentric_centroid`);
-  - ``ecc_turn_std`` (rad per sqrt(revolution)): a rolling ball's velocity direction is
-    rotated each step by ``N(0, ecc_turn_std^2 * d / (2 pi r))`` for ``d`` metres rolled
-    (a random walk of the heading, :func:`perturb_ball_velocity`).
-* **pixel noise** ``pixel_std`` (fraction of full scale): Gaussian noise on each colour
-  channel of each pixel of the rendered camera image, before it is rounded to ``uint8``;
-  only pixel-derived observations (:mod:`vbl.envs.pixels`) have an image to add it to, and
-  there it replaces ``image_std`` (the feature-level stand-in for it).
-* **tire slip** ``slip_std`` (relative): multiplicative noise on each motor command per
-  primitive; combined with ``world.robot.slip_std`` as independent noise and handed to
-  the world physics (:func:`noisy_world`).
-
-:data:`NOISE_ON` is the setting the Table 3 experiment uses.
+See docs/two_robot_task.md, "Noise model".
 """
 
 from __future__ import annotations

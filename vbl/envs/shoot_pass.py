@@ -1,60 +1,17 @@
-"""The two-robot shooting/passing task of Section 3.3 (gymnax-1.0 style, see
-``docs/two_robot_task.md``).
+"""The two-robot shooting/passing task of Section 3.3 as a gymnax-1.0-style env.
 
-Two 4-wheel-steering robots (7 actions each, ``u = FOUR_WHEEL_U[action]``) share the
-field with the ball and the goal in the +x end wall. Robot 0 is the **shooter**, robot 1
-the **passer**. One of them is the learner, the other is scripted
-(:mod:`vbl.envs.other_agents`):
+:class:`ShootPassEnv` (``"shoot"``, ``"pass"``, or ``"select"`` with the role traced in
+``params.task_pass``): two 4-wheel-steering robots (7 primitives, ``u =
+FOUR_WHEEL_U[action]``), robot 0 the shooter and robot 1 the passer; one learns, the other
+is scripted (:mod:`vbl.envs.other_agents`). Shooting: redirect a passed, rolling ball into
+the goal; passing: kick a rolling ball to the waiting shooter. Reward 1.0 on success, else
+0. :func:`apply_kicks` adds kicks to the world's pushes. Observation: the learner's Section
+3 features (26,) float32 (slices :data:`OBS_SLICES`), with the noise model of
+:mod:`vbl.envs.noise` when it is on. The API, the random layout and the input checks are
+:class:`vbl.envs.base.TaskEnv`'s; ``info`` adds ``u`` (2,) float32, ``touched``,
+``kicked`` and ``goal``.
 
-* ``task="shoot"``: the learner is the shooter; the scripted passer waits a random
-  delay, drives to the ball and kicks it towards the shooter, so the ball arrives
-  *rolling*. Success: the ball enters the goal after the shooter touched it.
-* ``task="pass"``: the learner is the passer; the scripted shooter waits. The ball starts
-  rolling towards the passer. Success: the ball comes within ``receive_distance`` of the
-  shooter's centre or touches the shooter.
-
-Kicks (:func:`apply_kicks`): a robot that touches the ball while driving forward
-(``v > 0``) with the ball within ``kick_cone_deg`` of its heading kicks it: the ball's
-velocity follows the kick law along its heading (:func:`vbl.world.physics.kick_velocity`:
-the ball's velocity before the step plus an impulse along the heading, restitution
-``world.ball.kick_restitution``; a resting ball leaves at the kick speed: the
-shooter's ``shooter_kick_speed``, a learning passer's ``passer_kick_speed``), or, for the
-scripted passer, it is set to ``other.kick_speed`` towards the shooter's centre with
-``other.aim_noise_deg`` of Gaussian aim error. Without a kick the world's contact physics
-applies (a push).
-
-Observation: the learner's Section 3 features (26,) float32 of its own camera
-(``flatten_section3`` of ``section3_features``), with the Section 3.4.2 noise model
-(:mod:`vbl.envs.noise`) when switched on. Slices: :data:`OBS_SLICES`.
-
-Start difficulty (``params.start_difficulty`` d in [0, 1], traced so a curriculum can move
-it): each start uniform with an easy value e (:data:`EASY_SHOOT`, :data:`EASY_PASS`) is
-replaced by ``e + d * (u - e)`` before the start geometry is built, so d = 0 gives the
-task's easy start (shoot: the shooter nearest the goal, the passer clear of the shot, no
-heading jitter; pass: the ball rolling slowly, straight at a passer that faces the nearest
-shooter) and d = 1 (default) the full start draw, bit for bit. No extra random draws.
-
-An episode ends (terminated) on success, on a goal without success, when the ball
-comes to rest after it was kicked (``shoot``; ``pass``: whenever it comes to rest) if
-``end_on_rest``, or when the ball leaves the field; it is truncated after ``max_steps``.
-Reward 1.0 on success, else 0.
-
-API::
-
-    env = ShootPassEnv("shoot")               # or "pass"
-    params = env.default_params
-    obs, state = env.reset(key, params)
-    obs, state, reward, terminated, truncated, info = env.step(key, state, action, params)
-
-The API (``reset``, ``step`` with auto-reset, ``step_env`` without, ``reset_state`` /
-``step_state``), the random layout of a call (one hash per call), the noise switches and
-the input checks are :class:`vbl.envs.base.TaskEnv`'s. A transition draws tire slip, kick
-aim and rolling eccentricity; the static switches ``params.noise_on``
-(:class:`ShootPassNoiseOn`) say which of them and the pixel noise are drawn at all.
-
-``info``: ``success``, ``episode_done``, ``episode_length``,
-``u`` (2,) float32 of the learner's action, ``touched`` (learner touched the ball this
-episode), ``kicked`` (the ball was kicked this episode), ``goal``.
+See docs/two_robot_task.md, "The task" and docs/envs.md, "The interface" (start difficulty).
 """
 
 from __future__ import annotations

@@ -1,43 +1,15 @@
 """The shooting task of Section 2 as a gymnax-1.0-style functional environment.
 
-One robot (two-motor by default), a ball and the goal in the +x end wall. The
-robot sees the Section 2 feature vector (9,) float32 of its camera
-(:func:`vbl.vision.section2.section2_features`). Reward 1.0 when the ball enters
-the goal, else 0. An episode ends on a goal (terminated), the ball leaving the
-field (terminated; only possible with ``world.field.walls=False``), or after
-``max_steps`` primitives (truncated).
+:class:`ShootingEnv`: one robot (two-motor by default), a ball and the goal in the +x end
+wall. The robot sees the Section 2 features (9,) float32 of its camera
+(:func:`vbl.vision.section2.section2_features`). Reward 1.0 when the ball enters the goal,
+else 0; an episode ends on a goal or the ball leaving the field (terminated) or after
+``max_steps`` primitives (truncated). A start interpolates between an easy and a full
+draw by the traced ``start_difficulty`` in [0, 1], so a curriculum can move it. The API,
+the random layout, the noise switches (tire slip, pixel noise; off by default) and the
+input checks are :class:`vbl.envs.base.TaskEnv`'s; ``info`` adds ``ball_out``.
 
-Start distribution (``start_difficulty`` d in [0, 1], traced so a sweep or a
-curriculum can move it): an *easy* draw puts the robot ``start.easy_goal_dist`` in
-front of the goal centre facing it, the ball just in front of the robot, both
-jittered by ``start.easy_jitter_*``; a *full* draw puts the robot and the ball
-uniformly in the field (``start.margin`` from the walls) with a uniform heading.
-The start is the interpolation ``(1 - d) * easy + d * full`` of positions and of the
-heading (full heading taken relative to the easy one, in (-pi, pi]). If the ball
-then overlaps the robot it is pushed radially to ``start.min_gap`` from it.
-
-API::
-
-    env = ShootingEnv()                         # static options
-    params = env.default_params
-    obs, state = env.reset(key, params)
-    obs, state, reward, terminated, truncated, info = env.step(key, state, action, params)
-    state, eps = env.reset_state(key, params)   # the same without the observation:
-    obs = env.get_obs(state, params, eps)       # reset == get_obs(reset_state)
-
-The API (``reset``, ``step`` with auto-reset, ``step_env`` without, their
-observation-free forms ``reset_state`` / ``step_state``), the random layout of a call, the
-noise switches and the input checks are :class:`vbl.envs.base.TaskEnv`'s. Noise sources:
-tire slip (``world.robot.slip_std``) and pixel noise (``camera.pixel_noise_std``), each drawn
-only when switched on in the static ``params.noise_on`` (:class:`vbl.envs.base.NoiseOn`, off
-by default).
-
-``info``: ``success`` (goal this step), ``ball_out``, ``episode_done``, ``episode_length``
-(primitives in the episode that just ended or is running, before the reset).
-
-Errors: the constructor and :meth:`ShootingEnv.validate` check parameters
-(:class:`vbl.params.ParamError`; ``world.robot_kinds`` must be the env's ``robot_kind``);
-``reset``/``step`` outside ``jit`` also check the action and the state (ValueError).
+See docs/world.md, "The shooting task" and docs/envs.md, "The interface".
 """
 
 from __future__ import annotations
