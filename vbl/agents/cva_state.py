@@ -1,37 +1,17 @@
 """Q-learning on CVA-estimated state vectors (the architecture of Figure 11, Section 3).
 
-One learner (all functions are written for one learner and ``vmap``-ed over learners):
+One learner (``vmap``-ed over learners): **collect** ``u(t)``, ``y(t)`` with random actions
+(:func:`collect`); **identify** one CVA model per observed object (ball, goal, other
+robot) with the AIC order and the lag rule of Sec. 3.1.2 (:func:`identify_object`);
+**filter** each object's history into its canonical state ``mu`` inside the env loop and
+concatenate the first ``n_used`` components of each, ``[mu_ball, mu_goal, mu_other]``;
+**quantise** that vector into a Q-table index (:mod:`vbl.spaces.quantize`); **learn** with
+the one tabular learner (:mod:`vbl.programs.tabular`). :func:`filtered_env` builds the
+wrapper stack, whose observation is ``{"index": int32 (), "perceived": int32 (), "state":
+float32 (d,)}``, and :func:`filtered_params` its per-learner params. ``state="current"``
+(Table 2's baseline) takes the current features ``y(t)`` as the state vector instead.
 
-1. **collect** ``u(t)``, ``y(t)`` with uniformly random actions (:func:`collect`);
-2. **identify** one CVA model per observed object (``ball``, ``goal``, ``other``) with the
-   AIC order and the lag rule of Sec. 3.1.2 (:func:`identify_object`, built on
-   :func:`vbl.sysid.cva.fit_lags`);
-3. **filter**: inside the env loop, each object's model turns the running history of its
-   outputs and the learner's inputs into the canonical state ``mu``
-   (:func:`vbl.envs.wrappers.linear_filter`); the first ``n_used`` components of every
-   object (``n_used_objects``: one count per object; CVA orders them by canonical
-   correlation, i.e. importance) are concatenated into the state vector
-   ``[mu_ball, mu_goal, mu_other]``;
-4. **quantise** the state vector into a Q-table index with a quantiser fitted to the states
-   of the collected data (:mod:`vbl.spaces.quantize`);
-5. **Q-learning** with the one tabular learner (:mod:`vbl.programs.tabular` on the map of
-   :mod:`vbl.agents.state_maps`).
-
-The baseline of Table 2 (``state="current"``) is the same pipeline with the current
-features ``y(t)`` of the same objects as the state vector (no history, no CVA).
-
-The memory (the filter history) lives in the env-loop carry: :func:`filtered_env` wraps a
-gymnax-style env in the wrapper stack of :mod:`vbl.envs.wrappers` (history filter, then
-quantisation); its observation is ``{"index": int32 (), "perceived": int32 (), "state":
-float32 (d,)}`` ("perceived": the index of the state vector without the learner's command
-terms, which ends macro actions). Its params (:func:`filtered_params`) hold the fitted
-models and the quantiser, which are per-learner pytrees.
-
-Decision-time state: at time ``t`` (after observing ``y(t)``, before choosing ``u(t)``) the
-state is ``mu(t+1) = [I_n 0] U p(t+1)`` with the not-yet-chosen ``u(t)`` at its data mean
-(0 in normalised units), i.e. built from ``y(t) .. y(t-l+1)`` and ``u(t-1) .. u(t-l+1)``.
-At an episode start the history is filled with the first observation and the stop command
-``u = 0`` (the robot at rest).
+See docs/cva_learning.md, "Pipeline" (decision-time state, episode starts, "perceived").
 """
 
 from __future__ import annotations

@@ -1,52 +1,16 @@
-"""Multi-step returns for the batched tabular learner: eligibility traces over a fixed window.
+"""Multi-step returns for the batched tabular learner: eligibility traces over a window.
 
-Under state aliasing (one grid state standing for many situations) one-step Q-learning
-averages away the action gap and its greedy policy cycles between look-alike states;
-multi-step returns are the standard remedy (Loch & Singh 1998: Sarsa(lambda) finds good
-memoryless policies in POMDPs). Each of a learner's E environments keeps a shift register
-of its last L (state, action, eligibility) pairs (``TraceParams.length``, static); every
-learner step the TD error of each environment's transition is applied to all L buffered
-pairs in one batched scatter into the table (the rows of the envs that update only), with
-eligibility
+Under state aliasing one-step Q-learning averages away the action gap and its greedy
+policy cycles between look-alike states; multi-step returns are the standard remedy. Each
+of a learner's E environments keeps a shift register of its last L (state, action,
+eligibility) pairs (``TraceParams.length``, static), and every learner step applies each
+environment's TD error to all L pairs in one batched scatter into the table. The rule
+(``agent.update``: ``"peng"``, ``"naive"``, ``"watkins"`` or ``"sarsa"``) is static, lambda
+is traced; with lambda = 0 peng, naive and watkins equal the one-step update exactly. The
+duplicate rule (``QRunnerParams.duplicates``: ``"mean"`` or ``"sum"``) weighs the
+contributions on one (s, a) by their eligibilities.
 
-    e_k = prod_{j = t-k}^{t-1} (discount**n_j * lambda)     (k = 0: the current pair, e = 1)
-
-(``n_j`` primitives of macro action j; ``discount**n`` is then the discount of one
-action). The buffer is cleared when an episode ends. ``lambda`` is traced (a sweep vmaps
-over it); the kind and L are static.
-
-TD errors (the trace rule of ``update``; ``V(s) = max_b Q(s, b)``; all from the table before the
-step, as in :func:`vbl.agents.qlearning.q_update`)::
-
-    target_t = r_t + discount**n_t * (1 - terminal_t) * B_t
-    delta_t  = target_t - Q[s_t, a_t]
-
-* ``"peng"`` (Peng & Williams' Q(lambda)): B = V(s'); the current pair gets delta_t, the
-  older pairs ``delta'_t = target_t - V(s_t)``;
-* ``"naive"`` (Q(lambda) without cuts): B = V(s'); every pair gets delta_t;
-* ``"watkins"`` (Watkins' Q(lambda)): as naive, but the older pairs are dropped (their
-  eligibility set to 0) when a_t is not greedy in s_t (Q[s_t, a_t] < V(s_t)); this one
-  learns Q* under any behaviour;
-* ``"sarsa"`` (Sarsa(lambda), on-policy): B = Q(s', a') with a' the action the behaviour
-  policy takes next in s' (the runner picks it at the end of the step and uses it in the
-  next); with ``truncation="bootstrap"`` a truncated transition bootstraps from V.
-
-With lambda = 0 every older eligibility is 0 and peng / naive / watkins equal the one-step
-update exactly.
-
-**Duplicate rule with weights** (``QRunnerParams.duplicates``). Let the contributions on
-one entry (s, a) in one step be the pairs (env i, slot k) with eligibility e_ik and TD error
-d_ik (0-weight transitions, e.g. skipped truncations, drop out):
-
-* ``"mean"``: ``Q[s, a] += lr * sum e_ik d_ik / max(sum e_ik, 1)``: a weighted mean of the
-  TD errors once the eligibilities on (s, a) add up to more than 1, otherwise their weighted
-  sum. With all e = 1 this is the one-step "mean" rule; the step never exceeds ``lr`` times
-  the largest |d|, so it cannot overshoot for lr <= 1.
-* ``"sum"``: ``Q[s, a] += lr * sum e_ik d_ik`` (the single updates one after another with
-  frozen targets: the textbook accumulating-trace update of a batch).
-
-A pair that occurs twice in one environment's window contributes twice (accumulating
-traces, truncated to the window).
+See docs/agents.md, "Multi-step returns" (eligibilities, TD errors, the duplicate rule).
 """
 
 from __future__ import annotations

@@ -1,34 +1,17 @@
 """Macro actions as an env wrapper: one action = repeat one primitive until the discrete
 state changes.
 
-The lab's earlier work fixed the "state-action deviation" of a coarse grid this way: an
-action is a primitive held (repeated) until the robot's discrete state differs from the
-one it started in, the episode ends, or a cap on repeats is reached. :class:`MacroWrapper`
-wraps any gymnax-style env and a state function (obs -> int32 discrete state); its state
-keeps the current discrete state (and, asynchronously, the running action). It is pure
-and vmaps over environments. Two modes (static, :data:`MACRO_MODES`):
+:class:`MacroWrapper` wraps any gymnax-style env and a state function (obs -> int32
+discrete state): an action holds its primitive until the discrete state differs from the
+one it started in, the episode ends, or a cap on repeats is reached; the transition is
+semi-Markov (reward ``sum_i discount**i r_i`` over the n primitives, bootstrap with
+``discount**n``). Pure; vmaps over environments. Modes (static, :data:`MACRO_MODES`):
+``"sync"`` runs the whole action in one ``step`` (a ``lax.while_loop``), ``"async"`` runs
+one primitive of every env's running action per ``step``. ``info["macro"]`` reports per env
+``decided``, ``ended``, ``start``, ``action``, ``reward``, ``num_primitives`` and
+``next_state``.
 
-* ``"sync"``: one ``step`` runs the whole action in a ``lax.while_loop`` (primitive i with
-  key ``fold_in(key, i)``; a vmapped loop runs until every env has stopped, the finished
-  ones frozen by the loop's select) and returns the semi-Markov transition: reward
-  ``sum_i discount**i r_i`` over the n primitives, so an update bootstraps with
-  ``discount**n``;
-* ``"async"``: one ``step`` is one primitive (key ``key``) of the running action; the env
-  takes the step's ``action`` only when it decides (no running action), and
-  ``info["macro"]`` reports the action's transition when it ends.
-
-If the episode ends inside the repeat, the action stops at that primitive; the env's
-auto-reset has already drawn the next start, so ``obs`` / ``state`` belong to the new
-episode and ``info`` carries the ended episode's facts, as a single env step would.
-``macro.enabled=False``: every action is one primitive (key ``key``) in either mode.
-
-``info["macro"]`` (added to the inner env's info) holds, each per env: ``decided`` (bool,
-the env chose this step's action), ``ended`` (bool, its action ended at this step),
-``start`` (int32 discrete state where the action started), ``action`` (int32 primitive in
-force), ``reward`` (float32 discounted reward of the action), ``num_primitives`` (int32
-primitives of the action so far) and ``next_state`` (int32 discrete state of ``obs``);
-sync: ``decided`` and ``ended`` are always True. ``start`` / ``reward`` /
-``num_primitives`` describe the ended action only where ``ended``.
+See docs/agents.md, "Macro actions" (the modes, keys, episode ends, the stop rule).
 """
 
 from __future__ import annotations

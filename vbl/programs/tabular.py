@@ -1,50 +1,17 @@
 """The one tabular learner of the paper's comparison: Q-learning on any state map.
 
 :func:`make_tabular_program` turns a :class:`~vbl.agents.state_maps.StateMap` and the
-batched runner of :mod:`vbl.agents.qlearning` into an engine
-:class:`~vbl.engine.Program` (one learner's run, chunked; the engine vmaps it over seeds x
-sweep values). Every state space the paper compares (the 319-state grid, the current
-image features, the CVA state, and the velocity oracle as a control) learns through it,
-with the same update rules (``agent.update``: one-step Q-learning, Monte Carlo, Peng's
-Q(lambda), ...), the same macro actions (``agent.macro``; an action ends when what the map
-perceives changes) and the same evaluation. Its config has the sections
+batched runner of :mod:`vbl.agents.qlearning` into an engine :class:`~vbl.engine.Program`
+(one learner's run, chunked; the engine vmaps it over seeds x sweep values). Every state
+space the paper compares (the 319-state grid, the current image features, the CVA state,
+the velocity oracle) learns through it, with the same update rules, macro actions and
+evaluation. Config sections: ``env`` (the task's params), ``agent``
+(:class:`vbl.agents.qlearning.QRunnerParams`), ``train`` (:class:`TabularTrainParams`) and
+the map's own (``grid``; ``cva``). Evaluation runs through the training step in evaluation
+mode from starts drawn in ``init``, on key streams of its own (:data:`PREPARE_STREAM`,
+:data:`EVAL_STREAM`), so it leaves training unchanged.
 
-* ``env``: the task's env params (with ``start_difficulty``),
-* ``agent``: :class:`vbl.agents.qlearning.QRunnerParams` (the learner),
-* ``train``: :class:`TabularTrainParams` (run length, evaluation, step-size schedule),
-
-plus the map's own (``grid``; ``cva``).
-
-**Evaluation.** A policy is evaluated from ``agent.num_envs`` fresh starts at
-``train.eval_difficulty`` (drawn once, in ``init``) for ``train.eval_chunks`` chunks
-through the training step in evaluation mode (no learning, epsilon-greedy at a fixed
-epsilon): the fraction of the starts whose first episode scores (one not finished counts
-as a failure). The learning curve evaluates after every ``train.eval_every`` training
-chunks as extra chunks of the same compiled scan; ``final`` evaluates the greedy policy
-(epsilon 0), the near-greedy one (``train.eval_epsilon``) and the uniformly random one
-(an all-zero table, random tie-breaking, in the same action space) on the same
-``train.eval_rounds`` x ``agent.num_envs`` starts.
-
-Per engine chunk (``train.eval_every`` training chunks; metrics per learner, scalars):
-``episodes`` and ``successes`` (training episodes finished, and scored), ``train_success``
-(their ratio, 0 when none finished: with exploration and under the curriculum's starts;
-biased towards short episodes), ``mean_primitives`` (per finished training episode),
-``primitives``, ``decisions`` and ``primitives_per_decision`` (primitives and (macro)
-actions of the finished training episodes, and their ratio), ``difficulty`` (LEM's start
-difficulty, else the env's), ``lem_raises``, ``epsilon`` (exploration rate at the end),
-``td_abs`` (mean absolute TD error), ``learning_rate`` (of the last training chunk) and,
-with ``train.eval_curve``, ``eval_success`` (the policy at ``train.curve_epsilon``).
-
-``final``: ``greedy_success``, ``near_greedy_success``, ``random_success``,
-``greedy_primitives`` (mean episode length of the greedy policy), ``greedy_finished``
-(fraction of its starts that finished an episode), ``greedy_primitives_per_decision``,
-``num_states`` (S), ``states_with_value`` (states whose Q row moved from ``q_init``) and
-the map's own (:meth:`~vbl.agents.state_maps.StateMap.describe`).
-
-Keys: the training runner starts from the program's key itself; the map's fit, the
-evaluation starts and every evaluation draw from streams folded off it
-(:data:`PREPARE_STREAM`, :data:`EVAL_STREAM`), so switching the curve on or off leaves
-training unchanged.
+See docs/agents.md, "The tabular learner" (evaluation, the metrics per chunk and final).
 """
 
 from __future__ import annotations
