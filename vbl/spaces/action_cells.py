@@ -1,34 +1,15 @@
 """Off-line, action-based construction on quantile cells (paper Section 2.1).
 
-A *state* is a set of input vectors from which repeating one kind of primitive reaches
-the goal or a state built before, whatever the number of repetitions; states grow
-backwards from the goal over the experience of :mod:`vbl.spaces.action_based`. The
-clusters are **cells** instead of the paper's hyper-ellipsoids: each continuous
-feature is cut into ``bins[d]`` bins (``spacing``: quantiles of the collected points
-that see the feature's object, or equal widths), each categorical pattern (e.g. "ball
-seen / lost left / lost right") is its own set of cells, and a state is the union of the
-cells labelled with the same primitive at the same iteration (the paper's "a hyper-
-ellipsoid, or a union of them", with axis-aligned boxes). Cells cannot spill across a
-boundary the way a Gaussian ellipsoid fitted to a mixed cluster does
-(docs/findings/fig5_action_based.md, "Deviations and the evidence for them";
-docs/findings/pruned_variants.md).
+A state is a set of input vectors from which repeating one kind of primitive reaches the
+goal or a state built before; states grow backwards from the goal over the experience of
+:mod:`vbl.spaces.action_based`. The clusters are cells instead of the paper's
+hyper-ellipsoids: each continuous feature is cut into ``bins[d]`` bins (quantiles or
+equal widths), each categorical pattern has its own cells, and a state is the union of the
+cells labelled with the same primitive at the same iteration. An iteration labels every
+unlabelled cell with its qualifying primitive of highest ``reliability * discount**time``;
+the construction stops when an iteration labels nothing. Fixed-shape, jit- and vmap-able.
 
-Iteration ``i = 0, 1, ...`` (all fixed-shape, jit- and vmap-able):
-
-1. A start point (one of an episode's first ``start_window`` points, in a cell not yet
-   labelled) of an episode holding primitive ``a`` *reaches* when a later step of the
-   same episode scores or lands in a labelled cell; it takes ``steps`` primitives to that
-   target, plus the target cell's expected time (goal: 0).
-2. Per cell and primitive: ``n`` start points, reach fraction ``r`` (the *reliability*)
-   and expected time ``t`` (mean over the reaching points). A primitive qualifies when
-   ``n >= min_points`` and ``r >= min_reliability``; among those the cell takes the one of
-   highest *value* ``r * discount**t`` and gets state ``i * A + a``, time ``t`` and
-   transitions to the goal = the rounded mean over its reaching points of 1 + the
-   target's transitions (goal: 0).
-3. Stop when an iteration labels no cell (or after ``max_iterations``).
-
-The policy reads the map: the labelled cell's primitive; in an unlabelled cell (the
-*remainder*) the primitive most cells of the same categorical pattern have.
+See docs/state_spaces.md, "Cells" (the labelling rule, the policy in unlabelled cells).
 """
 
 from __future__ import annotations

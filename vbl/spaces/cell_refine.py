@@ -1,33 +1,16 @@
 """Closed-loop refinement of an off-line cell map (an extension of paper Section 2.1).
 
-The construction of :mod:`vbl.spaces.action_cells` judges a primitive in a cell by
-open-loop experience: it *reaches* a labelled cell, whatever that cell's own primitive
-then does from where it was entered. The refinement keeps the construction's partition
-and re-chooses each cell's primitive by what the map's *policy* achieves, with
-on-policy Monte Carlo control (every-visit, epsilon-greedy, macro actions):
+The construction of :mod:`vbl.spaces.action_cells` judges a primitive in a cell open-loop
+(it reaches a labelled cell, whatever that cell's primitive then does). The refinement
+keeps the construction's partition and re-chooses each unit's primitive (a unit is a
+labelled cell or a pattern's remainder, or every cell) by what the map's policy achieves,
+with on-policy Monte Carlo control (every-visit, epsilon-greedy, macro actions): a
+decision scores ``discount**k`` when its episode scores k primitives later, and a unit
+with ``min_visits`` decisions takes the primitive of highest mean score. The refined
+map's states are the units with the same primitive and the same number of transitions to
+the goal. Deterministic for a key; jit- and vmap-able.
 
-1. **Units.** ``units="labelled"``: each labelled cell of the map is one unit and the
-   remainder of each categorical pattern is one more (so the table has at most
-   ``labelled cells + patterns`` rows, ~220 for Figure 5 against the grid's 319);
-   ``"cells"``: every cell is a unit. A unit's initial primitive is the map's.
-2. **Episodes** (``episodes`` per iteration, in parallel, start difficulty uniform in
-   ``[difficulty_lo, difficulty_hi]`` when the env has one, at most ``horizon``
-   primitives): the robot decides when its unit changes or after ``max_hold``
-   primitives in the same unit, taking the unit's primitive, or with probability
-   ``epsilon`` a uniformly random one, and holds it until the next decision (the
-   earlier work's "repeat a primitive until the state changes").
-3. **Estimate.** Each decision (unit u, primitive a) scores ``discount**k`` when the
-   episode scores k primitives later (0 when it does not within the horizon); sums
-   and counts accumulate over all iterations (:func:`decision_statistics`).
-4. **Improve.** A unit whose current primitive has at least ``min_visits`` decisions
-   takes the primitive of highest mean score among those with at least ``min_visits``
-   (ties: the lowest index); units with less evidence keep their primitive.
-
-The refined map's *states* follow the paper's definition on the refined policy: the
-union of units with the same primitive and the same number of state transitions to the
-goal (rounded mean, over the greedy decisions of scoring episodes, of the decisions up to
-the goal, 1 = this one scores; capped at ``max_transitions``). Deterministic for a key;
-jit- and vmap-able (``p`` closed over; the thresholds may be traced).
+See docs/state_spaces.md, "Closed-loop refinement" (units, episodes, the estimates).
 """
 
 from __future__ import annotations

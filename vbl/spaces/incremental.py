@@ -1,42 +1,16 @@
 """On-line, incremental state-space segmentation (paper Section 2.2): the partition.
 
-State representation: a **partition of the normalised feature cube [0, 1]^D into
-axis-aligned boxes** (the leaves of a binary tree of axis-aligned splits, stored
-flat as fixed-capacity arrays ``lo``, ``hi`` (L, D) and ``active`` (L,)). A state is
-a box; the goal is the terminal event (not a box). Classification is one vectorised
-box test, no tree walk. The learner on top (Boltzmann selection, held primitives, value
-updates, the run loop) is :mod:`vbl.agents.segmentation_learner`.
+A state is a box of a partition of the normalised feature cube [0, 1]^D into axis-aligned
+boxes (the leaves of a binary tree of splits, stored flat as ``lo``, ``hi`` (L, D) and
+``active`` (L,)); :func:`leaf_of` classifies by one vectorised box test. :func:`record`
+puts transitions ``(x, a, y)``, ``y = (x' - x, scored)``, into a ring buffer;
+:func:`structure_update` refits an affine ridge model per box and primitive from the
+buffer and splits the box whose model error (or, with ``value_split_gain > 0``, whose
+greedy value, :func:`td_targets`) a cut reduces most, else merges two adjacent boxes that
+one model explains; the Q table (L, A) goes in and comes back with the new boxes' rows.
+The learner on top is :mod:`vbl.agents.segmentation_learner`.
 
-1. The partition starts with one box (the paper's two states: "goal" and "other").
-2. Transitions ``(x, a, y)`` go into a ring buffer of the last ``buffer_size``
-   transitions (:func:`record`), with ``y = (x' - x, scored)`` (``x' - x`` taken as 0 on a
-   terminal step). The residual weighs the outputs 1 and ``outcome_weight``.
-3. :func:`structure_update` refits the local models from the buffer:
-   per box and primitive an affine least-squares model ``y ~ W^T [x, 1]`` (ridge
-   ``ridge``) from sufficient statistics (sums of ``z z^T``, ``z y^T``, ``|y|^2``,
-   scatter-added in float64), also per box, primitive, axis and ``bins`` equal bins
-   of the box along that axis. A box whose summed residual per transition exceeds
-   ``split_error`` is cut in two at the bin edge (axis, cut) that most reduces the
-   residual, when the reduction per transition is at least ``split_gain``, both
-   sides hold ``min_samples`` transitions and are ``min_width`` wide (one split per
-   update; the box with the largest reduction). The new box gets fresh Q-values
-   (the parent's, or ``q_init``). If nothing splits, the two face-adjacent boxes whose
-   union is a box and whose joint model raises the residual per transition by at
-   most ``merge_tol`` (< ``split_gain``: hysteresis) merge; their Q-values average.
-   The "outcomes disagree" criterion is the outcome output of the model: a box where
-   the same primitive sometimes scores and sometimes not has a large residual there.
-   With ``value_split_gain > 0`` a *value-driven* split (Continuous U-Tree style) goes
-   first: every buffered transition gets its TD target under the current boxes and Q
-   (:func:`td_targets`: 1 if it scored, 0 if it failed, else ``gamma max_a Q(box(x'), a)``
-   at the end of the held primitive's chain in the box), summed per (box, primitive,
-   axis, bin); a cut's gain is the greedy value per transition of its two sides minus
-   that of the whole box (greedy value = max over primitives with ``value_min_count``
-   transitions of the mean target, cross-fitted over two halves of the buffer with
-   ``value_crossfit``); the best cut with gain >= ``value_split_gain`` is made. Merges
-   whose pair gains more than ``value_merge_tol`` by staying apart are vetoed.
-
-The Q table (L, A) enters as an array where value-driven splits and new boxes need it;
-:func:`structure_update` returns the new one.
+See docs/state_spaces.md, "On-line: incremental segmentation" (criteria, thresholds, cost).
 """
 
 from __future__ import annotations

@@ -1,41 +1,15 @@
-"""CVA of one data set from one Gram matrix: lag and order selection pooled over lags
-(``lag_rule='predictor'``, :func:`fit_select_batch`), and one lag with the order by Eq. (6)
-(:func:`fit_one`, :func:`fit_batch`: :func:`vbl.sysid.identify` with a fixed lag or the
-paper's lag rule; the same kernel on the window of that lag alone).
+"""CVA of one data set from one Gram matrix: the kernel of :func:`vbl.sysid.identify`.
 
-All lags ``l = lag_min .. L`` (``L = lag_max``) are identified in one program on one common
-sample window ``t = L .. N-K`` (``K`` = the largest horizon, ``N_e = N-K-L+1`` samples), so
-every lag is scored on the same residuals. The covariances of every lag are blocks of the one
-Gram matrix ``G`` of the window ``z(t) = [x(t-L); ...; x(t+K-1)]``, ``x = [u; y]``; lag ``l``
-takes the rows and columns of its own stacks (delays 1..l in the past, 0..k-1 in the future),
-so its CVA is exactly the CVA of lag ``l`` on that window. Then
+:func:`fit_select_batch` (``lag_rule='predictor'``) identifies every lag ``lag_min ..
+lag_max`` on one common sample window, each lag's covariances taken as blocks of the one
+Gram matrix of that window, and picks the order ``n*`` by Eq. (6) pooled over the lags
+(:func:`pooled_criterion`) and the lag ``l*`` by the AIC of the whole one-step predictor.
+:func:`fit_one` and :func:`fit_batch` fit one lag with the order by Eq. (6) (what
+``identify`` runs with a fixed lag or the paper's lag rule), the same kernel on that lag's
+window. Data sets run in chunks of :data:`CHUNK` (one compiled ``vmap`` per chunk), so one
+compiled program serves every batch size.
 
-* ``n*`` = argmin over n of ``sum_l [N_e log det R_l(n) + order_penalty lambda(n)]``
-  (:func:`pooled_criterion`): each lag's order evidence of Eq. (6), with AIC3's penalty,
-  summed over the lags, for the n every pooled lag can identify;
-* ``l*`` = argmin over l of ``PE(l) = AIC_l(n*) + 2 n* l (m+q)``: Eq. (6) counts A, B, C, D,
-  K and R but not the ``n x l(m+q)`` coefficients of the state map ``mu = U p(t)``, which
-  are fixed within one lag but grow with l. Shifting y's units adds the same constant
-  ``N_e`` x 2 sum(log scale) to every lag and order, so both choices mean the same in any
-  units (unlike the paper's ``log det R < 0`` stop).
-
-Cost (the kernel is the whole of ``identify``'s time at large batches):
-
-* ``G`` is a block-Toeplitz matrix up to edge terms (:func:`vbl.sysid.gram.hankel_gram`):
-  the lag products ``sum_t x(t+s) x(t)^T`` as one blocked matrix product, expanded to the
-  Toeplitz part by a reshape, plus the edge terms as one more product.
-* Each lag runs at its own sizes (a loop over lags unrolled in the one program), not padded
-  to the largest lag, and takes its stacks as slices of ``G`` seen as ``(w, m+q, w, m+q)``
-  (past = consecutive offsets, future = the u or y channels of consecutive offsets), not as
-  index gathers, which XLA's CPU backend runs element by element; the order sweep's
-  covariances come from the ``(l+1)(m+q)`` rows of ``G`` that
-  ``[mu(t); mu(t+1); u(t); y(t)]`` depend on, with all orders from one Cholesky factor
-  (nested regressions): the q x q residual covariances' log dets by elimination in
-  elementwise operations (:func:`logdet_spd`), Theta at n* by two triangular solves with
-  that factor.
-* :func:`fit_select_batch` runs chunks of ``CHUNK`` data sets (one compiled ``vmap`` per
-  chunk), so a chunk's intermediate arrays stay in the cache at any batch size and one
-  compiled program serves every batch size.
+See docs/sysid.md, "Lag selection" (the criteria, and how the sweep is computed).
 """
 
 from __future__ import annotations
