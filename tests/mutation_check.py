@@ -13,12 +13,16 @@ The working tree is never touched, so other work in it goes on.
     .venv/bin/python tests/mutation_check.py --only stats-ddof merge-unsorted
     .venv/bin/python tests/mutation_check.py --issue         # issue 50's survivors
     .venv/bin/python tests/mutation_check.py --fresh --json fresh.json  # the second set
+    .venv/bin/python tests/mutation_check.py --blind --json blind.json  # the third set
     .venv/bin/python tests/mutation_check.py --list
     .venv/bin/python tests/mutation_check.py --json results.json
 
 ``--fresh`` runs a second set written from the code alone, before its tests were read; its
 score before any test was written for it, and after, is in
 ``benchmarks/results/mutation_fresh.json`` (from the ``--fresh --json`` command above).
+``--blind`` runs a third set written the same way, once the tests had been extended for the
+second set's survivors, in parts of the modules neither other set touched; its scores are
+the ``blind`` entry of the same file.
 
 Exit status: 0 when every mutant run was caught, 1 when one survived, 2 for a bad mutant
 (its snippet is not in its file exactly once) or tests that fail unmutated.
@@ -376,6 +380,134 @@ FRESH_MUTANTS = [
 ]
 
 
+TR, S2, S3 = "vbl/engine/tune_report.py", "vbl/vision/section2.py", "vbl/vision/section3.py"
+TUNE_TESTS = ("tests/test_tune.py",)
+FEATURE_TESTS = ("tests/test_features.py", "tests/test_vision_regions.py", "tests/test_camera.py")
+
+#: A third set (``--blind``), written like ``--fresh`` from the code alone before any test
+#: was read, in parts of the modules neither other set touched; its score before and after
+#: the tests written for its survivors is in ``benchmarks/results/mutation_fresh.json``.
+BLIND_MUTANTS = [
+    # ------------------------------------------------------------------ engine
+    Mutant("report-table-width-off-by-one", RE, "        if used + 3 + w > width:",
+           "        if used + 3 + w >= width:", REPORT_TESTS + ("tests/test_engine_cli.py",),
+           "a metric that fits the table's width exactly is left out"),
+    Mutant("report-seeds-cell-one-bound", RE,
+           "if bounds is None or bounds[0] <= m - half and m + half <= bounds[1]:",
+           "if bounds is None or m + half <= bounds[1]:", REPORT_TESTS,
+           "a rate's interval crossing 0 is printed as mean ± half-width below 0"),
+    Mutant("report-claim-paired-ignored", RE,
+           "d, h = mean_ci95(a - b) if paired else welch_ci95(a, b)",
+           "d, h = welch_ci95(a, b)", REPORT_TESTS,
+           "claim(paired=True) ignores the pairing (Welch's interval instead)"),
+    Mutant("report-headline-prefers-last-chunk", RE,
+           '    st = entry.get("final", {}).get(name)\n'
+           '    return st if st is not None else entry.get("last_chunk", {}).get(name)',
+           '    st = entry.get("last_chunk", {}).get(name)\n'
+           '    return st if st is not None else entry.get("final", {}).get(name)',
+           REPORT_TESTS + ("tests/test_engine_cli.py",),
+           "the headline shows the last chunk's value of a metric that has a final one"),
+    Mutant("export-last-chunk-is-first", EX,
+           'r["chunk"] >= last[r["point"]]["chunk"]', 'r["chunk"] <= last[r["point"]]["chunk"]',
+           ("tests/test_export.py",), "the final table's last_chunk rows are the first chunk's"),
+    Mutant("tune-rungs-empty-last", TU, "    while r < num_chunks:", "    while r <= num_chunks:",
+           TUNE_TESTS, "a rung boundary at the last chunk adds an empty rung"),
+    Mutant("tune-rung-no-min-one", TU,
+           'n_keep = max(1, len(competing) // s.spec["reduction_factor"])',
+           'n_keep = len(competing) // s.spec["reduction_factor"]', TUNE_TESTS,
+           "a rung of fewer trials than eta keeps them all, not the best one"),
+    Mutant("tune-rung-minimize-off-by-one", TU, "else competing[n_keep - 1])",
+           "else competing[n_keep])", TUNE_TESTS,
+           "minimizing, a rung keeps one trial more than 1/eta"),
+    Mutant("tune-objective-first-chunk", TU, "return a[logged[-1]] if len(logged) else a[-1]",
+           "return a[logged[0]] if len(logged) else a[-1]", TUNE_TESTS,
+           "a trial is scored on its first chunk, not its last"),
+    Mutant("tune-log-range-from-zero", TU, 'if flag == "log" and lo <= 0:',
+           'if flag == "log" and lo < 0:', TUNE_TESTS, "a :log range from 0 is accepted"),
+    Mutant("tune-report-confirm-seed", TR,
+           '"--seeds", str(s.spec["confirm_seeds"]), "--seed", str(s.spec["seed"] + 1)]',
+           '"--seeds", str(s.spec["confirm_seeds"]), "--seed", str(s.spec["seed"])]',
+           TUNE_TESTS, "the printed confirmation command reruns the search's seeds"),
+    Mutant("folder-differing-one-sided", RF, "if (k in fa or k in fb) and not same(k)]",
+           "if (k in fa and k in fb) and not same(k)]", FOLDER_TESTS,
+           "a top-level field only one config.json has is not named as differing"),
+    # ------------------------------------------------------------------ statistics
+    Mutant("stats-running-mean-window-zero", ST, "    if int(window) < 1:",
+           "    if int(window) < 0:", STATS_TESTS, "running_mean takes window 0 (NaN curve)"),
+    Mutant("stats-crossing-shapes-unchecked", ST,
+           "if values.shape != clock.shape or values.ndim != 2:", "if values.ndim != 2:",
+           STATS_TESTS, "first_crossing takes a clock of another shape"),
+    Mutant("stats-crossing-never-is-first-row", ST,
+           "return np.where(hit.any(axis=0), clock[first, np.arange(clock.shape[1])], np.nan)",
+           "return clock[first, np.arange(clock.shape[1])]", STATS_TESTS,
+           "a seed that never crosses the level crosses at the first row"),
+    Mutant("stats-bounded-lower-unclipped", ST, "return m, max(m - h, lo), min(m + h, hi)",
+           "return m, m - h, min(m + h, hi)", STATS_TESTS,
+           "bounded_ci95's lower end goes below the range"),
+    Mutant("stats-mean-ci-n-axis0", ST, "    n = x.shape[axis]\n", "    n = x.shape[0]\n",
+           STATS_TESTS, "mean_ci95 over axis 1 counts the rows as seeds"),
+    # ------------------------------------------------------------------ vision
+    Mutant("blobs-green-hue-mirrored", BL, "2.0 + (b - r) / safe", "2.0 + (r - b) / safe",
+           VISION_TESTS, "hues between yellow and cyan mirrored about 120 deg"),
+    Mutant("blobs-saturation-chroma", BL,
+           "s = jnp.where(mx > 0, delta / jnp.where(mx > 0, mx, 1.0), 0.0)",
+           "s = jnp.where(mx > 0, delta, 0.0)", VISION_TESTS,
+           "saturation is the chroma: dark coloured pixels are not coloured"),
+    Mutant("blobs-u-extent-row-size", BL, "u_lo, u_hi = _extent(cols > 0, u, su)",
+           "u_lo, u_hi = _extent(cols > 0, u, sv)", VISION_TESTS,
+           "a blob's u extent widened by a pixel's height, not its width"),
+    Mutant("blobs-left-border-column-1", BL, "((-1.0, 0, -hw), (1.0, w - 1, hw))",
+           "((-1.0, 1, -hw), (1.0, w - 1, hw))", VISION_TESTS,
+           "a goal cut by the left border is read from the second column"),
+    Mutant("blobs-sec2-lost-sides-swapped", BL,
+           "jnp.where(bvis, 0.0, side[0]), jnp.where(gvis, 0.0, side[1])",
+           "jnp.where(bvis, 0.0, side[1]), jnp.where(gvis, 0.0, side[0])", VISION_TESTS,
+           "Section 2's lost sides of the ball and the goal swapped"),
+    Mutant("render-halfway-line-axis", RP, "line = (jnp.abs(x) <= hw) | circ",
+           "line = (jnp.abs(y) <= hw) | circ", RENDER_TESTS,
+           "the halfway line drawn along the field's length"),
+    Mutant("render-goal-no-top", RP,
+           "(a >= 0) & (a <= 1) & (b >= 0) & (b <= 1)", "(a >= 0) & (a <= 1) & (b >= 0)",
+           RENDER_TESTS, "the goal mouth has no crossbar: the wall above it is blue"),
+    Mutant("render-box-sunk", RP, "rel = [c[0] - pose[0], c[1] - pose[1], c[2] - half[2]]",
+           "rel = [c[0] - pose[0], c[1] - pose[1], c[2]]", RENDER_TESTS,
+           "the other robot's box is half sunk into the floor"),
+    Mutant("render-world-other-radius", RP, "dia = 2 * jnp.asarray(world.robot.radius, F32)",
+           "dia = jnp.asarray(world.robot.radius, F32)", RENDER_TESTS,
+           "render_world draws the other robot half its size"),
+    Mutant("camera-near-plane-equal-height", CAM, "if self.near_plane >= self.height:",
+           "if self.near_plane > self.height:", CAMERA_TESTS,
+           "a near plane at the camera's height passes the check"),
+    Mutant("sec2-goal-lost-side-from-v", S2, "jnp.where(gvis, 0.0, lost_side(gcen[0]))",
+           "jnp.where(gvis, 0.0, lost_side(gcen[1]))", FEATURE_TESTS,
+           "a lost goal's side read from its height, not its side"),
+    Mutant("sec2-check-zero-radius", S2, "not np.all(rad > 0)", "not np.all(rad >= 0)",
+           FEATURE_TESTS, "check_inputs takes a ball of radius 0"),
+    Mutant("sec3-robot-area-ignores-ball", S3, "o_area = jnp.maximum(o_in - o_occ, 0.0)",
+           "o_area = jnp.maximum(o_in, 0.0)", FEATURE_TESTS,
+           "the other robot's area keeps the part the ball hides"),
+    # ------------------------------------------------------------------ env base
+    Mutant("env-option-unchecked", EB, "        if choice not in self.choices:",
+           "        if not choice:", ENV_TESTS, "the constructor takes an unknown option"),
+    Mutant("env-image-shape-ignores-params", EB,
+           "rp = (self._default_params if params is None else params).pixels.render",
+           "rp = self._default_params.pixels.render", ENV_TESTS,
+           "image_shape gives the default image's shape for other parameters"),
+    Mutant("env-pixel-noise-per-pixel", EB, "return int(np.prod(self.image_shape(params)))",
+           "return int(np.prod(self.image_shape(params)[:2]))", ENV_TESTS,
+           "pixel noise draws one normal per pixel, not per colour channel"),
+    Mutant("env-step-env-unchecked", EB,
+           "        self._check_inputs(state, action, params)\n"
+           "        eps, _, pixel = self._draw(key, params, transition=True, fresh=False)",
+           "        eps, _, pixel = self._draw(key, params, transition=True, fresh=False)",
+           ENV_TESTS, "step_env takes a bad action, state or parameters outside jit"),
+    Mutant("env-validate-type-unchecked", EB,
+           "        if not isinstance(params, self.params_type):",
+           "        if params is None:", ENV_TESTS,
+           "another task's parameters pass validation"),
+]
+
+
 def _apply(text: str, m: Mutant) -> str:
     if text.count(m.old) != 1:
         raise ValueError(f"mutant {m.name}: its snippet occurs {text.count(m.old)} times in "
@@ -450,9 +582,15 @@ def run(mutants: list[Mutant], timeout: float) -> list[dict]:
     return results
 
 
+#: Every set by the option that runs it (no option: the default set).
+SETS = {"default": MUTANTS, "--issue": ISSUE_MUTANTS, "--fresh": FRESH_MUTANTS,
+        "--blind": BLIND_MUTANTS}
+ALL_MUTANTS = [m for ms in SETS.values() for m in ms]
+
+
 def _set_of(m: Mutant) -> str:
-    """The option that runs ``m``'s set: "default", "--issue" or "--fresh"."""
-    return "--issue" if m in ISSUE_MUTANTS else "--fresh" if m in FRESH_MUTANTS else "default"
+    """The option that runs ``m``'s set: "default", "--issue", "--fresh" or "--blind"."""
+    return next(k for k, ms in SETS.items() if m in ms)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -464,20 +602,22 @@ def main(argv: list[str] | None = None) -> int:
     which.add_argument("--fresh", action="store_true",
                        help="the second, independent set (FRESH_MUTANTS), instead of the "
                             "default ones")
+    which.add_argument("--blind", action="store_true",
+                       help="the third set (BLIND_MUTANTS), also written before reading the "
+                            "tests, instead of the default ones")
     p.add_argument("--list", action="store_true", help="list the mutants and exit")
     p.add_argument("--timeout", type=float, default=900.0, help="seconds per test run")
     p.add_argument("--json", metavar="FILE", help="also write the results as JSON")
     args = p.parse_args(argv)
-    chosen = ISSUE_MUTANTS if args.issue else FRESH_MUTANTS if args.fresh else MUTANTS
+    named = [k for k in SETS if k != "default" and getattr(args, k[2:])]
+    chosen = SETS[named[0] if named else "default"]
     if args.only:
-        every = MUTANTS + ISSUE_MUTANTS + FRESH_MUTANTS
-        bad = [n for n in args.only if n not in {m.name for m in every}]
+        bad = [n for n in args.only if n not in {m.name for m in ALL_MUTANTS}]
         if bad:
             p.error(f"no mutant {', '.join(bad)}; --list shows them")
-        chosen = [m for m in every if m.name in args.only]
+        chosen = [m for m in ALL_MUTANTS if m.name in args.only]
     if args.list:
-        shown = chosen if args.only or args.issue or args.fresh else (
-            MUTANTS + ISSUE_MUTANTS + FRESH_MUTANTS)
+        shown = chosen if args.only or named else ALL_MUTANTS
         for m in shown:
             print(f"{_set_of(m):7s} {m.name:38s} {m.file:26s} {m.why}")
         return 0

@@ -115,6 +115,15 @@ def test_bad_params_raise(field, value):
         validate(CameraParams(**{field: value}))
 
 
+def test_a_near_plane_at_or_above_the_camera_height_is_refused():
+    """The near plane must lie below the camera's height (a floor point straight below is
+    nearer than the camera is high)."""
+    validate(CameraParams(height=0.2, near_plane=0.19))
+    for near in (0.2, 0.3):
+        with pytest.raises(ParamError, match="near_plane"):
+            validate(CameraParams(height=0.2, near_plane=near))
+
+
 def test_check_inputs_shapes_and_sizes():
     gc = np.zeros((4, 3))
     check_inputs(np.zeros(3), np.zeros(2), 0.11, gc, CAM)
@@ -124,6 +133,8 @@ def test_check_inputs_shapes_and_sizes():
         check_inputs(np.zeros(3), np.zeros(2), 0.11, np.zeros((3, 3)), CAM)
     with pytest.raises(ValueError, match="ball_radius"):
         check_inputs(np.zeros(3), np.zeros(2), -0.1, gc, CAM)
+    with pytest.raises(ValueError, match="ball_radius must be > 0"):  # a ball of no size
+        check_inputs(np.zeros(3), np.zeros(2), 0.0, gc, CAM)
     with pytest.raises(ValueError, match="other_size"):
         check_inputs(np.zeros(3), np.zeros(2), 0.11, gc, CAM, np.zeros(3), [0.4, -1, 0.3])
     with pytest.raises(ValueError, match="batch shape"):

@@ -17,8 +17,7 @@ mc = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(mc)
 
 
-@pytest.mark.parametrize("m", mc.MUTANTS + mc.ISSUE_MUTANTS + mc.FRESH_MUTANTS,
-                         ids=lambda m: m.name)
+@pytest.mark.parametrize("m", mc.ALL_MUTANTS, ids=lambda m: m.name)
 def test_each_mutant_changes_its_file_once(m):
     text = (REPO / m.file).read_text()
     assert mc._apply(text, m) != text
@@ -27,9 +26,10 @@ def test_each_mutant_changes_its_file_once(m):
 
 
 def test_mutant_names_are_unique_and_each_set_is_large():
-    names = [m.name for m in mc.MUTANTS + mc.ISSUE_MUTANTS + mc.FRESH_MUTANTS]
+    names = [m.name for m in mc.ALL_MUTANTS]
     assert len(names) == len(set(names))
-    assert len(mc.MUTANTS) >= 20 and len(mc.FRESH_MUTANTS) >= 20
+    assert len(mc.ALL_MUTANTS) == sum(map(len, mc.SETS.values()))
+    assert all(len(mc.SETS[k]) >= 20 for k in ("default", "--fresh", "--blind"))
 
 
 @pytest.mark.slow

@@ -21,7 +21,7 @@ from tests.engine_helpers import one_error_line
 from vbl.engine import runfolder
 from vbl.engine.config import fingerprint
 from vbl.engine.errors import EngineError
-from vbl.engine.report import claim, stat_cell
+from vbl.engine.report import RATE, claim, headline_table, seeds_cell, stat_cell
 from vbl.stats import MIN_SEEDS_BOUNDED, bounded_ci95
 
 # ------------------------------------------------------------------ run folders
@@ -33,6 +33,20 @@ def test_a_config_json_without_its_fingerprint_is_refused():
     for spec in (body, dict(body, fingerprint=None), dict(body, fingerprint=7)):
         with pytest.raises(EngineError, match="run/config.json has no fingerprint"):
             runfolder.check_fingerprint(spec, "run")
+
+
+def test_a_top_level_field_only_one_config_json_has_is_named_as_differing(tmp_path):
+    """A field added to (or missing from) a run's config.json is a difference: differing()
+    names it, and the fingerprint check says what was added."""
+    run = {"format": 1, "experiment": "toy", "seeds": 2, "config": {"agent.lr": 0.1}}
+    edited = {**run, "base_seed": 5}
+    assert runfolder.differing(edited, run) == ["base_seed"]
+    assert runfolder.differing(run, edited) == ["base_seed"]
+    assert runfolder.differing(run, dict(run)) == []
+    spec = {**edited, "fingerprint": fingerprint(run)}
+    with pytest.raises(EngineError, match="base_seed is 5, the run had null"):
+        runfolder.check_fingerprint(spec, tmp_path, originals=[{**run, "fingerprint":
+                                                               fingerprint(run)}])
 
 
 def test_a_config_json_without_its_format_is_refused_as_format_1():
@@ -123,6 +137,50 @@ def test_stat_cell_from_a_population_std_is_the_student_t_interval():
     half = sps.t.ppf(0.975, x.size - 1) * x.std(ddof=1) / np.sqrt(x.size)
     cell = stat_cell({"mean": float(x.mean()), "std": float(x.std())}, fmt=".6f", n=x.size)
     assert cell == f"{x.mean():.6f} ± {half:.6f}"
+
+
+def test_seeds_cell_of_a_rate_near_0_keeps_its_interval_in_the_range():
+    """A success rate whose t interval crosses 0 on the low side only (4 seeds) is shown as
+    SciPy's interval clipped to [0, 1], never with a negative lower end."""
+    x = [0.0, 0.0, 0.0, 0.4]
+    lo, hi = _t_interval(x)
+    assert lo < 0.0 < hi < 1.0
+    assert seeds_cell(x, fmt=".4f", bounds=RATE) == f"{0.1:.4f} [{0.0:.4f}, {hi:.4f}]"
+    assert seeds_cell([1.0, 1.0, 1.0, 0.6], fmt=".4f", bounds=RATE).endswith(f"{1.0:.4f}]")
+
+
+def test_paired_claim_is_students_interval_of_the_per_seed_differences():
+    """Arms that vary a lot from seed to seed but move together: the paired claim is SciPy's
+    paired t test's interval (resolved), the unpaired one is not."""
+    b = np.array([0.1, 0.9, 0.4, 0.6, 0.2])
+    a = b + np.array([0.05, 0.07, 0.06, 0.05, 0.07])
+    d = a - b
+    half = sps.t.ppf(0.975, d.size - 1) * sps.sem(d)
+    assert claim(a, b, paired=True, fmt=".4f") == f"yes ({d.mean():+.4f} ± {half:.4f})"
+    assert claim(a, b).startswith("not resolved at 5 seeds")
+
+
+def _headline_result(points):
+    from types import SimpleNamespace
+
+    return SimpleNamespace(summary={"points": points, "seeds": 2}, seeds=2)
+
+
+def test_headline_shows_a_metrics_final_value_before_its_last_chunks():
+    point = {"values": {}, "last_chunk": {"score": {"mean": 1.0, "per_seed": [1.0, 1.0]}},
+             "final": {"score": {"mean": 7.0, "per_seed": [7.0, 7.0]}}}
+    table = headline_table(_headline_result([point]))
+    assert "7 ± 0" in table and "1 ± 0" not in table
+
+
+def test_headline_keeps_a_column_that_fills_the_width_exactly():
+    """Columns are kept while the widest line stays within ``width`` characters."""
+    point = {"values": {}, "final": {"score": {"mean": 0.5, "per_seed": [0.4, 0.6]}}}
+    res = _headline_result([point])
+    full = headline_table(res, width=1000)
+    widest = max(len(line) for line in full.splitlines()[:-1])  # the note is not a column
+    assert "score" in headline_table(res, width=widest)
+    assert "score" not in headline_table(res, width=widest - 1)
 
 
 # ------------------------------------------------------------------ vbl render's checks

@@ -214,6 +214,28 @@ def test_floor_walls_and_lines():
     assert np.all(off > 0.9, axis=-1).sum() < white.sum()
 
 
+def _other_robot_is_a_box_of_its_diameter(img, robots, rp):
+    """render_world's other robot is the box [2 radius, 2 radius, 0.3 m]: its yellow pixels
+    span the u extent of that box's corners (NumPy pinhole reference) inside the image, to
+    a pixel."""
+    from tests.reference.camera_np import project_points_np
+
+    yellow = np.asarray(colour_masks(img, BlobParams())[MASK_OTHER])
+    (x, y, th), r = robots[1], WORLD.robot.radius
+    rot = np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
+    corners = np.array([[*(np.array([x, y]) + rot @ [sx * r, sy * r]), z]
+                        for sx in (-1, 1) for sy in (-1, 1) for z in (0.0, 0.3)])
+    uv, depth = project_points_np(corners, robots[0], CAM)
+    assert np.all(depth > CAM.near_plane)
+    hw = CAM.image_width / 2
+    lo, hi = np.clip(uv[:, 0].min(), -hw, hw), np.clip(uv[:, 0].max(), -hw, hw)
+    assert hi - lo > 50  # well inside the image: a box of half the size would differ
+    u = np.asarray(pixel_grid(CAM, rp.width, rp.height)[0])
+    cols = np.flatnonzero(yellow.any(axis=0))
+    su = CAM.image_width / rp.width
+    assert abs(u[cols].min() - lo) <= su and abs(u[cols].max() - hi) <= su
+
+
 def test_top_view_and_render_world():
     rp = RenderParams(width=64, height=60)
     robots = jnp.asarray([[0.0, 0.0, 0.0], [2.0, 1.0, 1.0]])
@@ -234,6 +256,7 @@ def test_top_view_and_render_world():
     # the view cone: lightened floor ahead of the robot, plain floor behind it
     ahead, behind = top[px(1.5, 0.2)], top[px(-1.5, 0.2)]
     assert ahead.mean() > behind.mean() + 0.1
+    _other_robot_is_a_box_of_its_diameter(np.asarray(cam_img), np.asarray(robots), rp)
     one_robot = render_world(robots[:1], ball, WORLD, CAM, rp)[0]
     assert one_robot.shape == (60, 64, 3)
     top2 = render_top(robots[0], ball, R, GC, WORLD.field, CAM, rp, WORLD.robot.radius)

@@ -38,6 +38,14 @@ def test_mean_ci95_is_scipys_t_interval():
     assert isinstance(m1, float) and h1 == pytest.approx(h[0])
 
 
+def test_mean_ci95_over_another_axis_counts_that_axis_as_the_seeds():
+    x = np.random.default_rng(3).normal(0.4, 0.2, size=(4, 9))  # 4 metrics x 9 seeds
+    m, h = mean_ci95(x, axis=1)
+    lo, hi = sps.t.interval(0.95, 8, loc=x.mean(1), scale=sps.sem(x, axis=1))
+    np.testing.assert_allclose(m, x.mean(1))
+    np.testing.assert_allclose(h, (hi - lo) / 2, rtol=1e-6)
+
+
 def test_one_seed_has_no_interval():
     m, h = mean_ci95([0.7])
     assert m == 0.7 and np.isnan(h)
@@ -73,6 +81,10 @@ def test_first_crossing_by_hand():
     # window 2: (0 + 1) / 2 = 0.5 reaches the level at the second row already
     np.testing.assert_array_equal(first_crossing(success, trials, 0.5, window=2), [20.0, np.nan])
     np.testing.assert_array_equal(first_crossing(success, trials, 0.75, window=2), [30.0, np.nan])
+    # a clock that is not one per value (even one that would broadcast) is refused
+    for clock in (trials[:, :1], trials[:3], trials.ravel()):
+        with pytest.raises(ValueError, match="must both be"):
+            first_crossing(success, clock, 0.5)
 
 
 def test_change_windows_by_hand():

@@ -62,6 +62,34 @@ def test_space_specs_and_rungs(toy):
             parse_space([text], cfg)
     assert rungs(9, 3, 1) == [(0, 1), (1, 3), (3, 9)]
     assert rungs(4, 3, 5) == [(0, 4)]
+    with pytest.raises(ParamError, match="LOW > 0"):  # a parameter that may be 0
+        parse_space(["agent.epsilon=0..0.4:log"], cfg)
+
+
+@pytest.mark.parametrize("direction, values, kept", [
+    ("maximize", [0.2, 0.9], [1]),                 # fewer trials than eta: the best one
+    ("minimize", [0.2, 0.9], [0]),
+    ("minimize", [0.5, 0.1, 0.7, 0.3, 0.9, 0.2], [1, 5]),   # 6 // 3 = 2: the 2 lowest
+    ("maximize", [0.5, 0.1, 0.7, 0.3, 0.9, 0.2], [2, 4]),
+])
+def test_a_rung_keeps_the_best_third_and_at_least_one(direction, values, kept):
+    """Successive halving's rule: the best max(1, n // eta) of the trials' values at the
+    rung go on, the others are told PRUNED."""
+    from types import SimpleNamespace
+
+    from vbl.engine.tune import _rung
+
+    study = optuna.create_study(direction=direction)
+    trials = [study.ask() for _ in values]
+    for tr, v in zip(trials, values, strict=True):
+        tr.report(v, 3)
+    s = SimpleNamespace(spec={"reduction_factor": 3, "direction": direction},
+                        echo=lambda _: None)
+    alive = study.get_trials(deepcopy=False)
+    keep = _rung(optuna, study, s, alive, 3)
+    assert sorted(keep) == [trials[i].number for i in kept]
+    pruned = [t.number for t in study.get_trials() if t.state == optuna.trial.TrialState.PRUNED]
+    assert sorted(pruned) == sorted(set(t.number for t in trials) - keep)
 
 
 def test_zipped_plan_takes_points_side_by_side(toy):
