@@ -55,10 +55,10 @@ class Mutant(NamedTuple):
 
 
 MERGE_TESTS = ("tests/test_merge_integrity.py", "tests/test_shard_merge.py")
-FOLDER_TESTS = ("tests/test_reliability_survivors.py", "tests/test_run_folder_safety.py",
+FOLDER_TESTS = ("tests/test_engine_edge_cases.py", "tests/test_run_folder_safety.py",
                 "tests/test_cli_processes.py")
 RESUME_TESTS = ("tests/test_merge_integrity.py", "tests/test_engine_core.py")
-STATS_TESTS = ("tests/test_stats.py", "tests/test_reliability_survivors.py")
+STATS_TESTS = ("tests/test_stats.py", "tests/test_engine_edge_cases.py")
 ENV_TESTS = ("tests/test_env_base.py",)
 
 M, RF, RN = "vbl/engine/merge.py", "vbl/engine/runfolder.py", "vbl/engine/runner.py"
@@ -215,7 +215,7 @@ VISION_MUTANTS = [
 #: The mutants the check runs by default.
 MUTANTS = ENGINE_MUTANTS + VISION_MUTANTS
 
-SURVIVORS = ("tests/test_merge_integrity.py", "tests/test_reliability_survivors.py")
+SURVIVORS = ("tests/test_merge_integrity.py", "tests/test_engine_edge_cases.py")
 
 #: The mutants issue 50 found surviving (``--issue``): the tests written for them kill them.
 ISSUE_MUTANTS = [
@@ -252,7 +252,7 @@ CK, RS, RE = "vbl/engine/checkpoint.py", "vbl/engine/results.py", "vbl/engine/re
 EX, TU = "vbl/engine/export.py", "vbl/engine/tune.py"
 RUNNER_TESTS = ("tests/test_engine_core.py", "tests/test_merge_integrity.py",
                 "tests/test_shard_merge.py")
-REPORT_TESTS = ("tests/test_reliability_survivors.py", "tests/test_engine_core.py")
+REPORT_TESTS = ("tests/test_engine_edge_cases.py", "tests/test_engine_core.py")
 RENDER_TESTS = VISION_TESTS + ("tests/test_render.py",)
 CAMERA_TESTS = ("tests/test_camera.py",) + RENDER_TESTS
 

@@ -1,5 +1,6 @@
-"""Behaviour that mutants of issue 50 changed without a test noticing: run folders,
-statistics over seeds, `vbl render`'s checks and Monte Carlo updates past one pass.
+"""Edge cases of run folders, statistics over seeds, report cells, `vbl render`'s checks
+and Monte Carlo updates past one pass: behaviour a realistic bug changed without another
+test noticing (each found by ``tests/mutation_check.py``).
 
 Truths: SciPy's Student t interval and hand-computed seed counts; a NumPy every-visit
 Monte Carlo update written in closed form; the documented lock protocol of a
