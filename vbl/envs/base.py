@@ -55,7 +55,8 @@ class TaskEnv:
         class MyEnv(TaskEnv, params=MyParams, state=MyState, fresh_words=5,
                     pixel_noise_dim=SEC2_NOISE_DIM, option=("kind", ("a", "b"))): ...
 
-    Args (of a task's constructor): its static option (one of the declared choices) and
+    Args (of a task's constructor): its static option (one of the declared choices, kept
+    as ``choice``; the task sets its own name for it before calling this constructor) and
     ``params``, the default parameters (validated; ``None`` uses the defaults).
     """
 
@@ -81,7 +82,7 @@ class TaskEnv:
         if choice not in self.choices:
             raise ValueError(f"{self.option}={choice!r} is not allowed; choose one of "
                              f"{list(self.choices)}")
-        setattr(self, self.option, choice)
+        self.choice = choice  #: the static option's value (a task also names it)
         self._default_params = self.validate(self.defaults() if params is None else params)
 
     # ------------------------------------------------------------------ task parts
@@ -148,7 +149,7 @@ class TaskEnv:
 
     def __repr__(self) -> str:
         fields = [f.name for f in dataclasses.fields(self.params_type)]
-        return (f"{type(self).__name__}({self.option}={getattr(self, self.option)!r}, "
+        return (f"{type(self).__name__}({self.option}={self.choice!r}, "
                 f"params={fields})")
 
     # ------------------------------------------------------------------ checks

@@ -362,6 +362,7 @@ class ShootPassEnv(TaskEnv, params=ShootPassParams, state=ShootPassState,
     observation_shape = (OBS_DIM,)
 
     def __init__(self, task: str = "shoot", params: ShootPassParams | None = None):
+        self.task = task
         super().__init__(task, params)
         #: the learner's robot index for a fixed task (None for "select": see roles())
         self.learner = {"shoot": SHOOTER, "pass": PASSER}.get(task)

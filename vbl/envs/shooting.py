@@ -119,6 +119,7 @@ class ShootingEnv(TaskEnv, params=ShootingParams, state=ShootingState, fresh_wor
     observation_shape = (SEC2_DIM,)
 
     def __init__(self, robot_kind: str = "two_motor", params: ShootingParams | None = None):
+        self.robot_kind = robot_kind
         super().__init__(robot_kind, params)
 
     def defaults(self) -> ShootingParams:
