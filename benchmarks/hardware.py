@@ -8,7 +8,7 @@ import jax
 
 from vbl.engine.machine import cpu_model, load_average
 
-__all__ = ["cpu_model", "load_average", "hardware_info", "write_results"]
+__all__ = ["cpu_model", "load_average", "hardware_info", "write_results", "write_entry"]
 
 
 def write_results(out: pathlib.Path, result: dict, text: str) -> None:
@@ -16,6 +16,15 @@ def write_results(out: pathlib.Path, result: dict, text: str) -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     out.with_suffix(".json").write_text(json.dumps(result, indent=2))
     out.with_suffix(".md").write_text(text)
+
+
+def write_entry(dest: pathlib.Path, key: str, entry: dict) -> None:
+    """Write ``entry`` under ``key`` into the JSON file ``dest`` (keys sorted), keeping the
+    other keys' entries: a probe's results file, one key per invocation."""
+    data = json.loads(dest.read_text()) if dest.exists() else {}
+    data[key] = entry
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    dest.write_text(json.dumps(dict(sorted(data.items())), indent=1) + "\n")
 
 
 def hardware_info() -> dict:

@@ -64,7 +64,7 @@ CPU at the defaults, mostly compilation. Cited by docs/findings/table2_shoot_pas
 from __future__ import annotations
 
 import argparse
-import json
+import sys
 import time
 from pathlib import Path
 from types import SimpleNamespace
@@ -74,6 +74,9 @@ import jax.numpy as jnp
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT))
+from benchmarks.hardware import write_entry  # noqa: E402
+
 RESULT = ROOT / "benchmarks" / "results" / "ball_velocity_r2.json"
 
 #: Rolling: ball speed above this, m/s.
@@ -173,14 +176,6 @@ def invocation_key(args: argparse.Namespace) -> str:
     if args.set:
         parts.append("set=" + " ".join(args.set))
     return ", ".join(parts)
-
-
-def write_entry(dest: Path, key: str, entry: dict) -> None:
-    """Write ``entry`` under ``key`` into ``dest``, keeping the other keys' entries."""
-    data = json.loads(dest.read_text()) if dest.exists() else {}
-    data[key] = entry
-    dest.parent.mkdir(parents=True, exist_ok=True)
-    dest.write_text(json.dumps(dict(sorted(data.items())), indent=1) + "\n")
 
 
 def _setup(args: argparse.Namespace) -> SimpleNamespace | None:

@@ -26,7 +26,6 @@ Cost: about a minute of CPU, mostly compilation. Cited by docs/findings/grid_sho
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -36,6 +35,9 @@ import jax.numpy as jnp
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT))
+from benchmarks.hardware import write_entry  # noqa: E402
+
 RESULT = ROOT / "benchmarks" / "results" / "grid_hand_table.json"
 
 
@@ -72,14 +74,6 @@ def invocation_key(max_steps: int, starts: int, seed: int) -> str:
     differ from their defaults."""
     extra = [f"{k}={v}" for k, v, d in (("starts", starts, 256), ("seed", seed, 0)) if v != d]
     return ", ".join([f"max_steps={max_steps}", *extra])
-
-
-def write_entry(dest: Path, key: str, entry: dict) -> None:
-    """Write ``entry`` under ``key`` into ``dest``, keeping the other keys' entries."""
-    data = json.loads(dest.read_text()) if dest.exists() else {}
-    data[key] = entry
-    dest.parent.mkdir(parents=True, exist_ok=True)
-    dest.write_text(json.dumps(dict(sorted(data.items())), indent=1) + "\n")
 
 
 def main(argv: list[str] | None = None) -> int:

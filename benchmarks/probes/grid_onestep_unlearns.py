@@ -30,7 +30,7 @@ docs/findings/grid_shooting.md.
 from __future__ import annotations
 
 import argparse
-import json
+import sys
 import time
 from pathlib import Path
 
@@ -39,6 +39,9 @@ import jax.numpy as jnp
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT))
+from benchmarks.hardware import write_entry  # noqa: E402
+
 RESULT = ROOT / "benchmarks" / "results" / "grid_onestep_unlearns.json"
 DEFAULTS = {"chunks": 4, "starts": 128, "seed": 0, "chunk_steps": 100}
 
@@ -48,14 +51,6 @@ def invocation_key(max_steps: int, **options: int) -> str:
     differ from their defaults (``DEFAULTS``)."""
     extra = [f"{k}={v}" for k, v in options.items() if v != DEFAULTS[k]]
     return ", ".join([f"max_steps={max_steps}", *extra])
-
-
-def write_entry(dest: Path, key: str, entry: dict) -> None:
-    """Write ``entry`` under ``key`` into ``dest``, keeping the other keys' entries."""
-    data = json.loads(dest.read_text()) if dest.exists() else {}
-    data[key] = entry
-    dest.parent.mkdir(parents=True, exist_ok=True)
-    dest.write_text(json.dumps(dict(sorted(data.items())), indent=1) + "\n")
 
 
 def main(argv: list[str] | None = None) -> int:
