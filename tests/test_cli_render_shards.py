@@ -10,11 +10,10 @@ from __future__ import annotations
 
 import json
 
-import jax
 import numpy as np
 import pytest
 
-from tests.engine_helpers import one_error_line
+from tests.engine_helpers import one_error_line, zero_carry
 from vbl.engine.checkpoint import Checkpoints
 from vbl.engine.registry import get
 from vbl.engine.runner import resolve, shard_spec, whole_spec
@@ -32,11 +31,7 @@ def _shard_folder(folder, exp, config, spec, shard: Shard) -> None:
                                                      "shard": sspec["shard"]}))
     plan = make_plan(exp, config, spec["sweep"], SEEDS, 0, shard)
     g = plan.groups[0]
-    shape = jax.eval_shape(jax.vmap(g.program.init),
-                           jax.ShapeDtypeStruct((g.num_learners, 2), np.uint32),
-                           jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype),
-                                        g.configs))
-    carry = jax.tree.map(lambda s: np.zeros(s.shape, s.dtype), shape)
+    carry = zero_carry(g)
     q = np.zeros(carry.learner.q.shape, np.float32)
     lo, _ = shard.learner_range(2 * SEEDS)  # of the whole run's learners
     for k in range(g.num_learners):

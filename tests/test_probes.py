@@ -245,16 +245,6 @@ def test_table2_tuned(capsys, tmp_path):
     assert "--set env.task_pass=false" in row["command"] and "| shoot, current |" in printed
 
 
-def test_table2_tuned_table_is_the_committed_results(capsys):
-    """The findings' table of each row's tuned learner is the committed results file's."""
-    committed = run_probe("table2_tuned", ["--table"], capsys).strip()
-    note = (PROBES.parents[1] / "docs" / "findings" / "table2_shoot_pass.md").read_text()
-    begin, end = "<!-- table2_tuned -->\n", "\n<!-- /table2_tuned -->"
-    assert note[note.index(begin) + len(begin):note.index(end)] == committed, (
-        "docs/findings/table2_shoot_pass.md: the tuned-learner table differs from "
-        "`python benchmarks/probes/table2_tuned.py --table`")
-
-
 def test_table2_tuned_comparisons_against_numpy():
     """The between-row differences are Welch's: checked against a NumPy computation on
     made-up per-seed values (and a missing row leaves its comparisons out)."""
@@ -276,14 +266,16 @@ def test_table2_tuned_comparisons_against_numpy():
                          f"{100 * (b - a).mean():+.1f} ± {half:.1f} |"]
 
 
-def test_table2_ablation_table_is_the_committed_results(capsys):
-    """The findings' ablation table is the committed results file's."""
-    committed = run_probe("table2_ablation", ["--table"], capsys).strip()
+@pytest.mark.parametrize("probe", ["table2_ablation", "table2_tuned"])
+def test_table2_probe_tables_are_the_committed_results(probe, capsys):
+    """The findings' table between ``<!-- probe -->`` and ``<!-- /probe -->`` is what the
+    probe's ``--table`` prints from its committed results file."""
+    committed = run_probe(probe, ["--table"], capsys).strip()
     note = (PROBES.parents[1] / "docs" / "findings" / "table2_shoot_pass.md").read_text()
-    begin, end = "<!-- table2_ablation -->\n", "\n<!-- /table2_ablation -->"
+    begin, end = f"<!-- {probe} -->\n", f"\n<!-- /{probe} -->"
     assert note[note.index(begin) + len(begin):note.index(end)] == committed, (
-        "docs/findings/table2_shoot_pass.md: the ablation table differs from "
-        "`python benchmarks/probes/table2_ablation.py --table`")
+        f"docs/findings/table2_shoot_pass.md: the {probe} table differs from "
+        f"`python benchmarks/probes/{probe}.py --table`")
 
 
 def test_table2_ablation_whitening():

@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from tests.engine_helpers import REPO, one_error_line
+from tests.engine_helpers import REPO, one_error_line, zero_carry
 from vbl.engine.checkpoint import Checkpoints
 from vbl.engine.registry import discover, get
 from vbl.engine.runner import resolve
@@ -60,11 +60,7 @@ def grid_run(tmp_path_factory):
     exp, config, spec = _fake_run(folder, "grid_shooting", {"train.eval_epsilon": 0.0})
     plan = make_plan(exp, config, spec["sweep"], spec["seeds"], 0)
     g = plan.groups[0]
-    shape = jax.eval_shape(jax.vmap(g.program.init),
-                           jax.ShapeDtypeStruct((g.num_learners, 2), np.uint32),
-                           jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype),
-                                        g.configs))
-    carry = jax.tree.map(lambda s: np.zeros(s.shape, s.dtype), shape)
+    carry = zero_carry(g)
     q = np.zeros(carry.learner.q.shape, np.float32)
     q[..., FORWARD] = 1.0
     carry = carry.replace(learner=carry.learner.replace(q=q))

@@ -80,3 +80,16 @@ def wait_until(done, what: str, proc: subprocess.Popen | None = None,
                 err = f" (exit {proc.poll()}): {proc.communicate()[1][-3000:]}"
             raise AssertionError(f"{what} within {timeout} s{err}")
         time.sleep(0.2)
+
+
+def zero_carry(group):
+    """The carries of a compile group's learners (``[learners, ...]``) as the program's
+    ``init`` shapes them, every leaf zero: traced with ``jax.eval_shape``, not compiled."""
+    import jax
+    import numpy as np
+
+    shape = jax.eval_shape(jax.vmap(group.program.init),
+                           jax.ShapeDtypeStruct((group.num_learners, 2), np.uint32),
+                           jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype),
+                                        group.configs))
+    return jax.tree.map(lambda s: np.zeros(s.shape, s.dtype), shape)
