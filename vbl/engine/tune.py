@@ -303,14 +303,15 @@ def _plan_search(experiment: Experiment, space, *, trials, batch, seeds, metric,
     r0 = min_chunks or max(1, prog.num_chunks // eta ** 2)
     spec = {"format": TUNE_FORMAT, "experiment": experiment.name, "preset": preset,
             "quick": bool(quick), "space": {p: d.text for p, d in space.items()},
-            "sets": {p: _plain(v) for p, v in sets.items()}, "seeds": seeds,
+            "sets": {p: json_value(v) for p, v in sets.items()}, "seeds": seeds,
             "seed": seed, "batch": batch, "metric": metric, "direction": direction,
             "sampler": sampler, "prune": prune, "reduction_factor": eta, "min_chunks": r0,
             "trials": trials, "confirm_seeds": confirm_seeds or max(seeds, 8)}
     return spec, space, sets, (metric, is_final, rung, prog.num_chunks)
 
 
-def _plain(v: Any) -> Any:
+def json_value(v: Any) -> Any:
+    """A config value as JSON writes it (tuples as lists)."""
     return list(v) if isinstance(v, tuple) else v
 
 

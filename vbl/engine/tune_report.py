@@ -15,7 +15,7 @@ import numpy as np
 from vbl.engine.errors import EngineError
 from vbl.engine.results import write_json
 from vbl.engine.runner import run_experiment
-from vbl.engine.tune import TuneResult, learner_chunks, require_optuna
+from vbl.engine.tune import TuneResult, json_value, learner_chunks, require_optuna
 from vbl.params import get_path
 from vbl.stats import bounded_ci95, mean_ci95, welch_ci95
 
@@ -73,12 +73,7 @@ def _confirm(s, folder, name: str, what: str, params: dict[str, Any]) -> dict[st
     vals = res.final[s.metric][0] if s.is_final else res.curves[s.metric][0, -1]
     return {**interval(vals, s.metric), "base_seed": s.spec["seed"] + 1,
             "run": name, "command": confirm_command(s, params),
-            "params": {p: _listed(get_path(res.config, p)) for p in s.space}}
-
-
-def _listed(v: Any) -> Any:
-    """A config value as JSON writes it (tuples as lists)."""
-    return list(v) if isinstance(v, tuple) else v
+            "params": {p: json_value(get_path(res.config, p)) for p in s.space}}
 
 
 def _compute(s, trials: list) -> dict[str, Any]:
