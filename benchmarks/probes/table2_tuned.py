@@ -88,26 +88,26 @@ def run(row: str, out: Path, tiny: bool) -> dict:
             sm["compute"]["learner_chunks"]}
 
 
-def _cell(values) -> str:
-    from vbl.stats import mean_ci95
+def _interval(pair) -> str:
+    return "{:.1f} ± {:.1f}".format(*pair)
 
-    m, h = mean_ci95(100 * np.asarray(values, np.float64))
-    return f"{m:.1f} ± {h:.1f}"
+
+def _difference(pair) -> str:
+    return "{:+.1f} ± {:.1f}".format(*pair)
 
 
 def table(data: dict) -> str:
     """Per row: the defaults' and the tuned learner's greedy success % on the same fresh
-    seeds, their difference (Welch 95 %) and the best values."""
-    from vbl.stats import welch_ci95
-
+    seeds, their difference (Welch 95 %) and the best values; then :func:`comparisons`."""
+    stats = statistics(data["rows"])["rows"]
     lines = ["| row | defaults % | tuned % | tuned − defaults | step size | discount | "
              "final epsilon |", "|---|---|---|---|---|---|---|"]
     for row, r in data["rows"].items():
-        d, h = welch_ci95(100 * np.asarray(r["tuned"]), 100 * np.asarray(r["default"]))
-        b = r["best"]
-        lines.append(f"| {row} | {_cell(r['default'])} | {_cell(r['tuned'])} | "
-                     f"{d:+.1f} ± {h:.1f} | {b['agent.learning_rate']:.3f} | "
-                     f"{b['agent.discount']:.3f} | {b['agent.exploration.end_value']:.3f} |")
+        st, b = stats[row], r["best"]
+        lines.append(f"| {row} | {_interval(st['defaults'])} | {_interval(st['tuned'])} | "
+                     f"{_difference(st['tuned - defaults'])} | "
+                     f"{b['agent.learning_rate']:.3f} | {b['agent.discount']:.3f} | "
+                     f"{b['agent.exploration.end_value']:.3f} |")
     return "\n".join(lines + [""] + comparisons(data["rows"]))
 
 
@@ -141,19 +141,12 @@ def statistics(rows: dict) -> dict:
 
 def comparisons(rows: dict) -> list[str]:
     """Table 2's differences between rows (greedy success points, Welch 95 %), between the
-    rows' default learners and between their tuned ones."""
-    from vbl.stats import welch_ci95
-
+    rows' default learners and between their tuned ones (:func:`statistics`)."""
     lines = ["| task | comparison | defaults | tuned |", "|---|---|---|---|"]
-    for task in ("shoot", "pass"):
-        for name, a, b in COMPARISONS:
-            ra, rb = rows.get(f"{task}, {a}"), rows.get(f"{task}, {b}")
-            if ra is None or rb is None:
-                continue
-            cells = ["{:+.1f} ± {:.1f}".format(*welch_ci95(100 * np.asarray(ra[k]),
-                                                           100 * np.asarray(rb[k])))
-                     for k in ("default", "tuned")]
-            lines.append(f"| {task} | {name} | {cells[0]} | {cells[1]} |")
+    for key, st in statistics(rows)["comparisons"].items():
+        task, name = key.split(": ", 1)
+        lines.append(f"| {task} | {name} | {_difference(st['default'])} | "
+                     f"{_difference(st['tuned'])} |")
     return lines
 
 
