@@ -9,7 +9,7 @@ import pytest
 from flax import struct
 
 from vbl.draws import uniform01
-from vbl.envs.base import NoiseOn, TaskEnv
+from vbl.envs.base import NoiseOn, Observer, TaskEnv
 from vbl.params import ParamError, param, section
 from vbl.world.params import WorldParams
 from vbl.world.physics import WorldState
@@ -159,12 +159,11 @@ class _PixelToy(ToyEnv, params=ToyParams, state=ToyState, fresh_words=FRESH,
                pixel_noise_dim=1, option=("kind", ("a", "b"))):
     """ToyEnv with a camera image of H x W = 12 x 16 (rows differ from columns)."""
 
-    def camera_image(self, state, params):
+    def observer(self, params):
         rp = params.pixels.render
-        return jnp.full((rp.height, rp.width, 3), 0.5, jnp.float32)
-
-    def image_noise_std(self, params):
-        return 0.1
+        return Observer(features=None, from_image=None, image_noise_std=0.1,
+                        image=lambda state: jnp.full((rp.height, rp.width, 3), 0.5,
+                                                     jnp.float32))
 
 
 def test_image_shape_and_pixel_noise_are_the_camera_images():
@@ -178,7 +177,7 @@ def test_image_shape_and_pixel_noise_are_the_camera_images():
     params = SimpleNamespace(pixels=SimpleNamespace(render=RenderParams(width=16, height=12)),
                              obs_source="pixels")
     _, state = env.reset(jax.random.key(0))
-    assert env.image_shape(params) == env.camera_image(state, params).shape == (12, 16, 3)
+    assert env.image_shape(params) == env.observer(params).image(state).shape == (12, 16, 3)
     assert env.pixel_noise_size(params) == 12 * 16 * 3
     eps = jnp.zeros(env.pixel_noise_size(params)).at[16 * 3 + 2].set(1.0)  # row 1, col 0, B
     img = np.asarray(env.get_pixels(state, params, eps))

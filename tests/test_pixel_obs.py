@@ -166,7 +166,7 @@ def test_image_noise_is_the_pixel_noise_draw():
     p = env.default_params
     state, eps = env.reset_state(jax.random.PRNGKey(2))
     assert eps.shape == (60 * 64 * 3,)
-    clean = np.asarray(env.camera_image(state, p), np.float32)
+    clean = np.asarray(env.observer(p).image(state), np.float32)
     ref = np.round(np.clip(clean + np.float32(0.05) * np.asarray(eps).reshape(60, 64, 3), 0, 1)
                    * 255)
     got = np.asarray(env.get_pixels(state, p, eps)).astype(float)

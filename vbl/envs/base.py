@@ -7,9 +7,10 @@
 ``params.obs_source``), ``get_pixels`` (H, W, 3) uint8, the input checks (outside ``jit``)
 and the random layout of a call (one hash per call, :func:`vbl.draws.draw_blocks`). A task
 subclass gives only its parts: class keywords, its fresh episode (``_fresh``), one
-transition (``_transition``), the draw blocks of its noise (``transition_blocks``) and its
-observations. :class:`NoiseOn` holds the static switches of the noise sources every task
-has (``slip``, ``pixel``); a source that is off draws and computes nothing.
+transition (``_transition``), the draw blocks of its noise (``transition_blocks``) and what
+its learner sees (``observer``, an :class:`Observer`). :class:`NoiseOn` holds the static
+switches of the noise sources every task has (``slip``, ``pixel``); a source that is off
+draws and computes nothing.
 
 See docs/envs.md, "The task base" (a task's parts) and docs/world.md, "Random numbers".
 """
@@ -17,6 +18,7 @@ See docs/envs.md, "The task base" (a task's parts) and docs/world.md, "Random nu
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from typing import Any
 
 import jax
@@ -29,12 +31,31 @@ from vbl.envs.checks import check_action_index
 from vbl.envs.pixels import noisy_image
 from vbl.params import ParamError, param, validate
 
-__all__ = ["NoiseOn", "TaskEnv", "is_traced"]
+__all__ = ["NoiseOn", "Observer", "TaskEnv", "is_traced"]
 
 
 def is_traced(tree: Any) -> bool:
     """True when a leaf of ``tree`` is a jax tracer (inside ``jit``/``vmap``)."""
     return any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(tree))
+
+
+@dataclasses.dataclass(frozen=True)
+class Observer:
+    """What a task's learner sees of a state, for given parameters: the observation from the
+    analytic camera, the camera image and the observation from that image.
+
+    Attributes:
+      features: ``(state, eps) -> obs``, the analytic camera's observation; ``eps`` the
+        pixel noise's standard normals, (pixel_noise_dim,) float32, or None (no noise).
+      image: ``state -> (H, W, 3)`` float32 RGB in [0, 1], the learner's camera image.
+      from_image: ``(img, state) -> obs``, the observation from ``img``, (H, W, 3) uint8.
+      image_noise_std: the std of the image noise (in [0, 1] intensity units).
+    """
+
+    features: Callable[[Any, jax.Array | None], jax.Array]
+    image: Callable[[Any], jax.Array]
+    from_image: Callable[[jax.Array, Any], jax.Array]
+    image_noise_std: Any = 0.0
 
 
 @struct.dataclass
@@ -99,16 +120,8 @@ class TaskEnv:
     def _transition(self, eps: tuple, state: Any, action: jax.Array, params: Any):
         raise NotImplementedError
 
-    def analytic_obs(self, state: Any, params: Any, eps: jax.Array | None = None) -> jax.Array:
-        raise NotImplementedError
-
-    def camera_image(self, state: Any, params: Any) -> jax.Array:
-        raise NotImplementedError
-
-    def image_obs(self, img: jax.Array, state: Any, params: Any) -> jax.Array:
-        raise NotImplementedError
-
-    def image_noise_std(self, params: Any) -> Any:
+    def observer(self, params: Any) -> Observer:
+        """How the learner sees a state under ``params`` (:class:`Observer`)."""
         raise NotImplementedError
 
     def check_params(self, params: Any) -> None:
@@ -132,15 +145,15 @@ class TaskEnv:
         (image noise only under ``obs_source="pixels"``; None: none)."""
         shape = self.image_shape(params)
         img_eps = None if eps is None or params.obs_source != "pixels" else eps.reshape(shape)
-        return noisy_image(self.camera_image(state, params), img_eps,
-                           self.image_noise_std(params))
+        observer = self.observer(params)
+        return noisy_image(observer.image(state), img_eps, observer.image_noise_std)
 
     def get_obs(self, state: Any, params: Any, eps: jax.Array | None = None) -> jax.Array:
         """The observation of ``state`` (module docstring, "Observation source"); ``eps``:
         the pixel noise's standard normals, or None (``noise_on.pixel`` off)."""
         if params.obs_source == "pixels":
-            return self.image_obs(self.get_pixels(state, params, eps), state, params)
-        return self.analytic_obs(state, params, eps)
+            return self.observer(params).from_image(self.get_pixels(state, params, eps), state)
+        return self.observer(params).features(state, eps)
 
     # ------------------------------------------------------------------ metadata
     @property

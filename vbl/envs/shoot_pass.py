@@ -22,7 +22,7 @@ import numpy as np
 from flax import struct
 
 from vbl.draws import check_switched_off, uniform01
-from vbl.envs.base import NoiseOn, TaskEnv
+from vbl.envs.base import NoiseOn, Observer, TaskEnv
 from vbl.envs.noise import (
     NoiseParams,
     advance_phase,
@@ -479,30 +479,22 @@ class ShootPassEnv(TaskEnv, params=ShootPassParams, state=ShootPassState,
         """The learner's robot index (static for a fixed task, traced for "select")."""
         return self.roles(params)[0] if self.task == "select" else self.learner
 
-    def analytic_obs(self, state: ShootPassState, params: ShootPassParams,
-                     eps: jax.Array | None = None) -> jax.Array:
-        """The learner's Section 3 features (26,) float32; ``eps``: (SEC3_NOISE_DIM,)
-        float32 standard normals of the pixel noise, or None (``noise_on.pixel`` off)."""
-        return observe(state.world, self._me(params), self.learner_camera(params),
-                       params.world, params.noise, params.robot_height, state.phase, eps)
-
-    def camera_image(self, state: ShootPassState, params: ShootPassParams) -> jax.Array:
-        """The learner's camera image (H, W, 3) float32 RGB in [0, 1] (ball, goal, the other
-        robot as the analytic camera's box)."""
-        return camera_image(state.world, self._me(params), self.learner_camera(params),
-                            params.world, params.robot_height, params.pixels.render)
-
-    def image_obs(self, img: jax.Array, state: ShootPassState,
-                  params: ShootPassParams) -> jax.Array:
-        """The learner's Section 3 features (26,) float32 from its camera image ``img`` (H, W,
-        3) uint8, with the ball centroid's eccentricity of ``params.noise``."""
-        return section3_from_image(img, state.world, self._me(params),
-                                   self.learner_camera(params), params.world, params.noise,
-                                   params.robot_height, state.phase, params.pixels)
-
-    def image_noise_std(self, params: ShootPassParams):
-        """``noise.pixel_std``."""
-        return params.noise.pixel_std
+    def observer(self, params: ShootPassParams) -> Observer:
+        """The learner's camera: Section 3 features (26,) float32, analytic (``eps``:
+        (SEC3_NOISE_DIM,) float32 standard normals of the pixel noise, or None) or from its
+        image of the ball, goal and the other robot (as the analytic camera's box), with the
+        ball centroid's eccentricity of ``params.noise`` and image noise
+        ``noise.pixel_std``."""
+        me, cam, wp = self._me(params), self.learner_camera(params), params.world
+        noise, height = params.noise, params.robot_height
+        return Observer(
+            features=lambda state, eps: observe(state.world, me, cam, wp, noise, height,
+                                                state.phase, eps),
+            image=lambda state: camera_image(state.world, me, cam, wp, height,
+                                             params.pixels.render),
+            from_image=lambda img, state: section3_from_image(
+                img, state.world, me, cam, wp, noise, height, state.phase, params.pixels),
+            image_noise_std=noise.pixel_std)
 
     # ------------------------------------------------------------------ dynamics
     def transition_blocks(self, params: ShootPassParams) -> tuple[tuple[int, bool], ...]:

@@ -20,7 +20,7 @@ import numpy as np
 from flax import struct
 
 from vbl.draws import check_switched_off
-from vbl.envs.base import NoiseOn, TaskEnv
+from vbl.envs.base import NoiseOn, Observer, TaskEnv
 from vbl.envs.pixels import (
     OBS_SOURCES,
     PixelObsParams,
@@ -189,30 +189,25 @@ class ShootingEnv(TaskEnv, params=ShootingParams, state=ShootingState, fresh_wor
         return WorldState(robots=robots, ball=b, ball_vel=jnp.zeros(2, F32),
                           scored=jnp.zeros((), bool), ball_out=jnp.zeros((), bool))
 
-    def camera_image(self, state: ShootingState, params: ShootingParams) -> jax.Array:
-        """The robot's camera image (H, W, 3) float32 RGB in [0, 1] (ball and goal)."""
-        return camera_image(state.world, 0, params.camera, params.world, 0.0,
-                            params.pixels.render)
+    def observer(self, params: ShootingParams) -> Observer:
+        """The robot's camera: Section 2 features (9,) float32, analytic (``eps``: optional
+        (SEC2_NOISE_DIM,) float32 standard normals of the pixel noise) or from its image of
+        the ball and goal; no image noise in this task (its pixel noise is the analytic
+        camera's)."""
+        cam, wp = params.camera, params.world
 
-    def image_obs(self, img: jax.Array, state: ShootingState,
-                  params: ShootingParams) -> jax.Array:
-        """Section 2 features (9,) float32 from the camera image ``img`` (H, W, 3) uint8."""
-        return section2_from_image(img, state.world, params.camera, params.world,
-                                   params.pixels)
+        def features(state: ShootingState, eps: jax.Array | None) -> jax.Array:
+            world = state.world
+            return section2_features(world.robots[0], world.ball,
+                                     jnp.asarray(wp.ball.radius, F32), goal_corners(wp), cam,
+                                     eps)
 
-    def image_noise_std(self, params: ShootingParams) -> float:
-        """No image noise in this task (its pixel noise is the analytic camera's)."""
-        return 0.0
-
-    def analytic_obs(self, state: ShootingState, params: ShootingParams,
-                     eps: jax.Array | None = None) -> jax.Array:
-        """Section 2 features (9,) float32 of the robot's camera in ``state``; ``eps``:
-        optional (SEC2_NOISE_DIM,) float32 standard normals of the pixel noise (None =
-        exact, what ``noise_on.pixel`` off gives)."""
-        world = state.world
-        return section2_features(world.robots[0], world.ball,
-                                 jnp.asarray(params.world.ball.radius, F32),
-                                 goal_corners(params.world), params.camera, eps)
+        return Observer(
+            features=features,
+            image=lambda state: camera_image(state.world, 0, cam, wp, 0.0,
+                                             params.pixels.render),
+            from_image=lambda img, state: section2_from_image(img, state.world, cam, wp,
+                                                              params.pixels))
 
     def transition_blocks(self, params: ShootingParams) -> tuple[tuple[int, bool], ...]:
         """The transition's draw blocks: tire slip (SLIP_NORMALS,)."""
