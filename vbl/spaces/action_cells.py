@@ -175,95 +175,104 @@ def _check(exp: Experience, p: CellMapParams) -> None:
     check_cells(p, exp.x.shape[-1], exp.x.shape[2] - 1)
 
 
-# shape: one traced program without branches (straight-line array code around one
-# while_loop over the growth iterations); its stages share the (A, N, T) arrays and the
-# closures over them (first_target, back, body), which named steps would pass around.
-def build_cell_map(exp: Experience, p: CellMapParams) -> CellMap:
-    """Grow the cell states backwards from the goal (module docstring). Jit-able with
-    ``p`` closed over (traced thresholds may be vmapped); :func:`make_cell_builder` checks
-    and jits. Deterministic: no key."""
-    n_act, _, _, _ = exp.x.shape
-    w, n_it, n_cells = p.start_window, p.max_iterations, p.num_cells
-    s_cap = n_it * n_act
-    gamma = jnp.asarray(p.discount, F32)
-    edges = _edges(exp.x, exp.valid, p)
-    cell = _index(edges, p.bins, p.categorical_dims, p.categorical_levels, exp.x)  # (A,N,T1)
-    starts_cell = cell[:, :, :w].reshape(n_act, -1)
-    starts_valid = exp.valid[:, :, :w].reshape(n_act, -1)
+def _first_target(exp: Experience, cell: jax.Array, lab: jax.Array, ctime: jax.Array,
+                  ctrans: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Per point (A, N, T) of ``exp``, given the cells' labels so far (C,) (``cell``: each
+    point's cell, (A, N, T+1)): reached (bool), primitives to the goal through the first
+    labelled cell or goal ahead (steps + that cell's time) and transitions (1 + the
+    cell's; goal 1)."""
+    lab_pt, t_pt, tr_pt = lab[cell], ctime[cell], ctrans[cell]
+    hit_pt = (lab_pt >= 0) & exp.valid
 
-    def first_target(lab, ctime, ctrans):
-        """Per point (A, N, T): reached (bool), primitives to the goal through the target
-        (steps + target time) and transitions (1 + the target's; goal 1)."""
-        lab_pt, t_pt, tr_pt = lab[cell], ctime[cell], ctrans[cell]
-        hit_pt = (lab_pt >= 0) & exp.valid
+    def back(nxt, inp):
+        g, hit, t_next, tr_next = inp
+        n_reach, n_tm, n_tr = nxt
+        reach = g | hit | n_reach
+        tm = 1.0 + jnp.where(g, 0.0, jnp.where(hit, t_next, n_tm))
+        tr = jnp.where(g, 1, jnp.where(hit, 1 + tr_next, n_tr))
+        out = (reach, tm, tr)
+        return out, out
 
-        def back(nxt, inp):
-            g, hit, t_next, tr_next = inp
-            n_reach, n_tm, n_tr = nxt
-            reach = g | hit | n_reach
-            tm = 1.0 + jnp.where(g, 0.0, jnp.where(hit, t_next, n_tm))
-            tr = jnp.where(g, 1, jnp.where(hit, 1 + tr_next, n_tr))
-            out = (reach, tm, tr)
-            return out, out
+    mv = lambda a: jnp.moveaxis(a, 2, 0)  # noqa: E731
+    xs = (mv(exp.goal), mv(hit_pt[..., 1:]), mv(t_pt[..., 1:]), mv(tr_pt[..., 1:]))
+    shp = exp.goal.shape[:2]
+    init = (jnp.zeros(shp, bool), jnp.zeros(shp, F32), jnp.zeros(shp, I32))
+    _, outs = jax.lax.scan(back, init, xs, reverse=True)
+    return tuple(jnp.moveaxis(o, 0, 2) for o in outs)
 
-        mv = lambda a: jnp.moveaxis(a, 2, 0)  # noqa: E731
-        xs = (mv(exp.goal), mv(hit_pt[..., 1:]), mv(t_pt[..., 1:]), mv(tr_pt[..., 1:]))
-        shp = exp.goal.shape[:2]
-        init = (jnp.zeros(shp, bool), jnp.zeros(shp, F32), jnp.zeros(shp, I32))
-        _, outs = jax.lax.scan(back, init, xs, reverse=True)
-        return tuple(jnp.moveaxis(o, 0, 2) for o in outs)
 
-    def per_cell(ids, weights):
-        return jax.ops.segment_sum(weights, ids, num_segments=n_cells)
+def _label_iteration(carry: tuple, exp: Experience, cell: jax.Array, p: CellMapParams
+                     ) -> tuple:
+    """One growth iteration: label every unlabelled cell with its qualifying primitive of
+    highest ``reliability * discount**time`` over the start window's points. ``carry``:
+    (iteration, labels (C,) int32, times (C,) float32, transitions (C,) int32, any new)."""
+    it, lab, ctime, ctrans, _ = carry
+    n_act, n_cells, w = exp.x.shape[0], p.num_cells, p.start_window
+    flat = lambda a: a[:, :, :w].reshape(n_act, -1)  # noqa: E731
+    starts_cell, starts_valid = flat(cell), flat(exp.valid)
+    per_cell = jax.vmap(lambda ids, weights: jax.ops.segment_sum(weights, ids,
+                                                                 num_segments=n_cells))
+    reach, tm, tr = _first_target(exp, cell, lab, ctime, ctrans)
+    start = starts_valid & (lab[starts_cell] < 0)
+    ok_pt = start & flat(reach)
+    n_in = per_cell(starts_cell, start.astype(F32))                              # (A, C)
+    n_ok = per_cell(starts_cell, ok_pt.astype(F32))
+    s_tm = per_cell(starts_cell, jnp.where(ok_pt, flat(tm), 0.0))
+    s_tr = per_cell(starts_cell, jnp.where(ok_pt, flat(tr), 0).astype(F32))
+    rel = n_ok / jnp.maximum(n_in, 1.0)
+    e_tm = s_tm / jnp.maximum(n_ok, 1.0)
+    ok = (n_in >= p.min_points) & (rel >= p.min_reliability) & (lab < 0)[None]
+    value = jnp.where(ok, rel * jnp.asarray(p.discount, F32) ** e_tm, -1.0)
+    best = jnp.argmax(value, axis=0).astype(I32)                                 # (C,)
+    new = jnp.any(ok, axis=0)
+    pick = lambda a: jnp.take_along_axis(a, best[None], axis=0)[0]  # noqa: E731
+    lab = jnp.where(new, it * n_act + best, lab)
+    ctime = jnp.where(new, pick(e_tm), ctime)
+    ctrans = jnp.where(new, jnp.round(pick(s_tr) / jnp.maximum(pick(n_ok), 1.0)).astype(I32),
+                       ctrans)
+    return it + 1, lab, ctime, ctrans, jnp.any(new)
 
-    def body(carry):
-        it, lab, ctime, ctrans, _ = carry
-        reach, tm, tr = first_target(lab, ctime, ctrans)
-        flat = lambda a: a[:, :, :w].reshape(n_act, -1)  # noqa: E731
-        start = starts_valid & (lab[starts_cell] < 0)
-        ok_pt = start & flat(reach)
-        n_in = jax.vmap(per_cell)(starts_cell, start.astype(F32))                # (A, C)
-        n_ok = jax.vmap(per_cell)(starts_cell, ok_pt.astype(F32))
-        s_tm = jax.vmap(per_cell)(starts_cell, jnp.where(ok_pt, flat(tm), 0.0))
-        s_tr = jax.vmap(per_cell)(starts_cell, jnp.where(ok_pt, flat(tr), 0).astype(F32))
-        rel = n_ok / jnp.maximum(n_in, 1.0)
-        e_tm = s_tm / jnp.maximum(n_ok, 1.0)
-        ok = (n_in >= p.min_points) & (rel >= p.min_reliability) & (lab < 0)[None]
-        value = jnp.where(ok, rel * gamma ** e_tm, -1.0)
-        best = jnp.argmax(value, axis=0).astype(I32)                             # (C,)
-        new = jnp.any(ok, axis=0)
-        pick = lambda a: jnp.take_along_axis(a, best[None], axis=0)[0]  # noqa: E731
-        lab = jnp.where(new, it * n_act + best, lab)
-        ctime = jnp.where(new, pick(e_tm), ctime)
-        ctrans = jnp.where(new, jnp.round(pick(s_tr) / jnp.maximum(pick(n_ok), 1.0)).astype(I32),
-                           ctrans)
-        return it + 1, lab, ctime, ctrans, jnp.any(new)
 
-    def cond(carry):
-        return (carry[0] < n_it) & carry[4]
-
-    init = (jnp.zeros((), I32), jnp.full((n_cells,), -1, I32), jnp.zeros((n_cells,), F32),
-            jnp.zeros((n_cells,), I32), jnp.ones((), bool))
-    it, lab, ctime, ctrans, _ = jax.lax.while_loop(cond, body, init)
-
+def _assemble(edges: jax.Array, lab: jax.Array, ctime: jax.Array, ctrans: jax.Array,
+              iterations: jax.Array, n_act: int, p: CellMapParams) -> CellMap:
+    """The :class:`CellMap` of the cells' final labels, times and transitions: the states'
+    primitives, order and transitions (the fewest of their cells), and each pattern's
+    fallback primitive (the most frequent among its labelled cells)."""
+    s_cap, n_cells, n_pat = p.max_iterations * n_act, p.num_cells, p.num_patterns
     labelled = lab >= 0
     seg = jnp.where(labelled, lab, s_cap)                                 # dump bucket s_cap
     active = jax.ops.segment_sum(labelled.astype(I32), seg, num_segments=s_cap + 1)[:s_cap] > 0
     big = jnp.iinfo(I32).max
     trans = jax.ops.segment_min(jnp.where(labelled, ctrans, big), seg,
                                 num_segments=s_cap + 1)[:s_cap]
-    n_pat = p.num_patterns
     act = jnp.where(labelled, lab % n_act, 0)
     counts = jax.ops.segment_sum(jax.nn.one_hot(act, n_act, dtype=F32) * labelled[:, None],
                                  jnp.arange(n_cells) % n_pat, num_segments=n_pat)  # (P, A)
     return CellMap(edges=edges, cell_state=lab, cell_time=ctime,
                    cell_transitions=jnp.where(labelled, ctrans, 0), fallback=jnp.argmax(
                        counts, axis=-1).astype(I32),
-                   action=jnp.tile(jnp.arange(n_act, dtype=I32), n_it),
+                   action=jnp.tile(jnp.arange(n_act, dtype=I32), p.max_iterations),
                    transitions=jnp.where(active, trans, 0),
-                   order=jnp.repeat(jnp.arange(n_it, dtype=I32), n_act), active=active,
-                   iterations=it, bins=tuple(p.bins), categorical_dims=p.categorical_dims,
+                   order=jnp.repeat(jnp.arange(p.max_iterations, dtype=I32), n_act),
+                   active=active, iterations=iterations, bins=tuple(p.bins),
+                   categorical_dims=p.categorical_dims,
                    categorical_levels=p.categorical_levels)
+
+
+def build_cell_map(exp: Experience, p: CellMapParams) -> CellMap:
+    """Grow the cell states backwards from the goal (module docstring): label cells one
+    iteration at a time until an iteration labels nothing or ``p.max_iterations`` is
+    reached. Jit-able with ``p`` closed over (traced thresholds may be vmapped);
+    :func:`make_cell_builder` checks and jits. Deterministic: no key."""
+    edges = _edges(exp.x, exp.valid, p)
+    cell = _index(edges, p.bins, p.categorical_dims, p.categorical_levels, exp.x)  # (A,N,T1)
+    n_cells = p.num_cells
+    init = (jnp.zeros((), I32), jnp.full((n_cells,), -1, I32), jnp.zeros((n_cells,), F32),
+            jnp.zeros((n_cells,), I32), jnp.ones((), bool))
+    it, lab, ctime, ctrans, _ = jax.lax.while_loop(
+        lambda carry: (carry[0] < p.max_iterations) & carry[4],
+        lambda carry: _label_iteration(carry, exp, cell, p), init)
+    return _assemble(edges, lab, ctime, ctrans, it, exp.x.shape[0], p)
 
 
 def make_cell_builder(p: CellMapParams) -> Callable[[Experience], CellMap]:

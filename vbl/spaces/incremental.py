@@ -15,7 +15,7 @@ See docs/state_spaces.md, "On-line: incremental segmentation" (criteria, thresho
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -339,54 +339,69 @@ def _greedy_value(tsum, tcnt, min_count, crossfit):
 
 
 
-# shape: one traced program without branches (statistics, split candidates, merge
-# partners, one batched residual computation, the choice); its stages share the same
-# dozen arrays, so named steps would pass them around rather than shorten the logic.
-def structure_update(seg: Segmentation, buf: Buffer, q: jax.Array, p: SegmentationParams
-                     ) -> tuple[Segmentation, jax.Array, jax.Array, jax.Array, jax.Array]:
-    """Refit the local models from the buffer; split one box, or else merge two.
+class _Cut(NamedTuple):
+    """The best cut of one criterion: made (() bool), box, axis and cut index (bins < c + 1
+    go left), () int."""
 
-    Cost control (fixed shapes): cuts are evaluated for the ``split_candidates`` boxes with
-    the largest residual per transition only, and each box is tried for a merge with one
-    partner (the adjacent box, union a box, holding the most transitions).
+    made: jax.Array
+    leaf: jax.Array
+    axis: jax.Array
+    c: jax.Array
 
-    Args: the boxes, the buffer, q (L, A) float32 the Q table (TD targets of the value
-    criterion; a new box's values, a merged box's mean), p (static shapes and thresholds).
-    Returns (boxes, q (L, A), split () bool, merge () bool, value split () bool: the split
-    was made by the value criterion).
-    """
-    _require_x64()
-    cap, dim = seg.lo.shape
-    n_act = q.shape[1]
-    nb = p.bins
-    k_c = min(p.split_candidates, cap)
-    ridge = jnp.asarray(p.ridge, F64)
-    szz, szy, syy, cnt = _stats(seg, buf, n_act, nb, p.outcome_weight)
-    # whole boxes: sum the bins of axis 0
-    tots = [a[:, :, 0].sum(axis=2) for a in (szz, szy, syy, cnt)]                # (L, A, ...)
-    t_n = tots[3]
-    n_box = t_n.sum(axis=1)                                                       # (L,)
-    sse_box = _sse(*tots, ridge).sum(axis=1)                                      # (L,)
-    err = sse_box / jnp.maximum(n_box, 1.0)
-    # split candidates: the k_c boxes with the largest residual per transition
-    elig = seg.active & (err > p.split_error)
-    _, cand = jax.lax.top_k(jnp.where(elig, err, -jnp.inf), k_c)                  # (K,)
-    # candidate cuts of the candidates: left = bins < c, c = 1..B-1
-    cum = [jnp.cumsum(a[cand], axis=3)[:, :, :, :-1] for a in (szz, szy, syy, cnt)]
-    right = [jnp.expand_dims(t[cand], (2, 3)) - c for t, c in zip(tots, cum, strict=True)]
-    # merge partner of each box: adjacent, union a box, most transitions
+
+def _best_cut(score: jax.Array, dim: int, bins: int) -> tuple[jax.Array, ...]:
+    """(made, box row, axis, cut) of the largest finite ``score`` (K, D, B-1), flattened;
+    the box row indexes the K boxes scored."""
+    best = jnp.argmax(score)
+    row, rem = best // (dim * (bins - 1)), best % (dim * (bins - 1))
+    return jnp.isfinite(score[best]), row, rem // (bins - 1), rem % (bins - 1)
+
+
+def _cut_fits(width: jax.Array, bins: int, min_width: Any) -> jax.Array:
+    """Both sides of each cut c = 1..B-1 of a box side ``width`` (..., D, 1) are at least
+    ``min_width`` wide: (..., D, B-1) bool."""
+    frac = jnp.arange(1, bins, dtype=F32)[None, None] / bins                      # cut position
+    return (frac * width >= min_width) & ((1 - frac) * width >= min_width)
+
+
+def _merge_partners(seg: Segmentation, n_box: jax.Array, min_samples: Any
+                    ) -> tuple[jax.Array, jax.Array]:
+    """Each box's merge partner (L,) int and whether it has one (L,) bool: the adjacent
+    active box (union a box) holding the most transitions, both holding ``min_samples``."""
+    dim = seg.lo.shape[1]
     lo_i, lo_j = seg.lo[:, None], seg.lo[None]
     hi_i, hi_j = seg.hi[:, None], seg.hi[None]
     same = (lo_i == lo_j) & (hi_i == hi_j)                                        # (L, L, D)
     touch = (hi_i == lo_j) | (hi_j == lo_i)
     n_same = jnp.sum(same, axis=-1)
     adj = (n_same == dim - 1) & jnp.any(touch & ~same, axis=-1)
-    adj = (adj & seg.active[:, None] & seg.active[None] & (n_box[:, None] >= p.min_samples)
-           & (n_box[None] >= p.min_samples))
-    partner = jnp.argmax(jnp.where(adj, n_box[None], -1.0), axis=1)              # (L,)
-    has_partner = jnp.any(adj, axis=1)
+    adj = (adj & seg.active[:, None] & seg.active[None] & (n_box[:, None] >= min_samples)
+           & (n_box[None] >= min_samples))
+    return jnp.argmax(jnp.where(adj, n_box[None], -1.0), axis=1), jnp.any(adj, axis=1)
+
+
+def _model_criterion(seg: Segmentation, stats: tuple, partner: jax.Array,
+                     p: SegmentationParams) -> tuple[_Cut, jax.Array, jax.Array, jax.Array]:
+    """The model-error split and the residuals a merge needs.
+
+    ``stats``: the per-bin sums of :func:`_stats`. Cuts are evaluated for the
+    ``split_candidates`` boxes with the largest residual per transition only, with one
+    batched residual computation for the cut sides and each box's union with ``partner``.
+    Returns (the best cut, each box's transitions (L,), residual (L,) and residual of its
+    union with its partner (L,))."""
+    cap, dim = seg.lo.shape
+    nb, ridge = p.bins, jnp.asarray(p.ridge, F64)
+    # whole boxes: sum the bins of axis 0
+    tots = [a[:, :, 0].sum(axis=2) for a in stats]                               # (L, A, ...)
+    n_box = tots[3].sum(axis=1)                                                   # (L,)
+    sse_box = _sse(*tots, ridge).sum(axis=1)                                      # (L,)
+    err = sse_box / jnp.maximum(n_box, 1.0)
+    elig = seg.active & (err > p.split_error)
+    _, cand = jax.lax.top_k(jnp.where(elig, err, -jnp.inf), min(p.split_candidates, cap))
+    # candidate cuts of the candidates: left = bins < c, c = 1..B-1
+    cum = [jnp.cumsum(a[cand], axis=3)[:, :, :, :-1] for a in stats]
+    right = [jnp.expand_dims(t[cand], (2, 3)) - c for t, c in zip(tots, cum, strict=True)]
     u = [t + t[partner] for t in tots]                                            # (L, A, ...)
-    # one batched residual computation for cut sides and unions
     groups = (cum, right, u)
     lead = [g[3].shape for g in groups]
     flat = [jnp.concatenate([g[i].reshape((-1,) + g[i].shape[len(lead[k]):])
@@ -396,28 +411,27 @@ def structure_update(seg: Segmentation, buf: Buffer, q: jax.Array, p: Segmentati
     parts = jnp.split(sse_all, np.cumsum(sizes)[:-1])
     sse_l, sse_r, sse_u = (pt.reshape(sh) for pt, sh in zip(parts, lead, strict=True))
     sse_l, sse_r = sse_l.sum(axis=1), sse_r.sum(axis=1)                           # (K, D, B-1)
-    sse_u = sse_u.sum(axis=1)                                                     # (L,)
     n_l, n_r = cum[3].sum(axis=1), right[3].sum(axis=1)
     gain = ((sse_box[cand][:, None, None] - sse_l - sse_r)
             / jnp.maximum(n_box[cand], 1.0)[:, None, None])
-    width = (seg.hi - seg.lo)[cand][:, :, None]                                   # (K, D, 1)
-    frac = jnp.arange(1, nb, dtype=F32)[None, None] / nb                          # cut position
     ok = (elig[cand][:, None, None]
           & (gain >= p.split_gain) & (n_l >= p.min_samples) & (n_r >= p.min_samples)
-          & (frac * width >= p.min_width) & ((1 - frac) * width >= p.min_width)
+          & _cut_fits((seg.hi - seg.lo)[cand][:, :, None], nb, p.min_width)
           & ~jnp.all(seg.active))
-    score = jnp.where(ok, gain, -jnp.inf).reshape(-1)
-    best = jnp.argmax(score)
-    do_msplit = jnp.isfinite(score[best])
-    m_leaf, rem = cand[best // (dim * (nb - 1))], best % (dim * (nb - 1))
-    m_axis, m_c = rem // (nb - 1), rem % (nb - 1)
+    made, row, axis, c = _best_cut(jnp.where(ok, gain, -jnp.inf).reshape(-1), dim, nb)
+    return _Cut(made, cand[row], axis, c), n_box, sse_box, sse_u.sum(axis=1)
 
-    # value-driven split (value_split_gain > 0): TD targets of the buffered transitions,
-    # summed per (box, primitive, axis, bin); a cut's gain is the greedy value per
-    # transition of its two sides acted on separately minus that of the whole box
-    v_on = jnp.asarray(p.value_split_gain) > 0
+
+def _value_criterion(seg: Segmentation, buf: Buffer, q: jax.Array, p: SegmentationParams
+                     ) -> tuple[_Cut, tuple[jax.Array, ...]]:
+    """The value-driven split (``value_split_gain > 0``): TD targets of the buffered
+    transitions summed per (box, primitive, axis, bin); a cut's gain is the greedy value
+    per transition of its two sides acted on separately minus that of the whole box.
+    Returns (the best cut, each box's (target sums (L, A, 2), counts (L, A, 2), greedy
+    value (L,), transitions (L,)) for the merge veto)."""
+    dim, nb = seg.lo.shape[1], p.bins
     tgt = td_targets(seg, buf, q, p.discount)
-    tsum, tcnt = _value_stats(seg, buf, tgt, n_act, nb)                       # (L, A, D, B)
+    tsum, tcnt = _value_stats(seg, buf, tgt, q.shape[1], nb)                  # (L, A, D, B)
     b_sum, b_cnt = tsum[:, :, 0].sum(axis=2), tcnt[:, :, 0].sum(axis=2)           # (L, A, 2)
     mc, xf = p.value_min_count, p.value_crossfit
     v_box = _greedy_value(b_sum, b_cnt, mc, xf)                                   # (L,)
@@ -430,48 +444,82 @@ def structure_update(seg: Segmentation, buf: Buffer, q: jax.Array, p: Segmentati
     vn_box = b_cnt.sum(axis=(1, -1))
     v_gain = ((vn_l * v_l + vn_r * v_r) / jnp.maximum(vn_box, 1.0)[:, None, None]
               - v_box[:, None, None])
-    v_width = (seg.hi - seg.lo)[:, :, None]
-    v_ok = (v_on & seg.active[:, None, None] & jnp.isfinite(v_gain)
-            & (v_gain >= p.value_split_gain)
+    v_ok = ((jnp.asarray(p.value_split_gain) > 0) & seg.active[:, None, None]
+            & jnp.isfinite(v_gain) & (v_gain >= p.value_split_gain)
             & (vn_l >= p.min_samples) & (vn_r >= p.min_samples)
-            & (frac * v_width >= p.min_width) & ((1 - frac) * v_width >= p.min_width)
+            & _cut_fits((seg.hi - seg.lo)[:, :, None], nb, p.min_width)
             & ~jnp.all(seg.active))
-    v_score = jnp.where(v_ok, v_gain, -jnp.inf).reshape(-1)
-    v_best = jnp.argmax(v_score)
-    do_vsplit = jnp.isfinite(v_score[v_best])
-    v_leaf, v_rem = v_best // (dim * (nb - 1)), v_best % (dim * (nb - 1))
-    # the value split goes first; else the model-error split
-    leaf = jnp.where(do_vsplit, v_leaf, m_leaf).astype(I32)
-    axis = jnp.where(do_vsplit, v_rem // (nb - 1), m_axis).astype(I32)
-    c = jnp.where(do_vsplit, v_rem % (nb - 1), m_c).astype(I32)
-    do_split = do_vsplit | do_msplit
-    cut = seg.lo[leaf, axis] + (c + 1).astype(F32) / nb * (seg.hi[leaf, axis] - seg.lo[leaf, axis])
-    new = jnp.argmin(seg.active)                                                  # free slot
-    s_lo = seg.lo.at[new].set(seg.lo[leaf].at[axis].set(cut))
-    s_hi = seg.hi.at[new].set(seg.hi[leaf]).at[leaf, axis].set(cut)
-    q_new = jnp.where(p.inherit_q, q[leaf], jnp.full((n_act,), p.q_init, F32))
-    split_seg = Segmentation(lo=s_lo, hi=s_hi, active=seg.active.at[new].set(True))
-    split_q = q.at[new].set(q_new)
+    cut = _Cut(*_best_cut(jnp.where(v_ok, v_gain, -jnp.inf).reshape(-1), dim, nb))
+    return cut, (b_sum, b_cnt, v_box, vn_box)
 
-    # merge: the box whose union with its partner raises the residual least; with the
-    # value criterion on, not a pair whose greedy value gains from staying apart
+
+def _split(seg: Segmentation, q: jax.Array, cut: _Cut, p: SegmentationParams
+           ) -> tuple[Segmentation, jax.Array]:
+    """``seg`` with box ``cut.leaf`` cut in two (the upper side in the first free slot),
+    and Q with the new box's row (its parent's, or ``q_init``)."""
+    leaf, axis, c = cut.leaf, cut.axis, cut.c
+    lo, hi = seg.lo[leaf, axis], seg.hi[leaf, axis]
+    at = lo + (c + 1).astype(F32) / p.bins * (hi - lo)
+    new = jnp.argmin(seg.active)                                                  # free slot
+    s_lo = seg.lo.at[new].set(seg.lo[leaf].at[axis].set(at))
+    s_hi = seg.hi.at[new].set(seg.hi[leaf]).at[leaf, axis].set(at)
+    q_new = jnp.where(p.inherit_q, q[leaf], jnp.full((q.shape[1],), p.q_init, F32))
+    return (Segmentation(lo=s_lo, hi=s_hi, active=seg.active.at[new].set(True)),
+            q.at[new].set(q_new))
+
+
+def _merge(seg: Segmentation, q: jax.Array, partner: jax.Array, has_partner: jax.Array,
+           residuals: tuple[jax.Array, ...], values: tuple[jax.Array, ...],
+           p: SegmentationParams) -> tuple[jax.Array, Segmentation, jax.Array]:
+    """(made, boxes, Q) of the merge of the box whose union with its partner raises the
+    residual least (``residuals``: transitions, residual and union residual per box);
+    with the value criterion on, not a pair whose greedy value gains from staying apart
+    (``values``: :func:`_value_criterion`'s). The merged box's Q is the pair's mean."""
+    n_box, sse_box, sse_u = residuals
+    b_sum, b_cnt, v_box, vn_box = values
     n_u = n_box + n_box[partner]
     rise = (sse_u - sse_box - sse_box[partner]) / jnp.maximum(n_u, 1.0)
     u_sum, u_cnt = b_sum + b_sum[partner], b_cnt + b_cnt[partner]
     vn_u = vn_box + vn_box[partner]
     apart = ((vn_box * v_box + vn_box[partner] * v_box[partner]) / jnp.maximum(vn_u, 1.0)
-             - _greedy_value(u_sum, u_cnt, mc, xf))
-    veto = v_on & jnp.isfinite(apart) & (apart > p.value_merge_tol)
-    m_ok = has_partner & (rise <= p.merge_tol) & ~veto
-    m_score = jnp.where(m_ok, -rise, -jnp.inf)
+             - _greedy_value(u_sum, u_cnt, p.value_min_count, p.value_crossfit))
+    veto = (jnp.asarray(p.value_split_gain) > 0) & jnp.isfinite(apart) & (
+        apart > p.value_merge_tol)
+    m_score = jnp.where(has_partner & (rise <= p.merge_tol) & ~veto, -rise, -jnp.inf)
     i = jnp.argmax(m_score)
-    do_merge = jnp.isfinite(m_score[i]) & ~do_split
     j = partner[i]
-    merge_seg = Segmentation(lo=seg.lo.at[i].set(jnp.minimum(seg.lo[i], seg.lo[j])),
-                             hi=seg.hi.at[i].set(jnp.maximum(seg.hi[i], seg.hi[j])),
-                             active=seg.active.at[j].set(False))
-    merge_q = q.at[i].set(0.5 * (q[i] + q[j]))
+    merged = Segmentation(lo=seg.lo.at[i].set(jnp.minimum(seg.lo[i], seg.lo[j])),
+                          hi=seg.hi.at[i].set(jnp.maximum(seg.hi[i], seg.hi[j])),
+                          active=seg.active.at[j].set(False))
+    return jnp.isfinite(m_score[i]), merged, q.at[i].set(0.5 * (q[i] + q[j]))
 
-    pick = lambda a, b, c0: jnp.where(do_split, a, jnp.where(do_merge, b, c0))  # noqa: E731
+
+def structure_update(seg: Segmentation, buf: Buffer, q: jax.Array, p: SegmentationParams
+                     ) -> tuple[Segmentation, jax.Array, jax.Array, jax.Array, jax.Array]:
+    """Refit the local models from the buffer; split one box (the value criterion first,
+    else the model error), or else merge two.
+
+    Cost control (fixed shapes): cuts are evaluated for the ``split_candidates`` boxes with
+    the largest residual per transition only, and each box is tried for a merge with one
+    partner (the adjacent box, union a box, holding the most transitions).
+
+    Args: the boxes, the buffer, q (L, A) float32 the Q table (TD targets of the value
+    criterion; a new box's values, a merged box's mean), p (static shapes and thresholds).
+    Returns (boxes, q (L, A), split () bool, merge () bool, value split () bool: the split
+    was made by the value criterion).
+    """
+    _require_x64()
+    stats = _stats(seg, buf, q.shape[1], p.bins, p.outcome_weight)
+    n_box = stats[3][:, :, 0].sum(axis=2).sum(axis=1)                            # (L,)
+    partner, has_partner = _merge_partners(seg, n_box, p.min_samples)
+    m_cut, *residuals = _model_criterion(seg, stats, partner, p)
+    v_cut, values = _value_criterion(seg, buf, q, p)
+    cut = _Cut(v_cut.made | m_cut.made,
+               *(jnp.where(v_cut.made, v, m).astype(I32)
+                 for v, m in zip(v_cut[1:], m_cut[1:], strict=True)))
+    split_seg, split_q = _split(seg, q, cut, p)
+    merged, merge_seg, merge_q = _merge(seg, q, partner, has_partner, residuals, values, p)
+    do_merge = merged & ~cut.made
+    pick = lambda a, b, c0: jnp.where(cut.made, a, jnp.where(do_merge, b, c0))  # noqa: E731
     seg2 = jax.tree_util.tree_map(pick, split_seg, merge_seg, seg)
-    return seg2, pick(split_q, merge_q, q), do_split, do_merge, do_vsplit
+    return seg2, pick(split_q, merge_q, q), cut.made, do_merge, v_cut.made
