@@ -7,6 +7,7 @@ import pytest
 from scipy import stats as sps
 
 from vbl.stats import (
+    bounded_ci95,
     change_windows,
     first_crossing,
     mean_ci95,
@@ -110,3 +111,32 @@ def test_seeds_to_resolve_is_the_first_count_whose_projected_interval_clears_zer
 def test_no_seed_count_for_a_zero_difference_or_no_interval(diff, half):
     # -1.39e-17: the float mean of per-seed differences that are exactly opposite
     assert seeds_to_resolve(diff, half, 4) is None
+
+
+def test_welch_with_one_value_in_either_arm_has_no_interval():
+    for a, b in (([0.5], [0.1, 0.2, 0.3]), ([0.1, 0.2, 0.3], [0.5])):
+        d, h = welch_ci95(a, b)
+        assert d == pytest.approx(np.mean(a) - np.mean(b)) and np.isnan(h)
+
+
+def test_bounded_ci95_of_one_seed_is_the_value_itself():
+    assert bounded_ci95([0.25], 0.0, 1.0) == (0.25, 0.25, 0.25)
+    assert bounded_ci95([1.0], 0.0, 1.0) == (1.0, 1.0, 1.0)
+
+
+def test_no_seed_count_for_an_infinite_interval():
+    assert seeds_to_resolve(0.5, float("inf"), 4) is None
+
+
+def test_change_windows_of_two_changes_by_hand():
+    """The first change's recovery ends at the second; a change sooner than ``window``
+    after the start averages the trials it has."""
+    success = np.array([[1, 0, 1, 1, 0, 0, 1, 0, 1, 1]], float)
+    states = np.arange(10)[None] + 100
+    first, second = change_windows(success, states, (1, 6), window=3)
+    assert (first["change"], first["end"], second["end"]) == (1, 6, 10)
+    assert first["spans"] == [(-2, 1), (1, 4), (3, 6)]
+    np.testing.assert_allclose(first["rates"], [[1.0, 2 / 3, 1 / 3]])
+    np.testing.assert_array_equal(first["states"], [[100, 104, 105]])
+    np.testing.assert_allclose(second["rates"], [[1 / 3, 2 / 3, 2 / 3]])
+    np.testing.assert_array_equal(second["states"], [[105, 109, 109]])
