@@ -14,6 +14,7 @@ The working tree is never touched, so other work in it goes on.
     .venv/bin/python tests/mutation_check.py --issue         # issue 50's survivors
     .venv/bin/python tests/mutation_check.py --fresh --json fresh.json  # the second set
     .venv/bin/python tests/mutation_check.py --blind --json blind.json  # the third set
+    .venv/bin/python tests/mutation_check.py --fourth --list         # the fourth set
     .venv/bin/python tests/mutation_check.py --list
     .venv/bin/python tests/mutation_check.py --json results.json
 
@@ -23,6 +24,8 @@ score before any test was written for it, and after, is in
 ``--blind`` runs a third set written the same way, once the tests had been extended for the
 second set's survivors, in parts of the modules neither other set touched; its scores are
 the ``blind`` entry of the same file.
+``--fourth`` runs a fourth set written from the source alone, without reading any test,
+mostly in modules and functions the other three sets leave alone.
 
 Exit status: 0 when every mutant run was caught, 1 when one survived, 2 for a bad mutant
 (its snippet is not in its file exactly once) or tests that fail unmutated.
@@ -508,6 +511,129 @@ BLIND_MUTANTS = [
 ]
 
 
+SW, CF, PL = "vbl/engine/sweep.py", "vbl/engine/config.py", "vbl/engine/plots.py"
+PG, MEM, REG = "vbl/engine/progress.py", "vbl/engine/memory.py", "vbl/engine/registry.py"
+PD, PJ = "vbl/engine/paramdoc.py", "vbl/vision/projection.py"
+PLOT_TESTS = ("tests/test_plots_and_progress.py",)
+CLI_TESTS = ("tests/test_engine_cli.py", "tests/test_cli_first_use.py")
+DOC_TESTS = ("tests/test_docs.py", "tests/test_params_page.py")
+LENS_TESTS = ("tests/test_camera.py", "tests/test_features.py", "tests/test_render_exact.py")
+PIXEL_ENV_TESTS = ENV_TESTS + ("tests/test_pixel_obs.py", "tests/test_brax_adapter.py")
+
+#: A fourth set (``--fourth``), written like ``--fresh`` and ``--blind`` from the source alone,
+#: before any test was read or run against it, mostly in functions and files the other sets
+#: leave alone (sweep plans, config parsing, plots, progress, memory, the registry, the docs
+#: tables, the camera, the projection and the env base).
+FOURTH_MUTANTS = [
+    # ------------------------------------------------------------------ engine
+    Mutant("sweep-shard-one-learner-each", SW,
+           "if shard is not None and shard.count > total:",
+           "if shard is not None and shard.count >= total:",
+           ("tests/test_shard_merge.py", "tests/test_sweep_scaling.py"),
+           "--shard into as many parts as learners (one learner each) is refused"),
+    Mutant("config-stack-seed-major", CF, "stacked.append(np.repeat(col, repeats, axis=0))",
+           "stacked.append(np.tile(col, (repeats,) + (1,) * (col.ndim - 1)))",
+           ("tests/test_engine_core.py", "tests/test_params.py"),
+           "learner i gets the config of point i % points, not i // seeds"),
+    Mutant("config-scalar-float-first", CF, "    for conv in (int, float):",
+           "    for conv in (float, int):", ("tests/test_params.py", "tests/test_engine_cli.py"),
+           "--set PATH=3 parses as the float 3.0: an int parameter refuses it"),
+    Mutant("results-std-population", RS,
+           "std = v.std(axis=0, ddof=1) if v.shape[0] > 1 else np.zeros_like(mean)",
+           "std = v.std(axis=0) if v.shape[0] > 1 else np.zeros_like(mean)", REPORT_TESTS,
+           "summary.json's std over seeds is the population std (ddof 0)"),
+    Mutant("plots-rate-needs-both-words", PL,
+           'return "rate" in metric or "success" in metric',
+           'return "rate" in metric and "success" in metric',
+           PLOT_TESTS + ("tests/test_export.py",),
+           "a metric named success (or *_rate) is not kept in [0, 1]"),
+    Mutant("progress-eta-minutes-unit", PG,
+           'return f"{seconds / 60:.0f} min" if seconds >= 90',
+           'return f"{seconds:.0f} min" if seconds >= 90', PLOT_TESTS,
+           "an ETA of 300 s shows as 300 min"),
+    Mutant("memory-cgroup-limit-ignored", MEM, "return min(avail, cg) if cg is not None else avail",
+           "return max(avail, cg) if cg is not None else avail",
+           ("tests/test_engine_edge_cases.py", "tests/test_guards.py"),
+           "a container's memory limit is ignored: a run too large for it passes the check"),
+    Mutant("registry-script-needs-folder", REG,
+           'return text.endswith(".py") or os.sep in text',
+           'return text.endswith(".py") and os.sep in text', CLI_TESTS,
+           "vbl run script.py (no folder in the path) looks for an experiment of that name"),
+    Mutant("paramdoc-prefix-matches-longer-name", PD,
+           "any(path == p or path.startswith(p + \".\") for p in prefixes)",
+           "any(path.startswith(p) for p in prefixes)", DOC_TESTS,
+           "a docs table of prefix noise also lists the noise_on rows"),
+    Mutant("checkpoint-fallback-same-step", CK,
+           "earlier = [s for s in self._mngr.all_steps() if s < step]",
+           "earlier = [s for s in self._mngr.all_steps() if s <= step]", RESUME_TESTS,
+           "a corrupt checkpoint's error advises resuming from that same checkpoint"),
+    Mutant("export-first-chunk-final", EX, 'cols["final"] = cols["chunk"] < 0',
+           'cols["final"] = cols["chunk"] <= 0', ("tests/test_export.py",),
+           "the first chunk's rows are marked final (their chunk <NA>)"),
+    Mutant("tune-sampler-seed-per-search", TU,
+           'seed = (s.spec["seed"] * 1_000_003 + k) % 2**32',
+           'seed = (s.spec["seed"] * 1_000_003) % 2**32', TUNE_TESTS,
+           "every batch's sampler has one seed: the random sampler asks batch 0's trials again"),
+    Mutant("tune-last-batch-overshoots", TU, 'for _ in range(min(left, s.spec["batch"])):',
+           'for _ in range(s.spec["batch"]):', TUNE_TESTS,
+           "the last batch asks a full batch: more trials than --trials"),
+    Mutant("tune-report-saved-is-used", TR, '"saved": 1.0 - ran / full if full else 0.0',
+           '"saved": ran / full if full else 0.0', TUNE_TESTS,
+           "the report's '% saved' is the share of the full grid's compute used"),
+    # ------------------------------------------------------------------ statistics
+    Mutant("stats-t-df-rounded-to-nearest", ST, "return _T975[int(df) - 1]",
+           "return _T975[round(df) - 1]", STATS_TESTS,
+           "Welch's fractional degrees of freedom rounded up: intervals too narrow"),
+    Mutant("stats-welch-diff-reversed", ST, "diff = float(a.mean() - b.mean())",
+           "diff = float(b.mean() - a.mean())", STATS_TESTS,
+           "welch_ci95 gives mean(b) - mean(a): claims point the wrong way"),
+    Mutant("stats-running-mean-full-divisor", ST, "(c[..., n] - c[..., lo]) / (n - lo)",
+           "(c[..., n] - c[..., lo]) / int(window)", STATS_TESTS,
+           "the first window - 1 points are divided by the full window: the curve starts low"),
+    Mutant("stats-change-rates-over-seeds", ST, "success[:, max(a, 0):min(b, n)].mean(axis=1)",
+           "success[:, max(a, 0):min(b, n)].mean(axis=0)", STATS_TESTS,
+           "the rates around a change are averaged over seeds, not over the window's trials"),
+    # ------------------------------------------------------------------ vision
+    Mutant("camera-fu-from-height", CAM,
+           "fu = jnp.asarray(cam.image_width, F32) / 2",
+           "fu = jnp.asarray(cam.image_height, F32) / 2", LENS_TESTS,
+           "the horizontal focal length from the image height"),
+    Mutant("camera-up-axis-sign", CAM, "jnp.stack([-ct * sa, -st * sa, ca])",
+           "jnp.stack([ct * sa, st * sa, ca])", LENS_TESTS,
+           "a tilted camera's up axis leans the wrong way: v wrong off the image centre"),
+    Mutant("projection-covered-end-negative", PJ, "    nhi = jnp.maximum(nhi, nlo)\n", "",
+           FEATURE_TESTS, "subtract_interval of an occluder covering it all gives hi < lo"),
+    Mutant("projection-goal-end-upside-down", PJ, "a_low = q0v[k] <= q1v[k]",
+           "a_low = q0v[k] >= q1v[k]", FEATURE_TESTS,
+           "a post's lower and upper ends swapped: a goal in view is lost"),
+    Mutant("projection-ball-half-height-fu", PJ,
+           "hs = jnp.asarray(cam.image_height, F32) / 2 / fv",
+           "hs = jnp.asarray(cam.image_height, F32) / 2 / fu", FEATURE_TESTS,
+           "the ball's image is cut at the wrong rows: its v extent leaves the image"),
+    Mutant("sec2-occluded-from-far-side", S2,
+           "plane_side(corners, frame.c) > 0) & bi.valid",
+           "plane_side(corners, frame.c) < 0) & bi.valid", FEATURE_TESTS,
+           "a ball behind the goal hides it, a ball in front of it does not"),
+    Mutant("sec2-goal-u-noise-reuses-h", S2,
+           "u_end = u_end + jnp.where(ends.visible, std * eps[4:6], zero)",
+           "u_end = u_end + jnp.where(ends.visible, std * eps[2:4], zero)", FEATURE_TESTS,
+           "the goal ends' u noise reuses their height noise (eps[4:6] unused)"),
+    # ------------------------------------------------------------------ env base
+    Mutant("env-reset-obs-noise-free", EB,
+           "        return self.get_obs(state, params, eps), state",
+           "        return self.get_obs(state, params), state", ENV_TESTS,
+           "reset's observation has no pixel noise"),
+    Mutant("env-last-action-refused", EB,
+           "check_action_index(action, self.num_actions, self.name",
+           "check_action_index(action, self.num_actions - 1, self.name", ENV_TESTS,
+           "the last action primitive is refused as out of range"),
+    Mutant("env-image-noise-any-source", EB,
+           'img_eps = None if eps is None or params.obs_source != "pixels" else',
+           "img_eps = None if eps is None else", PIXEL_ENV_TESTS,
+           "get_pixels takes the analytic features' noise for image noise (fails)"),
+]
+
+
 def _apply(text: str, m: Mutant) -> str:
     if text.count(m.old) != 1:
         raise ValueError(f"mutant {m.name}: its snippet occurs {text.count(m.old)} times in "
@@ -584,12 +710,13 @@ def run(mutants: list[Mutant], timeout: float) -> list[dict]:
 
 #: Every set by the option that runs it (no option: the default set).
 SETS = {"default": MUTANTS, "--issue": ISSUE_MUTANTS, "--fresh": FRESH_MUTANTS,
-        "--blind": BLIND_MUTANTS}
+        "--blind": BLIND_MUTANTS, "--fourth": FOURTH_MUTANTS}
 ALL_MUTANTS = [m for ms in SETS.values() for m in ms]
 
 
 def _set_of(m: Mutant) -> str:
-    """The option that runs ``m``'s set: "default", "--issue", "--fresh" or "--blind"."""
+    """The option that runs ``m``'s set: "default", "--issue", "--fresh", "--blind" or
+    "--fourth"."""
     return next(k for k, ms in SETS.items() if m in ms)
 
 
@@ -605,6 +732,9 @@ def main(argv: list[str] | None = None) -> int:
     which.add_argument("--blind", action="store_true",
                        help="the third set (BLIND_MUTANTS), also written before reading the "
                             "tests, instead of the default ones")
+    which.add_argument("--fourth", action="store_true",
+                       help="the fourth set (FOURTH_MUTANTS), written from the source alone "
+                            "before its tests were run")
     p.add_argument("--list", action="store_true", help="list the mutants and exit")
     p.add_argument("--timeout", type=float, default=900.0, help="seconds per test run")
     p.add_argument("--json", metavar="FILE", help="also write the results as JSON")
