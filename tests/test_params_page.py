@@ -50,3 +50,53 @@ def test_vbl_params_prints_the_page(capsys):
     out = capsys.readouterr().out
     assert "default sweep: `agent.lem.initial_difficulty` in [" in out
     assert "(swept: " in _default_cells(out)["agent.lem.initial_difficulty"]
+
+
+CAMERA = "vbl.vision.camera:CameraParams"
+
+
+def test_a_generated_table_keeps_the_rows_under_its_prefixes():
+    from vbl.engine.paramdoc import table
+    from vbl.params import markdown_table
+    from vbl.vision.camera import CameraParams
+
+    rows = table(CAMERA, ["image_width", "height"]).splitlines()
+    assert rows[:2] == markdown_table(CameraParams).splitlines()[:2]
+    assert [r.split("`")[1] for r in rows[2:]] == ["height", "image_width"]
+    with pytest.raises(ValueError, match="no parameter"):
+        table(CAMERA, ["image"])  # a prefix is a whole path part, not the start of a name
+    lem = [r.split("`")[1] for r in table("grid_shooting", ["agent.lem"]).splitlines()[2:]]
+    assert lem and all(p.startswith("agent.lem.") for p in lem)
+
+
+def test_render_rewrites_each_regions_body_and_nothing_else(tmp_path, capsys):
+    from vbl.engine.paramdoc import main, regions, render, table
+
+    text = (f"intro\n<!-- params:{CAMERA} height -->\nstale\n<!-- /params -->\nmiddle\n"
+            f"<!-- params:{CAMERA} hfov_deg,vfov_deg -->\n<!-- /params -->\nend\n")
+    assert regions(text) == [(CAMERA, ["height"], "stale\n"),
+                             (CAMERA, ["hfov_deg", "vfov_deg"], "")]
+    new = render(text)
+    assert [body for *_, body in regions(new)] == [
+        table(CAMERA, ["height"]) + "\n", table(CAMERA, ["hfov_deg", "vfov_deg"]) + "\n"]
+    assert new.startswith("intro\n<!-- params:") and new.endswith("<!-- /params -->\nend\n")
+    assert "\nmiddle\n" in new and "stale" not in new
+    doc = tmp_path / "doc.md"
+    doc.write_text(text)
+    assert main([str(doc)]) == 0 and doc.read_text() == new
+    assert capsys.readouterr().out == f"updated {doc}\n"
+    main([str(doc)])
+    assert capsys.readouterr().out == ""
+
+
+def test_params_page_of_an_experiment_without_quick_seeds_or_sweep():
+    import dataclasses
+
+    from vbl.engine import get
+
+    exp = get("fig9_incremental")  # several presets
+    exp = dataclasses.replace(exp, quick_seeds=None, seeds=5, sweep={})
+    page = experiment_page(exp)
+    assert "* seeds: 5 (`--quick`: 5;" in page and "default sweep: none (one point)" in page
+    presets = re.findall(r"^\* preset `([\w-]+)`", page, re.M)
+    assert len(presets) > 1 and presets == sorted(exp.presets)
