@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy import stats as sps
 
 from tests.engine_helpers import (
     REPO,
@@ -28,7 +29,7 @@ from tests.engine_helpers import (
 from vbl.engine.errors import EngineError
 from vbl.engine.runner import run_experiment
 from vbl.engine.sweep import make_plan
-from vbl.engine.tune import parse_space, rungs, tune
+from vbl.engine.tune import json_value, parse_space, rungs, tune
 from vbl.params import ParamError
 
 optuna = pytest.importorskip("optuna")
@@ -90,6 +91,189 @@ def test_a_rung_keeps_the_best_third_and_at_least_one(direction, values, kept):
     assert sorted(keep) == [trials[i].number for i in kept]
     pruned = [t.number for t in study.get_trials() if t.state == optuna.trial.TrialState.PRUNED]
     assert sorted(pruned) == sorted(set(t.number for t in trials) - keep)
+
+
+def test_space_refuses_an_empty_range_a_path_twice_and_no_space(toy):
+    cfg = toy.default_config
+    for texts in (["agent.epsilon=0.3..0.3"], ["agent.epsilon=0..0.4", "agent.epsilon=0,0.1"],
+                  []):
+        with pytest.raises(ParamError):
+            parse_space(texts, cfg)
+    assert rungs(10, 2, 3) == [(0, 3), (3, 6), (6, 10)]
+    assert rungs(9, 3, 3) == [(0, 3), (3, 9)]
+
+
+def test_the_default_metric_is_the_progress_metric_then_the_first_final_one():
+    from types import SimpleNamespace
+
+    from vbl.engine.tune import _choose_metric
+
+    prog = SimpleNamespace(progress_metric="rate")
+    assert _choose_metric(None, "none", ["loss", "rate"], ["score"], prog) == (
+        "rate", False, None)
+    none = SimpleNamespace(progress_metric=None)
+    assert _choose_metric(None, "none", ["loss"], ["score"], none) == ("score", True, None)
+    # a metric logged per chunk and at the end is read at the last chunk
+    assert _choose_metric("loss", "halving", ["loss"], ["loss"], none) == (
+        "loss", False, "loss")
+
+
+@pytest.mark.parametrize("kw", [{"eta": 1}, {"confirm_seeds": 1}, {"trials": True},
+                                {"seed": 2**31 - 1}, {"direction": "max"}])
+def test_search_counts_out_of_range_are_refused(kw):
+    from vbl.engine.tune import _check_counts
+
+    args = dict(trials=4, batch=2, sampler="tpe", prune="none", direction="maximize",
+                eta=3, min_chunks=None, confirm_seeds=2, seed=2**31 - 2)
+    _check_counts(**args)
+    with pytest.raises(ParamError):
+        _check_counts(**{**args, **kw})
+
+
+def test_the_planned_search_defaults(toy):
+    """First rung at num_chunks // eta**2 chunks, confirmation on max(seeds, 8) seeds,
+    tuples written as JSON lists."""
+    from vbl.engine.tune import _plan_search
+
+    spec, _, _, (metric, is_final, rung, chunks) = _plan_search(
+        toy, ["agent.epsilon=0..0.4"], trials=4, batch=2, seeds=3, metric=None,
+        direction="maximize", sampler="random", prune="halving", reduction_factor=2,
+        min_chunks=None, sets={**TINY_SETS, "train.num_chunks": 13}, seed=0,
+        confirm_seeds=None, quick=False, preset=None)
+    assert (spec["min_chunks"], spec["reduction_factor"], chunks) == (13 // 4, 2, 13)
+    assert spec["confirm_seeds"] == 8 and (metric, is_final, rung) == (
+        "success_rate", False, "success_rate")
+    assert json_value((1, 2)) == [1, 2] and json_value(0.5) == 0.5
+
+
+def test_a_grid_search_may_ask_for_every_point_but_no_more(toy):
+    from vbl.engine.tune import _plan_search
+
+    kw = dict(batch=2, seeds=2, metric=None, direction="maximize", sampler="grid",
+              prune="none", reduction_factor=None, min_chunks=None, sets=TINY_SETS, seed=0,
+              confirm_seeds=None, quick=False, preset=None)
+    space = ["agent.epsilon=0,0.2,0.4", "agent.initial_value=0,1"]  # 3 x 2 points
+    assert _plan_search(toy, space, trials=6, **kw)[0]["trials"] == 6
+    with pytest.raises(ParamError, match="more than the grid's 6 points"):
+        _plan_search(toy, space, trials=7, **kw)
+
+
+def test_resume_accepts_only_more_trials_or_confirmation_seeds(tmp_path):
+    from vbl.engine.tune import _start_spec
+
+    spec = {"format": 1, "seeds": 3, "trials": 4, "confirm_seeds": 8}
+    _start_spec(tmp_path, spec, resume=False)
+    _start_spec(tmp_path, {**spec, "trials": 6, "confirm_seeds": 10}, resume=True)
+    assert json.loads((tmp_path / "tune.json").read_text())["trials"] == 6
+    with pytest.raises(EngineError, match=r"other settings \(seeds\)"):
+        _start_spec(tmp_path, {**spec, "trials": 6, "seeds": 4}, resume=True)
+
+
+def test_each_batch_has_its_own_sampler_seed():
+    from types import SimpleNamespace
+
+    from vbl.engine.tune import _sampler
+
+    space = {"x": SimpleNamespace()}
+
+    def first_value(k):
+        s = SimpleNamespace(spec={"seed": 0, "sampler": "random"}, space=space)
+        study = optuna.create_study(sampler=_sampler(optuna, s, k))
+        return study.ask({"x": optuna.distributions.FloatDistribution(0, 1)}).params["x"]
+
+    assert first_value(1) == first_value(1) != first_value(0)
+
+
+def test_a_chunk_objective_is_read_at_the_last_logged_chunk():
+    from types import SimpleNamespace
+
+    from vbl.engine.tune import _objective
+
+    curve = np.array([[[0.1, 0.2], [0.3, 0.4], [np.nan, np.nan]]])  # (points, chunks, seeds)
+    s = SimpleNamespace(is_final=False, metric="m")
+    np.testing.assert_array_equal(_objective(s, SimpleNamespace(curves={"m": curve}), 0),
+                                  [0.3, 0.4])
+
+
+def _metrics_file(path: Path, seeds_per_row: list[int]) -> None:
+    path.mkdir(parents=True)
+    rows = [{"step": i + 1, "chunk": i, "point": 0,
+             "metrics": {"m": {"per_seed": [0.0] * n}}} for i, n in enumerate(seeds_per_row)]
+    rows.append({"step": 9, "chunk": "final", "point": 0,
+                 "metrics": {"m": {"per_seed": [0.0] * 5}}})
+    (path / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+
+
+def test_compute_counts_the_learner_chunks_of_every_batch_and_rung(tmp_path):
+    from types import SimpleNamespace
+
+    from vbl.engine.tune import learner_chunks
+    from vbl.engine.tune_report import _compute
+
+    _metrics_file(tmp_path / "batch-0", [3, 3])
+    _metrics_file(tmp_path / "batch-1" / "rung-1", [2])
+    assert learner_chunks(tmp_path / "batch-0") == 6
+    s = SimpleNamespace(out=tmp_path, seeds=3, num_chunks=4, rungs=[(0, 1), (1, 4)])
+    comp = _compute(s, trials=[0, 1])
+    assert comp == {"learner_chunks": 8, "full_grid_learner_chunks": 24,
+                    "saved": pytest.approx(2 / 3), "rungs": [[0, 1], [1, 4]]}
+
+
+def test_a_rates_interval_stays_in_0_1_and_keeps_the_seed_order():
+    from vbl.engine.tune_report import interval
+
+    x = [1.0, 0.6, 1.0, 1.0]
+    iv = interval(x, "success_rate")
+    half = sps.t.ppf(0.975, 3) * sps.sem(x)
+    assert iv["upper"] == 1.0 and iv["lower"] == pytest.approx(0.9 - half)
+    assert iv["per_seed"] == x and iv["seeds"] == 4
+    assert interval(x, "score")["upper"] == pytest.approx(0.9 + half)
+
+
+def test_the_confirmation_command_sets_every_value_on_fresh_seeds():
+    from types import SimpleNamespace
+
+    from vbl.engine.tune_report import confirm_command
+
+    s = SimpleNamespace(command_name=None, experiment=SimpleNamespace(name="toy"),
+                        sets={"env.flag": True, "env.size": (1, 2)},
+                        spec={"quick": True, "preset": "small", "confirm_seeds": 8,
+                              "seed": 4})
+    assert confirm_command(s, {"agent.epsilon": 0.25}) == (
+        "vbl run toy --quick --preset small --set agent.epsilon=0.25 --set env.flag=true "
+        "--set 'env.size=(1,2)' --seeds 8 --seed 5")
+
+
+def test_tune_report_lists_complete_trials_best_first(tmp_path):
+    from types import SimpleNamespace
+
+    from vbl.engine.tune_report import _finite, _markdown
+
+    iv = {"mean": 0.5, "ci95": float("nan"), "lower": 0.5, "upper": 0.5, "seeds": 1,
+          "base_seed": 1, "run": "r", "command": "vbl run toy", "params": {"x": 0.1}}
+    hist = [{"trial": 0, "state": "COMPLETE", "value": 0.2, "params": {"x": 0.1},
+             "batch": 0, "last_chunk": 3},
+            {"trial": 1, "state": "PRUNED", "value": None, "params": {"x": 0.2},
+             "batch": 0, "last_chunk": 1},
+            {"trial": 2, "state": "COMPLETE", "value": 0.7, "params": {"x": 0.3},
+             "batch": 0, "last_chunk": 3}]
+    sm = {"confirmation": iv, "defaults": iv, "search": {**iv, "point": 0},
+          "compute": {"learner_chunks": 30, "full_grid_learner_chunks": 40, "saved": 0.25,
+                      "rungs": [[0, 3]]}, "params": {"x": 0.3},
+          "search_minus_confirmation": {"diff": 0.1, "ci95": 0.2},
+          "confirmation_minus_defaults": {"diff": 0.0, "ci95": 0.1},
+          "trials": {"ran": 3, "complete": 2, "pruned": 1, "failed": 0}, "best_trial": 2,
+          "importances": {}, "importances_note": None, "wall_time_s": 1.0, "history": hist}
+    s = SimpleNamespace(experiment=SimpleNamespace(name="toy"), seeds=1, metric="m",
+                        is_final=False, spec={"batch": 3, "sampler": "tpe", "prune": "none",
+                                              "direction": "maximize", "space": {"x": "0..1"}})
+    text = _markdown(s, sm, [])
+    assert "(25.0 % saved;" in text and "0.5 (one seed, no interval)" in text
+    rows = [line.split(" | ")[0] for line in text.splitlines() if line.startswith("| ")
+            and line.split(" | ")[0][2:].isdigit()]
+    assert rows == ["| 2", "| 0", "| 1"]
+    assert _finite({"a": [float("inf"), 1.0], "b": float("nan")}) == {"a": [None, 1.0],
+                                                                      "b": None}
 
 
 def test_zipped_plan_takes_points_side_by_side(toy):
@@ -154,6 +338,11 @@ def test_report_and_confirmation_command(toy, halving, tmp_path):
 
     sm = halving.summary
     assert sm["confirmation"]["base_seed"] == 1 and sm["search"]["base_seed"] == 0
+    assert sm["search_minus_confirmation"]["diff"] == pytest.approx(
+        np.mean(sm["search"]["per_seed"]) - np.mean(sm["confirmation"]["per_seed"]))
+    states = [t.state.name for t in halving.study.get_trials()]
+    assert sm["trials"] == {"ran": 6, "complete": states.count("COMPLETE"),
+                            "pruned": states.count("PRUNED"), "failed": states.count("FAIL")}
     assert sm["confirmation"]["seeds"] == 4 and sm["search"]["seeds"] == 3
     text = halving.report.read_text()
     for want in ("the winner's curse", "confirmation on fresh seeds", "history.png",
