@@ -163,3 +163,101 @@ def test_reproduce_progress_line_rounds_to_whole_seconds(tmp_path, monkeypatch, 
     monkeypatch.setattr(reproduce.time, "perf_counter", lambda: 100.0 + elapsed)
     line = reproduce._progress_line(tmp_path, [], 3, 10, 100.0)
     assert line == f"vbl reproduce [3/10 done, {shown}] finishing"
+
+
+def _recorded_lines(monkeypatch) -> list:
+    """``[(ylabel, [(x, y) of each line])]`` of every figure saved from now on."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    saved = []
+    real = plt.Figure.savefig
+
+    def record(fig, *a, **k):
+        ax = fig.axes[0]
+        saved.append((ax.get_ylabel(), [(ln.get_xdata(), ln.get_ydata())
+                                        for ln in ax.get_lines()]))
+        return real(fig, *a, **k)
+
+    monkeypatch.setattr(plt.Figure, "savefig", record)
+    return saved
+
+
+def test_one_seed_has_a_band_of_its_value():
+    m, lo, hi = band("score", np.array([[0.3], [0.7]]))
+    np.testing.assert_array_equal([m, lo, hi], [[0.3, 0.7]] * 3)
+
+
+def test_curves_against_cumulative_episodes_with_rates_in_percent(tmp_path, monkeypatch):
+    from vbl.engine.plots import plot_names
+
+    saved = _recorded_lines(monkeypatch)
+    curves = {"success_rate": np.array([[[0.2, 0.4], [0.5, 0.5]]]),
+              "episodes": np.array([[[4.0, 6.0], [10.0, 10.0]]]),
+              "q_map": np.zeros((1, 2, 2, 3)), "a/b c": np.zeros((1, 2, 2))}
+    assert plot_names(curves) == ["success_rate.png", "a_b_c.png"]
+    paths = plot_curves(curves, [{}], tmp_path, percent=True)
+    assert [p.name for p in paths] == plot_names(curves)
+    ylabel, [(x, y)] = saved[0]
+    assert ylabel == "success_rate (%)"
+    np.testing.assert_allclose(x, [5.0, 15.0])  # mean episodes per chunk, summed
+    np.testing.assert_allclose(y, [30.0, 50.0])
+    assert saved[1][0] == "a/b c"  # not a rate: as it is
+
+
+def test_point_labels_name_the_last_part_of_each_path():
+    from vbl.engine.plots import point_label
+
+    assert point_label({"agent.learning_rate": 0.1, "env.num_arms": 3}) == \
+        "learning_rate=0.1, num_arms=3"
+    assert point_label({}) == "run"
+
+
+def test_sweep_lines_sort_numbers_and_keep_words_in_their_order():
+    from vbl.engine.plots import _sweep_lines
+
+    recs = [{"x": 0.5, "k": 1}, {"x": 0.1, "k": 1}, {"x": 0.3, "k": 2}]
+    lines, ticks = _sweep_lines(recs, "x", ["k"])
+    assert ticks == {} and list(lines) == ["k=1", "k=2"]
+    assert [r["x"] for r in lines["k=1"]] == [0.1, 0.5]
+    words = [{"x": "tpe"}, {"x": "grid"}, {"x": "tpe"}]
+    lines, ticks = _sweep_lines(words, "x", [])
+    assert ticks == {"tpe": 0, "grid": 1} and list(lines) == [""]
+
+
+def _sweep_run(folder, rows):
+    import json
+
+    folder.mkdir()
+    (folder / "config.json").write_text(json.dumps(
+        {"format": 2, "experiment": "demo", "sweep": {"agent.lr": [0.1, 0.5]}, "seeds": 2}))
+    (folder / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    return folder
+
+
+def test_a_sweep_plot_prefers_the_final_metric_and_names_its_file(tmp_path, monkeypatch):
+    from vbl.engine.export import read_run
+    from vbl.engine.plots import _metric_records, plot_sweep
+    from vbl.params import ParamError
+
+    def row(step, chunk, p, m):
+        return {"step": step, "chunk": chunk, "point": p, "values": {"agent.lr": [0.1, 0.5][p]},
+                "metrics": {k: {"per_seed": v} for k, v in m.items()}}
+
+    run = read_run(_sweep_run(tmp_path / "r", [
+        row(1, 0, 0, {"s": [1.0, 1.0], "c": [0.0, 2.0]}), row(2, 0, 1, {"s": [2.0, 2.0]}),
+        row(3, "final", 0, {"s": [5.0, 7.0]}), row(4, "final", 1, {"s": [3.0, 3.0]})]))
+    assert [(r["source"], r["mean"]) for r in _metric_records(run, "s")] == [
+        ("final", 6.0), ("final", 3.0)]
+    assert [r["source"] for r in _metric_records(run, "c")] == ["last_chunk"]
+    with pytest.raises(ParamError, match="metrics: c, s"):
+        _metric_records(run, "nope")
+    monkeypatch.chdir(tmp_path)
+    saved = _recorded_lines(monkeypatch)
+    assert plot_sweep(run, "lr", "s").name == "s_vs_agent.lr.png"
+    assert saved[0][0] == "s (final)"
+    assert plot_sweep(run, "lr", "c", tmp_path / "c.PNG").exists()
+    with pytest.raises(ParamError, match=".png or .svg"):
+        plot_sweep(run, "lr", "s", tmp_path / "c.jpg")
