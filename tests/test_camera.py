@@ -141,3 +141,25 @@ def test_check_inputs_shapes_and_sizes():
         check_inputs(np.zeros((5, 3)), np.zeros((4, 2)), 0.11, np.zeros((5, 4, 3)), CAM)
     with pytest.raises(ParamError, match="hfov_deg"):
         check_inputs(np.zeros(3), np.zeros(2), 0.11, gc, CameraParams(hfov_deg=200.0))
+
+
+def test_pixel_noise_is_std_times_the_draws_on_visible_objects_only():
+    from vbl.vision import CameraParams
+    from vbl.vision.noise import add_pixel_noise
+
+    eps = jnp.asarray([1.0, -2.0, 0.5])
+    values = jnp.asarray([10.0, 20.0, 0.0])
+    vis = jnp.asarray([True, True, False])
+    got = add_pixel_noise(eps, values, CameraParams(pixel_noise_std=3.0), vis)
+    np.testing.assert_array_equal(got, [13.0, 14.0, 0.0])
+    off = add_pixel_noise(eps, values, CameraParams(), vis)
+    np.testing.assert_array_equal(off, values)
+    assert off.dtype == jnp.float32
+
+
+def test_a_stored_value_is_exactly_the_value():
+    from vbl.vision.fusion import stored, stored_once
+
+    x = jnp.asarray([0.1, -3.7, 1e-30, 2.5e7], jnp.float32)
+    np.testing.assert_array_equal(jax.jit(stored_once)(x), x)
+    np.testing.assert_array_equal(stored(x, jnp.float32(1.0)), x)
