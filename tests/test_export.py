@@ -202,3 +202,74 @@ def test_the_docs_example_runs_at_a_tiny_size(tmp_path, monkeypatch):
     stats = [r for r in final_stats(tmp_path / "runs" / "discount")
              if r["metric"] == "greedy_success"]
     assert sorted({r["agent.discount"] for r in stats}) == [0.9, 0.95, 0.98]
+
+
+def _hand_run(folder: Path, sweep: dict, rows: list[dict], seeds: int = 2) -> Path:
+    """A run folder written by hand: config.json and metrics.jsonl."""
+    folder.mkdir()
+    (folder / "config.json").write_text(json.dumps(
+        {"format": 2, "experiment": "demo", "sweep": sweep, "seeds": seeds}))
+    (folder / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    return folder
+
+
+def _mrow(step, chunk, point, values, metrics):
+    return {"step": step, "chunk": chunk, "point": point, "values": values,
+            "metrics": {k: {"per_seed": v} for k, v in metrics.items()}}
+
+
+def test_array_metrics_and_columns_named_like_the_tables_own(tmp_path):
+    """An array metric's elements are name[i,j] in row-major order; a swept parameter
+    named like a column is "NAME (swept)"; a tuple value is its text."""
+    from vbl.engine.export import long_columns
+
+    q = [[[1, 2, 3], [4, 5, 6]], [[7, 8, 9], [10, 11, 12]]]  # (seeds, 2, 3)
+    run = _hand_run(tmp_path / "r", {"seed": [[1, 2]]},
+                    [_mrow(1, 0, 0, {"seed": [1, 2]}, {"q": q}),
+                     _mrow(2, "final", 0, {"seed": [1, 2]}, {"s": [0.5, 1.5]})])
+    cols = long_columns(run)
+    assert list(cols) == ["point", "seed (swept)", "seed", "chunk", "final", "metric",
+                          "value"]
+    at = cols["metric"] == "q[1,0]"
+    assert cols["value"][at].tolist() == [4.0, 10.0] and cols["seed"][at].tolist() == [0, 1]
+    assert sorted(set(cols["metric"])) == sorted(
+        [f"q[{i},{j}]" for i in range(2) for j in range(3)] + ["s"])
+    assert set(cols["seed (swept)"]) == {"(1, 2)"}
+    assert cols["chunk"][cols["final"]].tolist() == [-1, -1]
+
+
+def test_final_stats_take_each_points_latest_chunk_in_point_order(tmp_path):
+    rows = [_mrow(1, 0, 1, {"a.lr": 0.5}, {"success": [0.0, 0.0, 0.0, 0.0]}),
+            _mrow(5, 2, 1, {"a.lr": 0.5}, {"success": [1.0, 1.0, 1.0, 0.6]}),
+            _mrow(3, 1, 1, {"a.lr": 0.5}, {"success": [0.5, 0.5, 0.5, 0.5]}),  # merged late
+            _mrow(2, 0, 0, {"a.lr": 0.1}, {"success": [0.2, 0.4, 0.6, 0.8]}),
+            _mrow(4, "final", 0, {"a.lr": 0.1}, {"score": [1.0, 3.0, 5.0, 7.0]})]
+    recs = final_stats(_hand_run(tmp_path / "r", {"a.lr": [0.1, 0.5]}, rows, seeds=4))
+    assert [(r["point"], r["source"], r["chunk"], r["metric"]) for r in recs] == [
+        (0, "final", None, "score"), (0, "last_chunk", 0, "success"),
+        (1, "last_chunk", 2, "success")]
+    score, _, late = recs
+    assert score["std"] == pytest.approx(np.std([1, 3, 5, 7], ddof=1))
+    assert score["lower"] == pytest.approx(4.0 - score["ci95"])
+    assert late["mean"] == pytest.approx(0.9) and late["upper"] == 1.0  # a rate: clipped
+    assert late["lower"] == pytest.approx(0.9 - late["ci95"])
+
+
+def test_a_swept_name_must_name_one_path(tmp_path):
+    run = _hand_run(tmp_path / "r", {"agent.lr": [0.1], "env.lr": [1], "env.arms": [3]}, [])
+    assert swept_path(run, "arms") == "env.arms" and swept_path(run, "env.lr") == "env.lr"
+    with pytest.raises(ParamError, match="not a swept parameter"):
+        swept_path(run, "lr")
+
+
+def test_export_names_its_file_and_format(tmp_path, monkeypatch):
+    from vbl.engine.export import export_run
+
+    run = _hand_run(tmp_path / "r", {}, [_mrow(1, 0, 0, {}, {"m": [1.0, 2.0]}),
+                                         _mrow(2, "final", 0, {}, {"m": [1.0, 2.0]})])
+    monkeypatch.chdir(tmp_path)
+    path, n = export_run(run, final=True)
+    assert (path, n) == (Path("r-final.csv"), 2)  # the final and the last chunk's
+    path, n = export_run(run, tmp_path / "all.CSV")
+    assert n == 4 and pd.read_csv(path)["value"].tolist() == [1.0, 2.0, 1.0, 2.0]
+    assert export_run(run)[0] == Path("r.csv")
