@@ -519,28 +519,33 @@ CLI_TESTS = ("tests/test_engine_cli.py", "tests/test_cli_first_use.py")
 DOC_TESTS = ("tests/test_docs.py", "tests/test_params_page.py")
 LENS_TESTS = ("tests/test_camera.py", "tests/test_features.py", "tests/test_render_exact.py")
 PIXEL_ENV_TESTS = ENV_TESTS + ("tests/test_pixel_obs.py", "tests/test_brax_adapter.py")
+PROJECTION_TESTS = ("tests/test_projection.py",) + FEATURE_TESTS
 
 #: A fourth set (``--fourth``), written like ``--fresh`` and ``--blind`` from the source alone,
 #: before any test was read or run against it, mostly in functions and files the other sets
 #: leave alone (sweep plans, config parsing, plots, progress, memory, the registry, the docs
-#: tables, the camera, the projection and the env base).
+#: tables, the camera, the projection and the env base). A mutant runs the test files named
+#: after its module first (test_checkpoint.py for checkpoint.py, and so on).
 FOURTH_MUTANTS = [
     # ------------------------------------------------------------------ engine
     Mutant("sweep-shard-one-learner-each", SW,
            "if shard is not None and shard.count > total:",
            "if shard is not None and shard.count >= total:",
-           ("tests/test_shard_merge.py", "tests/test_sweep_scaling.py"),
+           ("tests/test_sweep_plan.py", "tests/test_shard_merge.py",
+            "tests/test_sweep_scaling.py"),
            "--shard into as many parts as learners (one learner each) is refused"),
     Mutant("config-stack-seed-major", CF, "stacked.append(np.repeat(col, repeats, axis=0))",
            "stacked.append(np.tile(col, (repeats,) + (1,) * (col.ndim - 1)))",
-           ("tests/test_engine_core.py", "tests/test_params.py"),
+           ("tests/test_config.py", "tests/test_engine_core.py", "tests/test_params.py"),
            "learner i gets the config of point i % points, not i // seeds"),
     Mutant("config-scalar-float-first", CF, "    for conv in (int, float):",
-           "    for conv in (float, int):", ("tests/test_params.py", "tests/test_engine_cli.py"),
+           "    for conv in (float, int):",
+           ("tests/test_config.py", "tests/test_params.py", "tests/test_engine_cli.py"),
            "--set PATH=3 parses as the float 3.0: an int parameter refuses it"),
     Mutant("results-std-population", RS,
            "std = v.std(axis=0, ddof=1) if v.shape[0] > 1 else np.zeros_like(mean)",
-           "std = v.std(axis=0) if v.shape[0] > 1 else np.zeros_like(mean)", REPORT_TESTS,
+           "std = v.std(axis=0) if v.shape[0] > 1 else np.zeros_like(mean)",
+           ("tests/test_results.py",) + REPORT_TESTS,
            "summary.json's std over seeds is the population std (ddof 0)"),
     Mutant("plots-rate-needs-both-words", PL,
            'return "rate" in metric or "success" in metric',
@@ -565,7 +570,8 @@ FOURTH_MUTANTS = [
            "a docs table of prefix noise also lists the noise_on rows"),
     Mutant("checkpoint-fallback-same-step", CK,
            "earlier = [s for s in self._mngr.all_steps() if s < step]",
-           "earlier = [s for s in self._mngr.all_steps() if s <= step]", RESUME_TESTS,
+           "earlier = [s for s in self._mngr.all_steps() if s <= step]",
+           ("tests/test_checkpoint.py",) + RESUME_TESTS,
            "a corrupt checkpoint's error advises resuming from that same checkpoint"),
     Mutant("export-first-chunk-final", EX, 'cols["final"] = cols["chunk"] < 0',
            'cols["final"] = cols["chunk"] <= 0', ("tests/test_export.py",),
@@ -602,13 +608,13 @@ FOURTH_MUTANTS = [
            "jnp.stack([ct * sa, st * sa, ca])", LENS_TESTS,
            "a tilted camera's up axis leans the wrong way: v wrong off the image centre"),
     Mutant("projection-covered-end-negative", PJ, "    nhi = jnp.maximum(nhi, nlo)\n", "",
-           FEATURE_TESTS, "subtract_interval of an occluder covering it all gives hi < lo"),
+           PROJECTION_TESTS, "subtract_interval of an occluder covering it all gives hi < lo"),
     Mutant("projection-goal-end-upside-down", PJ, "a_low = q0v[k] <= q1v[k]",
-           "a_low = q0v[k] >= q1v[k]", FEATURE_TESTS,
+           "a_low = q0v[k] >= q1v[k]", PROJECTION_TESTS,
            "a post's lower and upper ends swapped: a goal in view is lost"),
     Mutant("projection-ball-half-height-fu", PJ,
            "hs = jnp.asarray(cam.image_height, F32) / 2 / fv",
-           "hs = jnp.asarray(cam.image_height, F32) / 2 / fu", FEATURE_TESTS,
+           "hs = jnp.asarray(cam.image_height, F32) / 2 / fu", PROJECTION_TESTS,
            "the ball's image is cut at the wrong rows: its v extent leaves the image"),
     Mutant("sec2-occluded-from-far-side", S2,
            "plane_side(corners, frame.c) > 0) & bi.valid",
