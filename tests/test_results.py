@@ -33,6 +33,22 @@ def test_json_files_hold_null_for_nan_and_infinity(tmp_path):
     assert not (tmp_path / "s.json.tmp").exists()
 
 
+def test_plain_python_nan_and_infinity_are_null_too(tmp_path):
+    """Python floats and np.float64 (a float subclass) never reach the NumPy conversion:
+    they too are written as null, in JSON files and in metrics lines."""
+    strict = {"parse_constant": lambda c: pytest.fail(c)}
+    f = tmp_path / "s.json"
+    write_json(f, {"a": float("nan"), "b": [1.0, float("inf"), (np.float64("-inf"), 2)],
+                   "c": {"d": np.float64("nan"), "e": True}})
+    assert json.loads(f.read_text(), **strict) == {"a": None, "b": [1.0, None, [None, 2]],
+                                                   "c": {"d": None, "e": True}}
+    log = MetricsLog(tmp_path / "metrics.jsonl")
+    log.append([{"step": 1, "x": float("nan")}, {"step": 2, "x": 0.5}])
+    lines = (tmp_path / "metrics.jsonl").read_text().splitlines()
+    assert [json.loads(x, **strict) for x in lines] == [{"step": 1, "x": None},
+                                                         {"step": 2, "x": 0.5}]
+
+
 def test_seed_stats_is_the_sample_std_and_students_interval():
     x = np.array([0.2, 0.5, 0.9, 0.4])
     st = seed_stats(x)

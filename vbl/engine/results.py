@@ -30,6 +30,18 @@ def _clean(x: Any) -> Any:
     return a.tolist()
 
 
+def _finite(obj: Any) -> Any:
+    """``obj`` with every non-finite float (a Python or NumPy scalar, in nested dicts,
+    lists and tuples) as None: JSON has no NaN or infinity."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_finite(v) for v in obj]
+    return obj
+
+
 def seed_stats(values: np.ndarray) -> dict[str, Any]:
     """``values[seeds, ...]`` -> mean, std (ddof 1; 0 for one seed), ci95 half-width
     (:func:`vbl.stats.mean_ci95`; None for one seed), per_seed."""
@@ -44,7 +56,8 @@ def write_json(path: Path, obj: Any) -> None:
     """Write ``obj`` as JSON atomically (a temporary file, then a rename)."""
     tmp = path.with_suffix(path.suffix + ".tmp")
     try:
-        tmp.write_text(json.dumps(obj, indent=1, default=_clean) + "\n")
+        tmp.write_text(json.dumps(_finite(obj), indent=1, default=_clean,
+                                  allow_nan=False) + "\n")
         os.replace(tmp, path)
     except BaseException as e:
         tmp.unlink(missing_ok=True)
@@ -67,7 +80,8 @@ class MetricsLog:
     def append(self, rows: Iterable[dict[str, Any]]) -> None:
         if not self.enabled:
             return
-        text = "".join(json.dumps(r, default=_clean) + "\n" for r in rows)
+        text = "".join(json.dumps(_finite(r), default=_clean, allow_nan=False) + "\n"
+                       for r in rows)
         try:
             with open(self.path, "a") as f:
                 f.write(text)
