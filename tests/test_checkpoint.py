@@ -57,10 +57,12 @@ def test_changed_arrays_are_refused_naming_the_checkpoint_to_fall_back_on(tmp_pa
         ck.restore(1, LIKE)
 
 
-def test_a_leaf_of_another_dtype_is_refused(tmp_path):
-    """Never cast silently (the checkpoint library casts; the checksum then differs)."""
+def test_a_leaf_of_another_dtype_is_refused_naming_both_dtypes(tmp_path):
+    """Never cast silently (the checkpoint library would cast), and say so: not as a
+    corrupt file."""
     ck = _saved(tmp_path / "ck", [1])
-    with pytest.raises(CheckpointError):
+    with pytest.raises(CheckpointError, match="leaf_0001 was saved as float32, this run "
+                       "expects int32"):
         ck.restore(1, {"q": LIKE["q"].astype(np.int32), "k": LIKE["k"]})
 
 

@@ -114,7 +114,8 @@ class Checkpoints:
         """Save host (NumPy) ``carry`` at ``step`` (asynchronously; see :meth:`wait`)."""
         state, _ = _to_storable(carry)
         meta = dict(meta, fingerprint=self.fingerprint, step=int(step),
-                    sha256={k: _sha256(v) for k, v in state.items()})
+                    sha256={k: _sha256(v) for k, v in state.items()},
+                    dtypes={k: str(np.asarray(v).dtype) for k, v in state.items()})
         with _naming(self._writing):  # the save before this one may fail here
             self._mngr.wait_until_finished()
         self._writing = self.directory / str(int(step))
@@ -147,6 +148,11 @@ class Checkpoints:
         target, treedef = _to_storable(like)
         where = self.directory / str(step)
         meta = self.check_meta(step)
+        dtypes = meta.get("dtypes")  # the library casts on restore: compare before it does
+        for k in sorted(target) if isinstance(dtypes, dict) else ():
+            if dtypes.get(k) != str(target[k].dtype):
+                raise CheckpointError(f"checkpoint {where}: {k} was saved as {dtypes.get(k)}, "
+                                      f"this run expects {target[k].dtype}")
         try:
             state = self._mngr.restore(step, args=ocp.args.Composite(
                 state=ocp.args.StandardRestore(target)))["state"]
