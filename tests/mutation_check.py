@@ -45,7 +45,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 REPO = Path(__file__).resolve().parents[1]
-COPIED = ("vbl", "tests", "experiments", "docs", "benchmarks", "pyproject.toml")
+COPIED = ("vbl", "tests", "experiments", "docs", "benchmarks", "pyproject.toml", "README.md")
 
 
 class Mutant(NamedTuple):
