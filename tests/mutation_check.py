@@ -45,7 +45,8 @@ from pathlib import Path
 from typing import NamedTuple
 
 REPO = Path(__file__).resolve().parents[1]
-COPIED = ("vbl", "tests", "experiments", "docs", "benchmarks", "pyproject.toml", "README.md")
+COPIED = ("vbl", "tests", "experiments", "docs", "benchmarks", "pyproject.toml", "README.md",
+          "LICENSE")
 
 
 class Mutant(NamedTuple):
