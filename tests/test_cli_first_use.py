@@ -384,7 +384,10 @@ def test_a_vbl_folder_in_the_working_directory_is_one_line(tmp_path):
     """An empty ``vbl/`` folder where the user runs ``python -m vbl.cli`` hides the package
     (a namespace package); the command says so in one line instead of a TypeError."""
     (tmp_path / "vbl").mkdir()
-    r = _vbl(["list"], tmp_path)
+    env = _env()
+    env.pop("PYTHONPATH", None)  # the package found through its install, as a user's is
+    r = subprocess.run([sys.executable, "-m", "vbl.cli", "list"], cwd=tmp_path, env=env,
+                       capture_output=True, text=True, timeout=TIMEOUT)
     lines = r.stderr.strip().splitlines()
     assert r.returncode == 1 and len(lines) == 1, r.stderr
     assert "a folder named vbl" in lines[0] and str((tmp_path / "vbl").resolve()) in lines[0]
