@@ -113,12 +113,14 @@ def one_device_hint() -> str | None:
 
 
 def quiet_xla() -> None:
-    """XLA's log kept quiet and the persistent compilation cache on: settings of the
-    ``vbl`` command's process, not of ``import vbl``."""
+    """XLA's log kept quiet, the persistent compilation cache and the trace cache on:
+    settings of the ``vbl`` command's process, not of ``import vbl``."""
     from vbl.engine.jax_setup import use_compilation_cache  # imports JAX: not at start-up
+    from vbl.engine.trace_cache import use_trace_cache
 
     quiet_xla_log()
     use_compilation_cache()
+    use_trace_cache()
 
 
 def end_process(code: int, argv: list[str], process: bool = True) -> int:

@@ -34,6 +34,7 @@ from vbl.engine.report import figure_path, run_report, url_path
 from vbl.engine.results import write_json
 from vbl.engine.runfolder import allow_runs_under, check_new_folder, lock_reproduce_folder
 from vbl.engine.runner import run_experiment
+from vbl.engine.trace_cache import use_trace_cache
 from vbl.params import ParamError
 
 __all__ = ["reproduce", "reproduce_jobs", "Job", "default_jobs", "paper_experiments",
@@ -135,6 +136,7 @@ def _run_chain(jobs: list[Job], out: Path, quick: bool, resume: bool, overwrite:
     """Worker task: run jobs one after the other (one :attr:`Experiment.group`)."""
     quiet_xla_log()
     use_compilation_cache()
+    use_trace_cache()
     try:
         return {j.folder: _run_one(j, out, quick, True, resume, overwrite) for j in jobs}
     except KeyboardInterrupt:  # SIGTERM from the parent, the run unwound: end this worker

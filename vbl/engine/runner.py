@@ -27,6 +27,7 @@ from vbl.engine.memory import check_memory
 from vbl.engine.plots import plot_curves, plot_names
 from vbl.engine.process import one_device_hint
 from vbl.engine.progress import STATUS_FILE, Progress, auto_quiet
+from vbl.engine.registry import source_file
 from vbl.engine.report import write_report
 from vbl.engine.results import (
     MetricsLog,
@@ -49,6 +50,7 @@ from vbl.engine.runfolder import (
 )
 from vbl.engine.sharding import batch_layout, learner_sharding, pad_index, put, to_host
 from vbl.engine.sweep import Group, Shard, SweepPlan, make_plan, parse_shard
+from vbl.engine.trace_cache import code_key, traced
 from vbl.params import ParamError
 
 if TYPE_CHECKING:  # the checkpoint library loads with the first run, not with the module
@@ -490,7 +492,7 @@ def _train(run: _Run, ckpts: Checkpoints, log: MetricsLog) -> int:
                 progress.compiling()
             _run_group(plan, group, sharding, ckpts, log, progress, start,
                        run.checkpoint_every, run.learner_batch, truncate, run.span,
-                       run.start_carry)
+                       run.start_carry, _ident(run.experiment, group))
             truncate = False  # once, before the first new row
     except BaseException:
         progress.close()
@@ -574,10 +576,11 @@ def metrics_line_sums(path: Path) -> list[str]:
 def _run_group(plan: SweepPlan, group: Group, sharding, ckpts: Checkpoints, log: MetricsLog,
                progress: Progress, start: int, every: int, learner_batch: int,
                truncate: bool = False, span: tuple[int, int] | None = None,
-               start_carry: Callable[[Any], Any] | None = None) -> None:
+               start_carry: Callable[[Any], Any] | None = None, ident: str = "") -> None:
     """Run ``group`` from global step ``start`` (to the end of ``span`` when given); with
     ``truncate``, drop the rows of ``metrics.jsonl`` past ``start`` once the checkpoint is
-    restored (a checkpoint that cannot be restored leaves the file as it was)."""
+    restored (a checkpoint that cannot be restored leaves the file as it was). ``ident``
+    names the program for the trace cache (:func:`_ident`)."""
     prog = group.program
     n = group.num_learners
     nb, size = batch_layout(n, len(sharding.mesh.devices.flat), learner_batch)
@@ -610,13 +613,13 @@ def _run_group(plan: SweepPlan, group: Group, sharding, ckpts: Checkpoints, log:
         carries = batches(carry_host)
     else:
         keys = batches(init_keys)
-        compile_shared(init_fn, keys[0], cfgs[0])
+        init_fn = _ready(init_fn, f"{ident} init", keys[0], cfgs[0])
         carries = [init_fn(k, c) for k, c in zip(keys, cfgs, strict=True)]
     if truncate:
         log.truncate_after(start)
 
     if done < end:
-        compile_shared(step_fn, carries[0], cfgs[0])
+        step_fn = _ready(step_fn, f"{ident} step", carries[0], cfgs[0])
     for chunk in range(done, end):
         t0 = time.perf_counter()
         outs = [step_fn(c, cfg) for c, cfg in zip(carries, cfgs, strict=True)]
@@ -629,12 +632,29 @@ def _run_group(plan: SweepPlan, group: Group, sharding, ckpts: Checkpoints, log:
         last = chunk + 1 == end
         if chunk + 1 == prog.num_chunks and prog.final is not None:
             keys = batches(final_keys)
-            compile_shared(final_fn, carries[0], cfgs[0], keys[0])
+            final_fn = _ready(final_fn, f"{ident} final", carries[0], cfgs[0], keys[0])
             fin = gather([final_fn(c, cfg, k) for c, cfg, k in
                           zip(carries, cfgs, keys, strict=True)])
             log.append(_rows(plan, group, step, "final", fin))
         if last or (chunk + 1) % every == 0:
             ckpts.save(step, gather(carries), {"group": group.index, "chunk": chunk + 1})
+
+
+def _ident(experiment: Experiment, group: Group) -> str:
+    """A group's program for the trace cache: the experiment's name, the code of its
+    script's folder and the group's config (the ``vbl`` sources are in every key); ""
+    (not cached) for an experiment registered from no script."""
+    src = source_file(experiment.name)
+    return (f"{experiment.name} {code_key(Path(src).parent)} {group.base_config!r}"
+            if src else "")
+
+
+def _ready(fn, ident: str, *args):
+    """``fn`` compiled for ``args`` (:func:`compile_shared`), as the call of its program
+    read from the trace cache when it is on (:func:`vbl.engine.trace_cache.traced`)."""
+    fn = traced(fn, ident, *args) if ident else fn
+    compile_shared(fn, *args)
+    return fn
 
 
 _JITTED: dict[tuple, tuple] = {}

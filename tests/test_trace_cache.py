@@ -1,0 +1,169 @@
+"""The trace cache (``vbl.engine.trace_cache``): a program whose code, config and arguments
+are unchanged is read back, not traced; any change traces it again; an unreadable file is
+traced again and rewritten; concurrent writers leave a whole file."""
+
+from __future__ import annotations
+
+import threading
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from tests.engine_helpers import TINY_SETS, toy_experiment
+from vbl.engine import jax_setup, trace_cache
+from vbl.engine.runner import _per_device, run_experiment
+from vbl.engine.sharding import learner_sharding, put
+
+
+@pytest.fixture
+def cache(tmp_path, monkeypatch):
+    """The trace cache on in ``tmp_path``; ``new_process()`` forgets what this process
+    loaded, as a new process would."""
+    monkeypatch.setattr(jax_setup, "_cache_in_use", lambda: str(tmp_path))
+    monkeypatch.setitem(trace_cache._STATE, "on", True)
+    monkeypatch.setattr(trace_cache, "_LOADED", {})
+    return tmp_path / trace_cache.TRACES_DIR
+
+
+def _program(traces: list):
+    """A per-device program (as the engine builds them) that counts its traces."""
+    def step(carry, cfg):
+        traces.append(1)
+        return {"x": carry["x"] * cfg + 1.0}, carry["x"].sum()
+
+    sharding = learner_sharding()
+    n = len(sharding.mesh.devices.flat)
+    args = (put({"x": np.arange(3.0 * n).reshape(n, 3)}, sharding),
+            put(np.full(n, 2.0), sharding))
+    return _per_device(step, sharding), args
+
+
+def _same(a, b) -> bool:
+    return all(np.array_equal(x, y) for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b),
+                                                      strict=True))
+
+
+def test_a_warm_call_does_not_trace_and_gives_the_same_result(cache, monkeypatch):
+    traces = []
+    fn, args = _program(traces)
+    want = fn(*args)
+    cold = trace_cache.traced(fn, "prog cfg", *args)
+    assert cold is not fn and len(list(cache.glob("*.jaxexport"))) == 1
+    n = len(traces)
+    assert _same(cold(*args), want)
+    monkeypatch.setattr(trace_cache, "_LOADED", {})  # a new process
+    warm = trace_cache.traced(fn, "prog cfg", *args)
+    assert _same(warm(*args), want)
+    assert len(traces) == n  # read back: the program was not traced
+
+
+def test_changed_code_config_or_arguments_trace_again(cache, monkeypatch):
+    traces = []
+    fn, args = _program(traces)
+    trace_cache.traced(fn, "prog cfg", *args)
+    n = len(traces)
+    trace_cache.traced(fn, "prog cfg2", *args)  # another config
+    assert len(traces) == n + 1
+    wider = jax.tree.map(lambda x: jnp.concatenate([x, x]), args)  # other shapes
+    trace_cache.traced(fn, "prog cfg", *wider)
+    assert len(traces) == n + 2
+    monkeypatch.setattr(trace_cache, "code_key", lambda folder=None: "changed")
+    trace_cache.traced(fn, "prog cfg", *args)  # another source hash
+    assert len(traces) == n + 3
+    assert len(list(cache.glob("*.jaxexport"))) == 4
+
+
+def test_the_source_hash_follows_the_files(tmp_path):
+    (tmp_path / "a.py").write_text("x = 1\n")
+    before = trace_cache.code_key(tmp_path)
+    (tmp_path / "a.py").write_text("x = 2\n")
+    trace_cache.code_key.cache_clear()
+    assert trace_cache.code_key(tmp_path) != before
+
+
+@pytest.mark.parametrize("damage", ["truncate", "garbage", "empty"])
+def test_an_unreadable_file_is_traced_again_and_rewritten(cache, monkeypatch, damage):
+    traces = []
+    fn, args = _program(traces)
+    want = fn(*args)
+    trace_cache.traced(fn, "prog cfg", *args)
+    (path,) = cache.glob("*.jaxexport")
+    data = path.read_bytes()
+    path.write_bytes({"truncate": data[: len(data) // 2], "garbage": b"\x00junk\n" * 9,
+                      "empty": b""}[damage])
+    monkeypatch.setattr(trace_cache, "_LOADED", {})
+    n = len(traces)
+    again = trace_cache.traced(fn, "prog cfg", *args)
+    assert len(traces) == n + 1 and _same(again(*args), want)
+    assert trace_cache._read(path) is not None  # rewritten whole
+
+
+def test_concurrent_writers_leave_a_whole_file(cache):
+    traces = []
+    fn, args = _program(traces)
+    trace_cache.traced(fn, "prog cfg", *args)
+    (path,) = cache.glob("*.jaxexport")
+    exported, skeleton = trace_cache._read(path)
+    bad, stop = [], threading.Event()
+
+    def write():
+        for _ in range(20):
+            trace_cache._write(path, exported, skeleton)
+
+    def read():
+        while not stop.is_set():
+            if trace_cache._read(path) is None:
+                bad.append(1)
+
+    writers = [threading.Thread(target=write) for _ in range(2)]
+    reader = threading.Thread(target=read)
+    reader.start()
+    for t in writers:
+        t.start()
+    for t in writers:
+        t.join()
+    stop.set()
+    reader.join()
+    assert not bad
+    assert [p.name for p in cache.iterdir()] == [path.name]  # no temporary file is left
+
+
+def test_off_unless_the_command_turns_it_on(tmp_path, monkeypatch):
+    monkeypatch.setattr(jax_setup, "_cache_in_use", lambda: str(tmp_path))
+    monkeypatch.setitem(trace_cache._STATE, "on", False)
+    fn, args = _program([])
+    assert trace_cache.traced(fn, "prog cfg", *args) is fn
+    monkeypatch.setenv("VBL_TRACE_CACHE", "0")
+    trace_cache.use_trace_cache()
+    assert trace_cache.traced(fn, "prog cfg", *args) is fn
+
+
+@pytest.fixture(scope="module")
+def toy(tmp_path_factory):
+    yield from toy_experiment(tmp_path_factory.mktemp("toy"))
+
+
+def test_a_run_reads_its_programs_back_with_the_same_results(cache, toy, tmp_path,
+                                                             monkeypatch):
+    exports = []
+    real = trace_cache._export
+    monkeypatch.setattr(trace_cache, "_export", lambda *a: exports.append(1) or real(*a))
+
+    def run(name: str) -> bytes:
+        run_experiment(toy, sets=TINY_SETS, seeds=2, out=tmp_path / name, quiet=True,
+                       plots=False, report=False)
+        return (tmp_path / name / "metrics.jsonl").read_bytes()
+
+    with monkeypatch.context() as m:
+        m.setitem(trace_cache._STATE, "on", False)
+        off = run("off")
+    assert not exports
+    cold = run("cold")
+    n = len(exports)
+    assert n >= 2 and len(list(cache.glob("*.jaxexport"))) == n  # init, step (, final)
+    monkeypatch.setattr(trace_cache, "_LOADED", {})  # a new process
+    warm = run("warm")
+    assert len(exports) == n  # every program read back
+    assert off == cold == warm
