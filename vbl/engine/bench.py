@@ -23,6 +23,8 @@ from pathlib import Path
 from typing import Any
 
 from vbl.engine.errors import EngineError
+from vbl.engine.registry import source_folder
+from vbl.params import ParamError
 
 __all__ = ["DEFAULT_OUT", "Target", "TARGETS", "bench_dir", "benchmarks", "headline",
            "run_benchmarks"]
@@ -33,8 +35,6 @@ DEFAULT_OUT = "vbl-bench"  #: results folder of ``vbl bench`` (relative to the c
 def bench_dir() -> Path:
     """The benchmark folder: ``$VBL_BENCH_DIR``, else ``benchmarks/`` of the source tree
     (:func:`vbl.engine.registry.source_folder`)."""
-    from vbl.engine.registry import source_folder
-
     env = os.environ.get("VBL_BENCH_DIR", "").strip()
     return Path(env).resolve() if env else source_folder("benchmarks").resolve()
 
@@ -210,8 +210,6 @@ def run_benchmarks(names: list[str], out: str | Path | None, quick: bool,
     known = benchmarks(src)
     bad = [n for n in names if n not in known]
     if bad:
-        from vbl.params import ParamError
-
         raise ParamError(f"unknown benchmark(s) {bad}; valid: {sorted(known)}")
     out = Path(out if out is not None else DEFAULT_OUT).absolute()
     try:

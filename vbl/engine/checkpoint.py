@@ -19,7 +19,7 @@ import jax
 import numpy as np
 import orbax.checkpoint as ocp
 
-from vbl.engine.errors import EngineError
+from vbl.engine.errors import EngineError, disk_full
 
 __all__ = ["CheckpointError", "Checkpoints"]
 
@@ -60,14 +60,12 @@ def _naming(where: Path):
     """A full disk (quota, file size limit) met while the checkpoint library writes becomes
     an OSError naming ``where`` (the step's folder): the library's own error names a
     temporary file, or none (:func:`vbl.engine.errors.one_line` then names no file)."""
-    from vbl.engine.errors import _disk_full
-
     try:
         yield
     except Exception as e:
         if isinstance(e, OSError) and e.filename is not None:
             raise
-        why = _disk_full(e)
+        why = disk_full(e)
         if why is None:
             raise
         code = e.errno if isinstance(e, OSError) and e.errno else _DISK_CODES.get(

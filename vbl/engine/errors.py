@@ -10,6 +10,7 @@ import logging
 import os
 import re
 import signal
+import socket
 import sys
 import threading
 import time
@@ -19,7 +20,7 @@ from typing import Any
 __all__ = ["EngineError", "one_line", "quiet_xla_env", "quiet_xla_log", "debug_requested",
            "quiet_library_noise", "Terminated", "STOP_GRACE_S", "stop_code", "stop_message",
            "install_stop_handlers", "worker_stop_handlers", "on_forced_exit", "new_command",
-           "final_line", "finish"]
+           "final_line", "finish", "disk_full"]
 
 _DISK = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
 
@@ -47,7 +48,7 @@ def _first_line(text: str) -> str:
     return lines[0] if lines else ""
 
 
-def _disk_full(x: BaseException) -> str | None:
+def disk_full(x: BaseException) -> str | None:
     """The reason when ``x`` is a full disk, quota or file size limit (an OSError, or the
     checkpoint library's error text with ``os_error_code=N``)."""
     if isinstance(x, OSError) and x.errno in _DISK:
@@ -61,7 +62,7 @@ def _disk_full(x: BaseException) -> str | None:
 def one_line(e: BaseException) -> str:
     """A one-line description of an unexpected exception (what failed, and what to do)."""
     for x in _chain(e):
-        why = _disk_full(x)
+        why = disk_full(x)
         if why is not None:
             where = f" {x.filename}" if getattr(x, "filename", None) else ""
             return (f"cannot write{where}: {why}; free some space (or raise the file size "
@@ -106,7 +107,7 @@ def quiet_xla_log() -> None:
     if not quiet_xla_env():
         return
     try:
-        from jaxlib import utils
+        from jaxlib import utils  # this module loads before JAX: only when asked
 
         utils.absl_set_min_log_level(3)  # the C++ library read the variable at import
     except (ImportError, AttributeError):  # another jaxlib: the variable has to do
@@ -262,8 +263,6 @@ def install_stop_handlers(watchdog: bool = True) -> None:
     signal.signal(signal.SIGTERM, _handler)
     if not watchdog:
         return
-    import socket
-
     r, w = socket.socketpair()
     w.setblocking(False)
     signal.set_wakeup_fd(w.fileno(), warn_on_full_buffer=False)

@@ -11,12 +11,15 @@ See ``docs/engine.md`` for a complete example.
 from __future__ import annotations
 
 import dataclasses
+import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import jax
+
+from vbl.params import ParamError, get_path
 
 __all__ = ["Program", "Experiment", "RunResult", "ReportSection", "RunContext", "PaperRow"]
 
@@ -208,8 +211,6 @@ class Experiment:
         """The ``{path: value}`` overrides of preset ``name`` ({} for None) but the paths in
         ``swept`` (a sweep replaces a preset's value); an unknown name is a ParamError that
         lists the valid ones."""
-        from vbl.params import ParamError
-
         if name is None:
             return {}
         if name not in self.presets:
@@ -218,8 +219,6 @@ class Experiment:
         return {k: v for k, v in self.presets[name].items() if k not in swept}
 
     def __post_init__(self) -> None:
-        import re
-
         if not re.fullmatch(r"[A-Za-z0-9_\-]+", self.name or ""):
             raise ValueError(f"Experiment.name must use letters, digits, '_' or '-', "
                              f"got {self.name!r}")
@@ -230,8 +229,6 @@ class Experiment:
                 self.default_config, type):
             raise ValueError(f"experiment {self.name!r}: default_config must be a flax.struct "
                              f"dataclass instance, got {type(self.default_config).__name__}")
-        from vbl.params import ParamError, get_path
-
         checked = [(f"presets[{n!r}]", p) for n, v in self.presets.items() for p in v]
         for what, path in checked:
             try:

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from vbl.engine.errors import EngineError
+from vbl.engine.plots import is_rate
 from vbl.engine.results import read_metrics
 from vbl.engine.runfolder import read_run_spec
 from vbl.params import ParamError
@@ -166,8 +167,6 @@ def final_stats(run: str | Path | RunRows) -> list[dict[str, Any]]:
     ``mean``, ``std``, ``ci95`` (the Student t half-width of the mean, NaN for one seed),
     ``lower``, ``upper`` (mean -/+ ci95; a rate's, :func:`vbl.engine.plots.is_rate`, kept
     in [0, 1], NaN with too few seeds, :func:`vbl.stats.bounded_ci95`)."""
-    from vbl.engine.plots import is_rate
-
     run = read_run(run)
     last: dict[int, dict[str, Any]] = {}
     final: dict[int, dict[str, Any]] = {}

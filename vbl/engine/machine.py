@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import os
 import platform
+import subprocess
+from pathlib import Path
 
 __all__ = ["cpu_model", "load_average", "machine_description", "git_commit"]
 
@@ -37,9 +39,6 @@ def machine_description() -> str:
 def git_commit() -> str:
     """``HEAD`` of the source tree vbl runs from (``+dirty`` with uncommitted changes to
     tracked files), or "unknown" outside a git checkout."""
-    import subprocess
-    from pathlib import Path
-
     root = Path(__file__).resolve().parents[2]
     try:
         head = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], check=True,

@@ -22,9 +22,11 @@ import numpy as np
 from vbl.engine.errors import EngineError
 from vbl.engine.experiment import Experiment, RunResult
 from vbl.engine.jax_setup import engine_precision
+from vbl.engine.rebuild import load_run
 from vbl.engine.report import write_report
-from vbl.engine.results import read_json, read_metrics, seed_stats, write_json
-from vbl.engine.runfolder import differing, open_run_folder
+from vbl.engine.results import MetricsLog, read_json, read_metrics, seed_stats, write_json
+from vbl.engine.runfolder import check_fingerprint, differing, open_run_folder, read_run_spec
+from vbl.engine.runner import defaults_spec, load_result, metrics_line_sums, whole_spec
 from vbl.engine.sweep import Shard, SweepPlan, make_plan
 from vbl.params import ParamError
 
@@ -68,8 +70,6 @@ def merge_runs(folders: list[str | Path], out: str | Path, overwrite: bool = Fal
 
 def _merge(folders: list[str | Path], out: Path, overwrite: bool
            ) -> tuple[Experiment, RunResult]:
-    from vbl.engine.runner import load_result, whole_spec
-
     parts = [_read_part(Path(f)) for f in folders]
     _check_parts(parts, out)
     exp, config = _experiment_config(parts[0].folder)
@@ -96,9 +96,6 @@ def _merge(folders: list[str | Path], out: Path, overwrite: bool
 
 def _read_part(folder: Path) -> _Part:
     """A finished shard's ``config.json`` (format and fingerprint checked) and summary."""
-    from vbl.engine.runfolder import check_fingerprint, read_run_spec
-    from vbl.engine.runner import defaults_spec
-
     try:  # a folder given that is no shard is bad input: ParamError, exit 2
         spec = read_run_spec(folder)
         if "config" not in spec:
@@ -118,8 +115,6 @@ def _read_part(folder: Path) -> _Part:
 def _check_metrics(folder: Path, sh: dict[str, Any], summary: dict[str, Any]) -> None:
     """The shard's ``metrics.jsonl`` is the one it finished with: each line's checksum is
     the one its ``summary.json`` recorded."""
-    from vbl.engine.runner import metrics_line_sums
-
     text = f"shard {sh['index']}/{sh['count']} in {folder}"
     again = "restore it, or run that shard again with --overwrite"
     want = summary.get("metrics_sha256")
@@ -198,15 +193,11 @@ def _check_parts(parts: list[_Part], out: Path) -> None:
 
 
 def _whole_fingerprint(part: _Part) -> str:
-    from vbl.engine.runner import whole_spec
-
     return whole_spec(part.spec)["fingerprint"]
 
 
 def _experiment_config(folder: Path) -> tuple[Experiment, Any]:
     """The experiment and the config a shard recorded (as ``vbl report`` rebuilds them)."""
-    from vbl.engine.rebuild import load_run
-
     try:
         exp, result, _ = load_run(folder, shard_ok=True)
     except EngineError as e:
@@ -292,8 +283,6 @@ def _per_seed(row: dict, metric: str, part: _Part) -> np.ndarray:
 
 
 def _write_rows(path: Path, rows: list[dict[str, Any]]) -> None:
-    from vbl.engine.results import MetricsLog
-
     path.unlink(missing_ok=True)
     MetricsLog(path).append(rows)
 

@@ -18,9 +18,13 @@ restricted to the rows whose path equals a ``PREFIX`` or starts with
 
 from __future__ import annotations
 
+import importlib
 import re
 import sys
 from pathlib import Path
+
+from vbl.engine.registry import get
+from vbl.params import markdown_table
 
 __all__ = ["REGION", "table", "experiment_page", "regions", "render", "main"]
 
@@ -37,11 +41,6 @@ def _selected(path: str, prefixes: list[str]) -> bool:
 def table(experiment: str, prefixes: list[str] | tuple[str, ...] = ()) -> str:
     """The rows of ``vbl params experiment`` whose path is under one of ``prefixes`` (all
     rows when empty), with the table's header."""
-    import importlib
-
-    from vbl.engine import get
-    from vbl.params import markdown_table
-
     if ":" in experiment:  # a parameter class: module:Class
         module, name = experiment.split(":")
         source = getattr(importlib.import_module(module), name)
@@ -64,8 +63,6 @@ def experiment_page(exp) -> str:
     default sweep (with and without ``--quick``), what ``--quick`` and each preset set, then
     the parameter table, whose ``default`` cell also names every sweep, ``--quick`` or
     preset value that replaces the default in a run."""
-    from vbl.params import markdown_table
-
     quick_seeds = exp.quick_seeds or exp.seeds
     sweep = (" x ".join(f"`{k}` in [{_values(v)}]" for k, v in exp.sweep.items())
              if exp.sweep else "none (one point)")

@@ -8,9 +8,10 @@ from typing import Any
 
 import numpy as np
 
+from vbl.params import ParamError
 from vbl.stats import mean_ci95
 
-__all__ = ["point_label", "plot_curves", "plot_names", "plot_sweep", "is_rate", "band",
+__all__ = ["point_label", "plot_curves", "plot_names", "plot_sweep", "is_rate", "band", "pyplot",
            "save_figure", "FIGURE_DPI"]
 
 FIGURE_DPI = 120  #: dots per inch of every figure vbl writes
@@ -33,10 +34,20 @@ def band(metric: str, values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
     return m, lo, hi
 
 
-def save_figure(fig: Any, path: str | Path) -> Path:
-    """Lay out ``fig``, write it to ``path`` (PNG at :data:`FIGURE_DPI`), close it; the path."""
+def pyplot() -> Any:
+    """``matplotlib.pyplot`` on the Agg backend (files, no display). Imported on first use:
+    matplotlib takes over a second to import, and most commands draw nothing."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
     import matplotlib.pyplot as plt
 
+    return plt
+
+
+def save_figure(fig: Any, path: str | Path) -> Path:
+    """Lay out ``fig``, write it to ``path`` (PNG at :data:`FIGURE_DPI`), close it; the path."""
+    plt = pyplot()
     fig.tight_layout()
     fig.savefig(path, dpi=FIGURE_DPI)
     plt.close(fig)
@@ -65,11 +76,7 @@ def plot_curves(curves: dict[str, np.ndarray], points: list[dict[str, Any]], out
     else the chunk number. Bands: :func:`band`. Each sweep point has its own line style, so
     coinciding curves stay visible.
     """
-    import matplotlib
-
-    matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     paths = []
     episodes = curves.get("episodes")
     for name, arr in curves.items():
@@ -132,8 +139,7 @@ def _sweep_lines(records: list[dict[str, Any]], x: str, others: list[str]
 def _metric_records(run: Any, y: str) -> list[dict[str, Any]]:
     """:func:`vbl.engine.export.final_stats` of metric ``y``: ``Program.final``'s, else the
     last chunk's; a ParamError listing the metrics when there is none."""
-    from vbl.engine.export import final_stats
-    from vbl.params import ParamError
+    from vbl.engine.export import final_stats  # export imports this module
 
     stats = final_stats(run)
     records = ([r for r in stats if r["metric"] == y and r["source"] == "final"]
@@ -154,13 +160,8 @@ def plot_sweep(run: Any, x: str, y: str, out: str | Path | None = None) -> Path:
     :class:`~vbl.engine.export.RunRows`; ``x``: a swept path or its last part; ``out``: a
     ``.png`` or ``.svg`` file (default ``<y>_vs_<x>.png`` in the current folder). Returns
     the path. Raises ParamError for an unknown ``x`` or ``y`` or another file type."""
-    import matplotlib
-
-    matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
-
-    from vbl.engine.export import read_run, swept_path
-    from vbl.params import ParamError
+    plt = pyplot()
+    from vbl.engine.export import read_run, swept_path  # export imports this module
 
     run = read_run(run)
     path = swept_path(run, x)

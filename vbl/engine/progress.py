@@ -12,6 +12,7 @@ import time
 from typing import Any
 
 import numpy as np
+from tqdm.auto import tqdm
 
 __all__ = ["auto_quiet", "Progress", "bar_width", "STATUS_FILE",
            "read_status", "eta_text"]
@@ -65,8 +66,6 @@ class Progress:
         self._t0: float | None = None  # end of the first chunk of this process
         self._write_status("compiling")
         if not quiet:
-            from tqdm.auto import tqdm
-
             width = bar_width()
             # the first chunk includes compilation: the bar shows vbl's own ETA (from the
             # chunks after it, as the status file) instead of tqdm's

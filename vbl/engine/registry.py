@@ -14,6 +14,7 @@ import traceback
 from pathlib import Path
 from types import ModuleType
 
+import vbl
 from vbl.engine.errors import EngineError
 from vbl.engine.experiment import Experiment
 from vbl.params import ParamError
@@ -54,8 +55,6 @@ def source_folder(name: str) -> Path:
     editable install), else
     ``./<name>`` when the package is installed elsewhere (``pip install .``) and the
     current folder holds one (run from the source tree)."""
-    import vbl
-
     beside = Path(vbl.__file__).resolve().parents[1] / name
     if beside.is_dir():
         return beside
@@ -73,8 +72,6 @@ def experiment_dirs() -> list[Path]:
     env = os.environ.get("VBL_EXPERIMENTS_DIR")
     if env:
         return [Path(p) for p in env.split(os.pathsep) if p]
-    import vbl
-
     if getattr(vbl, "__file__", None) is None:  # a namespace package: a bare vbl/ folder
         shadow = ", ".join(str(Path(p).resolve()) for p in getattr(vbl, "__path__", []))
         raise EngineError(f"a folder named vbl ({shadow}) hides the installed vbl package; "

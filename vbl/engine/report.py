@@ -8,6 +8,7 @@ import math
 import os
 from pathlib import Path
 from typing import Any
+from urllib.parse import quote
 
 import numpy as np
 
@@ -51,8 +52,6 @@ def default_section(result: RunResult, percent: bool = False) -> ReportSection:
 def url_path(path: str | Path) -> str:
     """A relative path as a Markdown link target: ``/``-separated and percent-encoded
     (a space, parenthesis or ``#`` in a folder name would end or break the link)."""
-    from urllib.parse import quote
-
     return quote(Path(path).as_posix(), safe="/")
 
 

@@ -389,7 +389,7 @@ def _with(spec: dict[str, Any], key: str, value: Any) -> dict[str, Any]:
 def differing(a: dict[str, Any], b: dict[str, Any]) -> list[str]:
     """The names whose values differ between two ``config.json`` contents (top-level
     fields first, then parameter paths, sorted)."""
-    from vbl.engine.config import fingerprint
+    from vbl.engine.config import fingerprint  # imports JAX; the CLI reads this at start
 
     fa, fb = _flat(a), _flat(b)
     same = lambda k: fingerprint({"v": fa.get(k)}) == fingerprint({"v": fb.get(k)})  # noqa: E731
@@ -412,7 +412,7 @@ def check_fingerprint(spec: dict[str, Any], folder: str | Path,
     recorded fingerprint; else the single value whose change back to one of
     ``originals``' restores the fingerprint; else the values that differ from
     ``originals``' first (the candidates)."""
-    from vbl.engine.config import fingerprint
+    from vbl.engine.config import fingerprint  # imports JAX; the CLI reads this at start
 
     recorded = spec.get("fingerprint")
     body = {k: v for k, v in spec.items() if k != "fingerprint"}

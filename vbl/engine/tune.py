@@ -363,7 +363,7 @@ def tune(experiment: Experiment, space: Sequence[str] | Mapping[str, str], *,
         study = _study(optuna, s)
         t0 = time.perf_counter()
         _search(optuna, study, s, folder)
-        from vbl.engine.tune_report import finish
+        from vbl.engine.tune_report import finish  # it imports this module
 
         return finish(s, study, folder, time.perf_counter() - t0)
     finally:

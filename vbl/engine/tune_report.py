@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from vbl.engine.errors import EngineError
+from vbl.engine.plots import is_rate, pyplot
 from vbl.engine.results import write_json
 from vbl.engine.runner import run_experiment
 from vbl.engine.tune import TuneResult, json_value, learner_chunks, require_optuna
@@ -24,8 +25,6 @@ __all__ = ["finish", "interval", "confirm_command"]
 
 def interval(values: Any, metric: str) -> dict[str, Any]:
     """Mean and 95 % interval over seeds of ``values`` (a rate's kept in [0, 1])."""
-    from vbl.engine.plots import is_rate
-
     v = np.asarray(values, np.float64)
     mean, half = mean_ci95(v)
     lo, hi = mean - half, mean + half
@@ -99,11 +98,7 @@ def _figures(s, optuna, trials: list, importances: dict[str, float],
     """``history.png`` (each trial's value, pruned trials at their last rung, the best so
     far, the best trial's confirmation on fresh seeds) and ``importance.png`` (Optuna's
     importances)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     states = optuna.trial.TrialState
     done = [t for t in trials if t.state == states.COMPLETE]
     pruned = [t for t in trials if t.state == states.PRUNED and t.intermediate_values]

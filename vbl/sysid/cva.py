@@ -36,7 +36,7 @@ from vbl.sysid.aic import aic as aic_fn
 from vbl.sysid.linalg import svd_thin, x64_scope
 from vbl.sysid.params import CVAParams
 
-__all__ = ["CVAFit", "fit_lags", "n_identifiable", "first_argmin"]
+__all__ = ["CVAFit", "fit_lags", "n_identifiable", "first_argmin", "ridge_floor", "normalise"]
 
 
 @struct.dataclass
@@ -72,7 +72,7 @@ def n_identifiable(lag: int, horizon: int, m: int, q: int) -> int:
     return min(lag * (m + q), horizon * q)
 
 
-def _ridge(s: jnp.ndarray, floor, pad=0) -> jnp.ndarray:
+def ridge_floor(s: jnp.ndarray, floor, pad=0) -> jnp.ndarray:
     """S + floor * mean(diag S) * I (the regularisation floor); the mean leaves out ``pad``
     (may be traced) padded entries of unit diagonal and zero covariance, so a padded
     matrix gets the floor of its unpadded block."""
@@ -82,13 +82,16 @@ def _ridge(s: jnp.ndarray, floor, pad=0) -> jnp.ndarray:
 
 
 def _ridge_padded(s: jnp.ndarray, v: jnp.ndarray, floor) -> jnp.ndarray:
-    """:func:`_ridge` of the entries of ``s`` where ``v`` (0/1) is 1 (``s`` zero elsewhere),
-    unit variance on the padded entries: ``s + diag(1 - v) + floor * (tr s / sum v) * I``."""
+    """:func:`ridge_floor` of the entries of ``s`` where ``v`` (0/1) is 1 (``s`` zero
+    elsewhere), unit variance on the padded entries:
+    ``s + diag(1 - v) + floor * (tr s / sum v) * I``."""
     scale = jnp.maximum(jnp.trace(s) / jnp.sum(v), jnp.finfo(s.dtype).tiny)
     return s + jnp.diag(1.0 - v) + floor * scale * jnp.eye(s.shape[-1], dtype=s.dtype)
 
 
-def _normalise(x: jnp.ndarray, demean: bool, standardize: bool):
+def normalise(x: jnp.ndarray, demean: bool, standardize: bool):
+    """(x - mean) / scale over time (axis 0) of x (T, d), with mean (d,) (zeros without
+    ``demean``) and scale (d,) (the std; ones without ``standardize``)."""
     mean = jnp.mean(x, axis=0) if demean else jnp.zeros(x.shape[1], x.dtype)
     scale = jnp.std(x, axis=0) if standardize else jnp.ones(x.shape[1], x.dtype)
     return (x - mean) / scale, mean, scale
@@ -146,8 +149,8 @@ def _fit_lags(u, y, params, *, lags, horizons, n_cap, caps) -> CVAFit:
     n_samp, m = u.shape
     q = y.shape[1]
     big_l, big_k = max(lags), max(horizons)
-    un, u_mean, u_scale = _normalise(u, params.demean, params.standardize)
-    yn, y_mean, y_scale = _normalise(y, params.demean, params.standardize)
+    un, u_mean, u_scale = normalise(u, params.demean, params.standardize)
+    yn, y_mean, y_scale = normalise(y, params.demean, params.standardize)
     dp, o_uf, o_f, p1 = _window_layout(big_l, big_k, m, q)
 
     # z(t) for every t = 0..N-1 from the zero-padded records (slices): delays L..1, then 0..-(K-1)
@@ -260,12 +263,12 @@ def _order_sweep(g, umat, s, p1, params, floor, *, m, q, o_uf, o_f, ne, n_cap, n
     def masked(n):
         w = jnp.concatenate([(jnp.arange(c) < n).astype(dt), jnp.ones(m, dt)])
         sm = sxx * jnp.outer(w, w) + jnp.diag(1.0 - w)
-        return jnp.linalg.cholesky(_ridge(sm, floor, pad)), w
+        return jnp.linalg.cholesky(ridge_floor(sm, floor, pad)), w
 
     def logdet_r(n):
         lx, w = masked(n)
         wy = solve_triangular(lx, sxy * w[:, None], lower=True)
-        rr = _ridge(syy - wy.T @ wy, floor)
+        rr = ridge_floor(syy - wy.T @ wy, floor)
         return 2.0 * jnp.sum(jnp.log(jnp.diag(jnp.linalg.cholesky(rr)))), rr
 
     ns = jnp.arange(c + 1)

@@ -25,7 +25,7 @@ from jax.scipy.linalg import solve_triangular
 from vbl.sysid.aic import aic as aic_fn
 from vbl.sysid.aic import param_count
 from vbl.sysid.batching import in_chunks
-from vbl.sysid.cva import CVAFit, _normalise, _ridge, first_argmin
+from vbl.sysid.cva import CVAFit, first_argmin, normalise, ridge_floor
 from vbl.sysid.gram import hankel_gram
 from vbl.sysid.linalg import eigh_desc, svd_thin, x64_scope
 from vbl.sysid.params import CVAParams
@@ -103,7 +103,7 @@ def _lag_cva(g4, params, floor, *, big_l, lag, horizon, m, q, ne, n_cap) -> dict
     sff = blk(hi, hi + k, yy, hi, hi + k, yy)
     spf = blk(lo, hi, al, hi, hi + k, yy)
     if params.method == "projected":
-        lu = _chol(_ridge(blk(hi, hi + k, uu, hi, hi + k, uu), floor))
+        lu = _chol(ridge_floor(blk(hi, hi + k, uu, hi, hi + k, uu), floor))
         a = solve_triangular(lu, jnp.concatenate([blk(hi, hi + k, uu, lo, hi, al),
                                                   blk(hi, hi + k, uu, hi, hi + k, yy)], 1),
                              lower=True)
@@ -111,8 +111,8 @@ def _lag_cva(g4, params, floor, *, big_l, lag, horizon, m, q, ne, n_cap) -> dict
         spp = spp - ap.T @ ap
         sff = sff - af.T @ af
         spf = spf - ap.T @ af
-    lp = _chol(_ridge(spp, floor))
-    lf = _chol(_ridge(sff, floor))
+    lp = _chol(ridge_floor(spp, floor))
+    lf = _chol(ridge_floor(sff, floor))
     mw = triangular_solve(lf, solve_triangular(lp, spf, lower=True), left_side=False,
                           lower=True, transpose_a=True)                 # Lp^-1 S_pf Lf^-T
     r = min(mw.shape)                            # canonical correlations
@@ -135,19 +135,19 @@ def _lag_cva(g4, params, floor, *, big_l, lag, horizon, m, q, ne, n_cap) -> dict
     sxx = jnp.block([[s_x0[:m, :m], s_mx[:, :m].T], [s_mx[:, :m], s_mm]])
     sxt = jnp.block([[s_xm1[:m], s_x0[:m, m:]], [s_mm1, s_mx[:, m:]]])
     syy = s_x0[m:, m:]
-    lx = _chol(_ridge(sxx, floor))
+    lx = _chol(ridge_floor(sxx, floor))
     # U S_pp U^T carries rounding errors up to ~ dp eps |U_i|^2 max row sum |S_pp| per state;
     # where S_pp is (nearly) singular (duplicated or collinear channels) |U_i| is huge, the
     # errors exceed the regularisation floor and the factorisation fails: then (only then)
     # that bound is added to the states' variances.
     bound = dp * jnp.finfo(umat.dtype).eps * jnp.max(jnp.sum(jnp.abs(g_p[:, :dp]), axis=1))
-    lx_safe = _chol(_ridge(sxx + jnp.diag(jnp.concatenate(
+    lx_safe = _chol(ridge_floor(sxx + jnp.diag(jnp.concatenate(
         [jnp.zeros(m, umat.dtype), bound * jnp.sum(umat * umat, axis=1)])), floor))
     lx = jnp.where(jnp.all(jnp.isfinite(lx)), lx, lx_safe)
     z = solve_triangular(lx, sxt, lower=True)                            # (m+c, c+q)
     wy = z[:, c:]                                                        # L^-1 S_xy
     red = _cumsum0(wy[:, :, None] * wy[:, None, :])[m - 1:]    # n = 0..c
-    rs = jax.vmap(lambda r: _ridge(syy - r, floor))(red)
+    rs = jax.vmap(lambda r: ridge_floor(syy - r, floor))(red)
     logdet = logdet_spd(rs)
     # orders beyond c add zero states: the residual stays that of order c
     logdet = jnp.concatenate([logdet, jnp.broadcast_to(logdet[-1], (n_cap - c,))])
@@ -218,8 +218,8 @@ def _gram_window(u, y, params, big_l: int, big_k: int):
     dt = jnp.float32 if params.dtype == "float32" else jnp.float64
     u, y = u.astype(dt), y.astype(dt)
     ne = u.shape[0] - big_l - big_k + 1
-    un, u_mean, u_scale = _normalise(u, params.demean, params.standardize)
-    yn, y_mean, y_scale = _normalise(y, params.demean, params.standardize)
+    un, u_mean, u_scale = normalise(u, params.demean, params.standardize)
+    yn, y_mean, y_scale = normalise(y, params.demean, params.standardize)
     w, d = big_l + big_k, u.shape[1] + y.shape[1]
     g4 = (hankel_gram(jnp.concatenate([un, yn], axis=1), w) / ne).reshape(w, d, w, d)
     return g4, jnp.asarray(params.floor(), dt), (u_mean, u_scale, y_mean, y_scale), ne
