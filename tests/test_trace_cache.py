@@ -4,6 +4,8 @@ traced again and rewritten; concurrent writers leave a whole file."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import threading
 
 import jax
@@ -167,3 +169,26 @@ def test_a_run_reads_its_programs_back_with_the_same_results(cache, toy, tmp_pat
     warm = run("warm")
     assert len(exports) == n  # every program read back
     assert off == cold == warm
+
+
+LINALG = """
+import sys
+import jax, jax.numpy as jnp, numpy as np
+from vbl.engine import jax_setup, trace_cache
+jax_setup._cache_in_use = lambda: sys.argv[1]
+trace_cache._STATE["on"] = True
+with jax.enable_x64(True):
+    f = jax.jit(lambda a: jnp.linalg.cholesky(a @ a.T + 3.0 * jnp.eye(4)))
+    x = jnp.asarray(np.arange(16.0).reshape(4, 4) / 10)
+    print(np.asarray(trace_cache.traced(f, "chol", x)(x)).tobytes().hex())
+"""
+
+
+def test_a_linear_algebra_program_read_back_in_a_new_process_runs(tmp_path):
+    """XLA's CPU LAPACK kernels need LAPACK loaded, which JAX does when it lowers them:
+    a process that reads the program back and lowers nothing loads it too (without,
+    the call crashes the process)."""
+    runs = [subprocess.run([sys.executable, "-c", LINALG, str(tmp_path)], capture_output=True,
+                           text=True, timeout=300) for _ in range(2)]  # cold, then warm
+    assert [r.returncode for r in runs] == [0, 0], runs[1].stderr[-2000:]
+    assert runs[0].stdout == runs[1].stdout

@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 import jax
+import numpy as np
 
 from vbl.engine import jax_setup
 
@@ -160,6 +161,15 @@ def _export(fn: Callable, leaves: list, in_tree: Any) -> tuple[jax.export.Export
     return exported, jax.tree.unflatten(out[0], [0] * out[0].num_leaves)
 
 
+def _load_lapack() -> None:
+    """Load LAPACK's functions for XLA's CPU linear-algebra kernels: JAX does it when it
+    lowers such an operation, which a program read back skips (its kernels would call
+    null pointers and crash the process)."""
+    from jaxlib import lapack
+
+    lapack.prepare_lapack_call("potrf", np.float64)
+
+
 def traced(fn: Callable, ident: str, *args: Any) -> Callable:
     """``fn`` (a ``jax.jit`` function of the arrays ``args``) as a jitted call of its
     exported program, read from the cache or traced and written to it; ``fn`` itself
@@ -181,6 +191,7 @@ def traced(fn: Callable, ident: str, *args: Any) -> Callable:
         except Exception:  # noqa: BLE001 - not exportable: fn traces (and raises) itself
             return fn
         _write(path, *found)
+    _load_lapack()
     exported, skeleton = found
     out_tree = jax.tree.structure(skeleton)
 
