@@ -412,3 +412,45 @@ def test_a_video_write_that_fails_midway_is_one_line_and_leaves_no_file(tmp_path
     with pytest.raises(EngineError, match=rf"cannot write {out}: No space left on device"):
         write_video(frames, ["a", "b"], out, VideoParams(height=32))
     assert not out.exists()
+
+
+# ------------------------------------------------------------------ available memory
+
+
+def _fake_memory(tmp_path, monkeypatch, available_kib, limit, current):
+    """A /proc/meminfo with ``MemAvailable: available_kib kB`` and a cgroup folder with
+    ``memory.max`` = ``limit`` (bytes or "max") and ``memory.current`` = ``current``."""
+    from vbl.engine import memory
+
+    meminfo = tmp_path / "meminfo"
+    meminfo.write_text(f"MemTotal: 99999999 kB\nMemAvailable: {available_kib} kB\n")
+    cgroup = tmp_path / "cgroup"
+    cgroup.mkdir()
+    (cgroup / "memory.max").write_text(f"{limit}\n")
+    (cgroup / "memory.current").write_text(f"{current}\n")
+    monkeypatch.setattr(memory, "MEMINFO", meminfo)
+    monkeypatch.setattr(memory, "CGROUP_DIR", cgroup)
+    return memory
+
+
+def test_a_cgroup_limit_below_the_machines_memory_caps_what_is_available(tmp_path,
+                                                                        monkeypatch):
+    """8 GiB free on the machine, a container limit of 2 GiB of which 0.5 GiB is used:
+    1.5 GiB is available, and a need of 1.6 GiB is refused while 1.4 GiB passes."""
+    gib = 1 << 30
+    memory = _fake_memory(tmp_path, monkeypatch, 8 * gib // 1024, 2 * gib, gib // 2)
+    assert memory.available_memory() == 3 * gib // 2
+    with pytest.raises(memory.MemoryError_, match="1.5 GiB is available"):
+        memory.check_bytes(int(1.6 * gib), "it needs", "use less")
+    assert memory.check_bytes(int(1.4 * gib), "it needs", "use less") == int(1.4 * gib)
+
+
+def test_without_a_cgroup_limit_the_machines_free_memory_counts(tmp_path, monkeypatch):
+    gib = 1 << 30
+    memory = _fake_memory(tmp_path, monkeypatch, 3 * gib // 1024, "max", gib)
+    assert memory.available_memory() == 3 * gib
+    (tmp_path / "b").mkdir()
+    memory = _fake_memory(tmp_path / "b", monkeypatch, gib // 1024, 4 * gib, 0)
+    assert memory.available_memory() == gib  # a limit above the free memory: the free
+    (memory.CGROUP_DIR / "memory.current").write_text(f"{5 * gib}\n")
+    assert memory.available_memory() == 0  # over the limit: nothing left, not negative

@@ -234,3 +234,74 @@ def test_a_tasks_own_rules_are_checked_outside_jit():
         with pytest.raises(ParamError, match="at most 5"):
             call()
     env.reset(jax.random.key(0), env.default_params.replace(max_steps=5))
+
+
+class _NoisyFeaturesToy(ToyEnv, params=ToyParams, state=ToyState, fresh_words=FRESH,
+                        pixel_noise_dim=1, option=("kind", ("a", "b"))):
+    """The toy observed by the base's get_obs: its features are the pose plus the pixel
+    noise's one normal (0 without noise)."""
+
+    def observer(self, params):
+        def features(state, eps):
+            return jnp.append(state.world.robots[0], 0.0 if eps is None else eps[0])
+        return Observer(features=features, image=None, from_image=None)
+
+    get_obs = TaskEnv.get_obs
+
+
+def test_reset_observes_with_the_pixel_noise_drawn_after_the_fresh_words():
+    """noise_on.pixel on: reset's obs is get_obs(state, params, eps) with eps the normal of
+    the word after the fresh episode's words, not the noise-free obs."""
+    from vbl.draws import normal
+
+    env = _NoisyFeaturesToy()
+    params = env.default_params.replace(noise_on=NoiseOn(pixel=True))
+    key = jax.random.key(4)
+    obs, state = env.reset(key, params)
+    state2, eps = env.reset_state(key, params)
+    words = jax.random.bits(key, (FRESH + 1,), jnp.uint32)
+    np.testing.assert_array_equal(eps, normal(words[FRESH:]))
+    np.testing.assert_array_equal(state2.world.robots[0], _fresh_pose(key, 0, FRESH + 1))
+    np.testing.assert_array_equal(obs, env.get_obs(state, params, eps))
+    clean = np.asarray(env.get_obs(state, params))
+    assert float(eps[0]) != 0.0 and not np.array_equal(obs, clean)
+    np.testing.assert_array_equal(obs[:3], clean[:3])
+    assert obs[3] == eps[0]
+
+
+def test_step_observes_the_selected_state_with_its_pixel_noise():
+    from vbl.draws import normal
+
+    env = _NoisyFeaturesToy()
+    params = env.default_params.replace(noise_on=NoiseOn(pixel=True))
+    _, state = env.reset(jax.random.key(0), params)
+    for t in range(1, EPISODE + 1):
+        key = jax.random.key(30 + t)
+        obs, nstate, *_ = env.step(key, state, jnp.int32(0), params)
+        # words: slip block (off), fresh words, then the pixel noise's normal
+        words = jax.random.bits(key, (SLIP + FRESH + 1,), jnp.uint32)
+        eps = normal(words[SLIP + FRESH:])
+        np.testing.assert_array_equal(obs, env.get_obs(nstate, params, eps))
+        obs_env, *_ = env.step_env(key, state, jnp.int32(0), params)
+        assert obs_env[3] == normal(jax.random.bits(key, (SLIP + 1,), jnp.uint32)[SLIP:])[0]
+        state = nstate
+
+
+def test_the_camera_image_has_no_image_noise_under_the_analytic_source():
+    """Image noise belongs to obs_source="pixels": under "analytic" get_pixels returns the
+    clean image whatever eps it is given."""
+    from types import SimpleNamespace
+
+    from vbl.vision.render import RenderParams
+
+    env = _PixelToy()
+    render = RenderParams(width=16, height=12)
+    analytic = SimpleNamespace(pixels=SimpleNamespace(render=render), obs_source="analytic")
+    _, state = env.reset(jax.random.key(0))
+    assert env.pixel_noise_size(analytic) == 1
+    for eps in (jnp.ones(1), jnp.full(12 * 16 * 3, 3.0)):
+        img = np.asarray(env.get_pixels(state, analytic, eps))
+        assert img.shape == (12, 16, 3) and np.all(img == 128)
+    pixels = SimpleNamespace(pixels=SimpleNamespace(render=render), obs_source="pixels")
+    img = np.asarray(env.get_pixels(state, pixels, jnp.full(12 * 16 * 3, 3.0)))
+    assert np.all(img == round(255 * 0.8))

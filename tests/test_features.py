@@ -246,3 +246,30 @@ def test_pixel_noise():
         np.testing.assert_allclose(xs[:, idx].std(), want, rtol=0.06)
         np.testing.assert_allclose(xs[:, idx].mean(), exact[idx], atol=4 * want / 60)
     np.testing.assert_array_equal(xs[:, 5:], np.broadcast_to(exact[5:], xs[:, 5:].shape))
+
+
+def test_each_pixel_noise_normal_moves_only_its_own_feature():
+    """One normal at a time (std 2 px): eps[0] the ball width, eps[1] the ball u, eps[2:4]
+    the goal's left/right end heights (x3 by std/2 and x5 as (h_l - h_r) / mean), eps[4:6]
+    the left/right end u (x4 by std/2). Reference: the ends' heights recovered from the
+    exact x3, x5 (h_l = x3 (1 + x5 / 2), h_r = x3 (1 - x5 / 2))."""
+    pose, ball, std = [1.0, 0.3, 0.1], [2.2, 0.4], 2.0
+    cam = CameraParams(pixel_noise_std=std)
+    exact = s2(pose, ball, cam=cam).astype(np.float64)
+    assert exact[S2.SEC2_BALL_VISIBLE] == exact[S2.SEC2_GOAL_VISIBLE] == 1
+    x3, x5 = exact[S2.SEC2_GOAL_SIZE], exact[S2.SEC2_GOAL_ORIENT]
+    assert abs(x5) < 0.5
+    h = np.array([x3 * (1 + x5 / 2), x3 * (1 - x5 / 2)])
+    for k in range(S2.SEC2_NOISE_DIM):
+        want = exact.copy()
+        if k < 2:
+            want[[S2.SEC2_BALL_SIZE, S2.SEC2_BALL_POS][k]] += std
+        elif k < 4:
+            hk = h.copy()
+            hk[k - 2] += std
+            want[S2.SEC2_GOAL_SIZE] = hk.mean()
+            want[S2.SEC2_GOAL_ORIENT] = (hk[0] - hk[1]) / hk.mean()
+        else:
+            want[S2.SEC2_GOAL_POS] += std / 2
+        got = s2(pose, ball, cam=cam, eps=np.eye(S2.SEC2_NOISE_DIM, dtype=np.float32)[k])
+        assert np.all(np.abs(got - want) <= TOL2), (k, got - want)

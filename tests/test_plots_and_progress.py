@@ -261,3 +261,28 @@ def test_a_sweep_plot_prefers_the_final_metric_and_names_its_file(tmp_path, monk
     assert plot_sweep(run, "lr", "c", tmp_path / "c.PNG").exists()
     with pytest.raises(ParamError, match=".png or .svg"):
         plot_sweep(run, "lr", "s", tmp_path / "c.jpg")
+
+
+def test_eta_text_shows_seconds_below_90_s_and_whole_minutes_above():
+    from vbl.engine.progress import eta_text
+
+    assert [eta_text(s) for s in (0, 42, 89)] == ["0 s", "42 s", "89 s"]
+    assert [eta_text(s) for s in (90, 180, 600, 3570)] == ["2 min", "3 min", "10 min",
+                                                           "60 min"]
+
+
+def test_a_long_eta_is_shown_in_minutes_in_the_status_and_the_bar(tmp_path, monkeypatch,
+                                                                  capsys):
+    """Chunks of 30 s after a compiling chunk: 2 done of 22 leaves 20 x 30 s = 10 min."""
+    from vbl.engine import progress
+
+    clock = iter([0.0, 100.0, 130.0, 130.0, 130.0, 130.0])
+    monkeypatch.setattr(progress.time, "perf_counter", lambda: next(clock))
+    p = progress.Progress(22, 0, "t", quiet=False, status_dir=tmp_path)
+    p.update({}, 100.0)
+    p.update({}, 30.0)
+    assert p.eta() == 600.0
+    assert progress.read_status(tmp_path) == "training 2/22 chunks, ETA 10 min"
+    p._bar.refresh()
+    assert "ETA=10 min" in capsys.readouterr().err
+    p.close()

@@ -84,3 +84,23 @@ def test_a_zipped_sweep_needs_one_count_for_every_path():
     assert _zipped_count({}) == 1 and _zipped_count({"a": [1, 2], "b": [3, 4]}) == 2
     with pytest.raises(ParamError, match=r"\[1, 2\] values"):
         _zipped_count({"a": [1, 2], "b": [3]})
+
+
+def test_as_many_shards_as_learners_run_one_learner_each_and_more_are_refused(tmp_path):
+    """2 sweep points x 2 seeds = 4 learners: --shard i/4 runs learner i - 1 alone; 5
+    parts would leave one empty."""
+    from tests.engine_helpers import toy_experiment
+    from vbl.engine.sweep import make_plan
+
+    gen = toy_experiment(tmp_path)
+    toy = next(gen)
+    try:
+        sweep = {"agent.epsilon": [0.1, 0.2]}
+        for i in range(1, 5):
+            plan = make_plan(toy, toy.default_config, sweep, 2, shard=Shard(i, 4))
+            learners = [ix for g in plan.groups for ix in g.learner_index.tolist()]
+            assert learners == [i - 1]
+        with pytest.raises(ParamError, match="at most 4 parts"):
+            make_plan(toy, toy.default_config, sweep, 2, shard=Shard(5, 5))
+    finally:
+        next(gen, None)

@@ -26,6 +26,8 @@ __all__ = ["MemoryError_", "CARRY_COPIES", "available_memory", "estimate", "chec
            "check_bytes", "tree_bytes", "fmt_bytes"]
 
 CARRY_COPIES = 4  #: carries held at once per learner (step in + out, host gather, save)
+MEMINFO = Path("/proc/meminfo")  #: the kernel's memory counters (MemAvailable)
+CGROUP_DIR = Path("/sys/fs/cgroup")  #: this process's cgroup v2 (memory.max, memory.current)
 
 
 class MemoryError_(EngineError):  # noqa: N801 - not the builtin MemoryError
@@ -42,7 +44,7 @@ def fmt_bytes(n: float) -> str:
 
 def _meminfo_available() -> int | None:
     try:
-        for line in Path("/proc/meminfo").read_text().splitlines():
+        for line in MEMINFO.read_text().splitlines():
             if line.startswith("MemAvailable:"):
                 return int(line.split()[1]) * 1024
     except (OSError, ValueError, IndexError):
@@ -53,7 +55,7 @@ def _meminfo_available() -> int | None:
 def _cgroup_available() -> int | None:
     """Room left under a cgroup v2 memory limit (containers), if there is one."""
     try:
-        base = Path("/sys/fs/cgroup")
+        base = CGROUP_DIR
         limit = (base / "memory.max").read_text().strip()
         if limit == "max":
             return None
