@@ -17,7 +17,8 @@ WRITES = """import json, pathlib, sys
 if __name__ == "__main__":
     here = pathlib.Path(__file__).resolve().parent
     (here / "results" / "{name}.json").write_text(json.dumps({{"quick": "--quick" in sys.argv,
-                                                            "rows": [{{"x": {value}}}]}}))
+                                                            "rows": [{{"x": {value}}}],
+                                                            "ran_from": str(here)}}))
     sys.exit({code})
 """
 
@@ -48,7 +49,8 @@ def test_results_go_to_out_and_the_committed_results_stay(fake_bench, tmp_path):
     lines = []
     failed = run_benchmarks(["fast", "broken"], out, quick=True, echo=lines.append)
     assert failed == ["broken"]
-    assert json.loads((out / "fast.json").read_text())["quick"] is True
+    got = json.loads((out / "fast.json").read_text())
+    assert got["quick"] is True and got["ran_from"] != str(fake_bench.resolve())  # a copy
     assert (fake_bench / "results" / "fast.json").read_text() == '"committed"'
     assert not (out / ".scripts").exists()
     assert "  fast: 3 things/s; target >= 2: met" in lines
@@ -59,7 +61,8 @@ def test_results_go_to_out_and_the_committed_results_stay(fake_bench, tmp_path):
 
 def test_out_as_the_results_folder_runs_in_place(fake_bench):
     run_benchmarks(["fast"], fake_bench / "results", quick=False, echo=lambda s: None)
-    assert json.loads((fake_bench / "results" / "fast.json").read_text())["quick"] is False
+    got = json.loads((fake_bench / "results" / "fast.json").read_text())
+    assert got["quick"] is False and got["ran_from"] == str(fake_bench.resolve())
 
 
 def _write(tmp_path, name, value):
@@ -82,6 +85,9 @@ def test_numbers_are_shown_with_thousands_separators_or_three_digits(tmp_path, m
     monkeypatch.setitem(TARGETS, "t", Target(lambda r: (r["rows"][0]["x"], "u"), 1e6))
     _write(tmp_path, "t", 1234567.8)
     assert headline("t", tmp_path) == "t: 1,234,568 u; target >= 1,000,000: met"
+    for value, shown in ((1000.0, "1,000"), (5000.0, "5,000"), (999.4, "999")):
+        _write(tmp_path, "t", value)
+        assert headline("t", tmp_path).startswith(f"t: {shown} u;")
     _write(tmp_path, "t", 0.012345)
     assert headline("t", tmp_path).startswith("t: 0.0123 u;")
 

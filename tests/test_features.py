@@ -273,3 +273,39 @@ def test_each_pixel_noise_normal_moves_only_its_own_feature():
             want[S2.SEC2_GOAL_POS] += std / 2
         got = s2(pose, ball, cam=cam, eps=np.eye(S2.SEC2_NOISE_DIM, dtype=np.float32)[k])
         assert np.all(np.abs(got - want) <= TOL2), (k, got - want)
+
+
+def test_noise_never_makes_a_size_negative_section2():
+    """A normal of -40 (80 px at std 2) on the 75 px ball width gives width 0; -50 on the
+    left end's height makes it 0: x3 = h_right / 2 and x5 = (0 - h_r) / x3 clipped to -1.
+    Positions are not clipped: -40 on the ball's u moves it by -80 px."""
+    pose, ball = [1.0, 0.3, 0.1], [2.2, 0.4]
+    cam = CameraParams(pixel_noise_std=2.0)
+    exact = s2(pose, ball, cam=cam).astype(np.float64)
+    h_r = exact[S2.SEC2_GOAL_SIZE] * (1 - exact[S2.SEC2_GOAL_ORIENT] / 2)
+    got = s2(pose, ball, cam=cam, eps=np.array([-40, -40, -50, 0, 0, 0], np.float32))
+    assert got[S2.SEC2_BALL_SIZE] == 0.0
+    np.testing.assert_allclose(got[S2.SEC2_BALL_POS], exact[S2.SEC2_BALL_POS] - 80, atol=1e-3)
+    np.testing.assert_allclose(got[S2.SEC2_GOAL_SIZE], h_r / 2, rtol=1e-5)
+    assert got[S2.SEC2_GOAL_ORIENT] == -1.0
+
+
+def test_each_section3_noise_normal_moves_only_its_own_coordinate():
+    """Flat layout: ball 0-3 (u, v, width, height) take eps 0-3, the goal's 4 end points
+    (4-11) and area centroid (12, 13) eps 4-13, the other robot's centroid and box (15-18)
+    eps 14-17; the areas (14, 19), flags and lost sides take none. A -60 normal (120 px)
+    makes the ball's 75 px width and the robot's 106 px height 0, not negative."""
+    pose, ball, other, std = [1.0, 0.3, 0.1], [2.2, 0.4], [2.6, -0.6, 0.3], 2.0
+    cam = CameraParams(pixel_noise_std=std)
+    target = [*range(0, 14), *range(15, 19)]  # eps k -> flat index target[k]
+    args = (f32(pose), f32(ball), R, f32(GOAL), f32(other), f32(SIZE), cam)
+    exact = np.asarray(sec3(*args, jnp.zeros(S3.SEC3_NOISE_DIM)), np.float64)  # one compile
+    assert np.all(exact[20:23] == 1)
+    for k in range(S3.SEC3_NOISE_DIM):
+        got = np.asarray(sec3(*args, jnp.eye(S3.SEC3_NOISE_DIM)[k]), np.float64)
+        want = exact.copy()
+        want[target[k]] += std
+        np.testing.assert_allclose(got, want, atol=2e-3, err_msg=f"eps[{k}]")
+    eps = jnp.zeros(S3.SEC3_NOISE_DIM).at[2].set(-60.0).at[17].set(-60.0)
+    got = np.asarray(sec3(*args, eps))
+    assert got[2] == 0.0 and got[18] == 0.0
