@@ -286,3 +286,43 @@ def test_a_long_eta_is_shown_in_minutes_in_the_status_and_the_bar(tmp_path, monk
     p._bar.refresh()
     assert "ETA=10 min" in capsys.readouterr().err
     p.close()
+
+
+@pytest.mark.parametrize("ci, tty, kernel, quiet", [
+    ("1", True, False, True), ("true", True, False, True), (" YES ", True, False, True),
+    ("0", True, False, False), ("", True, False, False), ("", False, False, True),
+    ("", False, True, False), ("false", False, True, False)])
+def test_the_bar_is_quiet_under_ci_or_without_a_terminal_or_notebook(monkeypatch, ci, tty,
+                                                                     kernel, quiet):
+    import types
+
+    from vbl.engine import progress
+
+    monkeypatch.setenv("CI", ci)
+    monkeypatch.setattr(progress.sys, "stderr", types.SimpleNamespace(isatty=lambda: tty))
+    monkeypatch.setattr(progress, "_in_kernel", lambda: kernel)
+    assert progress.auto_quiet() is quiet
+
+
+def test_only_a_jupyter_kernel_counts_as_a_notebook(monkeypatch):
+    """IPython in a terminal is no kernel; one whose config names IPKernelApp is; a broken
+    IPython is none."""
+    import sys
+    import types
+
+    from vbl.engine import progress
+
+    def ipython(shell=None, broken=False):
+        def get():
+            if broken:
+                raise RuntimeError("broken")
+            return shell
+        return types.SimpleNamespace(get_ipython=get)
+
+    for module, want in ((None, False), (ipython(None), False),
+                         (ipython(types.SimpleNamespace(config={"TerminalIPythonApp": {}})),
+                          False),
+                         (ipython(types.SimpleNamespace(config={"IPKernelApp": {}})), True),
+                         (ipython(broken=True), False)):
+        monkeypatch.setitem(sys.modules, "IPython", module)
+        assert progress._in_kernel() is want
