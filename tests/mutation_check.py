@@ -15,6 +15,7 @@ The working tree is never touched, so other work in it goes on.
     .venv/bin/python tests/mutation_check.py --fresh --json fresh.json  # the second set
     .venv/bin/python tests/mutation_check.py --blind --json blind.json  # the third set
     .venv/bin/python tests/mutation_check.py --fourth --list         # the fourth set
+    .venv/bin/python tests/mutation_check.py --fifth --list          # the fifth set
     .venv/bin/python tests/mutation_check.py --list
     .venv/bin/python tests/mutation_check.py --json results.json
 
@@ -26,6 +27,7 @@ second set's survivors, in parts of the modules neither other set touched; its s
 the ``blind`` entry of the same file.
 ``--fourth`` runs a fourth set written from the source alone, without reading any test,
 mostly in modules and functions the other three sets leave alone.
+``--fifth`` runs a fifth set, also written from the source alone, in lines no other set edits.
 
 Exit status: 0 when every mutant run was caught, 1 when one survived, 2 for a bad mutant
 (its snippet is not in its file exactly once) or tests that fail unmutated.
@@ -641,6 +643,143 @@ FOURTH_MUTANTS = [
 ]
 
 
+SS, SH, NS = "vbl/engine/seed_subsets.py", "vbl/engine/sharding.py", "vbl/engine/nested.py"
+ER, RB, TB = "vbl/engine/errors.py", "vbl/engine/rebuild.py", "vbl/engine/tensorboard.py"
+PR, VN, SC = "vbl/engine/process.py", "vbl/vision/noise.py", "vbl/vision/scenes.py"
+SEED_SUBSET_TESTS = ("tests/test_seed_subsets.py", "tests/test_report.py")
+ERROR_TESTS = ("tests/test_cli_processes.py", "tests/test_engine_edge_cases.py",
+               "tests/test_guards.py")
+REBUILD_TESTS = ("tests/test_rebuild.py", "tests/test_report.py", "tests/test_reproduce_plan.py")
+REGION_TESTS = ("tests/test_vision_regions.py", "tests/test_features.py",
+                "tests/test_segmentation_parts.py")
+
+#: A fifth set (``--fifth``), written from the source alone without reading any test, in
+#: lines the other sets leave alone (seed subsets, learner batches, nested programs, error
+#: lines, rebuilt commands, TensorBoard steps, the camera, the projection, Section 3 and the
+#: env base). A mutant runs the test file named after its module first, where there is one.
+FIFTH_MUTANTS = [
+    # ------------------------------------------------------------------ engine
+    Mutant("subsets-all-seeds-refused", SS, "not 1 <= seeds <= res.seeds:",
+           "not 1 <= seeds < res.seeds:", SEED_SUBSET_TESTS,
+           "vbl report --seeds K with K = the run's seeds is refused"),
+    Mutant("subsets-curves-cut-chunks", SS, "curves = {k: a[:, :, :seeds]",
+           "curves = {k: a[:, :seeds]", SEED_SUBSET_TESTS,
+           "the rebuilt curves keep the first K chunks of every seed, not the first K seeds"),
+    Mutant("sharding-batches-floor", SH, "nb = math.ceil(num_learners / cap)",
+           "nb = max(1, num_learners // cap)",
+           ("tests/test_sweep_scaling.py", "tests/test_per_device_programs.py",
+            "tests/test_engine_core.py"),
+           "learners are split into too few batches: a batch exceeds --learner-batch"),
+    Mutant("nested-skips-first-chunk", NS, "jax.lax.fori_loop(0, prog.num_chunks, body",
+           "jax.lax.fori_loop(1, prog.num_chunks, body",
+           ("tests/test_segmentation_parts.py", "tests/test_engine_core.py"),
+           "a nested program runs one chunk fewer than it has, and its totals miss one"),
+    Mutant("errors-file-too-large-not-disk", ER,
+           "_DISK = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)",
+           "_DISK = (errno.ENOSPC, errno.EDQUOT)", ERROR_TESTS,
+           "a file size limit (EFBIG) is an unexpected error, not 'free some space, --resume'"),
+    Mutant("errors-debug-false-is-on", ER,
+           'return os.environ.get("VBL_DEBUG", "").strip().lower() not in ("", "0", "false", "no")',
+           'return os.environ.get("VBL_DEBUG", "").strip().lower() not in ("", "0")',
+           ERROR_TESTS, "VBL_DEBUG=false (or no) turns debugging on"),
+    Mutant("errors-read-only-fs-unexplained", ER,
+           "x.errno in (errno.EACCES, errno.EPERM, errno.EROFS)",
+           "x.errno in (errno.EACCES, errno.EPERM)", ERROR_TESTS,
+           "a read-only file system is an unexpected error, not 'make the folder writable'"),
+    Mutant("rebuild-one-item-tuple-bare", RB, "numeric and len(items) > 1 else",
+           "numeric else", REBUILD_TESTS,
+           "a recorded one-number tuple is written --set k=0.5, which parses as a scalar"),
+    Mutant("rebuild-quick-seeds-ignored", RB,
+           "if seeds != ((exp.quick_seeds or exp.seeds) if quick else exp.seeds):",
+           "if seeds != exp.seeds:", REBUILD_TESTS,
+           "a --quick run's command adds --seeds for the quick default, or drops a needed one"),
+    Mutant("tensorboard-step-zero-based", TB, 'else r["chunk"] + 1',
+           'else r["chunk"]', ("tests/test_tensorboard.py",),
+           "TensorBoard scalars are logged at chunk index, one step before the chunks done"),
+    Mutant("checkpoint-keeps-one", CK, "max_to_keep: int = 2", "max_to_keep: int = 1",
+           ("tests/test_checkpoint.py",) + RESUME_TESTS,
+           "only the last checkpoint is kept: a corrupt one has no earlier one to resume from"),
+    Mutant("process-host-devices-max-refused", PR, "if not 1 <= n <= most:",
+           "if not 1 <= n < most:",
+           ("tests/test_cli_processes.py", "tests/test_per_device_programs.py"),
+           "VBL_HOST_DEVICES at its documented maximum (4 x cores) is refused"),
+    # ------------------------------------------------------------------ stats
+    Mutant("stats-resolve-negative-diff", ST, "abs(diff) > ZERO_DIFFERENCE_RTOL * half",
+           "diff > ZERO_DIFFERENCE_RTOL * half", STATS_TESTS,
+           "seeds_to_resolve gives None for every negative difference"),
+    Mutant("stats-running-mean-axis-ignored", ST,
+           "x = np.moveaxis(np.asarray(x, np.float64), axis, -1)",
+           "x = np.asarray(x, np.float64)", STATS_TESTS,
+           "running_mean averages along the last axis whatever axis is given"),
+    Mutant("stats-bounded-one-seed-none", ST, "        return m, m, m\n",
+           "        return None\n", STATS_TESTS,
+           "bounded_ci95 of one seed says too few seeds instead of giving the mean"),
+    Mutant("stats-change-after-skips-change", ST, "(c, c + window), (end - window, end)]",
+           "(c + 1, c + window + 1), (end - window, end)]", STATS_TESTS,
+           "the rate right after a change leaves out the change's own trial"),
+    # ------------------------------------------------------------------ vision
+    Mutant("sec2-goal-lost-side-world-frame", S2, "gcen = jnp.mean(pc, axis=0)",
+           "gcen = jnp.mean(corners, axis=0)", FEATURE_TESTS,
+           "a lost goal's side read from world coordinates, not the camera's"),
+    Mutant("sec2-check-batch-ndim-only", S2, "if batch is not None and lead != batch:",
+           "if batch is not None and len(lead) != len(batch):", FEATURE_TESTS,
+           "check_inputs takes inputs of different batch sizes (same number of batch axes)"),
+    Mutant("camera-tilt-degrees-as-radians", CAM,
+           "tau = jnp.deg2rad(jnp.asarray(cam.tilt_deg, F32))",
+           "tau = jnp.asarray(cam.tilt_deg, F32)", LENS_TESTS,
+           "the camera's tilt in degrees is taken as radians"),
+    Mutant("camera-depth-clamped", CAM, "return uv.astype(F32), z.astype(F32)",
+           "return uv.astype(F32), zs.astype(F32)", LENS_TESTS,
+           "project_points reports a point behind the camera at the near plane's depth"),
+    Mutant("projection-clip-keeps-missed-segment", PJ, "    ok = ok & (t0 <= t1)\n", "",
+           PROJECTION_TESTS,
+           "a goal post wholly outside the image is clipped to a segment that counts as seen"),
+    Mutant("projection-border-columns-swapped", PJ, "for k, col in ((0, -hw), (1, hw)):",
+           "for k, col in ((0, hw), (1, -hw)):", PROJECTION_TESTS,
+           "a post outside the image has its end on the opposite border column"),
+    Mutant("projection-column-chord-fv", PJ, "_chord(u / fu, x, y, z, k)",
+           "_chord(u / fv, x, y, z, k)", PROJECTION_TESTS,
+           "the ball's column chord is read at u / fv: the goal end it hides is cut wrongly"),
+    Mutant("noise-lost-object-noisy", VN,
+           "return values + jnp.where(visible, std * jnp.asarray(eps, F32), 0.0).astype(F32)",
+           "return values + (std * jnp.asarray(eps, F32)).astype(F32)",
+           ("tests/test_noise_sources.py", "tests/test_features.py",
+            "tests/test_vision_regions.py"),
+           "Section 3's pixel noise also moves the features of a lost object"),
+    Mutant("scenes-left-right-swapped", SC, 'sgn = 1.0 if kind == "left" else -1.0',
+           'sgn = 1.0 if kind == "right" else -1.0',
+           ("tests/test_blobs.py", "tests/test_render.py"),
+           "'left' scenes cut the ball by the right image border and 'right' ones by the left"),
+    Mutant("sec3-hidden-ball-visible", S3, "ball_vis = bi.visible & jnp.all(uhi > ulo)",
+           "ball_vis = bi.visible", REGION_TESTS,
+           "a ball wholly hidden behind the other robot counts as visible"),
+    Mutant("sec3-flatten-visible-lost-swapped", S3,
+           "obs.visible,\n                            obs.lost_side]",
+           "obs.lost_side,\n                            obs.visible]", REGION_TESTS,
+           "flatten_section3 puts the lost sides before the visible flags"),
+    # ------------------------------------------------------------------ env base
+    Mutant("env-step-env-obs-noise-free", EB,
+           "return self.get_obs(state, params, pixel), state, reward",
+           "return self.get_obs(state, params), state, reward", ENV_TESTS,
+           "step_env's observation has no pixel noise"),
+    Mutant("env-step-env-ignores-params", EB,
+           "        params = self._default_params if params is None else params\n"
+           "        self._check_inputs(state, action, params)\n"
+           "        eps, _, pixel",
+           "        params = self._default_params\n"
+           "        self._check_inputs(state, action, params)\n"
+           "        eps, _, pixel", ENV_TESTS,
+           "step_env ignores the parameters it is given"),
+    Mutant("env-state-type-unchecked", EB,
+           "        if not isinstance(state, self.state_type):",
+           "        if state is None:", ENV_TESTS,
+           "another task's state (or any object with a world) passes the input checks"),
+    Mutant("env-image-noise-std-ignored", EB,
+           "img_eps, observer.image_noise_std)", "img_eps, 0.0)", PIXEL_ENV_TESTS,
+           "get_pixels draws image noise with std 0: pixel observations are noise-free"),
+]
+
+
 def _apply(text: str, m: Mutant) -> str:
     if text.count(m.old) != 1:
         raise ValueError(f"mutant {m.name}: its snippet occurs {text.count(m.old)} times in "
@@ -717,13 +856,13 @@ def run(mutants: list[Mutant], timeout: float) -> list[dict]:
 
 #: Every set by the option that runs it (no option: the default set).
 SETS = {"default": MUTANTS, "--issue": ISSUE_MUTANTS, "--fresh": FRESH_MUTANTS,
-        "--blind": BLIND_MUTANTS, "--fourth": FOURTH_MUTANTS}
+        "--blind": BLIND_MUTANTS, "--fourth": FOURTH_MUTANTS, "--fifth": FIFTH_MUTANTS}
 ALL_MUTANTS = [m for ms in SETS.values() for m in ms]
 
 
 def _set_of(m: Mutant) -> str:
-    """The option that runs ``m``'s set: "default", "--issue", "--fresh", "--blind" or
-    "--fourth"."""
+    """The option that runs ``m``'s set: "default", "--issue", "--fresh", "--blind",
+    "--fourth" or "--fifth"."""
     return next(k for k, ms in SETS.items() if m in ms)
 
 
@@ -741,6 +880,9 @@ def main(argv: list[str] | None = None) -> int:
                             "tests, instead of the default ones")
     which.add_argument("--fourth", action="store_true",
                        help="the fourth set (FOURTH_MUTANTS), written from the source alone "
+                            "before its tests were run")
+    which.add_argument("--fifth", action="store_true",
+                       help="the fifth set (FIFTH_MUTANTS), written from the source alone "
                             "before its tests were run")
     p.add_argument("--list", action="store_true", help="list the mutants and exit")
     p.add_argument("--timeout", type=float, default=900.0, help="seconds per test run")
