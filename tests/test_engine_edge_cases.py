@@ -454,3 +454,38 @@ def test_without_a_cgroup_limit_the_machines_free_memory_counts(tmp_path, monkey
     assert memory.available_memory() == gib  # a limit above the free memory: the free
     (memory.CGROUP_DIR / "memory.current").write_text(f"{5 * gib}\n")
     assert memory.available_memory() == 0  # over the limit: nothing left, not negative
+
+
+def test_the_memory_estimate_counts_four_carries_per_learner_of_the_largest_group(
+        tmp_path, monkeypatch):
+    """The toy's carry: a key (2 uint32) and two float32 vectors of the arms: 8 + 8 x arms
+    bytes; its traced config: 5 float32 (20 bytes); 16 bytes of keys. 3 arms: 32-byte
+    carries; 5 arms: 48. Two seeds each: the 5-arm group needs 2 x (4 x 48 + 20 + 16) =
+    456 bytes; exactly that much memory passes, a byte less is refused."""
+    from tests.engine_helpers import toy_experiment
+    from vbl.engine import memory
+    from vbl.engine.sweep import make_plan
+
+    gen = toy_experiment(tmp_path)
+    toy = next(gen)
+    try:
+        plan = make_plan(toy, toy.default_config, {"env.num_arms": [5, 3]}, 2)
+        need, details = memory.estimate(plan)
+        assert need == 456 and details == {"group": 0, "learners": 2, "carry_bytes": 48}
+        plan = make_plan(toy, toy.default_config, {"env.num_arms": [3, 5]}, 2)
+        assert memory.estimate(plan) == (456, {"group": 1, "learners": 2, "carry_bytes": 48})
+        monkeypatch.setattr(memory, "available_memory", lambda: 456)
+        assert memory.check_memory(plan) == 456
+        monkeypatch.setattr(memory, "available_memory", lambda: 455)
+        with pytest.raises(memory.MemoryError_, match=r"about 456 B of memory \(2 learners x "
+                                                      r"48 B state each x 4 copies\) but 455 B"):
+            memory.check_memory(plan)
+    finally:
+        next(gen, None)
+
+
+def test_byte_counts_are_shown_in_binary_units():
+    from vbl.engine.memory import fmt_bytes
+
+    assert [fmt_bytes(n) for n in (0, 1023, 1024, 1536, 1 << 20, 5 * (1 << 30), 1 << 60)] == [
+        "0 B", "1023 B", "1.0 KiB", "1.5 KiB", "1.0 MiB", "5.0 GiB", "1024.0 PiB"]
