@@ -309,3 +309,24 @@ def test_each_section3_noise_normal_moves_only_its_own_coordinate():
     eps = jnp.zeros(S3.SEC3_NOISE_DIM).at[2].set(-60.0).at[17].set(-60.0)
     got = np.asarray(sec3(*args, eps))
     assert got[2] == 0.0 and got[18] == 0.0
+
+
+def test_feature_inputs_are_checked_before_any_tracing():
+    """S2.check_inputs: sizes must be > 0 (a ball of radius 0, a robot of width 0 are
+    refused), values finite, batches of one size; equal batches pass."""
+    ok = (np.zeros(3), np.zeros(2), R, GOAL, CAM)
+    S2.check_inputs(*ok)
+    S2.check_inputs(np.zeros((5, 3)), np.zeros((5, 2)), R, np.zeros((5, 4, 3)), CAM,
+                    np.zeros((5, 3)), np.tile(SIZE, (5, 1)))
+    for radius in (0.0, -R, np.nan):
+        with pytest.raises(ValueError, match="ball_radius must be > 0"):
+            S2.check_inputs(np.zeros(3), np.zeros(2), radius, GOAL, CAM)
+    with pytest.raises(ValueError, match="other_size"):
+        S2.check_inputs(*ok, np.zeros(3), [0.4, 0.0, 0.3])
+    with pytest.raises(ValueError, match="ball_xy must be finite"):
+        S2.check_inputs(np.zeros(3), [np.inf, 0.0], R, GOAL, CAM)
+    with pytest.raises(ValueError, match=r"ball_xy has batch shape \(4,\); the others have "
+                                         r"\(5,\)"):
+        S2.check_inputs(np.zeros((5, 3)), np.zeros((4, 2)), R, np.zeros((5, 4, 3)), CAM)
+    with pytest.raises(ValueError, match=r"other_pose has shape \(2,\)"):
+        S2.check_inputs(*ok, np.zeros(2), SIZE)

@@ -111,3 +111,14 @@ def test_a_script_path_is_told_from_an_experiment_name():
 def test_register_takes_only_experiments():
     with pytest.raises(TypeError, match="register\\(\\) takes an Experiment, got dict"):
         registry.register({})
+
+
+def test_a_script_that_failed_to_import_is_imported_again_next_time(fresh, tmp_path):
+    path = tmp_path / "flaky.py"
+    path.write_text("raise RuntimeError('first')\n")
+    for _ in range(2):  # not kept half-imported: the second load fails as the first
+        with pytest.raises(RuntimeError, match="first"):
+            registry.load_script(path)
+    path.write_text("VALUE = 7\n")
+    assert registry.load_script(path).VALUE == 7
+    assert registry.load_script(path) is registry.load_script(path)  # once imported, kept
