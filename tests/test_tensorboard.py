@@ -82,3 +82,13 @@ def test_without_tensorboardx_a_run_stops_before_it_starts(toy, tmp_path, monkey
     with pytest.raises(EngineError, match=r"pip install 'vbl\[tensorboard\]'"):
         run_experiment(toy, sets=TINY_SETS, out=tmp_path / "run", quiet=True, tensorboard="x")
     assert not (tmp_path / "run").exists()
+
+
+def test_a_points_run_name_joins_its_values_and_keeps_only_safe_characters():
+    """The sub-folder of a sweep point: ``p<point>_`` and the swept values (last path
+    part) joined by commas without spaces; characters other than letters, digits and
+    ``_.,=+-`` become ``_`` (no folder separators or spaces in a run's name)."""
+    assert point_run_name(1, {"agent.discount": 0.95, "env.initial_difficulty": 1.0}) == \
+        "p1_discount=0.95,initial_difficulty=1.0"
+    assert point_run_name(0, {}) == "p0_run"
+    assert point_run_name(2, {"a.b": "x y/z", "c": (1, -2)}) == "p2_b=x_y_z,c=_1,-2_"
