@@ -92,3 +92,40 @@ def test_a_points_run_name_joins_its_values_and_keeps_only_safe_characters():
         "p1_discount=0.95,initial_difficulty=1.0"
     assert point_run_name(0, {}) == "p0_run"
     assert point_run_name(2, {"a.b": "x y/z", "c": (1, -2)}) == "p2_b=x_y_z,c=_1,-2_"
+
+
+class _Log:
+    """The MetricsLog part TensorBoardLog uses (rows kept in memory)."""
+
+    path, enabled = None, True
+
+    def __init__(self):
+        self.rows = []
+
+    def append(self, rows):
+        self.rows += rows
+
+
+def _row(chunk, mean):
+    return {"point": 0, "chunk": chunk, "values": {}, "metrics": {"regret": {"mean": mean,
+                                                                           "ci95": 1.0}}}
+
+
+def test_a_resumed_run_hides_what_the_earlier_run_wrote_from_its_step_on(tmp_path):
+    """Chunks 0-3 (steps 1-4) written, then a run resumed after chunk 1 writes chunk 2
+    again: TensorBoard shows steps 1, 2 of the first run and step 3 of the second; the
+    first run's steps 3 and 4 are gone."""
+    from vbl.engine.tensorboard import TensorBoardLog
+
+    first = TensorBoardLog(_Log(), tmp_path)
+    first.append([_row(c, 10.0 + c) for c in range(4)])
+    first.close()
+    # the resumed run starts later: its event file sorts after (and does not replace) this
+    for f in (tmp_path / "p0_run").iterdir():
+        stamp, host = f.name.removeprefix("events.out.tfevents.").split(".", 1)
+        f.rename(f.with_name(f"events.out.tfevents.{int(stamp) - 60}.{host}"))
+    again = TensorBoardLog(_Log(), tmp_path)
+    again.append([_row(2, 99.0)])
+    again.close()
+    got = _scalars(tmp_path / "p0_run")["regret/mean"]
+    assert got == {1: 10.0, 2: 11.0, 3: 99.0}
