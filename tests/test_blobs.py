@@ -429,3 +429,17 @@ def test_dark_pixels_are_no_colour():
     assert not masks[:, 0, 0].any()                  # dark: no colour at all
     assert masks[0, 0, 1] and masks[0, 0, 2]         # bright enough: the ball's red
     assert not masks[1:, 0, 1:].any()
+
+
+def test_blob_area_centroid_and_extent_count_oblong_pixels_in_camera_px():
+    """On a 64 x 30 image each pixel is 8 x 16 camera px: two pixels of row 2, columns 10
+    and 11, have area 2 x 128 px^2, centroid u = -256 + 8 x 11 = -168 and v = 240 - 16 x
+    2.5 = 200, and box [-176, -160] x [192, 208]."""
+    from vbl.vision.blobs import blob_stats
+
+    mask = jnp.zeros((30, 64), bool).at[2, 10:12].set(True)
+    b = blob_stats(mask, CameraParams())
+    got = [float(x) for x in (b.area, b.cu, b.cv, b.u_lo, b.u_hi, b.v_lo, b.v_hi)]
+    assert bool(b.visible) and got == [256.0, -168.0, 200.0, -176.0, -160.0, 192.0, 208.0]
+    empty = blob_stats(jnp.zeros((30, 64), bool), CameraParams())
+    assert not bool(empty.visible) and float(empty.area) == 0.0

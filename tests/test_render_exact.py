@@ -69,3 +69,16 @@ def test_ball_pixels_are_the_pixel_centre_rays_that_meet_the_sphere(width, heigh
         diff = (got != want) & ~undecided
         assert not diff.any(), (f"{int(diff.sum())} pixels differ of {int(want.sum())} "
                                 f"(pose {pose}, ball {ball}, {width} x {height})")
+
+
+def test_pixel_centres_and_sizes_of_an_image_with_oblong_pixels():
+    """64 x 30 pixels over the 512 x 480 px camera: pixels 8 px wide and 16 px high; the
+    first centre at u = -256 + 4, v = 240 - 8 (row 0 at the top), the last mirrored."""
+    from vbl.vision.render import pixel_grid
+
+    u, v, (su, sv) = pixel_grid(CameraParams(), 64, 30)
+    assert (float(su), float(sv)) == (8.0, 16.0)
+    assert u.shape == (64,) and v.shape == (30,)
+    np.testing.assert_allclose([u[0], u[-1], v[0], v[-1]], [-252, 252, 232, -232])
+    np.testing.assert_allclose(np.diff(u), 8.0)
+    np.testing.assert_allclose(np.diff(v), -16.0)
