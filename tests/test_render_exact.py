@@ -82,3 +82,13 @@ def test_pixel_centres_and_sizes_of_an_image_with_oblong_pixels():
     np.testing.assert_allclose([u[0], u[-1], v[0], v[-1]], [-252, 252, 232, -232], atol=1e-4)
     np.testing.assert_allclose(np.diff(u), 8.0, atol=1e-4)
     np.testing.assert_allclose(np.diff(v), -16.0, atol=1e-4)
+
+
+def test_intensities_become_bytes_by_rounding_after_clipping():
+    """[0, 1] -> 0..255 to the nearest byte (0.999 x 255 = 254.7 -> 255, 0.002 x 255 = 0.51
+    -> 1), values outside [0, 1] clipped first."""
+    from vbl.vision.render import to_uint8
+
+    got = to_uint8(jnp.asarray([0.0, 0.999, 0.6, 1.0, 1.7, -0.2, 0.002], jnp.float32))
+    assert got.dtype == jnp.uint8
+    assert np.asarray(got).tolist() == [0, 255, 153, 255, 255, 0, 1]
