@@ -326,3 +326,21 @@ def test_only_a_jupyter_kernel_counts_as_a_notebook(monkeypatch):
                          (ipython(broken=True), False)):
         monkeypatch.setitem(sys.modules, "IPython", module)
         assert progress._in_kernel() is want
+
+
+def test_a_status_file_is_read_as_one_line_even_at_zero_eta(tmp_path):
+    """The last chunk's ETA is 0 s and is shown; no ETA (compiling) shows none; no file or
+    a broken one reads as ""."""
+    import json
+
+    from vbl.engine.progress import STATUS_FILE, read_status
+
+    assert read_status(tmp_path) == ""
+    status = tmp_path / STATUS_FILE
+    for eta, want in ((0.0, "training 9/10 chunks, ETA 0 s"), (None, "training 9/10 chunks"),
+                      (3600, "training 9/10 chunks, ETA 60 min")):
+        status.write_text(json.dumps({"phase": "training", "done": 9, "total": 10,
+                                      "eta_s": eta}))
+        assert read_status(tmp_path) == want
+    status.write_text("{broken")
+    assert read_status(tmp_path) == ""
