@@ -92,3 +92,35 @@ def test_intensities_become_bytes_by_rounding_after_clipping():
     got = to_uint8(jnp.asarray([0.0, 0.999, 0.6, 1.0, 1.7, -0.2, 0.002], jnp.float32))
     assert got.dtype == jnp.uint8
     assert np.asarray(got).tolist() == [0, 255, 153, 255, 255, 0, 1]
+
+
+def test_a_side_wall_is_drawn_up_to_its_height_and_the_sky_above_it():
+    """Facing the +y wall from 3.95 m: each pixel centre's ray (camera axes as docs/vision.md
+    writes them, in NumPy) meets the floor, the wall below wall_height (also above the
+    camera's own height), or passes over the wall (sky)."""
+    from vbl.vision.render import FLOOR_RGB, SKY_RGB, WALL_RGB
+
+    field = WORLD.field
+    th, tau = math.pi / 2, math.radians(CAM.tilt_deg)
+    pose = np.array([0.0, field.width / 2 - 4.0, th])
+    c = np.array([pose[0] + CAM.forward_offset * math.cos(th),
+                  pose[1] + CAM.forward_offset * math.sin(th), CAM.height])
+    r = np.array([math.sin(th), -math.cos(th), 0.0])
+    a = np.array([-math.cos(th) * math.sin(tau), -math.sin(th) * math.sin(tau), math.cos(tau)])
+    f = np.array([math.cos(th) * math.cos(tau), math.sin(th) * math.cos(tau), math.sin(tau)])
+    w, h = 32, 60
+    u = ((np.arange(w) + 0.5) / w - 0.5) * 512.0
+    v = (0.5 - (np.arange(h) + 0.5) / h) * 480.0
+    d = (u / FU)[None, :, None] * r + (v / FV)[:, None, None] * a + f  # (h, w, 3)
+    lam_wall = (field.width / 2 - c[1]) / d[..., 1]
+    lam_floor = np.where(d[..., 2] < 0, -c[2] / np.minimum(d[..., 2], -1e-12), np.inf)
+    z_wall = c[2] + lam_wall * d[..., 2]
+    floor = lam_floor < lam_wall
+    sky = ~floor & (z_wall > field.wall_height)
+    want = np.where(floor[..., None], FLOOR_RGB, np.where(sky[..., None], SKY_RGB, WALL_RGB))
+    sure = np.abs(z_wall - field.wall_height) > 1e-3  # rays not grazing the wall's top
+    assert (sky & sure).sum() > w and (~sky & ~floor & (z_wall > CAM.height)).sum() > w
+    img = np.asarray(render_camera(jnp.asarray(pose, jnp.float32), jnp.asarray([-3.0, -1.0]),
+                                   0.11, goal_corners(WORLD), field, CAM,
+                                   RenderParams(width=w, height=h, field_lines=False)))
+    np.testing.assert_allclose(img[sure], want[sure], atol=1e-6)
