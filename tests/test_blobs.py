@@ -443,3 +443,20 @@ def test_blob_area_centroid_and_extent_count_oblong_pixels_in_camera_px():
     assert bool(b.visible) and got == [256.0, -168.0, 200.0, -176.0, -160.0, 192.0, 208.0]
     empty = blob_stats(jnp.zeros((30, 64), bool), CameraParams())
     assert not bool(empty.visible) and float(empty.area) == 0.0
+
+
+def test_a_goal_corner_cut_by_the_right_border_ends_at_the_last_columns_blue_pixels():
+    """Blue pixels against the right border of a 64 x 60 image (8 px pixels): the last
+    column holds rows 10-14, as do columns 50-59. The band along the outermost post
+    line is the last column's 5 pixels (< min_post 8): no post, so the right end is
+    the border u = +256 with the v extent of the last column's pixels: rows 10-14 span v
+    from 240 - 8 x 15 = 120 to 240 - 8 x 10 = 160 (docs/render.md, the goal-end rule)."""
+    from vbl.vision.blobs import goal_ends
+
+    mask = np.zeros((60, 64), bool)
+    mask[10:15, 63] = True
+    mask[10:15, 50:60] = True
+    bot, top, ok = (np.asarray(x) for x in goal_ends(jnp.asarray(mask), CAM, BP))
+    assert ok.tolist() == [True, True]
+    np.testing.assert_allclose(bot[1], [256.0, 120.0], atol=1e-3)
+    np.testing.assert_allclose(top[1], [256.0, 160.0], atol=1e-3)
