@@ -489,3 +489,21 @@ def test_byte_counts_are_shown_in_binary_units():
 
     assert [fmt_bytes(n) for n in (0, 1023, 1024, 1536, 1 << 20, 5 * (1 << 30), 1 << 60)] == [
         "0 B", "1023 B", "1.0 KiB", "1.5 KiB", "1.0 MiB", "5.0 GiB", "1024.0 PiB"]
+
+
+def test_tree_bytes_counts_each_leafs_own_item_size():
+    import jax
+
+    from vbl.engine.memory import tree_bytes
+
+    tree = {"a": np.zeros((3, 2), np.float64), "b": jax.ShapeDtypeStruct((5,), np.int8),
+            "c": [np.zeros((), np.int16)]}
+    assert tree_bytes(tree) == 3 * 2 * 8 + 5 + 2
+
+
+def test_unknown_available_memory_refuses_nothing(monkeypatch):
+    """available_memory() is 0 where the platform tells nothing: no check then."""
+    from vbl.engine import memory
+
+    monkeypatch.setattr(memory, "available_memory", lambda: 0)
+    assert memory.check_bytes(1 << 50, "it needs", "use less") == 1 << 50
