@@ -46,7 +46,8 @@ def test_every_point_gets_its_own_line_style(tmp_path, monkeypatch):
     assert (tmp_path / "success_rate.png").stat().st_size > 1000
 
 
-@pytest.mark.parametrize("columns, want", [("0", DEFAULT_COLUMNS), ("120", None)])
+@pytest.mark.parametrize("columns, want", [("0", DEFAULT_COLUMNS), ("120", None),
+                                           ("40", None), ("39", DEFAULT_COLUMNS)])
 def test_bar_width_when_the_terminal_reports_none(monkeypatch, columns, want):
     monkeypatch.setenv("COLUMNS", columns)
     monkeypatch.setenv("LINES", "24")
@@ -344,3 +345,16 @@ def test_a_status_file_is_read_as_one_line_even_at_zero_eta(tmp_path):
         assert read_status(tmp_path) == want
     status.write_text("{broken")
     assert read_status(tmp_path) == ""
+
+
+def test_the_last_chunk_done_is_the_finishing_phase(tmp_path, monkeypatch):
+    from vbl.engine import progress
+
+    clock = iter([0.0, 10.0, 20.0, 20.0, 20.0, 20.0])
+    monkeypatch.setattr(progress.time, "perf_counter", lambda: next(clock))
+    p = progress.Progress(2, 0, "t", quiet=True, status_dir=tmp_path)
+    p.update({}, 10.0)
+    assert progress.read_status(tmp_path) == "training 1/2 chunks"
+    p.update({}, 10.0)
+    assert progress.read_status(tmp_path).startswith("finishing 2/2 chunks")
+    p.close()
