@@ -645,7 +645,7 @@ FOURTH_MUTANTS = [
 
 SS, SH, NS = "vbl/engine/seed_subsets.py", "vbl/engine/sharding.py", "vbl/engine/nested.py"
 ER, RB, TB = "vbl/engine/errors.py", "vbl/engine/rebuild.py", "vbl/engine/tensorboard.py"
-PR, VN, SC = "vbl/engine/process.py", "vbl/vision/noise.py", "vbl/vision/scenes.py"
+PR, SC = "vbl/engine/process.py", "vbl/vision/scenes.py"
 SEED_SUBSET_TESTS = ("tests/test_seed_subsets.py", "tests/test_report.py")
 ERROR_TESTS = ("tests/test_cli_processes.py", "tests/test_engine_edge_cases.py",
                "tests/test_guards.py")
@@ -740,12 +740,6 @@ FIFTH_MUTANTS = [
     Mutant("projection-column-chord-fv", PJ, "_chord(u / fu, x, y, z, k)",
            "_chord(u / fv, x, y, z, k)", PROJECTION_TESTS,
            "the ball's column chord is read at u / fv: the goal end it hides is cut wrongly"),
-    Mutant("noise-lost-object-noisy", VN,
-           "return values + jnp.where(visible, std * jnp.asarray(eps, F32), 0.0).astype(F32)",
-           "return values + (std * jnp.asarray(eps, F32)).astype(F32)",
-           ("tests/test_noise_sources.py", "tests/test_features.py",
-            "tests/test_vision_regions.py"),
-           "Section 3's pixel noise also moves the features of a lost object"),
     Mutant("scenes-left-right-swapped", SC, 'sgn = 1.0 if kind == "left" else -1.0',
            'sgn = 1.0 if kind == "right" else -1.0',
            ("tests/test_blobs.py", "tests/test_render.py"),
