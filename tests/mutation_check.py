@@ -647,8 +647,8 @@ SS, SH, NS = "vbl/engine/seed_subsets.py", "vbl/engine/sharding.py", "vbl/engine
 ER, RB, TB = "vbl/engine/errors.py", "vbl/engine/rebuild.py", "vbl/engine/tensorboard.py"
 PR, SC = "vbl/engine/process.py", "vbl/vision/scenes.py"
 SEED_SUBSET_TESTS = ("tests/test_seed_subsets.py", "tests/test_report.py")
-ERROR_TESTS = ("tests/test_cli_processes.py", "tests/test_engine_edge_cases.py",
-               "tests/test_guards.py")
+ERROR_TESTS = ("tests/test_errors.py", "tests/test_cli_processes.py",
+               "tests/test_engine_edge_cases.py", "tests/test_guards.py")
 REBUILD_TESTS = ("tests/test_rebuild.py", "tests/test_report.py", "tests/test_reproduce_plan.py")
 REGION_TESTS = ("tests/test_vision_regions.py", "tests/test_features.py",
                 "tests/test_segmentation_parts.py")
