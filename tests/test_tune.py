@@ -247,7 +247,8 @@ def test_the_confirmation_command_sets_every_value_on_fresh_seeds():
 def test_tune_report_lists_complete_trials_best_first(tmp_path):
     from types import SimpleNamespace
 
-    from vbl.engine.tune_report import _finite, _markdown
+    from vbl.engine.results import nan_to_null
+    from vbl.engine.tune_report import _markdown
 
     iv = {"mean": 0.5, "ci95": float("nan"), "lower": 0.5, "upper": 0.5, "seeds": 1,
           "base_seed": 1, "run": "r", "command": "vbl run toy", "params": {"x": 0.1}}
@@ -272,8 +273,8 @@ def test_tune_report_lists_complete_trials_best_first(tmp_path):
     rows = [line.split(" | ")[0] for line in text.splitlines() if line.startswith("| ")
             and line.split(" | ")[0][2:].isdigit()]
     assert rows == ["| 2", "| 0", "| 1"]
-    assert _finite({"a": [float("inf"), 1.0], "b": float("nan")}) == {"a": [None, 1.0],
-                                                                      "b": None}
+    assert nan_to_null({"a": [float("inf"), 1.0], "b": float("nan")}) == {
+        "a": [None, 1.0], "b": None}
 
 
 def test_zipped_plan_takes_points_side_by_side(toy):

@@ -15,7 +15,7 @@ from vbl.engine.errors import EngineError
 from vbl.stats import mean_ci95
 
 __all__ = ["MetricsLog", "seed_stats", "read_metrics", "metric_arrays", "point_summaries",
-           "write_json", "read_json"]
+           "write_json", "read_json", "nan_to_null"]
 
 
 def _clean(x: Any) -> Any:
@@ -30,15 +30,15 @@ def _clean(x: Any) -> Any:
     return a.tolist()
 
 
-def _finite(obj: Any) -> Any:
+def nan_to_null(obj: Any) -> Any:
     """``obj`` with every non-finite float (a Python or NumPy scalar, in nested dicts,
     lists and tuples) as None: JSON has no NaN or infinity."""
     if isinstance(obj, float):
         return obj if math.isfinite(obj) else None
     if isinstance(obj, dict):
-        return {k: _finite(v) for k, v in obj.items()}
+        return {k: nan_to_null(v) for k, v in obj.items()}
     if isinstance(obj, list | tuple):
-        return [_finite(v) for v in obj]
+        return [nan_to_null(v) for v in obj]
     return obj
 
 
@@ -56,7 +56,7 @@ def write_json(path: Path, obj: Any) -> None:
     """Write ``obj`` as JSON atomically (a temporary file, then a rename)."""
     tmp = path.with_suffix(path.suffix + ".tmp")
     try:
-        tmp.write_text(json.dumps(_finite(obj), indent=1, default=_clean,
+        tmp.write_text(json.dumps(nan_to_null(obj), indent=1, default=_clean,
                                   allow_nan=False) + "\n")
         os.replace(tmp, path)
     except BaseException as e:
@@ -80,7 +80,7 @@ class MetricsLog:
     def append(self, rows: Iterable[dict[str, Any]]) -> None:
         if not self.enabled:
             return
-        text = "".join(json.dumps(_finite(r), default=_clean, allow_nan=False) + "\n"
+        text = "".join(json.dumps(nan_to_null(r), default=_clean, allow_nan=False) + "\n"
                        for r in rows)
         try:
             with open(self.path, "a") as f:

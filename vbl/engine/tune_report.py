@@ -176,22 +176,11 @@ def finish(s, study, folder, wall: float) -> TuneResult:
                      "params": t.params, "batch": t.user_attrs["batch"],
                      "last_chunk": t.last_step} for t in trials]}
     folder.record("summary.json", "report.md", "history.png", "importance.png")
-    write_json(s.out / "summary.json", _finite(summary))
+    write_json(s.out / "summary.json", summary)  # NaN and infinities as null
     figures = _figures(s, optuna, trials, importances, confirm)
     report = s.out / "report.md"
     report.write_text(_markdown(s, summary, figures))
     return TuneResult(s.out, summary, params, report, study)
-
-
-def _finite(x: Any) -> Any:
-    """``x`` with NaN and infinities as None (JSON has no NaN), as the engine writes."""
-    if isinstance(x, float):
-        return x if math.isfinite(x) else None
-    if isinstance(x, dict):
-        return {k: _finite(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_finite(v) for v in x]
-    return x
 
 
 def _num(x: float) -> str:
