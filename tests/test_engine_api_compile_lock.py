@@ -52,7 +52,7 @@ def test_a_lock_that_stays_taken_or_cannot_be_made_runs_the_block_unlocked(tmp_p
 
 
 def test_compile_shared_compiles_under_the_programs_lock(tmp_path, monkeypatch):
-    monkeypatch.setattr(jax_setup, "_cache_in_use", lambda: str(tmp_path))
+    monkeypatch.setattr(jax_setup, "shared_cache_folder", lambda: str(tmp_path))
     f = jax.jit(lambda x: jnp.sin(x) * 3.0)
     x = jnp.ones(7)
     compile_shared(f, x)
@@ -71,7 +71,7 @@ def test_compile_shared_compiles_under_the_programs_lock(tmp_path, monkeypatch):
 
 
 def test_without_the_cache_nothing_is_locked(tmp_path, monkeypatch):
-    monkeypatch.setattr(jax_setup, "_cache_in_use", lambda: None)
+    monkeypatch.setattr(jax_setup, "shared_cache_folder", lambda: None)
     calls = []
     monkeypatch.setattr(jax_setup, "program_lock", lambda *a, **k: calls.append(a))
     compile_shared(jax.jit(lambda x: x * 2.0), jnp.ones(3))

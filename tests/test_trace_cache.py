@@ -23,7 +23,7 @@ from vbl.engine.sharding import learner_sharding, put
 def cache(tmp_path, monkeypatch):
     """The trace cache on in ``tmp_path``; ``new_process()`` forgets what this process
     loaded, as a new process would."""
-    monkeypatch.setattr(jax_setup, "_cache_in_use", lambda: str(tmp_path))
+    monkeypatch.setattr(jax_setup, "shared_cache_folder", lambda: str(tmp_path))
     monkeypatch.setitem(trace_cache._STATE, "on", True)
     monkeypatch.setattr(trace_cache, "_LOADED", {})
     return tmp_path / trace_cache.TRACES_DIR
@@ -133,7 +133,7 @@ def test_concurrent_writers_leave_a_whole_file(cache):
 
 
 def test_off_unless_the_command_turns_it_on(tmp_path, monkeypatch):
-    monkeypatch.setattr(jax_setup, "_cache_in_use", lambda: str(tmp_path))
+    monkeypatch.setattr(jax_setup, "shared_cache_folder", lambda: str(tmp_path))
     monkeypatch.setitem(trace_cache._STATE, "on", False)
     fn, args = _program([])
     assert trace_cache.traced(fn, "prog cfg", *args) is fn
@@ -175,7 +175,7 @@ LINALG = """
 import sys
 import jax, jax.numpy as jnp, numpy as np
 from vbl.engine import jax_setup, trace_cache
-jax_setup._cache_in_use = lambda: sys.argv[1]
+jax_setup.shared_cache_folder = lambda: sys.argv[1]
 trace_cache._STATE["on"] = True
 with jax.enable_x64(True):
     f = jax.jit(lambda a: jnp.linalg.cholesky(a @ a.T + 3.0 * jnp.eye(4)))

@@ -31,7 +31,7 @@ import jax
 
 __all__ = ["use_compilation_cache", "machine_key", "engine_precision", "CACHE_MIN_COMPILE_S",
            "COMPILER_OPTIONS", "compile_shared", "program_lock", "COMPILE_WAIT_S",
-           "LOCKS_DIR"]
+           "LOCKS_DIR", "shared_cache_folder"]
 
 CACHE_MIN_COMPILE_S = 1.0  #: s; programs that compile faster are not written to the cache
 
@@ -126,9 +126,11 @@ def program_lock(path: str | os.PathLike, wait_s: float = COMPILE_WAIT_S,
         os.close(fd)  # drops the lock
 
 
-def _cache_in_use() -> str | None:
-    """The compilation cache's folder this process writes (None: no cache)."""
-    return jax.config.jax_compilation_cache_dir or None
+def shared_cache_folder() -> str | None:
+    """The compilation cache's folder this process writes and shares with the other
+    processes on this machine; None without a cache or in a multi-process run."""
+    where = jax.config.jax_compilation_cache_dir
+    return where if where and jax.process_count() == 1 else None
 
 
 def compile_shared(fn, *args) -> None:
@@ -138,8 +140,8 @@ def compile_shared(fn, *args) -> None:
     it to the cache, the others wait and then read it (a program that compiles in less than
     :data:`CACHE_MIN_COMPILE_S` is not cached: they compile it again). Without the cache,
     or in a multi-process run, ``fn`` compiles at its first call as usual."""
-    where = _cache_in_use()
-    if not where or jax.process_count() > 1:
+    where = shared_cache_folder()
+    if not where:
         return
     lowered = fn.lower(*args)
     key = hashlib.sha256(lowered.as_text().encode()).hexdigest()[:32]

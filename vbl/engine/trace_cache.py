@@ -54,8 +54,8 @@ def use_trace_cache() -> None:
 
 def _folder() -> Path | None:
     """The traced programs' folder; None when the cache is off."""
-    where = jax_setup._cache_in_use()
-    if not _STATE["on"] or not where or jax.process_count() > 1:
+    where = jax_setup.shared_cache_folder()
+    if not _STATE["on"] or not where:
         return None
     return Path(where) / TRACES_DIR
 
