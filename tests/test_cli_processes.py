@@ -39,9 +39,8 @@ LONG = [*RUN, "--set", "train.num_chunks=1000000", "--checkpoint-every", "3"]
 
 # A test experiment with an `lt` bound and paper rows (toy_bandit has neither).
 BOUNDED = '''
-import importlib.util
-spec = importlib.util.spec_from_file_location("_toy_src_bounded", {toy!r})
-toy = importlib.util.module_from_spec(spec); spec.loader.exec_module(toy)
+from vbl.engine.registry import load_script
+toy = load_script({toy!r})  # once, in sys.modules, as the engine loads scripts
 from flax import struct
 import jax.numpy as jnp
 from vbl.engine import Experiment, Program, register

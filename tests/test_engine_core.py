@@ -278,9 +278,8 @@ def test_reproduce_builds_a_report_again_once_the_runs_it_reads_have_finished(to
 
 
 _PAPER_TOY = """
-import importlib.util, sys
-spec = importlib.util.spec_from_file_location("_toy_src_{name}", {toy!r})
-toy = importlib.util.module_from_spec(spec); spec.loader.exec_module(toy)
+from vbl.engine.registry import load_script
+toy = load_script({toy!r})  # once, in sys.modules, as the engine loads scripts
 from vbl.engine import Experiment, register
 register(Experiment(name="{name}", description="toy paper result {name}",
                     default_config=toy.BanditConfig(), make_program=toy.make_program,

@@ -4,6 +4,7 @@ found, loaded once, refused, and how an unknown or broken name is reported."""
 from __future__ import annotations
 
 import os
+import sys
 
 import pytest
 
@@ -24,14 +25,20 @@ for name in {names!r}:
 
 @pytest.fixture
 def fresh(monkeypatch, tmp_path):
-    """An empty registry whose experiment folder is ``tmp_path / "exps"``."""
+    """An empty registry whose experiment folder is ``tmp_path / "exps"``; the scripts it
+    imports are forgotten afterwards with their registrations (a script still in
+    ``sys.modules`` is not imported, so would not register, again)."""
     for name in ("_REGISTRY", "_SOURCES", "_IMPORT_ERRORS"):
         monkeypatch.setattr(registry, name, {})
     monkeypatch.setattr(registry, "_DISCOVERED", set())
     d = tmp_path / "exps"
     d.mkdir()
     monkeypatch.setenv("VBL_EXPERIMENTS_DIR", str(d))
-    return d
+    before = set(sys.modules)
+    yield d
+    for name in set(sys.modules) - before:
+        if name.startswith("vbl_experiments."):
+            del sys.modules[name]
 
 
 def _script(folder, stem, *names):

@@ -102,6 +102,24 @@ def test_an_unreadable_file_is_traced_again_and_rewritten(cache, monkeypatch, da
     assert trace_cache._read(path) is not None  # rewritten whole
 
 
+def test_a_program_whose_output_class_is_not_importable_runs_and_is_not_written(cache):
+    """A script imported outside ``sys.modules`` (``spec.loader.exec_module`` alone) has
+    classes that no reader could find by name: the program runs, and no file is left
+    that every later run would fail to read."""
+    class Out:
+        def __init__(self, x):
+            self.x = x
+
+    Out.__module__ = "_not_in_sys_modules"
+    jax.tree_util.register_pytree_node(Out, lambda o: ((o.x,), None), lambda _, c: Out(*c))
+    assert Out.__module__ not in sys.modules
+    fn = jax.jit(lambda x: Out(x * 2.0))
+    x = jnp.arange(3.0)
+    got = trace_cache.traced(fn, "out cfg", x)(x)
+    assert isinstance(got, Out) and np.array_equal(got.x, [0.0, 2.0, 4.0])
+    assert not list(cache.glob("*.jaxexport*"))
+
+
 def test_concurrent_writers_leave_a_whole_file(cache):
     traces = []
     fn, args = _program(traces)

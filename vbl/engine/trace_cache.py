@@ -94,21 +94,33 @@ def _key(ident: str, leaves: list, in_tree: Any) -> str:
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:40]
 
 
+def _class(module: str, name: str) -> type:
+    """The class ``name`` of the module ``module`` in ``sys.modules`` (KeyError or
+    AttributeError when there is none)."""
+    obj = sys.modules[module]
+    for part in name.split("."):
+        obj = getattr(obj, part)
+    return obj
+
+
 class _Pickler(pickle.Pickler):
     """Pickles classes by module and name, found in ``sys.modules`` when read back (an
-    experiment script's classes cannot be imported by name)."""
+    experiment script's classes cannot be imported by name). A class that cannot be found
+    that way (its module was imported outside ``sys.modules``) raises: such a program is
+    not written, as it could never be read back."""
 
     def persistent_id(self, obj):
-        return (obj.__module__, obj.__qualname__) if isinstance(obj, type) else None
+        if not isinstance(obj, type):
+            return None
+        pid = (obj.__module__, obj.__qualname__)
+        if _class(*pid) is not obj:
+            raise pickle.PicklingError(f"{pid} is not the class found by that name")
+        return pid
 
 
 class _Unpickler(pickle.Unpickler):
     def persistent_load(self, pid):
-        module, name = pid
-        obj = sys.modules[module]
-        for part in name.split("."):
-            obj = getattr(obj, part)
-        return obj
+        return _class(*pid)
 
 
 def _read(path: Path) -> tuple[jax.export.Exported, Any] | None:
