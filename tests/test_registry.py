@@ -25,20 +25,21 @@ for name in {names!r}:
 
 @pytest.fixture
 def fresh(monkeypatch, tmp_path):
-    """An empty registry whose experiment folder is ``tmp_path / "exps"``; the scripts it
-    imports are forgotten afterwards with their registrations (a script still in
-    ``sys.modules`` is not imported, so would not register, again)."""
+    """An empty registry whose experiment folder is ``tmp_path / "exps"``, with no
+    experiment script imported (a script in ``sys.modules`` is not imported, so does not
+    register, again); afterwards the registry and the scripts' modules are as before."""
     for name in ("_REGISTRY", "_SOURCES", "_IMPORT_ERRORS"):
         monkeypatch.setattr(registry, name, {})
     monkeypatch.setattr(registry, "_DISCOVERED", set())
+    scripts = [m for m in sys.modules if m.startswith("vbl_experiments.")]
+    for name in scripts:
+        monkeypatch.delitem(sys.modules, name)
     d = tmp_path / "exps"
     d.mkdir()
     monkeypatch.setenv("VBL_EXPERIMENTS_DIR", str(d))
-    before = set(sys.modules)
     yield d
-    for name in set(sys.modules) - before:
-        if name.startswith("vbl_experiments."):
-            del sys.modules[name]
+    for name in [m for m in sys.modules if m.startswith("vbl_experiments.")]:
+        del sys.modules[name]  # then monkeypatch puts the earlier ones back
 
 
 def _script(folder, stem, *names):
