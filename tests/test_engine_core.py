@@ -313,7 +313,8 @@ def test_reproduce_in_worker_processes_equals_in_process(tmp_path, monkeypatch):
         manifest = json.loads((tmp_path / f"rep{jobs}" / "reproduce.json").read_text())
         assert [r["folder"] for r in manifest["runs"]] == ["paper_a", "paper_b"]
         assert manifest["workers"] == jobs and manifest["quick"] is True
-        assert all(r["status"] == "ok" and r["peak_rss_mb"] > 0 for r in manifest["runs"])
+        assert all(r["status"] == "ok" and r["peak_rss_mb"] > 0 and 0 < r["cpu_s"] for r in
+                   manifest["runs"])
     assert f"{jobs} worker processes" in path.read_text()
     assert reports[1] == reports[2]
     # a --resume of the finished reproduce runs nothing: its runs keep their recorded

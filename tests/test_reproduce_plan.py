@@ -48,7 +48,7 @@ def test_chains_group_their_experiments_longest_first():
 
 
 def test_a_resume_keeps_the_times_of_the_runs_that_finished(tmp_path):
-    runs = [{"folder": "a", "status": "ok", "seconds": 3, "peak_rss_mb": 10},
+    runs = [{"folder": "a", "status": "ok", "seconds": 3, "cpu_s": 5.5, "peak_rss_mb": 10},
             {"folder": "b", "status": "ok", "seconds": 4, "peak_rss_mb": 11},
             {"folder": "c", "status": "failed", "seconds": 5, "peak_rss_mb": 12}]
     (tmp_path / rp.REPRODUCE_MANIFEST).write_text(json.dumps({"runs": runs}))
@@ -56,5 +56,6 @@ def test_a_resume_keeps_the_times_of_the_runs_that_finished(tmp_path):
         (tmp_path / name).mkdir()
         (tmp_path / name / "summary.json").write_text("{}")
     todo = [Job("a"), Job("b"), Job("c")]
-    assert rp._finished_times(tmp_path, todo) == {"a": {"seconds": 3.0, "peak_rss_mb": 10.0}}
+    assert rp._finished_times(tmp_path, todo) == {
+        "a": {"seconds": 3.0, "cpu_s": 5.5, "peak_rss_mb": 10.0}}
     assert rp._finished_times(tmp_path / "none", todo) == {}

@@ -38,7 +38,7 @@ from vbl.engine.trace_cache import use_trace_cache
 from vbl.params import ParamError
 
 __all__ = ["reproduce", "reproduce_jobs", "Job", "default_jobs", "paper_experiments",
-           "committed_seconds", "COMMITTED_RUNS", "HEARTBEAT_S"]
+           "committed_seconds", "COMMITTED_RUNS", "HEARTBEAT_S", "RUN_COSTS"]
 
 
 def paper_experiments() -> dict[str, Experiment]:
@@ -65,6 +65,11 @@ def _rerender_readers(todo: list[Job], exps: dict[str, Experiment], out: Path,
         done[j.folder].update(markdown=section.markdown,
                               figures=[str(f) for f in section.figures])
 
+
+RUN_COSTS = ("seconds", "cpu_s", "peak_rss_mb")
+"""What the manifest records of each run: wall seconds from its start in its worker, CPU
+seconds of the worker process in that time (all threads: XLA compiles and runs on several),
+peak resident memory of the worker (MiB)."""
 
 HEARTBEAT_S = 30.0  #: most seconds between two progress lines of ``vbl reproduce``
 
@@ -110,7 +115,7 @@ def _run_one(job: Job, out: Path, quick: bool, quiet: bool | None, resume: bool,
     In a worker process ``exp`` is None and the experiment is looked up in the registry
     (the worker imports the experiment scripts itself). Returns a picklable dict.
     """
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     result = None
     folder = out / job.folder
     try:
@@ -128,7 +133,8 @@ def _run_one(job: Job, out: Path, quick: bool, quiet: bool | None, resume: bool,
     figs = [str(figure_path(f, result.out_dir if result is not None else Path.cwd()))
             for f in section.figures]
     return dict(status=status, markdown=section.markdown, figures=figs,
-                seconds=time.perf_counter() - t0, peak_rss_mb=_peak_rss_mb())
+                seconds=time.perf_counter() - t0, cpu_s=time.process_time() - cpu0,
+                peak_rss_mb=_peak_rss_mb())
 
 
 def _run_chain(jobs: list[Job], out: Path, quick: bool, resume: bool, overwrite: bool
@@ -313,7 +319,7 @@ def _after_dead_worker(job: Job, e: BaseException, exps: dict[str, Experiment], 
             return r
     return dict(status=f"failed: worker process died: {e!r}",
                 markdown="**failed** (worker process died)", figures=[],
-                seconds=float("nan"), peak_rss_mb=float("nan"))
+                seconds=float("nan"), cpu_s=float("nan"), peak_rss_mb=float("nan"))
 
 
 def _stopped(e: BaseException, out: Path, n_done: int, n_all: int) -> str:
@@ -368,16 +374,15 @@ def reproduce(out: Path, *, quick: bool, quiet: bool | None, resume: bool = Fals
 
 
 def _finished_times(out: Path, todo: list[Job]) -> dict[str, dict[str, float]]:
-    """``{folder: {seconds, peak_rss_mb}}`` from ``out``'s manifest for the runs that had
-    finished before a ``--resume`` (their ``summary.json`` is there): the resume runs
-    nothing for them, and the manifest keeps what they took."""
+    """``{folder: {seconds, cpu_s, peak_rss_mb}}`` (those recorded) from ``out``'s manifest
+    for the runs that had finished before a ``--resume`` (their ``summary.json`` is there):
+    the resume runs nothing for them, and the manifest keeps what they took."""
     try:
         runs = json.loads((out / REPRODUCE_MANIFEST).read_text())["runs"]
         before = {r["folder"]: r for r in runs if r.get("status") == "ok"}
     except (OSError, ValueError, KeyError, TypeError):
         return {}
-    return {j.folder: {"seconds": float(before[j.folder]["seconds"]),
-                       "peak_rss_mb": float(before[j.folder]["peak_rss_mb"])}
+    return {j.folder: {k: float(before[j.folder][k]) for k in RUN_COSTS if k in before[j.folder]}
             for j in todo if j.folder in before and (out / j.folder / "summary.json").is_file()}
 
 
@@ -402,8 +407,8 @@ def _reproduce(exps: dict[str, Experiment], out: Path, quick: bool, quiet: bool 
             raise type(e)(_stopped(e, out, len(done), len(todo))) from None
     _rerender_readers(todo, exps, out, done)
     for folder, times in kept.items():  # a resume ran nothing for them: their own times
-        if done[folder]["status"] == "ok":
-            done[folder].update(times)
+        if done[folder]["status"] == "ok":  # (no CPU time in a manifest written without)
+            done[folder].update({"cpu_s": float("nan"), **times})
     wall = time.perf_counter() - t_start
     manifest = {"quick": quick, "commit": git_commit(), "machine": machine_description(),
                 "workers": workers, "wall_s": round(wall, 1),
@@ -411,6 +416,7 @@ def _reproduce(exps: dict[str, Experiment], out: Path, quick: bool, quiet: bool 
                 "runs": [{"experiment": j.name, "preset": j.preset, "folder": j.folder,
                           "status": done[j.folder]["status"].splitlines()[0],
                           "seconds": round(done[j.folder]["seconds"], 1),
+                          "cpu_s": round(done[j.folder]["cpu_s"], 1),
                           "peak_rss_mb": round(done[j.folder]["peak_rss_mb"])}
                          for j in todo]}
     write_json(out / REPRODUCE_MANIFEST, manifest)
