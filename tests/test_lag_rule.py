@@ -4,6 +4,7 @@ identify_object picks the lag that rule gives on its own per-lag fits."""
 
 from __future__ import annotations
 
+import functools
 import math
 
 import jax
@@ -86,7 +87,8 @@ def test_random_batches_jit_and_vmap_match_the_procedure():
 @pytest.fixture(scope="module")
 def per_lag():
     """A second-order system driven by random inputs, 600 samples (u (N, 1), y (N, 2)), and
-    fit_one's n*, log det R(n*), AIC(n*) (float32, as the learner keeps them) at l = 1..3."""
+    fit_one's n*, log det R(n*), AIC(n*) (float32, as the learner keeps them) at l = 1..3
+    (each fit one jitted program: op by op it takes half a minute)."""
     from vbl.sysid import fit_one, n_identifiable
     from vbl.sysid.params import CVAParams
 
@@ -103,22 +105,33 @@ def per_lag():
     fits = []
     for lag in (1, 2, 3):
         k = cva.horizon_for(lag)
-        f = fit_one(u, y, cva, lag=lag, horizon=k, n_cap=n_identifiable(lag, k, 1, 2))
+        fit = functools.partial(fit_one, params=cva, lag=lag, horizon=k,
+                                n_cap=n_identifiable(lag, k, 1, 2))
+        f = jax.jit(fit)(u, y)
         fits.append((int(f.n), float(np.float32(f.logdet[f.n])), float(np.float32(f.aic[f.n]))))
     return u, y, cva, fits
 
 
-@pytest.mark.parametrize("stop", [-100.0, 1e9, "between"])
-def test_identify_object_takes_the_rules_lag(per_lag, stop):
-    """identify_object's lag, order, log det and AIC are those of the lag the procedure
-    picks from fit_one's per-lag n*, log det R(n*) and AIC(n*)."""
+@pytest.fixture(scope="module")
+def identify(per_lag):
+    """identify_object on the module's data, jitted once with the stop traced (as the
+    engine runs it: one program for every stop)."""
     from vbl.agents.cva_state import identify_object
 
-    u, y, cva, per = per_lag
+    u, y, cva, _ = per_lag
+    run = jax.jit(lambda u, y, stop: identify_object(u, y, cva.replace(logdet_stop=stop), 2))
+    return lambda stop: run(u, y, stop)
+
+
+@pytest.mark.parametrize("stop", [-100.0, 1e9, "between"])
+def test_identify_object_takes_the_rules_lag(per_lag, identify, stop):
+    """identify_object's lag, order, log det and AIC are those of the lag the procedure
+    picks from fit_one's per-lag n*, log det R(n*) and AIC(n*)."""
+    _, _, _, per = per_lag
     logdet = [p[1] for p in per]
     if stop == "between":   # (a) fires at the lag with the lowest log det beyond l = 1
         stop = float(np.nextafter(np.float32(min(logdet[1:])), np.float32(np.inf)))
     j, _ = paper_procedure(logdet, [p[2] for p in per], stop)
-    mod = identify_object(u, y, cva.replace(logdet_stop=stop), 2)
+    mod = identify(stop)
     assert int(mod.lag) == j + 1 and int(mod.n) == per[j][0]
     assert float(mod.logdet) == per[j][1] and float(mod.aic) == per[j][2]
