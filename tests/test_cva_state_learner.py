@@ -60,6 +60,12 @@ def fitted_params(env, p, key):
     return smap, smap.env_params(fitted, env.default_params)
 
 
+def jit_fitted_params(env, p, key):
+    """:func:`fitted_params` as one jitted program (op by op the fit takes half a minute)."""
+    smap = CVAMap(env, p)
+    return smap, jax.jit(lambda k: fitted_params(env, p, k)[1])(key)
+
+
 def train_and_evaluate(env, p):
     """One jit: prepare (collect, CVA, quantiser), CHUNKS chunks of Q-learning, greedy eval."""
     smap = CVAMap(env, p)
@@ -103,7 +109,7 @@ def test_filter_matches_cva_state_on_data():
     env = MovingTargetEnv()
     d = collect(env, jax.random.PRNGKey(3), env.default_params, 600)
     cva = CVAParams(lag=2)
-    mod = identify_object(d["u"], d["obs"], cva, 2)
+    mod = jax.jit(lambda u, y: identify_object(u, y, cva, 2))(d["u"], d["obs"])
     u = np.asarray(d["u"], float)
     y = np.asarray(d["obs"], float)
     un = (u - u.mean(0)) / u.std(0)
@@ -127,12 +133,14 @@ def test_keep_beyond_order_keeps_the_fits_components():
     env = MovingTargetEnv()
     d = collect(env, jax.random.PRNGKey(3), env.default_params, 600)
     cva = CVAParams(lag=2)
-    off = identify_object(d["u"], d["obs"], cva, 4)
-    on = identify_object(d["u"], d["obs"], cva, 4, True)
+    ident = jax.jit(lambda u, y, keep: identify_object(u, y, cva, 4, keep))  # keep traced
+    off = ident(d["u"], d["obs"], False)
+    on = ident(d["u"], d["obs"], True)
     n = int(off.n)
     assert n == int(on.n) and 1 <= n < 4
     m, q = d["u"].shape[1], d["obs"].shape[1]
-    f = fit_one(d["u"], d["obs"], cva, lag=2, horizon=4, n_cap=n_identifiable(2, 4, m, q))
+    f = jax.jit(lambda u, y: fit_one(u, y, cva, lag=2, horizon=4,
+                                     n_cap=n_identifiable(2, 4, m, q)))(d["u"], d["obs"])
     ref = np.asarray(f.U[:4], float)                              # (4, 2 (m + q))
     got = lambda mod: np.concatenate([np.asarray(mod.Uu).reshape(4, -1),  # noqa: E731
                                       np.asarray(mod.Uy).reshape(4, -1)], axis=1)
@@ -184,9 +192,9 @@ def test_select_state_picks_the_vector_by_use_cva():
     env = MovingTargetEnv()
     vq = QuantizerParams(method="vq", num_codes=4, kmeans_iters=2)
     p = params("cva").replace(state="select", quantizer=vq, collect_steps=200)
-    smap, fp = fitted_params(env, p, jax.random.PRNGKey(1))
+    smap, fp = jit_fitted_params(env, p, jax.random.PRNGKey(1))
     fenv, hist, models = smap.env, history_wrapper(env, p, 1), fp.inner.filters
-    obs, st = fenv.reset(jax.random.PRNGKey(2), fp)
+    obs, st = jax.jit(fenv.reset)(jax.random.PRNGKey(2), fp)
     hu, hy = st.hist_u, st.hist_y
     y0 = hy[0][0]                      # the raw first observation (1,) fills the history
     x_cva = hist.state_vector(hu, hy, y0, models, True)
@@ -250,7 +258,7 @@ def test_collect_observes_what_reset_and_step_return():
     ep = ep.replace(noise_on=ep.noise_on.replace(pixel=True),
                     noise=ep.noise.replace(image_std=2.0))
     key, n = jax.random.PRNGKey(5), 120
-    d = collect(env, key, ep, n)
+    d = jax.jit(lambda k: collect(env, k, ep, n))(key)
     reset, step = jax.jit(env.reset), jax.jit(env.step)
     k_reset, k_run = jax.random.split(key)
     obs, st = reset(k_reset, ep)
