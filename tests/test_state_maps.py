@@ -68,7 +68,7 @@ def test_cva_map_index_and_perceived_against_numpy():
                        quantizer=QuantizerParams(method="vq", num_codes=64, kmeans_iters=5))
     smap = CVAMap(env, p)
     c = SimpleNamespace(cva=p, env=env.default_params)
-    models, qz, use_cva = smap.prepare(jax.random.PRNGKey(4), c)
+    models, qz, use_cva = jax.jit(lambda k: smap.prepare(k, c))(jax.random.PRNGKey(4))
     # the target barely answers the commands: give the command terms weight of their own
     rng = np.random.default_rng(0)
     models = (models[0].replace(Uu=jnp.asarray(rng.normal(size=models[0].Uu.shape),
