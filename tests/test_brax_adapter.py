@@ -74,8 +74,9 @@ def test_scan_training_wrappers_truncation_and_gae(adapter):
 
 def test_done_only_on_termination_truncation_in_info(adapter):
     s = adapter.reset(jax.random.PRNGKey(3))
+    step = jax.jit(adapter.step)
     for t in range(4):
-        s = adapter.step(s, jnp.int32(STOP))
+        s = step(s, jnp.int32(STOP))
         assert float(s.done) == 0.0
         assert float(s.info["truncation"]) == (1.0 if t == 3 else 0.0)
     # a goal is a termination: ball on the goal line in front of the robot, drive forward
@@ -99,10 +100,11 @@ def test_fresh_starts_under_auto_reset():
     starts = {}
     for fresh in (False, True):
         w = training.wrap(BraxAdapter(env, p, fresh_starts=fresh), episode_length=2)
-        st = w.reset(jax.random.split(jax.random.PRNGKey(1), 4))
+        st = jax.jit(w.reset)(jax.random.split(jax.random.PRNGKey(1), 4))
         first = np.asarray(st.pipeline_state.world.robots)
+        step = jax.jit(w.step)
         for _ in range(2):
-            st = w.step(st, jnp.full((4,), STOP, jnp.int32))
+            st = step(st, jnp.full((4,), STOP, jnp.int32))
         starts[fresh] = (first, np.asarray(st.pipeline_state.world.robots))
     np.testing.assert_array_equal(*starts[False])
     assert np.all(np.abs(starts[True][0] - starts[True][1]).max(axis=(1, 2)) > 1e-3)
@@ -115,10 +117,10 @@ def test_difficulty_in_state_drives_fresh_starts():
     p = env.default_params.replace(max_steps=1, start_difficulty=1.0)
     a = BraxAdapter(env, p)
     w = training.wrap(a, episode_length=1)
-    st = w.reset(jax.random.split(jax.random.PRNGKey(2), 64))
+    st = jax.jit(w.reset)(jax.random.split(jax.random.PRNGKey(2), 64))
     np.testing.assert_array_equal(st.info["difficulty"], 1.0)
     st = set_difficulty(st, 0.0)
-    st = w.step(st, jnp.full((64,), STOP, jnp.int32))  # every episode ends: fresh starts
+    st = jax.jit(w.step)(st, jnp.full((64,), STOP, jnp.int32))  # every episode ends: fresh starts
     x = np.asarray(st.pipeline_state.world.robots[:, 0, 0])
     goal_x = p.world.field.length / 2 - p.start.easy_goal_dist
     assert np.all(np.abs(x - goal_x) <= p.start.easy_jitter_xy + 1e-5)
