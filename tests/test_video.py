@@ -116,7 +116,7 @@ def test_random_policy_needs_no_checkpoint(tmp_path):
     cam = pol.env_params.camera
     cam_w = _sizes(vp)[0]
     px = cam.image_width / cam_w  # one pixel of the frame in analytic px
-    feats = np.asarray(jax.vmap(lambda im: section2_from_pixels(im, cam, BlobParams()))(
+    feats = np.asarray(jax.jit(jax.vmap(lambda im: section2_from_pixels(im, cam, BlobParams())))(
         jnp.asarray(frames[:, :, :cam_w])))
     half = cam.image_width / 2
     clear = ((obs[:, SEC2_BALL_VISIBLE] > 0.5) & (obs[:, SEC2_BALL_SIZE] >= 4 * px)
