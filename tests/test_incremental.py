@@ -193,7 +193,7 @@ def test_bad_thresholds_raise_clear_errors():
         validate(IncrementalParams(temperature=0.0))
 
 
-def test_partition_update_takes_and_returns_the_q_table():
+def test_partition_update_takes_and_returns_the_q_table(update):
     """vbl.spaces.incremental.structure_update works on arrays (boxes, buffer, Q): the split
     at x0 = 0.5 gives the new box the parent's Q row; the learner's update_structure counts
     it."""
@@ -205,7 +205,7 @@ def test_partition_update_takes_and_returns_the_q_table():
     np.testing.assert_array_equal(np.asarray(q2[new]),
                                   np.array([0.4, 0.3, 0.2, 0.1], np.float32))
     np.testing.assert_array_equal(np.asarray(q2[0]), np.asarray(q[0]))
-    counted, _, _ = update_structure(lr.replace(q=q), P)
+    counted, _, _ = update(lr.replace(q=q))   # update_structure(., P), jitted
     assert int(counted.splits) == 1 and int(counted.merges) == 0
     np.testing.assert_array_equal(np.asarray(counted.seg.lo), np.asarray(seg.lo))
 
@@ -417,18 +417,19 @@ def test_monte_carlo_update_by_hand():
     log = log_decision(log, jnp.asarray(False), right, 3, 6)               # not a decision
     assert int(log.n) == 3
     q0 = lr.q.at[1, 0].set(0.1)
-    same, kept = monte_carlo_update(q0, lr.seg, log, jnp.asarray(False), jnp.asarray(False),
+    mc = jax.jit(monte_carlo_update)
+    same, kept = mc(q0, lr.seg, log, jnp.asarray(False), jnp.asarray(False),
                                     jnp.int32(6), p.learning_rate, p.mc_discount)
     np.testing.assert_array_equal(np.asarray(same), np.asarray(q0))
     assert int(kept.n) == 3
-    q, emptied = monte_carlo_update(q0, lr.seg, log, jnp.asarray(True), jnp.asarray(True),
+    q, emptied = mc(q0, lr.seg, log, jnp.asarray(True), jnp.asarray(True),
                                     jnp.int32(7), p.learning_rate, p.mc_discount)
     want = np.asarray(q0).copy()
     want[0, 2] = 0.75 * (1 / 16 + 1 / 4) / 2
     want[1, 0] = 0.1 + 0.5 * (0.5 - 0.1)
     np.testing.assert_allclose(np.asarray(q), want, rtol=1e-6)
     assert int(emptied.n) == 0
-    q_fail, _ = monte_carlo_update(q0, lr.seg, log, jnp.asarray(True), jnp.asarray(False),
+    q_fail, _ = mc(q0, lr.seg, log, jnp.asarray(True), jnp.asarray(False),
                                    jnp.int32(7), p.learning_rate, p.mc_discount)
     assert float(q_fail[1, 0]) == pytest.approx(0.05) and float(q_fail[0, 2]) == 0.0
     for c in range(5):
