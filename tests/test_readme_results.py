@@ -46,7 +46,7 @@ def _manifest(folder: str) -> dict:
 
 def runs_block() -> str:
     """The committed runs' machine, code and per-run wall time and peak memory, full and
-    quick scale (from each run's reproduce.json)."""
+    quick scale, and the quick runs' CPU time (from each run's reproduce.json)."""
     full, quick = _manifest(FULL), _manifest(QUICK)
     q = {r["folder"]: r for r in quick["runs"]}
     lines = [f"Full scale: `vbl reproduce` on {full['machine']}, {full['wall_s'] / 60:.0f} min "
@@ -55,12 +55,13 @@ def runs_block() -> str:
              f"Quick scale: `vbl reproduce --quick` on {quick['machine']}, "
              f"{quick['wall_s']:.0f} s wall (load average {quick['load_average'][0]:g} at the "
              f"start), code `{quick['commit'][:12]}`.", "",
-             "| run | full: wall time | full: peak memory | quick: wall time | quick: peak "
-             "memory |", "|---|---|---|---|---|"]
+             "| run | full: wall time | full: peak memory | quick: wall time | quick: CPU "
+             "time | quick: peak memory |", "|---|---|---|---|---|---|"]
     for r in full["runs"]:
         rq = q.get(r["folder"])
-        quick_cells = (f"{rq['seconds']:.0f} s | {rq['peak_rss_mb'] / 1024:.1f} GiB" if rq
-                       else "full run only | -")
+        cpu = f"{rq['cpu_s']:.0f} s" if rq and rq.get("cpu_s") is not None else "-"
+        quick_cells = (f"{rq['seconds']:.0f} s | {cpu} | {rq['peak_rss_mb'] / 1024:.1f} GiB"
+                       if rq else "full run only | - | -")
         lines.append(f"| {r['folder']} | {r['seconds'] / 60:.1f} min | "
                      f"{r['peak_rss_mb'] / 1024:.1f} GiB | {quick_cells} |")
     return "\n".join(lines) + "\n"

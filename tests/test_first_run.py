@@ -1,0 +1,42 @@
+"""benchmarks/first_run.py at a tiny size: two toy paper experiments reproduced cold, then
+warm, in a fresh cache; per-run times from each manifest, metrics compared byte for byte."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from benchmarks import first_run  # noqa: E402
+from tests.engine_helpers import TOY  # noqa: E402
+
+PAPER_TOY = """
+from vbl.engine.registry import load_script
+toy = load_script({toy!r})
+from vbl.engine import Experiment, register
+register(Experiment(name="{name}", description="toy paper result {name}",
+                    default_config=toy.BanditConfig(), make_program=toy.make_program,
+                    quick={{"env.num_arms": 3, "train.pulls_per_chunk": 5,
+                           "train.num_chunks": 2}}, quick_seeds=2, paper_result=True))
+"""
+
+
+def test_cold_then_warm_reproduce_rows_and_equal_metrics(tmp_path, monkeypatch):
+    d = tmp_path / "exps"
+    d.mkdir()
+    for name in ("paper_a", "paper_b"):
+        (d / f"{name}.py").write_text(PAPER_TOY.format(name=name, toy=str(TOY)))
+    monkeypatch.setenv("VBL_EXPERIMENTS_DIR", str(d))
+    monkeypatch.setenv("VBL_HOST_DEVICES", "1")
+    result = first_run.main(["--only", "paper_b", "--out", str(tmp_path / "fr")])
+    for phase in ("cold", "warm"):
+        runs = result[phase]["manifest"]["runs"]
+        assert [r["folder"] for r in runs] == ["paper_b"]  # --only reaches the command
+        assert result[phase]["cpu_s"] >= runs[0]["cpu_s"] > 0  # the command holds the run
+        assert result[phase]["wall_s"] >= runs[0]["seconds"] > 0
+    assert result["metrics_equal"] == {"paper_b": True}
+    text = (tmp_path / "fr.md").read_text()
+    assert "| paper_b |" in text and "| yes |" in text and "**cold command**" in text
+    assert (tmp_path / "fr.json").exists()
