@@ -19,6 +19,7 @@ import json
 import os
 import pathlib
 import resource
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -94,7 +95,12 @@ def main(argv=None) -> dict:
     ap.add_argument("--quick", action="store_true",
                     help=f"only {QUICK_ONLY} (the shortest quick run; about a minute)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "first_run"))
+    ap.add_argument("--keep", metavar="PATH",
+                    help="copy the cold run's folder (a whole quick reproduce) to PATH, "
+                         "which must not exist")
     args = ap.parse_args(argv)
+    if args.keep and pathlib.Path(args.keep).exists():
+        raise SystemExit(f"first_run: --keep {args.keep} exists; give a new folder")
     if args.quick:
         args.only = [QUICK_ONLY]
     with tempfile.TemporaryDirectory(prefix="vbl-first-run-") as work:
@@ -103,6 +109,8 @@ def main(argv=None) -> dict:
                           f" --only {n}" for n in args.only),
                       cold_target_s=COLD_TARGET_S, warm_target_s=WARM_TARGET_S,
                       **reproduce_twice(pathlib.Path(work), args.only, dict(os.environ)))
+        if args.keep:
+            shutil.copytree(pathlib.Path(work) / "cold", args.keep)
     text = markdown(result)
     write_results(pathlib.Path(args.out), result, text)
     print(text)

@@ -3,8 +3,11 @@ warm, in a fresh cache; per-run times from each manifest, metrics compared byte 
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
+
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -30,7 +33,9 @@ def test_cold_then_warm_reproduce_rows_and_equal_metrics(tmp_path, monkeypatch):
         (d / f"{name}.py").write_text(PAPER_TOY.format(name=name, toy=str(TOY)))
     monkeypatch.setenv("VBL_EXPERIMENTS_DIR", str(d))
     monkeypatch.setenv("VBL_HOST_DEVICES", "1")
-    result = first_run.main(["--only", "paper_b", "--out", str(tmp_path / "fr")])
+    keep = tmp_path / "kept"
+    result = first_run.main(["--only", "paper_b", "--out", str(tmp_path / "fr"),
+                             "--keep", str(keep)])
     for phase in ("cold", "warm"):
         runs = result[phase]["manifest"]["runs"]
         assert [r["folder"] for r in runs] == ["paper_b"]  # --only reaches the command
@@ -40,3 +45,7 @@ def test_cold_then_warm_reproduce_rows_and_equal_metrics(tmp_path, monkeypatch):
     text = (tmp_path / "fr.md").read_text()
     assert "| paper_b |" in text and "| yes |" in text and "**cold command**" in text
     assert (tmp_path / "fr.json").exists()
+    assert json.loads((keep / "reproduce.json").read_text()) == result["cold"]["manifest"]
+    with pytest.raises(SystemExit, match="exists"):  # never over a kept run
+        first_run.main(["--only", "paper_b", "--out", str(tmp_path / "fr2"), "--keep",
+                        str(keep)])
