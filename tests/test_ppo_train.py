@@ -86,10 +86,11 @@ def test_vbl_ppo_on_shoot_and_pass_with_curriculum_drives_the_env():
 
 
 
-def test_init_under_the_engines_64_bit_scope_warns_nothing():
+def test_tracing_init_and_step_under_the_engines_64_bit_scope_warns_nothing():
     """The engine traces programs with 64-bit types on; brax's network and statistics
-    initialisers then ask for float64, which JAX reported on every run. A fresh process:
-    JAX caches dtype results, so a warning shows only the first time."""
+    initialisers, and its running statistics' update in the training step, then ask for
+    float64, which JAX reported in a cold run. A fresh process: JAX caches dtype results,
+    so a warning shows only the first time."""
     import subprocess
     import sys
 
@@ -103,7 +104,8 @@ cfg = get("ppo_shooting").default_config
 with engine_precision():
     prog = make_shooting_program(cfg)
     c = jax.tree.map(lambda x: x[0], stack_traced([cfg]))
-    jax.eval_shape(lambda k: prog.init(k, c), jax.random.PRNGKey(0))
+    carry = jax.eval_shape(lambda k: prog.init(k, c), jax.random.PRNGKey(0))
+    jax.eval_shape(lambda cr: prog.step(cr, c), carry)
 """
     run = subprocess.run([sys.executable, "-W", "error::UserWarning", "-c", code],
                          capture_output=True, text=True, timeout=600)

@@ -17,6 +17,7 @@ the current difficulty and the difficulty rises by ``step`` when its success rea
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import warnings
 from collections.abc import Callable
@@ -89,6 +90,16 @@ def _x32(fn: Callable) -> Callable:
     return wrapped
 
 
+@contextlib.contextmanager
+def _brax_asks_float64():
+    """Silence JAX's float64-truncation warning where brax asks float64 of a 32-bit
+    program (its networks' dummy inputs, the running statistics' ``std_eps``): float32 is
+    what the learner computes in, so the warning tells a user nothing."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", "Explicitly requested dtype float64")
+        yield
+
+
 def _optimizer(p: PPOParams) -> optax.GradientTransformation:
     return optax.chain(optax.clip_by_global_norm(p.max_grad_norm),
                        optax.adam(learning_rate=p.learning_rate))
@@ -131,8 +142,7 @@ def make_ppo_learner(make_env: Callable[[Any, jax.Array], Any], obs_size: int,
                        task_d)
         env, _ = train_env(env_params, d0)
         env_state = env.reset(jax.random.split(k_env, p.num_envs))
-        with warnings.catch_warnings():  # brax's dummy inputs and statistics ask float64
-            warnings.filterwarnings("ignore", "Explicitly requested dtype float64")
+        with _brax_asks_float64():
             params = ppo_losses.PPONetworkParams(policy=nets.policy_network.init(k_pol),
                                                  value=nets.value_network.init(k_val))
             normalizer = running_statistics.init_state(specs.Array((obs_size,), jnp.dtype(F32)))
@@ -155,7 +165,8 @@ def make_ppo_learner(make_env: Callable[[Any, jax.Array], Any], obs_size: int,
         # (unrolls, T, envs, ...) -> (unrolls * envs, T, ...)
         data = jax.tree.map(lambda x: jnp.swapaxes(x, 1, 2), data)
         data = jax.tree.map(lambda x: jnp.reshape(x, (-1,) + x.shape[2:]), data)
-        normalizer = running_statistics.update(normalizer, data.observation)
+        with _brax_asks_float64():
+            normalizer = running_statistics.update(normalizer, data.observation)
         loss = functools.partial(
             ppo_losses.compute_ppo_loss, ppo_network=nets, entropy_cost=pp.entropy_cost,
             discounting=pp.discounting, reward_scaling=pp.reward_scaling,
