@@ -277,29 +277,18 @@ def test_reproduce_builds_a_report_again_once_the_runs_it_reads_have_finished(to
     assert "![success_rate](toy_read_a/success_rate.png)" in path.read_text()
 
 
-_PAPER_TOY = """
-from vbl.engine.registry import load_script
-toy = load_script({toy!r})  # once, in sys.modules, as the engine loads scripts
-from vbl.engine import Experiment, register
-register(Experiment(name="{name}", description="toy paper result {name}",
-                    default_config=toy.BanditConfig(), make_program=toy.make_program,
-                    quick={quick!r}, quick_seeds=2, paper_result=True))
-"""
-
-
 def test_reproduce_in_worker_processes_equals_in_process(tmp_path, monkeypatch):
     """--jobs 2 runs experiments in spawned workers; the report's numbers are the same."""
     import re
 
-    from tests.engine_helpers import TOY
+    from tests.engine_helpers import write_paper_toy
     from vbl.engine import registry
     from vbl.engine.reproduce import reproduce
 
     d = tmp_path / "exps"
     d.mkdir()
-    quick = {**TINY_SETS, "train.num_chunks": 2}
     for name in ("paper_a", "paper_b"):
-        (d / f"{name}.py").write_text(_PAPER_TOY.format(name=name, toy=str(TOY), quick=quick))
+        write_paper_toy(d, name, chunks=2)
     monkeypatch.setenv("VBL_EXPERIMENTS_DIR", str(d))  # inherited by the workers
     monkeypatch.setattr(registry, "_DISCOVERED", set())
     reports = {}

@@ -13,24 +13,14 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks import first_run  # noqa: E402
-from tests.engine_helpers import TOY  # noqa: E402
-
-PAPER_TOY = """
-from vbl.engine.registry import load_script
-toy = load_script({toy!r})
-from vbl.engine import Experiment, register
-register(Experiment(name="{name}", description="toy paper result {name}",
-                    default_config=toy.BanditConfig(), make_program=toy.make_program,
-                    quick={{"env.num_arms": 3, "train.pulls_per_chunk": 5,
-                           "train.num_chunks": 2}}, quick_seeds=2, paper_result=True))
-"""
+from tests.engine_helpers import write_paper_toy  # noqa: E402
 
 
 def test_cold_then_warm_reproduce_rows_and_equal_metrics(tmp_path, monkeypatch):
     d = tmp_path / "exps"
     d.mkdir()
     for name in ("paper_a", "paper_b"):
-        (d / f"{name}.py").write_text(PAPER_TOY.format(name=name, toy=str(TOY)))
+        write_paper_toy(d, name, chunks=2)
     monkeypatch.setenv("VBL_EXPERIMENTS_DIR", str(d))
     monkeypatch.setenv("VBL_HOST_DEVICES", "1")
     keep = tmp_path / "kept"

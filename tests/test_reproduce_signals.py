@@ -15,30 +15,17 @@ from pathlib import Path
 
 import pytest
 
-from tests.engine_helpers import TOY, env_for, one_error_line, vbl_cmd, wait_until
+from tests.engine_helpers import env_for, one_error_line, vbl_cmd, wait_until, write_paper_toy
 
 STOP_S = 5.0  #: the promise: stopped within this many seconds of the signal
 TIMEOUT = 300
-
-_PAPER_TOY = """
-from vbl.engine.registry import load_script
-toy = load_script({toy!r})  # once, in sys.modules, as the engine loads scripts
-from vbl.engine import Experiment, register
-register(Experiment(name="{name}", description="toy paper result {name}",
-                    default_config=toy.BanditConfig(), make_program=toy.make_program,
-                    quick={{"env.num_arms": 3, "train.pulls_per_chunk": 5,
-                           "train.num_chunks": {chunks}}},
-                    quick_seeds=2, paper_result=True))
-"""
-
 
 @pytest.fixture(scope="module")
 def env(tmp_path_factory):
     d = tmp_path_factory.mktemp("paper_toys")
     for name, chunks in (("paper_fast", 2), ("paper_slow1", 1_000_000),
                          ("paper_slow2", 1_000_000)):
-        (d / f"{name}.py").write_text(_PAPER_TOY.format(name=name, toy=str(TOY),
-                                                        chunks=chunks))
+        write_paper_toy(d, name, chunks)
     return env_for(d)
 
 

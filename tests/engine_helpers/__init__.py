@@ -40,6 +40,25 @@ def toy_experiment(tmp: Path):
         os.environ["VBL_EXPERIMENTS_DIR"] = old
 
 
+_PAPER_TOY = """
+from vbl.engine.registry import load_script
+toy = load_script({toy!r})  # once, in sys.modules, as the engine loads scripts
+from vbl.engine import Experiment, register
+register(Experiment(name="{name}", description="toy paper result {name}",
+                    default_config=toy.BanditConfig(), make_program=toy.make_program,
+                    quick={quick!r}, quick_seeds=2, paper_result=True))
+"""
+
+
+def write_paper_toy(folder: Path, name: str, chunks: int) -> Path:
+    """``folder/<name>.py``: a script registering the toy as paper experiment ``name``,
+    whose quick scale is :data:`TINY_SETS` for ``chunks`` chunks on 2 seeds."""
+    path = folder / f"{name}.py"
+    path.write_text(_PAPER_TOY.format(name=name, toy=str(TOY),
+                                      quick={**TINY_SETS, "train.num_chunks": chunks}))
+    return path
+
+
 def env_for(exp_dir: Path, **extra: str) -> dict[str, str]:
     env = dict(os.environ, VBL_EXPERIMENTS_DIR=str(exp_dir), CI="true",
                TF_CPP_MIN_LOG_LEVEL="3", VBL_HOST_DEVICES="1")  # one device: the reference
