@@ -5,6 +5,7 @@ resume keeps."""
 from __future__ import annotations
 
 import json
+import math
 from types import SimpleNamespace
 
 from vbl.engine import reproduce as rp
@@ -59,3 +60,7 @@ def test_a_resume_keeps_the_times_of_the_runs_that_finished(tmp_path):
     assert rp._finished_times(tmp_path, todo) == {
         "a": {"seconds": 3.0, "cpu_s": 5.5, "peak_rss_mb": 10.0}}
     assert rp._finished_times(tmp_path / "none", todo) == {}
+    del runs[0]["cpu_s"]  # a manifest written before CPU time was recorded: null, not 0
+    (tmp_path / rp.REPRODUCE_MANIFEST).write_text(json.dumps({"runs": runs}))
+    kept = rp._finished_times(tmp_path, todo)["a"]
+    assert kept["seconds"] == 3.0 and math.isnan(kept["cpu_s"])

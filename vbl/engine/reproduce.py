@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import multiprocessing
 import os
 import resource
@@ -374,15 +375,16 @@ def reproduce(out: Path, *, quick: bool, quiet: bool | None, resume: bool = Fals
 
 
 def _finished_times(out: Path, todo: list[Job]) -> dict[str, dict[str, float]]:
-    """``{folder: {seconds, cpu_s, peak_rss_mb}}`` (those recorded) from ``out``'s manifest
-    for the runs that had finished before a ``--resume`` (their ``summary.json`` is there):
-    the resume runs nothing for them, and the manifest keeps what they took."""
+    """``{folder: {seconds, cpu_s, peak_rss_mb}}`` from ``out``'s manifest for the runs
+    that had finished before a ``--resume`` (their ``summary.json`` is there): the resume
+    runs nothing for them, and the manifest keeps what they took (NaN, written as null, for
+    a cost the manifest lacks: one written before it recorded CPU time)."""
     try:
         runs = json.loads((out / REPRODUCE_MANIFEST).read_text())["runs"]
         before = {r["folder"]: r for r in runs if r.get("status") == "ok"}
     except (OSError, ValueError, KeyError, TypeError):
         return {}
-    return {j.folder: {k: float(before[j.folder][k]) for k in RUN_COSTS if k in before[j.folder]}
+    return {j.folder: {k: float(before[j.folder].get(k, math.nan)) for k in RUN_COSTS}
             for j in todo if j.folder in before and (out / j.folder / "summary.json").is_file()}
 
 
@@ -407,8 +409,8 @@ def _reproduce(exps: dict[str, Experiment], out: Path, quick: bool, quiet: bool 
             raise type(e)(_stopped(e, out, len(done), len(todo))) from None
     _rerender_readers(todo, exps, out, done)
     for folder, times in kept.items():  # a resume ran nothing for them: their own times
-        if done[folder]["status"] == "ok":  # (no CPU time in a manifest written without)
-            done[folder].update({"cpu_s": float("nan"), **times})
+        if done[folder]["status"] == "ok":
+            done[folder].update(times)
     wall = time.perf_counter() - t_start
     manifest = {"quick": quick, "commit": git_commit(), "machine": machine_description(),
                 "workers": workers, "wall_s": round(wall, 1),
