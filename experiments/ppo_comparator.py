@@ -75,7 +75,9 @@ EXPERIMENT = register(Experiment(
     description="brax PPO on the two-robot task: current features vs frame stack vs CVA state",
     default_config=ShootPassConfig(), make_program=make_shoot_pass_program,
     quick={**QUICK_PPO, "cva.collect_steps": 1000},
-    seeds=8, quick_seeds=2, paper_result=True, paper=TABLE2, percent=True,
+    # --quick trains 2 chunks: a smoke test of the program, no result (full reproduce only)
+    seeds=8, quick_seeds=2, paper_result=True, in_quick_reproduce=False, paper=TABLE2,
+    percent=True,
     report=partial(shoot_pass_section, paper=TABLE2), paper_rows=shoot_pass_rows,
     sweep={"env.task_pass": [False, True], "inputs.index": [0, 1, 2]},
     report_reads=("table2_shoot_pass",),  # the tabular learner's column
@@ -86,7 +88,8 @@ SHOOTING = register(Experiment(
     description="brax PPO on the shooting task, with and without the curriculum",
     default_config=ShootingConfig(), make_program=make_shooting_program,
     quick=QUICK_PPO,
-    seeds=8, quick_seeds=2, paper_result=True, percent=True, report=shooting_section,
+    seeds=8, quick_seeds=2, paper_result=True, in_quick_reproduce=False, percent=True,
+    report=shooting_section,
     paper_rows=shooting_rows,
     sweep={"ppo.curriculum.enabled": [False, True]},
     report_reads=("grid_shooting",),  # the grid baseline's rows

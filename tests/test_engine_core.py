@@ -178,6 +178,24 @@ def test_set_fixes_a_path_of_the_default_sweep(toy):
     assert config.agent.epsilon == pytest.approx(0.3)
 
 
+def test_quick_fixes_a_path_of_the_default_sweep_but_a_sweep_of_it_stands(toy):
+    """A --quick value of a default-swept path fixes it under --quick only; a --sweep of
+    the path still sweeps it, and the full run keeps the default sweep."""
+    import dataclasses
+
+    from vbl.engine.runner import describe_sweep, resolve
+
+    exp = dataclasses.replace(toy, sweep={"agent.epsilon": [0.1, 0.2], "env.num_arms": [3, 4]},
+                              quick={"agent.epsilon": 0.3})
+    assert resolve(exp)[1] == {"agent.epsilon": [0.1, 0.2], "env.num_arms": [3, 4]}
+    config, sweep, _, spec = resolve(exp, quick=True)
+    assert sweep == {"env.num_arms": [3, 4]} == spec["sweep"]
+    assert config.agent.epsilon == pytest.approx(0.3)
+    assert describe_sweep(exp, quick=True)[0] == 2
+    again = resolve(exp, sweep={"agent.epsilon": [0.4, 0.5]}, quick=True)[1]
+    assert again == {"env.num_arms": [3, 4], "agent.epsilon": [0.4, 0.5]}
+
+
 @pytest.mark.parametrize("span", [(0, 0), (2, 2), (3, 1), (0, 4)])
 def test_a_span_of_no_chunks_or_past_the_end_is_refused(toy, tmp_path, span):
     """span (first, last) runs chunks first..last-1 of the 3: an empty or reversed span,

@@ -12,8 +12,8 @@ from vbl.engine import reproduce as rp
 from vbl.engine.reproduce import Job
 
 
-def _exp(presets=(), group=None):
-    return SimpleNamespace(published_presets=presets, group=group)
+def _exp(presets=(), group=None, in_quick=True):
+    return SimpleNamespace(published_presets=presets, group=group, in_quick_reproduce=in_quick)
 
 
 def test_jobs_are_each_default_then_its_presets_and_quick_runs_defaults_only():
@@ -21,6 +21,28 @@ def test_jobs_are_each_default_then_its_presets_and_quick_runs_defaults_only():
     assert rp.reproduce_jobs(exps) == [Job("a"), Job("a", "p"), Job("a", "q"), Job("b")]
     assert rp.reproduce_jobs(exps, quick=True) == [Job("a"), Job("b")]
     assert [j.folder for j in rp.reproduce_jobs(exps)] == ["a", "a-p", "a-q", "b"]
+
+
+def test_a_full_run_only_result_leaves_the_quick_jobs_alone():
+    """in_quick_reproduce=False drops the default and presets under --quick only."""
+    exps = {"a": _exp(("p",)), "c": _exp(("r",), in_quick=False), "b": _exp()}
+    assert rp.reproduce_jobs(exps) == [Job("a"), Job("a", "p"), Job("c"), Job("c", "r"),
+                                       Job("b")]
+    assert rp.reproduce_jobs(exps, quick=True) == [Job("a"), Job("b")]
+
+
+def test_quick_only_of_a_full_run_only_result_is_refused_before_any_folder(tmp_path):
+    """`vbl reproduce --quick --only NAME` of a full-run-only result names it and what to
+    run instead, and writes nothing (an empty quick report would say nothing)."""
+    import pytest
+
+    from vbl.params import ParamError
+
+    with pytest.raises(ParamError, match=r"ppo_comparator runs in the full reproduce only.*"
+                       r"drop --quick, or run `vbl run ppo_comparator --quick`"):
+        rp.reproduce(tmp_path / "out", quick=True, quiet=True,
+                     names=["table1_identification", "ppo_comparator"])
+    assert not (tmp_path / "out").exists()
 
 
 def test_one_worker_per_core_at_most_one_per_run(monkeypatch):

@@ -155,9 +155,13 @@ class Experiment:
       run: escape hatch for jobs that are not chunked programs: ``run(ctx: RunContext) ->
         dict`` (JSON-able summary); the engine still writes the run folder. Exactly one of
         ``make_program`` and ``run`` must be given.
-      quick: ``{dotted.path: value}`` overrides applied by ``--quick`` (before ``--set``).
+      quick: ``{dotted.path: value}`` overrides applied by ``--quick`` (before ``--set``); a
+        path of the default ``sweep`` that it fixes leaves the sweep, as with ``--set``.
       seeds: default number of seeds; ``quick_seeds``: the number under ``--quick``.
       paper_result: True if ``vbl reproduce`` should run it.
+      in_quick_reproduce: False leaves a paper result out of ``vbl reproduce --quick``
+        (the full run keeps it): for a result whose quick scale trains too little to show
+        anything, such as a deep-RL comparator (``vbl run NAME --quick`` still runs it).
       paper: the paper's numbers (free-form, for ``report``).
       report: ``RunResult -> ReportSection`` for ``vbl reproduce``.
       sweep: default sweep ``{path: [values]}`` (e.g. the table rows a paper result needs);
@@ -196,6 +200,7 @@ class Experiment:
     seeds: int = 8
     quick_seeds: int | None = None
     paper_result: bool = False
+    in_quick_reproduce: bool = True
     paper: Mapping[str, Any] | None = None
     report: Callable[[RunResult], ReportSection] | None = None
     sweep: Mapping[str, tuple[Any, ...] | list[Any]] = field(default_factory=dict)

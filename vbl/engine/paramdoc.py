@@ -68,8 +68,10 @@ def experiment_page(exp) -> str:
              if exp.sweep else "none (one point)")
     lines = [f"# {exp.name}: {exp.description}", "",
              f"* seeds: {exp.seeds} (`--quick`: {quick_seeds}; `--seeds N` sets them)",
-             f"* default sweep: {sweep}; a `--set` of a swept path fixes it, `--sweep` "
-             "replaces its values"]
+             f"* default sweep: {sweep}; a `--set` (or a `--quick` value) of a swept path "
+             "fixes it, `--sweep` replaces its values"]
+    if exp.paper_result and not exp.in_quick_reproduce:
+        lines.append("* `vbl reproduce --quick` leaves it out: the full reproduce runs it")
     if exp.quick:
         lines.append("* `--quick` sets: " + ", ".join(f"`{k}={v}`" for k, v in
                                                        exp.quick.items()))

@@ -89,9 +89,10 @@ class Job:
 
 def reproduce_jobs(exps: dict[str, Experiment], quick: bool = False) -> list[Job]:
     """Every published result: each experiment's default, then its published presets;
-    ``quick``: the defaults only (a preset is a variant of a paper result, published from
-    the full run; the quick run is the paper's experiments once, in minutes)."""
-    return [Job(n, p) for n, e in exps.items()
+    ``quick``: the defaults of the experiments ``in_quick_reproduce`` only (a preset is a
+    variant of a paper result, published from the full run; the quick run is the paper's
+    experiments once, in minutes)."""
+    return [Job(n, p) for n, e in exps.items() if e.in_quick_reproduce or not quick
             for p in (None, *(() if quick else e.published_presets))]
 
 
@@ -352,6 +353,11 @@ def reproduce(out: Path, *, quick: bool, quiet: bool | None, resume: bool = Fals
         bad = [n for n in names if n not in exps]
         if bad:  # bad input: exit 2
             raise ParamError(f"unknown paper experiment(s) {bad}; valid: {sorted(exps)}")
+        full_only = [n for n in names if quick and not exps[n].in_quick_reproduce]
+        if full_only:
+            raise ParamError(f"{full_only[0]} runs in the full reproduce only (its quick "
+                             f"scale trains too little to show its result): drop --quick, "
+                             f"or run `vbl run {full_only[0]} --quick`")
         exps = {n: exps[n] for n in names}
     out = Path(out)
     if not (resume or overwrite):

@@ -78,7 +78,8 @@ def resolve(experiment: Experiment, sets: Mapping[str, Any] | None = None,
     :data:`~vbl.engine.runfolder.RUN_FORMAT` and the preset.
 
     The sweep is the experiment's default sweep with ``sweep`` replacing the paths it names;
-    a path of the default sweep that ``sets`` fixes leaves the sweep (one value). A path
+    a path of the default sweep that ``sets`` (or, with ``quick``, the experiment's
+    ``quick``) fixes leaves the sweep (one value). A path
     both in ``sets`` and in ``sweep`` is an error; a preset's path that ``sweep`` names
     takes the sweep's values.
     """
@@ -92,7 +93,8 @@ def resolve(experiment: Experiment, sets: Mapping[str, Any] | None = None,
         p = both[0]
         raise ParamError(f"{p} is both set and swept (sweep values {list(sweep[p])}); choose "
                          f"its values with --sweep {p}=V1,V2,... alone")
-    full_sweep = {p: list(v) for p, v in experiment.sweep.items() if p not in (sets or {})}
+    fixed = {*(sets or {}), *(experiment.quick if quick else {})}
+    full_sweep = {p: list(v) for p, v in experiment.sweep.items() if p not in fixed}
     full_sweep.update({p: list(v) for p, v in (sweep or {}).items()})
     if seeds is None:
         seeds = experiment.quick_seeds if (quick and experiment.quick_seeds) else experiment.seeds

@@ -123,6 +123,11 @@ def _differences(res) -> str:
                f"{ORACLE_MARGIN:.0f}, Welch 95 % interval):\n\n| task | oracle beats "
                f"current | by >= {ORACLE_MARGIN:.0f} points |\n|---|---|---|\n"
                + "\n".join(oracle))
+    elif "ball_velocity" not in res.sweep and not res.config.ball_velocity:
+        md += ("\n\nThe velocity oracle, the control that says whether this task can show "
+               "the paper's claim at all, is not in this run (`--quick` runs the paper's "
+               "rows; the full `vbl reproduce` runs the control, and `--sweep "
+               "ball_velocity=false,true` adds it here).")
     return md
 
 
