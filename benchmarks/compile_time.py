@@ -59,6 +59,7 @@ from vbl.engine.reproduce import Job, paper_experiments, reproduce_jobs  # noqa:
 from vbl.engine.runner import _compiled, resolve  # noqa: E402
 from vbl.engine.sharding import learner_sharding, put  # noqa: E402
 from vbl.engine.sweep import make_plan  # noqa: E402
+from vbl.params import get_path  # noqa: E402
 
 MAX_COMPILE_S = 60.0  #: target: trace + compile of any one program on the 2-core machine
 
@@ -77,8 +78,20 @@ def _timed(fn, *args) -> tuple[dict, object]:
                 compile_cpu_s=c2 - c1, hlo=hlo), compiled
 
 
+def in_quick(exp, preset: str | None, static_values: dict) -> bool:
+    """Whether ``vbl reproduce --quick`` compiles the group of ``static_values`` (its
+    static swept paths) of a reproduce run: a default run kept in the quick reproduce,
+    whose quick config or sweep holds each of those values."""
+    if preset is not None or not exp.in_quick_reproduce:
+        return False
+    config, sweep, *_ = resolve(exp, quick=True)
+    return all(v in sweep[p] if p in sweep else get_path(config, p) == v
+               for p, v in static_values.items())
+
+
 def time_run(job: Job) -> list[dict]:
-    """One row per (group, function) of the full-scale plan of ``job`` (a reproduce run)."""
+    """One row per (group, function) of the full-scale plan of ``job`` (a reproduce run);
+    ``quick``: whether the quick reproduce compiles it too (:func:`in_quick`)."""
     exp = registry.get(job.name)
     config, sweep, seeds, _ = resolve(exp, preset=job.preset)
     plan = make_plan(exp, config, sweep, seeds)
@@ -100,7 +113,8 @@ def time_run(job: Job) -> list[dict]:
             final_keys = put(np.tile(plan.final_keys, (reps, 1)), sharding)
             cfgs = put(group.configs, sharding)
             head = dict(run=job.folder, experiment=job.name, preset=job.preset,
-                        group=group.index, learners=n)
+                        group=group.index, learners=n,
+                        quick=in_quick(exp, job.preset, group.static_values))
             times, init_c = _timed(init_fn, keys, cfgs)
             row(head, "init", times)
             carry = jax.block_until_ready(init_c(keys, cfgs))
@@ -132,15 +146,15 @@ def markdown(result: dict, cmd: str, before: dict | None) -> str:
     lines = [f"Compile time ({hw['cpu']}, {hw['cores']} cores, {len(hw['devices'])} "
              f"device(s), jax {hw['jax']}, load average {hw['load_average']:.1f} at the start "
              f"and {result['load_end']:.1f} at the end{merged}; `{cmd}`). Every program of "
-             "the full `vbl reproduce` (full-scale plans; `--quick` compiles the same "
-             "programs except the presets'), persistent compilation cache off. `before`: the "
+             "the full `vbl reproduce` (full-scale plans; `quick`: `--quick` compiles it "
+             "too), persistent compilation cache off. `before`: the "
              "same program before the compile-cost work (commit b22967f, measured "
              f"{b_where}; another machine type when its CPU differs, so compare the totals "
              "roughly; `-`: a program that did not exist then). `shared`: its StableHLO "
              "equals an earlier row's, so a reproduce compiles it once.", "",
              "| run | group | function | learners | trace CPU s | compile CPU s | "
-             "total CPU s | before: total CPU s | total wall s | load | shared |",
-             "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---|"]
+             "total CPU s | before: total CPU s | total wall s | load | shared | quick |",
+             "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---|---|"]
     for r in rows:
         prev = old.get((r["experiment"], r["group"], r["function"])) if not r.get(
             "preset") else None
@@ -148,9 +162,9 @@ def markdown(result: dict, cmd: str, before: dict | None) -> str:
                      f"{r['trace_cpu_s']:.1f} | {r['compile_cpu_s']:.1f} | {_total(r):.1f} | "
                      f"{'-' if prev is None else f'{prev:.1f}'} | "
                      f"{r['trace_s'] + r['compile_s']:.1f} | {r['load']:.1f} | "
-                     f"{'yes' if r['shared'] else ''} |")
+                     f"{'yes' if r['shared'] else ''} | {'yes' if r['quick'] else ''} |")
     own = [r for r in rows if not r["shared"]]
-    quick = [r for r in own if not r.get("preset")]
+    quick = [r for r in own if r["quick"]]
     walls = [r["trace_s"] + r["compile_s"] for r in rows]
     lines += ["", f"Compiled by a cold full reproduce: {len(own)} programs, "
               f"{sum(map(_total, own)):.0f} CPU s; by a cold `--quick`: {len(quick)} programs, "

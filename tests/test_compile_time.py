@@ -30,3 +30,17 @@ def test_rows_of_one_run_and_an_identical_program_is_shared():
     text = ct.markdown(result, "cmd", before)
     assert [r["shared"] for r in result["rows"]] == [False] * len(first) + [True] * len(again)
     assert f"{len(first)} programs" in text and "| 3.0 |" in text
+
+
+def test_quick_rows_are_the_programs_a_quick_reproduce_compiles():
+    """A quick reproduce compiles Table 2's default group without the velocity control,
+    no preset's program and no program of a full-run-only experiment."""
+    from vbl.engine import registry
+
+    registry.discover()
+    t2, ppo = registry.get("table2_shoot_pass"), registry.get("ppo_comparator")
+    assert ct.in_quick(t2, None, {"ball_velocity": False})
+    assert not ct.in_quick(t2, None, {"ball_velocity": True})
+    assert not ct.in_quick(t2, "monte_carlo", {"ball_velocity": False})
+    assert not ct.in_quick(ppo, None, {})
+    assert ct.in_quick(registry.get("grid_shooting"), None, {})

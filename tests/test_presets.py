@@ -114,3 +114,18 @@ def test_the_table2_preset_folder_rebuilds_to_its_preset_command():
     assert run_command(exp, spec) == "vbl run table2_shoot_pass --preset monte_carlo"
     *_, spec = resolve(exp, quick=True, preset="monte_carlo")
     assert run_command(exp, spec) == "vbl run table2_shoot_pass --quick --preset monte_carlo"
+
+
+def test_a_quick_run_without_the_control_rebuilds_to_the_plain_quick_command():
+    """--quick fixes Table 2's velocity control: its run folder rebuilds to `--quick`
+    alone, and a quick run that sweeps the control again says so with --sweep."""
+    from vbl.engine import get
+    from vbl.engine.rebuild import run_command
+    from vbl.engine.runner import resolve
+
+    exp = get("table2_shoot_pass")
+    *_, spec = resolve(exp, quick=True)
+    assert run_command(exp, spec) == "vbl run table2_shoot_pass --quick"
+    *_, spec = resolve(exp, quick=True, sweep={"ball_velocity": [False, True]})
+    assert run_command(exp, spec) == ("vbl run table2_shoot_pass --quick "
+                                      "--sweep ball_velocity=false,true")

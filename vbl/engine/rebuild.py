@@ -166,10 +166,11 @@ def _run_flags(exp: Experiment, quick: bool, preset: str | None, seeds: int,
 def _sweep_and_set_texts(exp: Experiment, rec: dict[str, Any], sweep: dict[str, list],
                          quick: bool, preset: str | None) -> tuple[list[str], list[str]]:
     """``(--sweep texts, --set texts)`` of a recorded config ``rec`` and ``sweep``: a
-    ``--sweep`` per swept path whose values differ from the default sweep's, a ``--set`` per
-    default-swept path the run did not sweep, and per other value that differs from what
-    ``--quick`` and the preset give."""
-    default_sweep = {k: config_to_dict_values({"v": list(v)})["v"] for k, v in exp.sweep.items()}
+    ``--sweep`` per swept path whose values differ from the default sweep's (the one
+    ``--quick`` gives, under it), a ``--set`` per default-swept path the run did not sweep,
+    and per other value that differs from what ``--quick`` and the preset give."""
+    default_sweep = {k: config_to_dict_values({"v": list(v)})["v"] for k, v in
+                     resolve(exp, quick=quick, preset=preset)[1].items()}  # --quick's own
     base_cfg, *_ = resolve(exp, None, sweep, None, 0, quick, preset)
     base = config_to_dict(base_cfg)
     texts_sweep = [f"{k}={','.join(_cli_value(x) for x in v)}" for k, v in sweep.items()
