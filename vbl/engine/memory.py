@@ -13,6 +13,7 @@ that others do.
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +22,7 @@ import numpy as np
 
 from vbl.engine.config import traced_dtype
 from vbl.engine.errors import EngineError
+from vbl.engine.trace_cache import traced_int
 
 __all__ = ["MemoryError_", "CARRY_COPIES", "available_memory", "estimate", "check_memory",
            "check_bytes", "tree_bytes", "fmt_bytes"]
@@ -83,26 +85,41 @@ def tree_bytes(tree: Any) -> int:
                for x in jax.tree_util.tree_leaves(tree))
 
 
-def estimate(plan) -> tuple[int, dict[str, Any]]:
-    """``(bytes, details)`` for the largest group of ``plan`` (a :class:`SweepPlan`)."""
+def _config_structs(group) -> Any:
+    """Shape-dtype structs of one learner's config of ``group``."""
+    return jax.tree.map(lambda x: jax.ShapeDtypeStruct(np.shape(x), traced_dtype(x)),
+                        group.first_config)
+
+
+def carry_bytes(group, ident: str = "") -> int:
+    """Bytes of one learner's state (``init``'s output) of ``group``'s program, from
+    ``jax.eval_shape``; with ``ident`` (the program's name in the trace cache) read from
+    the trace cache when it holds it (:func:`vbl.engine.trace_cache.traced_int`)."""
+    def trace() -> int:
+        return tree_bytes(jax.eval_shape(group.program.init,
+                                         jax.ShapeDtypeStruct((2,), np.uint32),
+                                         _config_structs(group)))
+    return traced_int(f"{ident} carry bytes", trace) if ident else trace()
+
+
+def estimate(plan, idents: Sequence[str] = ()) -> tuple[int, dict[str, Any]]:
+    """``(bytes, details)`` for the largest group of ``plan`` (a :class:`SweepPlan`);
+    ``idents``: its groups' names in the trace cache (:func:`carry_bytes`)."""
     worst, details = 0, {}
-    for g in plan.groups:
-        one = jax.tree.map(lambda x: jax.ShapeDtypeStruct(np.shape(x), traced_dtype(x)),
-                           g.first_config)
-        carry = tree_bytes(jax.eval_shape(g.program.init,
-                                       jax.ShapeDtypeStruct((2,), np.uint32), one))
+    for g, ident in zip(plan.groups, idents or [""] * len(plan.groups), strict=True):
+        carry = carry_bytes(g, ident)
         n = g.num_learners
-        total = n * (CARRY_COPIES * carry + tree_bytes(one) + 16)
+        total = n * (CARRY_COPIES * carry + tree_bytes(_config_structs(g)) + 16)
         if total >= worst:
             worst = total
             details = {"group": g.index, "learners": n, "carry_bytes": carry}
     return worst, details
 
 
-def check_memory(plan) -> int:
+def check_memory(plan, idents: Sequence[str] = ()) -> int:
     """Raise :class:`MemoryError_` if :func:`estimate` exceeds :func:`available_memory`;
     return the estimate."""
-    need, d = estimate(plan)
+    need, d = estimate(plan, idents)
     have = available_memory()
     if have and need > have:
         raise MemoryError_(

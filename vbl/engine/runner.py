@@ -200,7 +200,7 @@ def run_experiment(experiment: Experiment, *, sets: Mapping[str, Any] | None = N
                        _partial_spec(spec, zipped, span), shard, zipped)
     _check_span(plan, span, start_carry)
     if plan is not None and memory_check:
-        check_memory(plan)
+        check_memory(plan, [_ident(experiment, g) for g in plan.groups])
     if plan is not None:
         plan.validate()
     quiet = _quiet(quiet, primary)

@@ -34,8 +34,8 @@ import numpy as np
 
 from vbl.engine import jax_setup
 
-__all__ = ["use_trace_cache", "traced", "code_key", "TRACES_DIR", "TRACE_FORMAT",
-           "KEY_PACKAGES"]
+__all__ = ["use_trace_cache", "traced", "traced_int", "code_key", "TRACES_DIR",
+           "TRACE_FORMAT", "KEY_PACKAGES"]
 
 TRACES_DIR = "vbl-traces"  #: the traced programs' folder in the compilation cache's folder
 TRACE_FORMAT = 1  #: version of the file layout (part of every key)
@@ -123,13 +123,22 @@ class _Unpickler(pickle.Unpickler):
         return _class(*pid)
 
 
-def _read(path: Path) -> tuple[jax.export.Exported, Any] | None:
-    """The exported program and its output tree's skeleton in ``path``; None when the
-    file is missing, truncated or corrupt (its first line, the sha256 of the rest, does
-    not match)."""
+def _payload(path: Path) -> bytes | None:
+    """The bytes after the first line of ``path``; None when the file is missing,
+    truncated or corrupt (its first line, the sha256 of the rest, does not match)."""
     try:
         digest, _, payload = path.read_bytes().partition(b"\n")
-        if hashlib.sha256(payload).hexdigest().encode() != digest:
+    except OSError:
+        return None
+    return payload if hashlib.sha256(payload).hexdigest().encode() == digest else None
+
+
+def _read(path: Path) -> tuple[jax.export.Exported, Any] | None:
+    """The exported program and its output tree's skeleton in ``path``; None when the
+    file cannot be read back (:func:`_payload`)."""
+    try:
+        payload = _payload(path)
+        if payload is None:
             return None
         blob, skeleton = _Unpickler(io.BytesIO(payload)).load()
         return jax.export.deserialize(bytearray(blob)), skeleton
@@ -138,12 +147,21 @@ def _read(path: Path) -> tuple[jax.export.Exported, Any] | None:
 
 
 def _write(path: Path, exported: jax.export.Exported, skeleton: Any) -> None:
-    """Write atomically (a temporary file, then ``os.replace``): a reader sees the old
-    file or the whole new one. A file that cannot be written is left out."""
+    """The exported program and its output tree's skeleton to ``path``
+    (:func:`_write_payload`)."""
     try:
         buf = io.BytesIO()
         _Pickler(buf).dump((bytes(exported.serialize()), skeleton))
-        payload = buf.getvalue()
+        _write_payload(path, buf.getvalue())
+    except Exception:  # noqa: BLE001 - the cache is an optimisation
+        pass
+
+
+def _write_payload(path: Path, payload: bytes) -> None:
+    """Write the sha256 of ``payload``, a newline and ``payload`` atomically (a temporary
+    file, then ``os.replace``): a reader sees the old file or the whole new one. A file
+    that cannot be written is left out."""
+    try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
         try:
@@ -212,3 +230,21 @@ def traced(fn: Callable, ident: str, *args: Any) -> Callable:
 
     _LOADED[key] = jax.jit(call, compiler_options=jax_setup.COMPILER_OPTIONS)
     return _LOADED[key]
+
+
+def traced_int(ident: str, compute: Callable[[], int]) -> int:
+    """``compute()``, an int that tracing gives (such as the bytes of a program's state,
+    from ``jax.eval_shape``), kept in the cache under ``ident`` (with :func:`code_key` and
+    the 64-bit setting): a warm run of unchanged code and config reads it back instead of
+    tracing. ``compute()`` itself when the cache is off."""
+    folder = _folder()
+    if folder is None:
+        return compute()
+    path = folder / f"{_key(ident, [], 'int')}.int"
+    payload = _payload(path)
+    if payload is not None:
+        with contextlib.suppress(ValueError):
+            return int(payload.decode())
+    value = int(compute())
+    _write_payload(path, str(value).encode())
+    return value
