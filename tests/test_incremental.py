@@ -32,6 +32,7 @@ from vbl.spaces.incremental import (
     Buffer,
     _greedy_value,
     _sse,
+    _stats,
     leaf_of,
     num_states,
     record,
@@ -94,6 +95,34 @@ def test_residual_matches_numpy_least_squares():
                jnp.asarray(50.0), jnp.asarray(ridge))
     # the ridge fit's residual (without the penalty term)
     np.testing.assert_allclose(float(got), ref, rtol=1e-8)
+
+
+def test_bin_statistics_match_numpy_sums_for_all_boxes_and_candidates():
+    """_stats: every box along axis 0, or chosen boxes along every axis, = NumPy sums."""
+    lr = init_learner(P, 2, 4)
+    seg = lr.seg.replace(lo=lr.seg.lo.at[1].set(jnp.array([0.5, 0.0], jnp.float32)),
+                         hi=lr.seg.hi.at[0, 0].set(0.5).at[1].set(1.0),
+                         active=lr.seg.active.at[1].set(True))
+    buf = fill(lr, jax.random.PRNGKey(3), ENV.default_params).buf
+    buf = buf.replace(valid=buf.valid.at[::7].set(False),
+                      y=buf.y.at[:, 2].set((jnp.arange(M) % 3 == 0).astype(jnp.float32)))
+    x, a, y = (np.asarray(v, np.float64) for v in (buf.x, buf.a, buf.y))
+    y[:, 2] *= np.sqrt(0.25)
+    z = np.c_[x, np.ones(M)]
+    leaf, ok = np.asarray(leaf_of(seg, buf.x)), np.asarray(buf.valid)
+    lo, hi = np.asarray(seg.lo)[leaf], np.asarray(seg.hi)[leaf]
+    b = np.clip(np.floor(4 * (x - lo) / (hi - lo)), 0, 3)
+    every = _stats(seg, buf, 4, 4, 0.25)
+    chosen = _stats(seg, buf, 4, 4, 0.25, jnp.array([1, 5, 0]))
+    assert every[0].shape == (8, 4, 1, 4, 3, 3) and chosen[3].shape == (3, 4, 2, 4)
+    for got, boxes, axes in ((every, range(8), [0]), (chosen, [1, 5, 0], [0, 1])):
+        for k, box in enumerate(boxes):
+            for act, d, j in np.ndindex(4, len(axes), 4):
+                m = ok & (leaf == box) & (a == act) & (b[:, axes[d]] == j)
+                ref = (z[m].T @ z[m], z[m].T @ y[m], np.sum(y[m] ** 2), m.sum())
+                for g, r in zip(got, ref, strict=True):
+                    np.testing.assert_allclose(np.asarray(g[k, act, d, j]), r, rtol=1e-12,
+                                               atol=1e-9)
 
 
 def test_splits_at_region_boundary_and_nowhere_else(update):

@@ -233,27 +233,47 @@ def _bin_in_box(seg: Segmentation, leaf: jax.Array, x: jax.Array, bins: int) -> 
     return jnp.clip(jnp.floor(bins * (x - lo) / width), 0, bins - 1).astype(I32)
 
 
-def _stats(seg: Segmentation, buf: Buffer, num_actions: int, bins: int, weight_out):
-    """Bin statistics (L, A, D, B, ...) of the buffer under the current boxes (float64)."""
+def _sym_index(z: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Upper-triangle rows, columns (T,) of a (z, z) matrix, T = z (z + 1) / 2, and each
+    entry's position (z, z) among them."""
+    r, c = np.triu_indices(z)
+    pos = np.zeros((z, z), np.int32)
+    pos[r, c] = pos[c, r] = np.arange(r.size)
+    return r, c, pos
+
+
+def _stats(seg: Segmentation, buf: Buffer, num_actions: int, bins: int, weight_out,
+           boxes: jax.Array | None = None) -> list[jax.Array]:
+    """Bin statistics (szz (..., Z, Z), szy (..., Z, Y), syy, n (...)) float64 of the
+    buffer under the current boxes, Z = D + 1, Y = D + 1: of every box along axis 0 only,
+    (L, A, 1, B, ...), or with ``boxes`` (K,) int (distinct) of those boxes along every
+    axis, (K, A, D, B, ...).
+
+    One scatter-add per axis of the T = Z (Z + 1) / 2 distinct products of ``szz`` (n is its
+    last diagonal entry), ``szy`` and ``syy`` (each sum taken over the same transitions in
+    buffer order as a per-statistic scatter)."""
     cap, dim = seg.lo.shape
     x = buf.x.astype(F64)
     y = buf.y.astype(F64).at[:, dim].multiply(jnp.sqrt(jnp.asarray(weight_out, F64)))
-    valid = buf.valid
-    zz = jnp.concatenate([x, jnp.ones((x.shape[0], 1), F64)], axis=1)
+    zz = jnp.concatenate([x, jnp.ones((x.shape[0], 1), F64)], axis=1)             # (M, Z)
+    r, c, pos = _sym_index(dim + 1)
+    vals = jnp.concatenate([zz[:, r] * zz[:, c], (zz[:, :, None] * y[:, None, :]).reshape(
+        x.shape[0], -1), jnp.sum(y * y, axis=1, keepdims=True)], axis=1)          # (M, V)
     leaf = leaf_of(seg, buf.x)
     b = _bin_in_box(seg, leaf, buf.x, bins)
-    base = (leaf * num_actions + buf.a) * dim                                     # (M,)
-    idx = (base[:, None] + jnp.arange(dim, dtype=I32)[None]) * bins + b           # (M, D)
-    idx = jnp.where(valid[:, None], idx, cap * num_actions * dim * bins)          # dropped
-    nseg = cap * num_actions * dim * bins + 1
-    vals = (zz[:, :, None] * zz[:, None, :], zz[:, :, None] * y[:, None, :],
-            jnp.sum(y * y, axis=1), jnp.ones(x.shape[0], F64))
-    out = []
-    for v in vals:
-        rep = jnp.broadcast_to(v[:, None], (v.shape[0], dim) + v.shape[1:])
-        s = jax.ops.segment_sum(rep.reshape((-1,) + v.shape[1:]), idx.reshape(-1), nseg)
-        out.append(s[:-1].reshape((cap, num_actions, dim, bins) + v.shape[1:]))
-    return out
+    row, keep, nbox, naxes = leaf, buf.valid, cap, 1
+    if boxes is not None:                       # the row of each transition's box in boxes
+        hit = leaf[:, None] == boxes[None]                                        # (M, K)
+        row, keep = jnp.argmax(hit, axis=1), keep & jnp.any(hit, axis=1)
+        nbox, naxes = boxes.shape[0], dim
+    nseg = nbox * num_actions * bins
+    idx = jnp.where(keep[:, None], (row * num_actions + buf.a)[:, None] * bins + b, nseg)
+    s = jnp.stack([jax.ops.segment_sum(vals, idx[:, d], nseg) for d in range(naxes)], 1)
+    s = s.reshape(nbox, num_actions, bins, naxes, -1).swapaxes(2, 3)    # (K, A, D', B, V)
+    t = r.size
+    szz = s[..., pos]
+    szy = s[..., t:-1].reshape(s.shape[:-1] + (dim + 1, dim + 1))
+    return [szz, szy, s[..., -1], szz[..., dim, dim]]
 
 
 def _continues(seg: Segmentation, buf: Buffer):
@@ -380,26 +400,26 @@ def _merge_partners(seg: Segmentation, n_box: jax.Array, min_samples: Any
     return jnp.argmax(jnp.where(adj, n_box[None], -1.0), axis=1), jnp.any(adj, axis=1)
 
 
-def _model_criterion(seg: Segmentation, stats: tuple, partner: jax.Array,
-                     p: SegmentationParams) -> tuple[_Cut, jax.Array, jax.Array, jax.Array]:
+def _model_criterion(seg: Segmentation, buf: Buffer, tots: list[jax.Array],
+                     partner: jax.Array, p: SegmentationParams
+                     ) -> tuple[_Cut, jax.Array, jax.Array, jax.Array]:
     """The model-error split and the residuals a merge needs.
 
-    ``stats``: the per-bin sums of :func:`_stats`. Cuts are evaluated for the
-    ``split_candidates`` boxes with the largest residual per transition only, with one
-    batched residual computation for the cut sides and each box's union with ``partner``.
-    Returns (the best cut, each box's transitions (L,), residual (L,) and residual of its
-    union with its partner (L,))."""
+    ``tots``: each box's sums (L, A, ...) of :func:`_stats`. Cuts are evaluated for the
+    ``split_candidates`` boxes with the largest residual per transition only (their bin
+    sums along every axis taken here), with one batched residual computation for the cut
+    sides and each box's union with ``partner``. Returns (the best cut, each box's
+    transitions (L,), residual (L,) and residual of its union with its partner (L,))."""
     cap, dim = seg.lo.shape
     nb, ridge = p.bins, jnp.asarray(p.ridge, F64)
-    # whole boxes: sum the bins of axis 0
-    tots = [a[:, :, 0].sum(axis=2) for a in stats]                               # (L, A, ...)
     n_box = tots[3].sum(axis=1)                                                   # (L,)
     sse_box = _sse(*tots, ridge).sum(axis=1)                                      # (L,)
     err = sse_box / jnp.maximum(n_box, 1.0)
     elig = seg.active & (err > p.split_error)
     _, cand = jax.lax.top_k(jnp.where(elig, err, -jnp.inf), min(p.split_candidates, cap))
     # candidate cuts of the candidates: left = bins < c, c = 1..B-1
-    cum = [jnp.cumsum(a[cand], axis=3)[:, :, :, :-1] for a in stats]
+    stats = _stats(seg, buf, tots[3].shape[1], nb, p.outcome_weight, cand)
+    cum = [jnp.cumsum(a, axis=3)[:, :, :, :-1] for a in stats]                   # (K, A, D, B-1)
     right = [jnp.expand_dims(t[cand], (2, 3)) - c for t, c in zip(tots, cum, strict=True)]
     u = [t + t[partner] for t in tots]                                            # (L, A, ...)
     groups = (cum, right, u)
@@ -509,10 +529,11 @@ def structure_update(seg: Segmentation, buf: Buffer, q: jax.Array, p: Segmentati
     was made by the value criterion).
     """
     _require_x64()
-    stats = _stats(seg, buf, q.shape[1], p.bins, p.outcome_weight)
-    n_box = stats[3][:, :, 0].sum(axis=2).sum(axis=1)                            # (L,)
+    tots = [a[:, :, 0].sum(axis=2)                    # each box's sums (L, A, ...): bins of
+            for a in _stats(seg, buf, q.shape[1], p.bins, p.outcome_weight)]  # axis 0 summed
+    n_box = tots[3].sum(axis=1)                                                   # (L,)
     partner, has_partner = _merge_partners(seg, n_box, p.min_samples)
-    m_cut, *residuals = _model_criterion(seg, stats, partner, p)
+    m_cut, *residuals = _model_criterion(seg, buf, tots, partner, p)
     v_cut, values = _value_criterion(seg, buf, q, p)
     cut = _Cut(v_cut.made | m_cut.made,
                *(jnp.where(v_cut.made, v, m).astype(I32)
