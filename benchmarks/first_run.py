@@ -33,6 +33,9 @@ from benchmarks.hardware import hardware_info, write_results  # noqa: E402
 COLD_TARGET_S = 240.0  #: s wall, cold ``vbl reproduce --quick`` on a quiet 2-core machine
 WARM_TARGET_S = 120.0  #: s wall, the same command again
 QUICK_ONLY = "table1_identification"  #: the one experiment of ``--quick``
+BEFORE = ROOT / "benchmarks" / "results" / "first_run_before.json"
+"""This benchmark's result for the code before the quick run held the paper's rows only
+(commit da16431: 8 runs, with the PPO comparators and Table 2's velocity control)."""
 
 
 def _children_cpu_s() -> float:
@@ -65,7 +68,9 @@ def reproduce_twice(work: pathlib.Path, only: list[str], env: dict[str, str]) ->
     return out
 
 
-def markdown(result: dict) -> str:
+def markdown(result: dict, before: dict | None = None) -> str:
+    """The per-run table, the two commands' totals and, with ``before`` (this benchmark's
+    JSON of earlier code), that code's totals: its commit and its runs."""
     hw, cold, warm = result["hardware"], result["cold"], result["warm"]
     warm_runs = {r["folder"]: r for r in warm["manifest"]["runs"]}
     lines = [f"First run ({hw['cpu']}, {hw['cores']} cores, jax {hw['jax']}; "
@@ -85,6 +90,14 @@ def markdown(result: dict) -> str:
                      f"load {p['load_average'][0]:.1f} -> {p['load_average'][1]:.1f} | "
                      f"target <= {goal:.0f} s wall: "
                      f"{'met' if p['wall_s'] <= goal else 'not met'} | |")
+    if before:
+        runs = ", ".join(r["folder"] for r in before["cold"]["manifest"]["runs"])
+        lines += ["", f"Before: commit `{before['cold']['manifest']['commit'][:7]}` on "
+                  f"{before['hardware']['cpu']} ({runs}): cold "
+                  f"{before['cold']['wall_s']:.0f} s wall / {before['cold']['cpu_s']:.0f} "
+                  f"CPU s (load {before['cold']['load_average'][0]:.1f} at the start), warm "
+                  f"{before['warm']['wall_s']:.0f} s wall / {before['warm']['cpu_s']:.0f} "
+                  f"CPU s (`{BEFORE.relative_to(ROOT)}`)."]
     return "\n".join(lines) + "\n"
 
 
@@ -111,7 +124,8 @@ def main(argv=None) -> dict:
                       **reproduce_twice(pathlib.Path(work), args.only, dict(os.environ)))
         if args.keep:
             shutil.copytree(pathlib.Path(work) / "cold", args.keep)
-    text = markdown(result)
+    before = json.loads(BEFORE.read_text()) if BEFORE.exists() and not args.only else None
+    text = markdown(result, before)
     write_results(pathlib.Path(args.out), result, text)
     print(text)
     return result

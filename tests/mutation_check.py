@@ -301,7 +301,7 @@ FRESH_MUTANTS = [
            "seed_stats(np.asarray(v)[at:at + hi - lo])", "seed_stats(np.asarray(v)[lo:hi])",
            RUNNER_TESTS, "every sweep point's row holds the first point's seeds"),
     Mutant("runner-set-keeps-default-sweep", RN,
-           "for p, v in experiment.sweep.items() if p not in (sets or {})}",
+           "for p, v in experiment.sweep.items() if p not in fixed}",
            "for p, v in experiment.sweep.items()}", RUNNER_TESTS,
            "--set PATH=V of a default-swept path is swept over anyway"),
     Mutant("runner-empty-span", RN, "0 <= first < last <= n):",

@@ -39,3 +39,16 @@ def test_cold_then_warm_reproduce_rows_and_equal_metrics(tmp_path, monkeypatch):
     with pytest.raises(SystemExit, match="exists"):  # never over a kept run
         first_run.main(["--only", "paper_b", "--out", str(tmp_path / "fr2"), "--keep",
                         str(keep)])
+
+
+def test_the_committed_before_line_names_its_commit_runs_and_totals():
+    """The table's `before` line reads the committed measurement of the earlier code: its
+    commit, its 8 runs (the PPO comparators among them) and its rounded totals."""
+    before = json.loads(first_run.BEFORE.read_text())
+    now = json.loads((ROOT / "benchmarks" / "results" / "first_run.json").read_text())
+    text = first_run.markdown(now, before)
+    line = text.strip().splitlines()[-1]
+    assert line.startswith("Before: commit `da16431`") and "ppo_comparator" in line
+    assert f"cold {before['cold']['wall_s']:.0f} s wall" in line
+    assert f"warm {before['warm']['wall_s']:.0f} s wall" in line
+    assert first_run.markdown(now).strip().splitlines()[-1].startswith("| **warm command**")
