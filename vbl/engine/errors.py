@@ -20,6 +20,7 @@ from typing import Any
 __all__ = ["EngineError", "one_line", "quiet_xla_env", "quiet_xla_log", "debug_requested",
            "quiet_library_noise", "Terminated", "STOP_GRACE_S", "stop_code", "stop_message",
            "install_stop_handlers", "worker_stop_handlers", "on_forced_exit", "new_command",
+           "stop_hint",
            "final_line", "finish", "disk_full"]
 
 _DISK = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
@@ -147,6 +148,7 @@ signal ends it at once."""
 
 _state: dict[str, Any] = {"raised": False, "final": False, "signal": None}
 _hooks: list[Callable[[], None]] = []
+_hints: list[Callable[[], str]] = []
 _exit_lock = threading.Lock()
 
 
@@ -174,6 +176,24 @@ def on_forced_exit(hook: Callable[[], None]) -> Callable[[], None]:
     process; returns a function that removes it."""
     _hooks.append(hook)
     return lambda: _hooks.remove(hook) if hook in _hooks else None
+
+
+def stop_hint(hint: Callable[[], str]) -> Callable[[], None]:
+    """Register ``hint``, which says how to go on after a stop (the ``--resume`` command):
+    the watchdog's forced-exit line ends with ``; <hint()>``, as the line of a command that
+    unwinds by itself does (the first hint registered, the outermost command's, is used:
+    a ``vbl reproduce`` running a run in its own process names the reproduce's resume).
+    Returns a function that removes it."""
+    _hints.append(hint)
+    return lambda: _hints.remove(hint) if hint in _hints else None
+
+
+def _hint_tail() -> str:
+    """``; <the first hint>``, or "" (none registered, or it failed)."""
+    try:
+        return f"; {_hints[0]()}" if _hints else ""
+    except Exception:  # noqa: BLE001 - the forced-exit line must be written
+        return ""
 
 
 def new_command() -> None:
@@ -224,7 +244,7 @@ def _force_exit(signum: int, why: str) -> None:
             code = 128 + signum
             name = "terminated (SIGTERM)" if signum == signal.SIGTERM else "interrupted"
             with contextlib.suppress(OSError):
-                os.write(2, f"vbl: error: {name} ({why})\n".encode())
+                os.write(2, f"vbl: error: {name} ({why}){_hint_tail()}\n".encode())
     os._exit(code)
 
 

@@ -22,6 +22,7 @@ from vbl.engine.errors import (
     on_forced_exit,
     quiet_library_noise,
     quiet_xla_log,
+    stop_hint,
     stop_message,
     worker_stop_handlers,
 )
@@ -270,6 +271,7 @@ def _run_parallel(jobs: list[Job], exps: dict[str, Experiment], workers: int, ou
                                initializer=_worker_init, initargs=(out,))
     procs = _workers(pool)
     forget = on_forced_exit(lambda: _kill_workers(procs))
+    forget_hint = stop_hint(lambda: _resume_tail(out, len(done), len(jobs)))
     try:
         futures = {pool.submit(_run_chain, c, out, quick, resume, overwrite): c
                    for c in chains}
@@ -302,6 +304,7 @@ def _run_parallel(jobs: list[Job], exps: dict[str, Experiment], workers: int, ou
         pool.shutdown(wait=True)
     finally:
         forget()
+        forget_hint()
     return done
 
 
@@ -325,7 +328,12 @@ def _after_dead_worker(job: Job, e: BaseException, exps: dict[str, Experiment], 
 
 
 def _stopped(e: BaseException, out: Path, n_done: int, n_all: int) -> str:
-    return (f"{stop_message(e)}; {n_done} of {n_all} runs finished and are kept in {out}; "
+    return f"{stop_message(e)}; {_resume_tail(out, n_done, n_all)}"
+
+
+def _resume_tail(out: Path, n_done: int, n_all: int) -> str:
+    """What a stopped reproduce's line says after the stop: what is kept, how to go on."""
+    return (f"{n_done} of {n_all} runs finished and are kept in {out}; "
             f"continue with vbl reproduce --resume --out {out}")
 
 
@@ -407,12 +415,15 @@ def _reproduce(exps: dict[str, Experiment], out: Path, quick: bool, quiet: bool 
         done = _run_parallel(todo, exps, workers, out, quick, resume, overwrite, quiet)
     else:
         done = {}
+        forget_hint = stop_hint(lambda: _resume_tail(out, len(done), len(todo)))
         try:
             for j in todo:
                 done[j.folder] = _run_one(j, out, quick, quiet, resume, overwrite,
                                           exp=exps[j.name])
         except KeyboardInterrupt as e:  # SIGINT / SIGTERM: the finished runs are kept
             raise type(e)(_stopped(e, out, len(done), len(todo))) from None
+        finally:
+            forget_hint()
     _rerender_readers(todo, exps, out, done)
     for folder, times in kept.items():  # a resume ran nothing for them: their own times
         if done[folder]["status"] == "ok":

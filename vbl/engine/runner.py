@@ -20,7 +20,7 @@ import numpy as np
 from jax.experimental import multihost_utils
 
 from vbl.engine.config import INT32, apply_overrides, config_to_dict, fingerprint
-from vbl.engine.errors import EngineError
+from vbl.engine.errors import EngineError, stop_hint, stop_message
 from vbl.engine.experiment import Experiment, RunContext, RunResult
 from vbl.engine.jax_setup import COMPILER_OPTIONS, compile_shared, engine_precision
 from vbl.engine.memory import check_memory
@@ -398,24 +398,25 @@ def _run_in(run: _Run) -> RunResult:
 
         log = TensorBoardLog(log, run.tensorboard)
     t_start = time.perf_counter()
+    forget_hint = stop_hint(lambda: _resume_tail(run)) if run.primary else lambda: None
     try:
         if run.plan is None:
             return _run_own_loop(run, log, t_start)
         start = _train(run, ckpts, log)
     except KeyboardInterrupt as e:  # SIGINT, or SIGTERM (Terminated): say how to go on
         if run.primary:
-            raise type(e)(_stopped_line(run, e)) from None
+            raise type(e)(f"{stop_message(e)}; {_resume_tail(run)}") from None
         raise
     finally:
+        forget_hint()
         if hasattr(log, "close"):
             log.close()
     return _summarise(run, start, time.perf_counter() - t_start)
 
 
-def _stopped_line(run: _Run, e: BaseException) -> str:
-    """The stopped run's line: the chunk whose checkpoint is kept and the command that
-    continues it (``vbl run ... --out FOLDER --resume``)."""
-    from vbl.engine.errors import stop_message
+def _resume_tail(run: _Run) -> str:
+    """What a stopped run's line says after the stop: the chunk whose checkpoint is kept
+    and the command that continues it (``vbl run ... --out FOLDER --resume``)."""
     from vbl.engine.rebuild import run_command  # rebuild imports this module
 
     steps = [int(d.name) for d in (run.path / "checkpoints").glob("*") if d.name.isdigit()]
@@ -425,8 +426,7 @@ def _stopped_line(run: _Run, e: BaseException) -> str:
         command = run_command(run.experiment, run.spec)
     except Exception:  # noqa: BLE001 - the line must not fail; a shorter command then
         command = f"vbl run {run.experiment.name} ..."
-    return (f"{stop_message(e)}; {kept}; continue with: {command} --out "
-            f"{shlex.quote(str(run.path))} --resume")
+    return f"{kept}; continue with: {command} --out {shlex.quote(str(run.path))} --resume"
 
 
 def _start_folder(run: _Run) -> Checkpoints | None:
