@@ -324,6 +324,11 @@ def test_reproduce_in_worker_processes_equals_in_process(tmp_path, monkeypatch):
                    manifest["runs"])
     assert f"{jobs} worker processes" in path.read_text()
     assert reports[1] == reports[2]
+    # the workers' execution lock (they take turns at running programs) is gone after
+    import os
+
+    from vbl.engine.jax_setup import EXECUTION_LOCK_ENV
+    assert EXECUTION_LOCK_ENV not in os.environ
     # a --resume of the finished reproduce runs nothing: its runs keep their recorded
     # times in the manifest (the runs table and the scheduler read them)
     before = json.loads((tmp_path / "rep1" / "reproduce.json").read_text())["runs"]

@@ -11,6 +11,9 @@
   duration of a run (``jax.enable_x64``, a context manager: the user's own JAX code
   outside a run is untouched).
 * :data:`COMPILER_OPTIONS`: the XLA options the engine compiles its programs with.
+* :func:`execution_turn`: processes on one machine that name the same lock file in
+  ``VBL_EXECUTION_LOCK`` (the workers of one ``vbl reproduce``) run their compiled
+  programs one at a time, while tracing and compiling side by side.
 * :func:`compile_shared`: with the cache on, processes that share it (the shards of a run
   started together on one machine) compile each program once: the first compiles and
   writes the cache while the others wait, then read it.
@@ -31,7 +34,7 @@ import jax
 
 __all__ = ["use_compilation_cache", "machine_key", "engine_precision", "CACHE_MIN_COMPILE_S",
            "COMPILER_OPTIONS", "compile_shared", "program_lock", "COMPILE_WAIT_S",
-           "LOCKS_DIR", "shared_cache_folder"]
+           "LOCKS_DIR", "shared_cache_folder", "execution_turn", "EXECUTION_LOCK_ENV"]
 
 CACHE_MIN_COMPILE_S = 1.0  #: s; programs that compile faster are not written to the cache
 
@@ -124,6 +127,39 @@ def program_lock(path: str | os.PathLike, wait_s: float = COMPILE_WAIT_S,
         yield held
     finally:
         os.close(fd)  # drops the lock
+
+
+EXECUTION_LOCK_ENV = "VBL_EXECUTION_LOCK"
+"""Environment variable naming the lock file of :func:`execution_turn` (unset: no lock)."""
+
+
+@contextlib.contextmanager
+def execution_turn() -> Iterator[None]:
+    """Run the block (a compiled program's run, to its results) holding the exclusive
+    ``flock`` of the file ``VBL_EXECUTION_LOCK`` names, waiting for the process that holds
+    it; without the variable, or where the lock cannot be made, the block runs at once.
+
+    A program spreads its learners over every core (one host device per core), so two
+    processes' programs at once only contend for the cores, and their spinning thread
+    pools waste CPU time besides: ``vbl reproduce``'s workers take turns, while tracing and
+    compiling (about one core each) go on beside the other's run. Turns never change
+    results, only their order in time. A multi-process run takes no turns (its processes
+    wait for each other inside a program)."""
+    path = os.environ.get(EXECUTION_LOCK_ENV, "").strip()
+    fd = None
+    if path and jax.process_count() == 1:  # a multi-process run's programs wait for peers
+        with contextlib.suppress(OSError):
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        if fd is not None:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX)  # a signal interrupts the wait (PEP 475)
+            except OSError:
+                pass  # a file system without locks: run unlocked
+        yield
+    finally:
+        if fd is not None:
+            os.close(fd)  # drops the lock
 
 
 def shared_cache_folder() -> str | None:

@@ -10,8 +10,10 @@ import math
 import multiprocessing
 import os
 import resource
+import tempfile
 import time
 import traceback
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -27,7 +29,7 @@ from vbl.engine.errors import (
     worker_stop_handlers,
 )
 from vbl.engine.experiment import Experiment, ReportSection
-from vbl.engine.jax_setup import use_compilation_cache
+from vbl.engine.jax_setup import EXECUTION_LOCK_ENV, use_compilation_cache
 from vbl.engine.machine import git_commit, load_average, machine_description
 from vbl.engine.progress import read_status
 from vbl.engine.rebuild import REPRODUCE_MANIFEST, rerender
@@ -168,6 +170,24 @@ killed (its run folder stays consistent either way: rows are appended whole, che
 are written then renamed)."""
 
 
+def _execution_lock_for_workers() -> Callable[[], None]:
+    """Point ``VBL_EXECUTION_LOCK`` at a fresh lock file, which the workers spawned from now
+    on inherit, so that they take turns at running programs
+    (:func:`vbl.engine.jax_setup.execution_turn`; a variable already set is kept). Returns
+    the function that removes the variable and the file."""
+    if os.environ.get(EXECUTION_LOCK_ENV, "").strip():
+        return lambda: None
+    fd, path = tempfile.mkstemp(prefix="vbl-execution-", suffix=".lock")
+    os.close(fd)
+    os.environ[EXECUTION_LOCK_ENV] = path
+
+    def forget() -> None:
+        os.environ.pop(EXECUTION_LOCK_ENV, None)
+        with contextlib.suppress(OSError):
+            os.unlink(path)
+    return forget
+
+
 def _workers(pool) -> dict:
     """The pool's ``{pid: process}``, the live dict its manager thread updates (the pool
     drops its own reference at shutdown)."""
@@ -267,6 +287,7 @@ def _run_parallel(jobs: list[Job], exps: dict[str, Experiment], workers: int, ou
     ctx = multiprocessing.get_context("spawn")  # jax is not fork-safe
     t0 = last = time.perf_counter()
     chains = _chains(jobs, exps, committed_seconds(quick))
+    forget_lock = _execution_lock_for_workers()  # before the pool spawns its workers
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, max_tasks_per_child=1,
                                initializer=_worker_init, initargs=(out,))
     procs = _workers(pool)
@@ -305,6 +326,7 @@ def _run_parallel(jobs: list[Job], exps: dict[str, Experiment], workers: int, ou
     finally:
         forget()
         forget_hint()
+        forget_lock()
     return done
 
 

@@ -22,7 +22,12 @@ from jax.experimental import multihost_utils
 from vbl.engine.config import INT32, apply_overrides, config_to_dict, fingerprint
 from vbl.engine.errors import EngineError, stop_hint, stop_message
 from vbl.engine.experiment import Experiment, RunContext, RunResult
-from vbl.engine.jax_setup import COMPILER_OPTIONS, compile_shared, engine_precision
+from vbl.engine.jax_setup import (
+    COMPILER_OPTIONS,
+    compile_shared,
+    engine_precision,
+    execution_turn,
+)
 from vbl.engine.memory import check_memory
 from vbl.engine.plots import plot_curves, plot_names
 from vbl.engine.process import one_device_hint
@@ -616,7 +621,9 @@ def _run_group(plan: SweepPlan, group: Group, sharding, ckpts: Checkpoints, log:
     else:
         keys = batches(init_keys)
         init_fn = _ready(init_fn, f"{ident} init", keys[0], cfgs[0])
-        carries = [init_fn(k, c) for k, c in zip(keys, cfgs, strict=True)]
+        with execution_turn():
+            carries = jax.block_until_ready([init_fn(k, c) for k, c in
+                                             zip(keys, cfgs, strict=True)])
     if truncate:
         log.truncate_after(start)
 
@@ -624,7 +631,9 @@ def _run_group(plan: SweepPlan, group: Group, sharding, ckpts: Checkpoints, log:
         step_fn = _ready(step_fn, f"{ident} step", carries[0], cfgs[0])
     for chunk in range(done, end):
         t0 = time.perf_counter()
-        outs = [step_fn(c, cfg) for c, cfg in zip(carries, cfgs, strict=True)]
+        with execution_turn():
+            outs = jax.block_until_ready([step_fn(c, cfg) for c, cfg in
+                                          zip(carries, cfgs, strict=True)])
         carries = [o[0] for o in outs]
         metrics = gather([o[1] for o in outs])
         dt = time.perf_counter() - t0
@@ -635,8 +644,9 @@ def _run_group(plan: SweepPlan, group: Group, sharding, ckpts: Checkpoints, log:
         if chunk + 1 == prog.num_chunks and prog.final is not None:
             keys = batches(final_keys)
             final_fn = _ready(final_fn, f"{ident} final", carries[0], cfgs[0], keys[0])
-            fin = gather([final_fn(c, cfg, k) for c, cfg, k in
-                          zip(carries, cfgs, keys, strict=True)])
+            with execution_turn():
+                fin = gather([final_fn(c, cfg, k) for c, cfg, k in
+                              zip(carries, cfgs, keys, strict=True)])
             log.append(_rows(plan, group, step, "final", fin))
         if last or (chunk + 1) % every == 0:
             ckpts.save(step, gather(carries), {"group": group.index, "chunk": chunk + 1})

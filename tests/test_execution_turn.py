@@ -1,0 +1,67 @@
+"""Processes that share a ``VBL_EXECUTION_LOCK`` run their programs one at a time
+(``vbl.engine.jax_setup.execution_turn``); ``vbl reproduce`` gives its workers one."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+from vbl.engine import reproduce
+from vbl.engine.jax_setup import EXECUTION_LOCK_ENV
+
+_HOLDER = """
+import json, sys, time
+from vbl.engine.jax_setup import execution_turn
+spans = []
+for _ in range(4):
+    with execution_turn():
+        t0 = time.monotonic()
+        time.sleep(0.15)
+        spans.append((t0, time.monotonic()))
+    time.sleep(0.01)
+print(json.dumps(spans))
+"""
+
+
+def _spans(lock: str | None) -> list[list[tuple[float, float]]]:
+    """The turns (start, end) of two processes started together, per process."""
+    env = dict(os.environ)
+    env.pop(EXECUTION_LOCK_ENV, None)
+    if lock is not None:
+        env[EXECUTION_LOCK_ENV] = lock
+    procs = [subprocess.Popen([sys.executable, "-c", _HOLDER], env=env, text=True,
+                              stdout=subprocess.PIPE) for _ in range(2)]
+    return [json.loads(p.communicate(timeout=120)[0]) for p in procs]
+
+
+def _overlaps(a, b) -> int:
+    return sum(1 for s0, e0 in a for s1, e1 in b if s0 < e1 and s1 < e0)
+
+
+def test_processes_sharing_the_lock_never_run_at_once(tmp_path):
+    a, b = _spans(str(tmp_path / "turn.lock"))
+    assert len(a) == len(b) == 4
+    assert _overlaps(a, b) == 0
+
+
+def test_without_the_variable_nothing_waits(tmp_path):
+    a, b = _spans(None)  # the same processes overlap: the test above can see a failure
+    assert _overlaps(a, b) > 0
+
+
+def test_workers_get_a_fresh_lock_that_is_removed_after(monkeypatch):
+    monkeypatch.delenv(EXECUTION_LOCK_ENV, raising=False)
+    forget = reproduce._execution_lock_for_workers()
+    path = os.environ[EXECUTION_LOCK_ENV]
+    assert os.path.isfile(path)
+    forget()
+    assert EXECUTION_LOCK_ENV not in os.environ and not os.path.exists(path)
+
+
+def test_a_lock_the_user_named_is_kept(monkeypatch, tmp_path):
+    mine = str(tmp_path / "mine.lock")
+    monkeypatch.setenv(EXECUTION_LOCK_ENV, mine)
+    reproduce._execution_lock_for_workers()()
+    assert os.environ[EXECUTION_LOCK_ENV] == mine
