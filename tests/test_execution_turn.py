@@ -65,3 +65,32 @@ def test_a_lock_the_user_named_is_kept(monkeypatch, tmp_path):
     monkeypatch.setenv(EXECUTION_LOCK_ENV, mine)
     reproduce._execution_lock_for_workers()()
     assert os.environ[EXECUTION_LOCK_ENV] == mine
+
+
+def test_a_run_waits_for_its_turn_then_finishes(tmp_path):
+    """A `vbl run` whose lock another process holds runs no program until it is free."""
+    import fcntl
+    import time
+
+    from tests.engine_helpers import TINY, env_for, experiments_dir, vbl_cmd, wait_until
+
+    lock, out = tmp_path / "turn.lock", tmp_path / "run"
+    env = env_for(experiments_dir(tmp_path), **{EXECUTION_LOCK_ENV: str(lock)})
+    fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+    fcntl.flock(fd, fcntl.LOCK_EX)  # another process's program is running
+    p = subprocess.Popen(vbl_cmd("run", "toy_bandit", *TINY, "--set", "train.num_chunks=3",
+                                 "--seeds", "2", "--out", str(out), "--quiet"),
+                         env=env, text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        wait_until(lambda: (out / "config.json").exists(), "the run started", p)
+        time.sleep(3.0)
+        rows = out / "metrics.jsonl"
+        assert p.poll() is None and (not rows.exists() or not rows.read_text().strip())
+        os.close(fd)  # its turn
+        _, err = p.communicate(timeout=300)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 0, err[-2000:]
+    steps = [json.loads(line)["step"] for line in rows.read_text().splitlines()]
+    assert sorted(set(steps)) == [1, 2, 3]
