@@ -102,8 +102,9 @@ def reproduce_jobs(exps: dict[str, Experiment], quick: bool = False) -> list[Job
 def default_jobs(n_runs: int) -> int:
     """Worker processes for ``vbl reproduce``: one per CPU core, at most one per run.
 
-    A quick run is dominated by XLA compilation, which uses one core per program, so
-    runs in separate processes use every core while they compile.
+    A quick run is dominated by tracing and XLA compilation, about one core per program,
+    so runs in separate processes use every core while they compile; their compiled
+    programs, which use every core each, take turns (:func:`_execution_lock_for_workers`).
     """
     return max(1, min(os.cpu_count() or 1, n_runs))
 
