@@ -97,13 +97,14 @@ LOCKS_DIR = "vbl-locks"  #: the lock files' folder in the compilation cache's fo
 
 
 @contextlib.contextmanager
-def program_lock(path: str | os.PathLike, wait_s: float = COMPILE_WAIT_S,
+def program_lock(path: str | os.PathLike, wait_s: float | None = COMPILE_WAIT_S,
                  poll_s: float = 0.2) -> Iterator[bool]:
     """Hold the exclusive ``flock`` of the file ``path`` (made when missing) in the
-    ``with`` block, waiting at most ``wait_s`` seconds for another holder; yields whether
-    it is held. A lock that cannot be made or taken (a read-only folder, a file system
-    without locks) or that stays taken yields False: the block runs unlocked, as it would
-    without the lock. The lock ends with the block, or with the process."""
+    ``with`` block, waiting at most ``wait_s`` seconds for another holder (None: as long as
+    it holds it, woken by the kernel when it lets go; a signal interrupts the wait); yields
+    whether it is held. A lock that cannot be made or taken (a read-only folder, a file
+    system without locks) or that stays taken yields False: the block runs unlocked, as it
+    would without the lock. The lock ends with the block, or with the process."""
     path = Path(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -112,21 +113,28 @@ def program_lock(path: str | os.PathLike, wait_s: float = COMPILE_WAIT_S,
         yield False
         return
     try:
-        held, end = False, time.monotonic() + wait_s
+        yield _flock(fd, wait_s, poll_s)
+    finally:
+        os.close(fd)  # drops the lock
+
+
+def _flock(fd: int, wait_s: float | None, poll_s: float) -> bool:
+    """Take the exclusive ``flock`` of ``fd`` (see :func:`program_lock`); whether held."""
+    try:
+        if wait_s is None:
+            fcntl.flock(fd, fcntl.LOCK_EX)  # PEP 475: a signal's exception ends the wait
+            return True
+        end = time.monotonic() + wait_s
         while True:
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                held = True
-                break
+                return True
             except BlockingIOError:
                 if time.monotonic() >= end:
-                    break
+                    return False
                 time.sleep(poll_s)
-            except OSError:
-                break
-        yield held
-    finally:
-        os.close(fd)  # drops the lock
+    except OSError:
+        return False
 
 
 EXECUTION_LOCK_ENV = "VBL_EXECUTION_LOCK"
@@ -146,20 +154,11 @@ def execution_turn() -> Iterator[None]:
     results, only their order in time. A multi-process run takes no turns (its processes
     wait for each other inside a program)."""
     path = os.environ.get(EXECUTION_LOCK_ENV, "").strip()
-    fd = None
-    if path and jax.process_count() == 1:  # a multi-process run's programs wait for peers
-        with contextlib.suppress(OSError):
-            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-    try:
-        if fd is not None:
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX)  # a signal interrupts the wait (PEP 475)
-            except OSError:
-                pass  # a file system without locks: run unlocked
+    if not path or jax.process_count() > 1:  # a multi-process run's programs wait for peers
         yield
-    finally:
-        if fd is not None:
-            os.close(fd)  # drops the lock
+        return
+    with program_lock(path, wait_s=None):
+        yield
 
 
 def shared_cache_folder() -> str | None:
