@@ -7,6 +7,9 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
+
+import pytest
 
 from vbl.engine import reproduce
 from vbl.engine.jax_setup import EXECUTION_LOCK_ENV
@@ -58,6 +61,22 @@ def test_workers_get_a_fresh_lock_that_is_removed_after(monkeypatch):
     assert os.path.isfile(path)
     forget()
     assert EXECUTION_LOCK_ENV not in os.environ and not os.path.exists(path)
+
+
+def test_a_pool_that_fails_to_start_leaves_no_lock_behind(monkeypatch, tmp_path):
+    import concurrent.futures
+
+    def no_pool(*args, **kwargs):
+        raise OSError("no processes left")
+
+    monkeypatch.delenv(EXECUTION_LOCK_ENV, raising=False)
+    monkeypatch.setattr(concurrent.futures, "ProcessPoolExecutor", no_pool)
+    made = set(os.listdir(tempfile.gettempdir()))
+    with pytest.raises(OSError, match="no processes left"):
+        reproduce._run_parallel([], {}, 2, tmp_path, True, False, False, True)
+    assert EXECUTION_LOCK_ENV not in os.environ
+    assert not {f for f in set(os.listdir(tempfile.gettempdir())) - made
+                if f.startswith("vbl-execution-")}
 
 
 def test_a_lock_the_user_named_is_kept(monkeypatch, tmp_path):

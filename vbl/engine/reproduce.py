@@ -289,8 +289,12 @@ def _run_parallel(jobs: list[Job], exps: dict[str, Experiment], workers: int, ou
     t0 = last = time.perf_counter()
     chains = _chains(jobs, exps, committed_seconds(quick))
     forget_lock = _execution_lock_for_workers()  # before the pool spawns its workers
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, max_tasks_per_child=1,
-                               initializer=_worker_init, initargs=(out,))
+    try:
+        pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, max_tasks_per_child=1,
+                                   initializer=_worker_init, initargs=(out,))
+    except BaseException:
+        forget_lock()
+        raise
     procs = _workers(pool)
     forget = on_forced_exit(lambda: _kill_workers(procs))
     forget_hint = stop_hint(lambda: _resume_tail(out, len(done), len(jobs)))
