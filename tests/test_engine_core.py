@@ -342,6 +342,55 @@ def test_reproduce_in_worker_processes_equals_in_process(tmp_path, monkeypatch):
                for f, b in summaries.items())
 
 
+_DYING_TOY = """
+import multiprocessing, os
+from vbl.engine.registry import load_script
+toy = load_script({toy!r})
+from vbl.engine import Experiment, register
+
+def make_program(cfg):
+    if multiprocessing.parent_process() is not None:  # in a reproduce worker: killed
+        os._exit(9)
+    return toy.make_program(cfg)
+
+register(Experiment(name="paper_dies", description="a run whose worker is killed",
+                    default_config=toy.BanditConfig(), make_program=make_program,
+                    quick={quick!r}, quick_seeds=2, paper_result=True))
+"""
+
+
+def test_reproduce_keeps_the_other_runs_when_a_worker_dies(tmp_path, monkeypatch):
+    """A worker killed mid-run (out of memory, a signal) breaks the pool, which stops the
+    other worker too: the command still ends with the report and the manifest (a dead
+    run's costs null, a run that had finished kept) and a non-zero status."""
+    from tests.engine_helpers import TINY_SETS, TOY, write_paper_toy
+    from vbl.engine import registry
+    from vbl.engine.reproduce import reproduce
+
+    d = tmp_path / "exps"
+    d.mkdir()
+    write_paper_toy(d, "paper_a", chunks=2)
+    (d / "paper_dies.py").write_text(_DYING_TOY.format(
+        toy=str(TOY), quick={**TINY_SETS, "train.num_chunks": 2}))
+    monkeypatch.setenv("VBL_EXPERIMENTS_DIR", str(d))
+    monkeypatch.setattr(registry, "_DISCOVERED", set())
+    path, ok = reproduce(tmp_path / "rep", quick=True, quiet=True, jobs=2,
+                         names=["paper_a", "paper_dies"])
+    assert not ok
+    runs = {r["folder"]: r for r in
+            json.loads((tmp_path / "rep" / "reproduce.json").read_text())["runs"]}
+    died = "failed: worker process died"
+    assert runs["paper_a"]["status"] == "ok" or runs["paper_a"]["status"].startswith(died)
+    for r in runs.values():
+        if r["status"].startswith(died):
+            assert r["seconds"] is None and r["cpu_s"] is None and r["peak_rss_mb"] is None
+        else:
+            assert r["cpu_s"] > 0
+    assert runs["paper_dies"]["status"].startswith(died)
+    text = path.read_text()
+    assert "## paper_a" in text and "| paper_dies |" in text and "nan" not in text.lower()
+
+
 def test_reproduce_chains_group_experiments_and_start_the_longest(toy, tmp_path):
     """Chains (a group runs in one worker) start longest first by the committed run's
     seconds at that scale; a run without a time counts the mean of the others."""

@@ -242,7 +242,8 @@ def committed_seconds(quick: bool, root: Path = COMMITTED_RUNS) -> dict[str, flo
     path = root / ("reproduce-quick" if quick else "reproduce") / REPRODUCE_MANIFEST
     try:
         runs = json.loads(path.read_text())["runs"]
-        return {r["folder"]: float(r["seconds"]) for r in runs if "seconds" in r}
+        return {r["folder"]: float(r["seconds"]) for r in runs
+                if r.get("seconds") is not None}
     except (OSError, ValueError, KeyError, TypeError):
         return {}
 
@@ -314,7 +315,7 @@ def _run_parallel(jobs: list[Job], exps: dict[str, Experiment], workers: int, ou
                     done[name] = r
                     if not quiet:
                         print(f"[{len(done)}/{len(jobs)}] {name}: "
-                              f"{r['status'].splitlines()[0]} ({r['seconds']:.0f} s)", flush=True)
+                              f"{r['status'].splitlines()[0]} ({_seconds(r)})", flush=True)
             now = time.perf_counter()
             if not quiet and pending and now - last >= HEARTBEAT_S - 2.5:
                 running = [j for f in pending if f.running() for j in futures[f]
@@ -415,6 +416,27 @@ def reproduce(out: Path, *, quick: bool, quiet: bool | None, resume: bool = Fals
         lock.release()
 
 
+def _number(value: Any) -> float:
+    """A cost read from a manifest: NaN for one it lacks (absent, or null)."""
+    return math.nan if value is None else float(value)
+
+
+def _seconds(r: dict[str, Any]) -> str:
+    """A run's wall time for a progress line or the report: ``"12 s"``, or ``"-"`` when
+    it was not measured."""
+    return f"{r['seconds']:.0f} s" if math.isfinite(r["seconds"]) else "-"
+
+
+def _costs(r: dict[str, Any]) -> dict[str, float | int | None]:
+    """A run's :data:`RUN_COSTS` for the manifest: seconds and CPU seconds to 0.1 s, peak
+    memory in whole MB, None (JSON null) for one that was not measured (a run whose worker
+    died)."""
+    def rounded(x: float, digits: int | None) -> float | int | None:
+        return round(x, digits) if math.isfinite(x) else None
+    return {"seconds": rounded(r["seconds"], 1), "cpu_s": rounded(r["cpu_s"], 1),
+            "peak_rss_mb": rounded(r["peak_rss_mb"], None)}
+
+
 def _finished_times(out: Path, todo: list[Job]) -> dict[str, dict[str, float]]:
     """``{folder: {seconds, cpu_s, peak_rss_mb}}`` from ``out``'s manifest for the runs
     that had finished before a ``--resume`` (their ``summary.json`` is there): the resume
@@ -425,7 +447,7 @@ def _finished_times(out: Path, todo: list[Job]) -> dict[str, dict[str, float]]:
         before = {r["folder"]: r for r in runs if r.get("status") == "ok"}
     except (OSError, ValueError, KeyError, TypeError):
         return {}
-    return {j.folder: {k: float(before[j.folder].get(k, math.nan)) for k in RUN_COSTS}
+    return {j.folder: {k: _number(before[j.folder].get(k)) for k in RUN_COSTS}
             for j in todo if j.folder in before and (out / j.folder / "summary.json").is_file()}
 
 
@@ -461,9 +483,7 @@ def _reproduce(exps: dict[str, Experiment], out: Path, quick: bool, quiet: bool 
                 "load_average": [load_start, _load()],
                 "runs": [{"experiment": j.name, "preset": j.preset, "folder": j.folder,
                           "status": done[j.folder]["status"].splitlines()[0],
-                          "seconds": round(done[j.folder]["seconds"], 1),
-                          "cpu_s": round(done[j.folder]["cpu_s"], 1),
-                          "peak_rss_mb": round(done[j.folder]["peak_rss_mb"])}
+                          **_costs(done[j.folder])}
                          for j in todo]}
     write_json(out / REPRODUCE_MANIFEST, manifest)
     parts = [f"# vbl reproduction report{' (--quick)' if quick else ''}", "",
@@ -477,7 +497,7 @@ def _reproduce(exps: dict[str, Experiment], out: Path, quick: bool, quiet: bool 
         ok &= r["status"] == "ok"
         what = exp.description + (f" (preset `{j.preset}`)" if j.preset else "")
         rows.append(f"| {j.folder} | {what} | {r['status'].splitlines()[0]} | "
-                    f"{r['seconds']:.0f} |")
+                    f"{_seconds(r).removesuffix(' s')} |")
         figs = [f"![{Path(f).stem}]({url_path(os.path.relpath(f, out.absolute()))})"
                 for f in r["figures"]]
         sections += [f"## {j.folder}", "", what, "", r["markdown"], "",
