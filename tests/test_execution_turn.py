@@ -79,6 +79,25 @@ def test_a_pool_that_fails_to_start_leaves_no_lock_behind(monkeypatch, tmp_path)
                 if f.startswith("vbl-execution-")}
 
 
+@pytest.mark.parametrize("quick", [True, False])
+def test_only_a_quick_reproduce_gives_its_workers_turns(monkeypatch, tmp_path, quick):
+    """Quick runs are compile-bound: their workers take turns. Full-scale programs run
+    side by side (docs/findings/compile_cost.md): their workers get no lock."""
+    import concurrent.futures
+
+    seen = {}
+
+    def pool(*args, **kwargs):  # the environment the workers would inherit
+        seen["lock"] = os.environ.get(EXECUTION_LOCK_ENV)
+        raise OSError("stop here")
+
+    monkeypatch.delenv(EXECUTION_LOCK_ENV, raising=False)
+    monkeypatch.setattr(concurrent.futures, "ProcessPoolExecutor", pool)
+    with pytest.raises(OSError, match="stop here"):
+        reproduce._run_parallel([], {}, 2, tmp_path, quick, False, False, True)
+    assert (seen["lock"] is not None) == quick
+
+
 def test_a_lock_the_user_named_is_kept(monkeypatch, tmp_path):
     mine = str(tmp_path / "mine.lock")
     monkeypatch.setenv(EXECUTION_LOCK_ENV, mine)

@@ -149,8 +149,9 @@ def execution_turn() -> Iterator[None]:
 
     A program spreads its learners over every core (one host device per core), so two
     processes' programs at once only contend for the cores, and their spinning thread
-    pools waste CPU time besides: ``vbl reproduce``'s workers take turns, while tracing and
-    compiling (about one core each) go on beside the other's run. Turns never change
+    pools waste CPU time besides: ``vbl reproduce --quick``'s workers take turns, while
+    tracing and compiling (about one core each) go on beside the other's run (a full-scale
+    reproduce's workers run side by side, which is faster there). Turns never change
     results, only their order in time. A multi-process run takes no turns (its processes
     wait for each other inside a program)."""
     path = os.environ.get(EXECUTION_LOCK_ENV, "").strip()

@@ -105,6 +105,8 @@ def default_jobs(n_runs: int) -> int:
     A quick run is dominated by tracing and XLA compilation, about one core per program,
     so runs in separate processes use every core while they compile; their compiled
     programs, which use every core each, take turns (:func:`_execution_lock_for_workers`).
+    A full-scale run's programs run side by side: they leave gaps in each other's use of
+    the cores, which turns would leave idle.
     """
     return max(1, min(os.cpu_count() or 1, n_runs))
 
@@ -289,7 +291,8 @@ def _run_parallel(jobs: list[Job], exps: dict[str, Experiment], workers: int, ou
     ctx = multiprocessing.get_context("spawn")  # jax is not fork-safe
     t0 = last = time.perf_counter()
     chains = _chains(jobs, exps, committed_seconds(quick))
-    forget_lock = _execution_lock_for_workers()  # before the pool spawns its workers
+    # before the pool spawns its workers; turns only at quick scale (default_jobs)
+    forget_lock = _execution_lock_for_workers() if quick else (lambda: None)
     try:
         pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, max_tasks_per_child=1,
                                    initializer=_worker_init, initargs=(out,))
