@@ -212,52 +212,57 @@ def test_a_linear_algebra_program_read_back_in_a_new_process_runs(tmp_path):
     assert runs[0].stdout == runs[1].stdout
 
 
-def test_a_traced_int_is_read_back_until_code_config_or_precision_change(cache, monkeypatch):
-    """traced_int computes once per key; another config, source hash or 64-bit setting
-    computes again; a corrupt file is computed again and rewritten."""
-    calls = []
+def _counting_toy(tmp_path, monkeypatch, traces: list):
+    """The toy experiment, its ``init`` counting its traces, keyed in the trace cache as
+    the toy script's."""
+    import dataclasses
 
-    def compute(v=7):
-        calls.append(v)
-        return v
+    from vbl.engine import runner
+    from vbl.engine.experiment import Experiment
 
-    assert trace_cache.traced_int("prog cfg carry", compute) == 7
-    assert trace_cache.traced_int("prog cfg carry", lambda: compute(8)) == 7  # read back
-    assert calls == [7]
-    assert trace_cache.traced_int("prog cfg2 carry", lambda: compute(9)) == 9
-    with jax.enable_x64(True):
-        assert trace_cache.traced_int("prog cfg carry", lambda: compute(10)) == 10
-    (path,) = [p for p in cache.glob("*.int") if p.read_bytes().endswith(b"\n7")]
-    path.write_bytes(path.read_bytes()[:-1] + b"3")  # the checksum no longer matches
-    assert trace_cache.traced_int("prog cfg carry", lambda: compute(11)) == 11
-    assert trace_cache.traced_int("prog cfg carry", lambda: compute(12)) == 11
-    monkeypatch.setattr(trace_cache, "code_key", lambda folder=None: "changed")
-    assert trace_cache.traced_int("prog cfg carry", lambda: compute(13)) == 13
-    assert calls == [7, 9, 10, 11, 13]
+    toy = next(toy_experiment(tmp_path / "exps"))
+
+    def make_program(cfg):
+        prog = toy.make_program(cfg)
+
+        def init(key, c):
+            traces.append(1)
+            return prog.init(key, c)
+        return dataclasses.replace(prog, init=init)
+
+    exp = Experiment(name="counting_toy", description="the toy, counting init traces",
+                     default_config=toy.default_config, make_program=make_program)
+    real = runner.source_file
+    monkeypatch.setattr(runner, "source_file",
+                        lambda name: real("toy_bandit" if name == "counting_toy" else name))
+    return exp
 
 
-def test_the_memory_check_of_a_warm_run_does_not_trace_init(cache, tmp_path):
-    """The memory estimate traces a group's init once per code and config (a warm run
-    reads the state size back, the same estimate); a run keeps one size per group."""
-    from types import SimpleNamespace
+def test_a_run_traces_init_once_for_its_memory_check_and_its_run(cache, tmp_path,
+                                                                  monkeypatch):
+    """The memory check sizes a learner's state from the per-device init the run calls:
+    a cold run traces each group's init once (not once to check and once to run), a warm
+    run (a new process) not at all, and the estimate is the same either way."""
+    from vbl.engine import memory, runner
 
-    from vbl.engine import memory
+    traces, estimates, plans = [], [], []
+    real = memory.estimate
 
-    traces = []
+    def recording(plan, state_bytes=memory.carry_bytes):
+        plans.append(plan)
+        estimates.append(real(plan, state_bytes))
+        return estimates[-1]
 
-    def init(key, cfg):
-        traces.append(1)
-        return {"q": jnp.zeros((5, 3)) + cfg["lr"], "n": jnp.zeros((), jnp.int32)}
-
-    group = SimpleNamespace(program=SimpleNamespace(init=init), first_config={"lr": 0.5},
-                            num_learners=4, index=0)
-    plan = SimpleNamespace(groups=[group])
-    first = memory.estimate(plan, ["toy cfg"])
-    assert first[1]["carry_bytes"] == 5 * 3 * 4 + 4 and len(traces) == 1
-    assert memory.estimate(plan, ["toy cfg"]) == first and len(traces) == 1
-    group.program = SimpleNamespace(init=lambda k, c: init(k, c))  # JAX's own memo aside
-    assert memory.estimate(plan) == first and len(traces) == 2  # no name: traced
-    exp = next(toy_experiment(tmp_path / "exps"))
-    run_experiment(exp, sets={"train.pulls_per_chunk": 5}, sweep={"env.num_arms": [3, 4]}, seeds=2,
-                   out=tmp_path / "r", quiet=True)
-    assert len(list(cache.glob("*.int"))) == 1 + 2  # the toy's two groups (num_arms static)
+    monkeypatch.setattr(memory, "estimate", recording)
+    exp = _counting_toy(tmp_path, monkeypatch, traces)
+    args = dict(sets={"train.pulls_per_chunk": 5}, sweep={"env.num_arms": [3, 4]}, seeds=2,
+                quiet=True)
+    run_experiment(exp, out=tmp_path / "cold", **args)
+    assert len(traces) == 2  # the toy's two groups (num_arms is static)
+    monkeypatch.setattr(trace_cache, "_LOADED", {})  # a new process
+    runner._JITTED.clear()
+    run_experiment(exp, out=tmp_path / "warm", **args)
+    assert len(traces) == 2
+    assert estimates[0] == estimates[1] and estimates[0][1]["carry_bytes"] > 0
+    # the same as one learner's init traced alone
+    assert estimates[0] == real(plans[0])

@@ -2,9 +2,9 @@
 
 A group's learners all live at once: their carries on the devices (the step's input and
 output), a host copy gathered for each checkpoint, and orbax's copy while it writes. The
-carry's shape comes from ``jax.eval_shape`` of the program's ``init`` (no allocation), so
-the estimate is ``learners x carry bytes x CARRY_COPIES`` plus keys and configs, for the
-largest group. Temporaries inside a step are not counted (``init`` and ``final`` bound
+carry's shape comes from tracing the program's ``init`` (no allocation; the runner traces
+the per-device ``init`` it then runs, so a run traces it once), so the estimate is
+``learners x carry bytes x CARRY_COPIES`` plus keys and configs, for the largest group. Temporaries inside a step are not counted (``init`` and ``final`` bound
 theirs by running ``vbl.engine.runner.ONCE_LEARNER_BATCH`` learners per device at once): the
 estimate is a floor with a margin, meant to refuse runs that cannot fit, not to promise
 that others do.
@@ -13,7 +13,7 @@ that others do.
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +22,6 @@ import numpy as np
 
 from vbl.engine.config import traced_dtype
 from vbl.engine.errors import EngineError
-from vbl.engine.trace_cache import traced_int
 
 __all__ = ["MemoryError_", "CARRY_COPIES", "available_memory", "estimate", "check_memory",
            "check_bytes", "tree_bytes", "fmt_bytes"]
@@ -91,24 +90,22 @@ def _config_structs(group) -> Any:
                         group.first_config)
 
 
-def carry_bytes(group, ident: str = "") -> int:
+def carry_bytes(group) -> int:
     """Bytes of one learner's state (``init``'s output) of ``group``'s program, from
-    ``jax.eval_shape``; with ``ident`` (the program's name in the trace cache) read from
-    the trace cache when it holds it (:func:`vbl.engine.trace_cache.traced_int`)."""
-    def trace() -> int:
-        return tree_bytes(jax.eval_shape(group.program.init,
-                                         jax.ShapeDtypeStruct((2,), np.uint32),
-                                         _config_structs(group)))
-    return traced_int(f"{ident} carry bytes", trace) if ident else trace()
+    ``jax.eval_shape`` of ``init`` on one learner."""
+    return tree_bytes(jax.eval_shape(group.program.init, jax.ShapeDtypeStruct((2,), np.uint32),
+                                     _config_structs(group)))
 
 
-def estimate(plan, idents: Sequence[str] = ()) -> tuple[int, dict[str, Any]]:
+def estimate(plan, state_bytes: Callable[[Any], int] = carry_bytes
+             ) -> tuple[int, dict[str, Any]]:
     """``(bytes, details)`` for the largest group of ``plan`` (a :class:`SweepPlan`);
-    ``idents``: its groups' names in the trace cache (:func:`carry_bytes`)."""
+    ``state_bytes(group)``: one learner's state in bytes (the runner's traces the program
+    it runs: :func:`vbl.engine.runner.run_experiment`)."""
     worst, details = 0, {}
-    for g, ident in zip(plan.groups, idents or [""] * len(plan.groups), strict=True):
-        carry = carry_bytes(g, ident)
+    for g in plan.groups:
         n = g.num_learners
+        carry = state_bytes(g) if n else 0
         total = n * (CARRY_COPIES * carry + tree_bytes(_config_structs(g)) + 16)
         if total >= worst:
             worst = total
@@ -116,10 +113,10 @@ def estimate(plan, idents: Sequence[str] = ()) -> tuple[int, dict[str, Any]]:
     return worst, details
 
 
-def check_memory(plan, idents: Sequence[str] = ()) -> int:
+def check_memory(plan, state_bytes: Callable[[Any], int] = carry_bytes) -> int:
     """Raise :class:`MemoryError_` if :func:`estimate` exceeds :func:`available_memory`;
     return the estimate."""
-    need, d = estimate(plan, idents)
+    need, d = estimate(plan, state_bytes)
     have = available_memory()
     if have and need > have:
         raise MemoryError_(

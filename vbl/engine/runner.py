@@ -19,7 +19,13 @@ import jax
 import numpy as np
 from jax.experimental import multihost_utils
 
-from vbl.engine.config import INT32, apply_overrides, config_to_dict, fingerprint
+from vbl.engine.config import (
+    INT32,
+    apply_overrides,
+    config_to_dict,
+    fingerprint,
+    traced_dtype,
+)
 from vbl.engine.errors import EngineError, stop_hint, stop_message
 from vbl.engine.experiment import Experiment, RunContext, RunResult
 from vbl.engine.jax_setup import (
@@ -28,7 +34,7 @@ from vbl.engine.jax_setup import (
     engine_precision,
     execution_turn,
 )
-from vbl.engine.memory import check_memory
+from vbl.engine.memory import check_memory, tree_bytes
 from vbl.engine.plots import plot_curves, plot_names
 from vbl.engine.process import one_device_hint
 from vbl.engine.progress import STATUS_FILE, Progress, auto_quiet
@@ -205,7 +211,7 @@ def run_experiment(experiment: Experiment, *, sets: Mapping[str, Any] | None = N
                        _partial_spec(spec, zipped, span), shard, zipped)
     _check_span(plan, span, start_carry)
     if plan is not None and memory_check:
-        check_memory(plan, [_ident(experiment, g) for g in plan.groups])
+        check_memory(plan, _state_bytes(experiment, learner_sharding(), learner_batch))
     if plan is not None:
         plan.validate()
     quiet = _quiet(quiet, primary)
@@ -590,20 +596,9 @@ def _run_group(plan: SweepPlan, group: Group, sharding, ckpts: Checkpoints, log:
     names the program for the trace cache (:func:`_ident`)."""
     prog = group.program
     n = group.num_learners
-    nb, size = batch_layout(n, len(sharding.mesh.devices.flat), learner_batch)
-    idx = pad_index(n, nb * size)
+    batches, gather = _batching(n, sharding, learner_batch)
     init_keys = group.select(plan.init_keys)
     final_keys = group.select(plan.final_keys)
-
-    def batches(tree):  # host tree [n, ...] -> per-batch device trees [size, ...]
-        padded = jax.tree.map(lambda x: np.asarray(x)[idx], tree)
-        return [put(jax.tree.map(lambda x, b=b: x[b * size:(b + 1) * size], padded), sharding)
-                for b in range(nb)]
-
-    def gather(trees):  # per-batch device trees -> host tree [n, ...]
-        host = [to_host(t) for t in trees]
-        return jax.tree.map(lambda *xs: np.concatenate(xs)[:n], *host)
-
     init_fn, step_fn, final_fn = _compiled(prog, sharding)
     cfgs = batches(group.configs)
     first, end = (0, prog.num_chunks) if span is None else span
@@ -650,6 +645,46 @@ def _run_group(plan: SweepPlan, group: Group, sharding, ckpts: Checkpoints, log:
             log.append(_rows(plan, group, step, "final", fin))
         if last or (chunk + 1) % every == 0:
             ckpts.save(step, gather(carries), {"group": group.index, "chunk": chunk + 1})
+
+
+def _batching(n: int, sharding, learner_batch: int) -> tuple[Callable, Callable]:
+    """``(batches, gather)`` for ``n`` learners: ``batches`` splits a host tree ``[n, ...]``
+    into per-batch device trees ``[size, ...]`` (:func:`batch_layout`, padded with copies of
+    learner 0); ``gather`` joins per-batch device trees back into a host tree ``[n, ...]``."""
+    nb, size = batch_layout(n, len(sharding.mesh.devices.flat), learner_batch)
+    idx = pad_index(n, nb * size)
+
+    def batches(tree):
+        padded = jax.tree.map(lambda x: np.asarray(x)[idx], tree)
+        return [put(jax.tree.map(lambda x, b=b: x[b * size:(b + 1) * size], padded), sharding)
+                for b in range(nb)]
+
+    def gather(trees):
+        host = [to_host(t) for t in trees]
+        return jax.tree.map(lambda *xs: np.concatenate(xs)[:n], *host)
+    return batches, gather
+
+
+def _state_bytes(experiment: Experiment, sharding, learner_batch: int
+                 ) -> Callable[[Group], int]:
+    """The memory check's size of one learner's state of a group (bytes): the output
+    shapes of the per-device ``init`` that the run calls, for the arguments of its first
+    batch, through the trace cache. The run then reuses that trace (or a warm run's
+    program read back), so ``init`` is traced once, not once for the check and again to
+    run. No learner's arrays are made (shape-dtype structs, as a refused run needs)."""
+    def state_bytes(group: Group) -> int:
+        _, size = batch_layout(group.num_learners, len(sharding.mesh.devices.flat),
+                               learner_batch)
+
+        def arg(shape, dtype):
+            return jax.ShapeDtypeStruct((size, *shape), dtype, sharding=sharding)
+        keys = arg((2,), np.uint32)
+        cfgs = jax.tree.map(lambda x: arg(np.shape(x), traced_dtype(x)), group.first_config)
+        init_fn = _compiled(group.program, sharding)[0]
+        ident = _ident(experiment, group)
+        fn = traced(init_fn, f"{ident} init", keys, cfgs) if ident else init_fn
+        return tree_bytes(fn.eval_shape(keys, cfgs)) // size
+    return state_bytes
 
 
 def _ident(experiment: Experiment, group: Group) -> str:

@@ -34,7 +34,7 @@ import numpy as np
 
 from vbl.engine import jax_setup
 
-__all__ = ["use_trace_cache", "traced", "traced_int", "code_key", "TRACES_DIR",
+__all__ = ["use_trace_cache", "traced", "code_key", "TRACES_DIR",
            "TRACE_FORMAT", "KEY_PACKAGES"]
 
 TRACES_DIR = "vbl-traces"  #: the traced programs' folder in the compilation cache's folder
@@ -230,21 +230,3 @@ def traced(fn: Callable, ident: str, *args: Any) -> Callable:
 
     _LOADED[key] = jax.jit(call, compiler_options=jax_setup.COMPILER_OPTIONS)
     return _LOADED[key]
-
-
-def traced_int(ident: str, compute: Callable[[], int]) -> int:
-    """``compute()``, an int that tracing gives (such as the bytes of a program's state,
-    from ``jax.eval_shape``), kept in the cache under ``ident`` (with :func:`code_key` and
-    the 64-bit setting): a warm run of unchanged code and config reads it back instead of
-    tracing. ``compute()`` itself when the cache is off."""
-    folder = _folder()
-    if folder is None:
-        return compute()
-    path = folder / f"{_key(ident, [], 'int')}.int"
-    payload = _payload(path)
-    if payload is not None:
-        with contextlib.suppress(ValueError):
-            return int(payload.decode())
-    value = int(compute())
-    _write_payload(path, str(value).encode())
-    return value
