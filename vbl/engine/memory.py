@@ -4,10 +4,10 @@ A group's learners all live at once: their carries on the devices (the step's in
 output), a host copy gathered for each checkpoint, and orbax's copy while it writes. The
 carry's shape comes from tracing the program's ``init`` (no allocation; the runner traces
 the per-device ``init`` it then runs, so a run traces it once), so the estimate is
-``learners x carry bytes x CARRY_COPIES`` plus keys and configs, for the largest group. Temporaries inside a step are not counted (``init`` and ``final`` bound
-theirs by running ``vbl.engine.runner.ONCE_LEARNER_BATCH`` learners per device at once): the
-estimate is a floor with a margin, meant to refuse runs that cannot fit, not to promise
-that others do.
+``learners x carry bytes x CARRY_COPIES`` plus keys and configs, for the largest group.
+Temporaries inside a step are not counted (``init`` and ``final`` bound theirs by running
+``vbl.engine.runner.ONCE_LEARNER_BATCH`` learners per device at once): the estimate is a
+floor with a margin, meant to refuse runs that cannot fit, not to promise that others do.
 """
 
 from __future__ import annotations
