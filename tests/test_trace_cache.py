@@ -17,6 +17,7 @@ from tests.engine_helpers import TINY_SETS, toy_experiment
 from vbl.engine import jax_setup, trace_cache
 from vbl.engine.runner import _per_device, run_experiment
 from vbl.engine.sharding import learner_sharding, put
+from vbl.engine.sweep import make_plan
 
 
 @pytest.fixture
@@ -212,15 +213,13 @@ def test_a_linear_algebra_program_read_back_in_a_new_process_runs(tmp_path):
     assert runs[0].stdout == runs[1].stdout
 
 
-def _counting_toy(tmp_path, monkeypatch, traces: list):
-    """The toy experiment, its ``init`` counting its traces, keyed in the trace cache as
-    the toy script's."""
+def _counting_toy(toy, monkeypatch, traces: list):
+    """``toy`` (the toy experiment), its ``init`` counting its traces, keyed in the trace
+    cache as the toy script's."""
     import dataclasses
 
     from vbl.engine import runner
     from vbl.engine.experiment import Experiment
-
-    toy = next(toy_experiment(tmp_path / "exps"))
 
     def make_program(cfg):
         prog = toy.make_program(cfg)
@@ -238,7 +237,7 @@ def _counting_toy(tmp_path, monkeypatch, traces: list):
     return exp
 
 
-def test_a_run_traces_init_once_for_its_memory_check_and_its_run(cache, tmp_path,
+def test_a_run_traces_init_once_for_its_memory_check_and_its_run(cache, toy, tmp_path,
                                                                   monkeypatch):
     """The memory check sizes a learner's state from the per-device init the run calls:
     a cold run traces each group's init once (not once to check and once to run), a warm
@@ -254,7 +253,7 @@ def test_a_run_traces_init_once_for_its_memory_check_and_its_run(cache, tmp_path
         return estimates[-1]
 
     monkeypatch.setattr(memory, "estimate", recording)
-    exp = _counting_toy(tmp_path, monkeypatch, traces)
+    exp = _counting_toy(toy, monkeypatch, traces)
     args = dict(sets={"train.pulls_per_chunk": 5}, sweep={"env.num_arms": [3, 4]}, seeds=2,
                 quiet=True)
     run_experiment(exp, out=tmp_path / "cold", **args)
@@ -266,3 +265,32 @@ def test_a_run_traces_init_once_for_its_memory_check_and_its_run(cache, tmp_path
     assert estimates[0] == estimates[1] and estimates[0][1]["carry_bytes"] > 0
     # the same as one learner's init traced alone
     assert estimates[0] == real(plans[0])
+
+
+def test_a_script_imported_under_another_module_name_traces_its_own_programs(
+        cache, toy, tmp_path, monkeypatch):
+    """The same script imported from another path is another module, with other classes:
+    its run does not read back the first module's programs. Here the cache holds only the
+    first module's ``init`` (its memory check ran, its run did not): read back, its
+    carries would be of the first module's classes, and the step traced from the second
+    module's code would not take them."""
+    from tests.engine_helpers import TOY
+    from vbl.engine import registry, runner
+
+    monkeypatch.setattr(registry, "_REGISTRY", dict(registry._REGISTRY))
+    monkeypatch.setattr(registry, "_SOURCES", dict(registry._SOURCES))
+    with monkeypatch.context() as m:  # the toy in the built-in experiments folder
+        m.delenv("VBL_EXPERIMENTS_DIR")
+        builtin = registry.load_script(TOY).EXPERIMENT
+    assert type(builtin.default_config).__module__ != type(toy.default_config).__module__
+    sets = {**TINY_SETS, "train.num_chunks": 2}
+    with jax_setup.engine_precision():
+        config, sweep, seeds, _ = runner.resolve(builtin, sets, None, 2)
+        plan = make_plan(builtin, config, sweep, seeds)
+        runner._state_bytes(builtin, learner_sharding(), runner.DEFAULT_LEARNER_BATCH)(
+            plan.groups[0])
+    assert len(list(cache.glob("*.jaxexport"))) == 1  # the first module's init
+    monkeypatch.setattr(trace_cache, "_LOADED", {})  # a new process
+    runner._JITTED.clear()
+    result = run_experiment(toy, sets=sets, seeds=2, out=tmp_path / "b", quiet=True)
+    assert result.final

@@ -689,11 +689,13 @@ def _state_bytes(experiment: Experiment, sharding, learner_batch: int
 
 def _ident(experiment: Experiment, group: Group) -> str:
     """A group's program for the trace cache: the experiment's name, the code of its
-    script's folder and the group's config (the ``vbl`` sources are in every key); ""
-    (not cached) for an experiment registered from no script."""
+    script's folder, the module its config class comes from (a program read back finds its
+    classes by module and name: a script imported under another module name, from another
+    path, has other classes) and the group's config (the ``vbl`` sources are in every
+    key); "" (not cached) for an experiment registered from no script."""
     src = source_file(experiment.name)
-    return (f"{experiment.name} {code_key(Path(src).parent)} {group.base_config!r}"
-            if src else "")
+    return (f"{experiment.name} {code_key(Path(src).parent)} "
+            f"{type(group.base_config).__module__} {group.base_config!r}" if src else "")
 
 
 def _ready(fn, ident: str, *args):
