@@ -294,3 +294,15 @@ def test_a_script_imported_under_another_module_name_traces_its_own_programs(
     runner._JITTED.clear()
     result = run_experiment(toy, sets=sets, seeds=2, out=tmp_path / "b", quiet=True)
     assert result.final
+
+
+def test_an_experiment_registered_from_no_script_is_not_cached(cache, toy, tmp_path):
+    """Its programs have no ident (no script's code in the key): two such experiments of
+    the same shapes would share files, so neither its memory check nor its run writes
+    one."""
+    import dataclasses
+
+    exp = dataclasses.replace(toy, name="scriptless_toy")
+    run_experiment(exp, sets={**TINY_SETS, "train.num_chunks": 2}, seeds=2,
+                   out=tmp_path / "r", quiet=True)
+    assert not list(cache.glob("*.jaxexport"))

@@ -615,7 +615,7 @@ def _run_group(plan: SweepPlan, group: Group, sharding, ckpts: Checkpoints, log:
         carries = batches(carry_host)
     else:
         keys = batches(init_keys)
-        init_fn = _ready(init_fn, f"{ident} init", keys[0], cfgs[0])
+        init_fn = _ready(init_fn, ident, "init", keys[0], cfgs[0])
         with execution_turn():
             carries = jax.block_until_ready([init_fn(k, c) for k, c in
                                              zip(keys, cfgs, strict=True)])
@@ -623,7 +623,7 @@ def _run_group(plan: SweepPlan, group: Group, sharding, ckpts: Checkpoints, log:
         log.truncate_after(start)
 
     if done < end:
-        step_fn = _ready(step_fn, f"{ident} step", carries[0], cfgs[0])
+        step_fn = _ready(step_fn, ident, "step", carries[0], cfgs[0])
     for chunk in range(done, end):
         t0 = time.perf_counter()
         with execution_turn():
@@ -638,7 +638,7 @@ def _run_group(plan: SweepPlan, group: Group, sharding, ckpts: Checkpoints, log:
         last = chunk + 1 == end
         if chunk + 1 == prog.num_chunks and prog.final is not None:
             keys = batches(final_keys)
-            final_fn = _ready(final_fn, f"{ident} final", carries[0], cfgs[0], keys[0])
+            final_fn = _ready(final_fn, ident, "final", carries[0], cfgs[0], keys[0])
             with execution_turn():
                 fin = gather([final_fn(c, cfg, k) for c, cfg, k in
                               zip(carries, cfgs, keys, strict=True)])
@@ -680,10 +680,9 @@ def _state_bytes(experiment: Experiment, sharding, learner_batch: int
             return jax.ShapeDtypeStruct((size, *shape), dtype, sharding=sharding)
         keys = arg((2,), np.uint32)
         cfgs = jax.tree.map(lambda x: arg(np.shape(x), traced_dtype(x)), group.first_config)
-        init_fn = _compiled(group.program, sharding)[0]
-        ident = _ident(experiment, group)
-        fn = traced(init_fn, f"{ident} init", keys, cfgs) if ident else init_fn
-        return tree_bytes(fn.eval_shape(keys, cfgs)) // size
+        init_fn = _cached(_compiled(group.program, sharding)[0], _ident(experiment, group),
+                          "init", keys, cfgs)
+        return tree_bytes(init_fn.eval_shape(keys, cfgs)) // size
     return state_bytes
 
 
@@ -698,10 +697,17 @@ def _ident(experiment: Experiment, group: Group) -> str:
             f"{type(group.base_config).__module__} {group.base_config!r}" if src else "")
 
 
-def _ready(fn, ident: str, *args):
-    """``fn`` compiled for ``args`` (:func:`compile_shared`), as the call of its program
-    read from the trace cache when it is on (:func:`vbl.engine.trace_cache.traced`)."""
-    fn = traced(fn, ident, *args) if ident else fn
+def _cached(fn, ident: str, name: str, *args):
+    """``fn``, the program ``name`` (``init``, ``step``, ``final``) of the group ``ident``
+    (:func:`_ident`), as the call of its program in the trace cache when it is on
+    (:func:`vbl.engine.trace_cache.traced`); ``fn`` itself for a group with no ident (an
+    experiment registered from no script is never cached)."""
+    return traced(fn, f"{ident} {name}", *args) if ident else fn
+
+
+def _ready(fn, ident: str, name: str, *args):
+    """:func:`_cached` ``fn``, compiled for ``args`` (:func:`compile_shared`)."""
+    fn = _cached(fn, ident, name, *args)
     compile_shared(fn, *args)
     return fn
 
