@@ -63,39 +63,28 @@ def test_workers_get_a_fresh_lock_that_is_removed_after(monkeypatch):
     assert EXECUTION_LOCK_ENV not in os.environ and not os.path.exists(path)
 
 
-def test_a_pool_that_fails_to_start_leaves_no_lock_behind(monkeypatch, tmp_path):
+@pytest.mark.parametrize("quick", [True, False])
+def test_only_a_quick_reproduce_gives_its_workers_turns(monkeypatch, quick, tmp_path):
+    """Quick runs are compile-bound: their workers take turns. Full-scale programs run
+    side by side (docs/findings/compile_cost.md): their workers get no lock. A pool that
+    fails to start leaves no lock behind."""
     import concurrent.futures
 
-    def no_pool(*args, **kwargs):
+    seen = {}
+
+    def no_pool(*args, **kwargs):  # the environment the workers would inherit
+        seen["lock"] = os.environ.get(EXECUTION_LOCK_ENV)
         raise OSError("no processes left")
 
     monkeypatch.delenv(EXECUTION_LOCK_ENV, raising=False)
     monkeypatch.setattr(concurrent.futures, "ProcessPoolExecutor", no_pool)
     made = set(os.listdir(tempfile.gettempdir()))
     with pytest.raises(OSError, match="no processes left"):
-        reproduce._run_parallel([], {}, 2, tmp_path, True, False, False, True)
+        reproduce._run_parallel([], {}, 2, tmp_path, quick, False, False, True)
+    assert (seen["lock"] is not None) == quick
     assert EXECUTION_LOCK_ENV not in os.environ
     assert not {f for f in set(os.listdir(tempfile.gettempdir())) - made
                 if f.startswith("vbl-execution-")}
-
-
-@pytest.mark.parametrize("quick", [True, False])
-def test_only_a_quick_reproduce_gives_its_workers_turns(monkeypatch, tmp_path, quick):
-    """Quick runs are compile-bound: their workers take turns. Full-scale programs run
-    side by side (docs/findings/compile_cost.md): their workers get no lock."""
-    import concurrent.futures
-
-    seen = {}
-
-    def pool(*args, **kwargs):  # the environment the workers would inherit
-        seen["lock"] = os.environ.get(EXECUTION_LOCK_ENV)
-        raise OSError("stop here")
-
-    monkeypatch.delenv(EXECUTION_LOCK_ENV, raising=False)
-    monkeypatch.setattr(concurrent.futures, "ProcessPoolExecutor", pool)
-    with pytest.raises(OSError, match="stop here"):
-        reproduce._run_parallel([], {}, 2, tmp_path, quick, False, False, True)
-    assert (seen["lock"] is not None) == quick
 
 
 def test_a_lock_the_user_named_is_kept(monkeypatch, tmp_path):
