@@ -18,7 +18,7 @@ of the CVA-state learner (``vbl.agents.cva_state``) as a stand-in for the rollin
 Interface as the two-robot env: ``num_actions``, ``default_params``, ``reset(key, params)``,
 ``step(key, state, action, params) -> (obs, state, reward, terminated, truncated, info)`` with
 auto-reset, ``info["success"]``, ``info["u"]`` (the motor command, float32 (1,): -1 wait,
-+1 strike), ``obs_slices = {"target": slice(0, 1)}``.
++1 strike; ``command_dim = 1``), ``obs_slices = {"target": slice(0, 1)}``.
 """
 
 from __future__ import annotations
@@ -58,6 +58,7 @@ class MovingTargetEnv:
     num_actions = 2
     obs_dim = 1
     obs_slices = {"target": slice(0, 1)}
+    command_dim = 1
 
     def __init__(self, params: MovingTargetParams | None = None):
         self.default_params = validate(params or MovingTargetParams())

@@ -18,6 +18,7 @@ from types import SimpleNamespace
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 import vbl  # noqa: F401
 from vbl.agents.cva_state import CVAStateParams
@@ -152,3 +153,23 @@ def test_a_command_alone_does_not_end_the_action():
     assert (index, perceived) == (2, 1)                         # u = +1: top bin; world: 0
     ends, *_ = lengths(perceive=False)
     assert ends[0]                                              # the command changed the index
+
+
+def test_command_dim_is_the_length_of_a_step_command():
+    """Each env's declared command length equals that of ``info["u"]`` after one abstract
+    step, also under the velocity oracle; an env without a command is refused."""
+    from vbl.agents.cva_state import command_dim
+    from vbl.envs.shoot_pass import ShootPassEnv
+    from vbl.envs.wrappers import BallVelocityOracle
+    from vbl.params import ParamError
+
+    key = jax.random.PRNGKey(0)
+    for env in (ShootPassEnv("shoot"), BallVelocityOracle(ShootPassEnv("pass")),
+                MovingTargetEnv()):
+        ep = env.default_params
+        _, st = jax.eval_shape(env.reset, key, ep)
+        info = jax.eval_shape(lambda s, env=env, ep=ep: env.step(key, s, jnp.int32(0), ep),
+                              st)[5]
+        assert command_dim(env) == int(np.prod(info["u"].shape))
+    with pytest.raises(ParamError, match="command_dim"):
+        command_dim(ShootingEnv())

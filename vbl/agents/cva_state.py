@@ -252,12 +252,12 @@ def state_dim(env: Any, p: CVAStateParams) -> int:
 
 
 def command_dim(env: Any) -> int:
-    """Length m of ``info["u"]`` (the motor command) of ``env``, by one abstract step."""
-    key = jax.random.PRNGKey(0)
-    ep = env.default_params
-    _, st = jax.eval_shape(env.reset, key, ep)
-    out = jax.eval_shape(lambda s: env.step(key, s, jnp.int32(0), ep), st)
-    return int(np.prod(out[5]["u"].shape))
+    """Length m of ``info["u"]`` (the motor command) of ``env``: its ``command_dim``."""
+    m = getattr(env, "command_dim", None)
+    if not isinstance(m, int | np.integer) or m < 1:
+        raise ParamError(f"CVA needs the motor command info['u'] of the env; "
+                         f"{type(env).__name__} declares no command_dim (a positive int)")
+    return int(m)
 
 
 def check_collection(env: Any, p: CVAStateParams, m: int) -> None:

@@ -360,6 +360,8 @@ class ShootPassEnv(TaskEnv, params=ShootPassParams, state=ShootPassState,
     action_labels = FOUR_WHEEL_LABELS
     obs_slices = OBS_SLICES
     observation_shape = (OBS_DIM,)
+    #: Length of ``info["u"]``, the learner's motor command (left, right wheel).
+    command_dim = FOUR_WHEEL_U.shape[1]
 
     def __init__(self, task: str = "shoot", params: ShootPassParams | None = None):
         self.task = task
