@@ -18,9 +18,14 @@ workers share compiles it once. The ``before`` column is the committed measureme
 code before the compile-cost work (``compile_time_before.json``, the same 2-core machine
 type, quiet), matched by experiment, group and function.
 
+``--quick`` measures the programs of ``vbl reproduce --quick`` instead: its runs at their
+quick scale (a quick config may change a static size, so a quick program can be smaller
+than its full-scale row), written to ``compile_time_quick.{json,md}``.
+
 Usage::
 
     python benchmarks/compile_time.py                        # every reproduce run
+    python benchmarks/compile_time.py --quick                # the quick reproduce's programs
     python benchmarks/compile_time.py --runs table2_shoot_pass
     python benchmarks/compile_time.py --runs table2_shoot_pass --merge
 Writes benchmarks/results/compile_time.{json,md} (``--out`` elsewhere). ``--merge`` keeps
@@ -89,11 +94,12 @@ def in_quick(exp, preset: str | None, static_values: dict) -> bool:
                for p, v in static_values.items())
 
 
-def time_run(job: Job) -> list[dict]:
-    """One row per (group, function) of the full-scale plan of ``job`` (a reproduce run);
-    ``quick``: whether the quick reproduce compiles it too (:func:`in_quick`)."""
+def time_run(job: Job, quick: bool = False) -> list[dict]:
+    """One row per (group, function) of the plan of ``job`` (a reproduce run; ``quick``:
+    its quick-scale plan); ``quick`` in a row: whether the quick reproduce compiles that
+    group (:func:`in_quick`), at its own scale."""
     exp = registry.get(job.name)
-    config, sweep, seeds, _ = resolve(exp, preset=job.preset)
+    config, sweep, seeds, _ = resolve(exp, preset=job.preset, quick=quick)
     plan = make_plan(exp, config, sweep, seeds)
     if plan is None:
         return []
@@ -114,7 +120,7 @@ def time_run(job: Job) -> list[dict]:
             cfgs = put(group.configs, sharding)
             head = dict(run=job.folder, experiment=job.name, preset=job.preset,
                         group=group.index, learners=n,
-                        quick=in_quick(exp, job.preset, group.static_values))
+                        quick=quick or in_quick(exp, job.preset, group.static_values))
             times, init_c = _timed(init_fn, keys, cfgs)
             row(head, "init", times)
             carry = jax.block_until_ready(init_c(keys, cfgs))
@@ -126,6 +132,20 @@ def time_run(job: Job) -> list[dict]:
 
 def _total(r: dict) -> float:
     return r["trace_cpu_s"] + r["compile_cpu_s"]
+
+
+def _scope(quick: bool, b_where: str) -> str:
+    """What the table's rows are, for the header of :func:`markdown`."""
+    if quick:
+        return ("Every program of `vbl reproduce --quick` (its quick-scale plans), persistent "
+                "compilation cache off; `before`: none (the measurement before the "
+                "compile-cost work is of full-scale plans).")
+    return ("Every program of the full `vbl reproduce` (full-scale plans; `quick`: "
+            "`vbl reproduce --quick` compiles the group too, at its own scale, which "
+            "`compile_time_quick.md` measures), persistent compilation cache off. `before`: "
+            "the same program before the compile-cost work (commit b22967f, measured "
+            f"{b_where}; another machine type when its CPU differs, so compare the totals "
+            "roughly; `-`: a program that did not exist then).")
 
 
 def markdown(result: dict, cmd: str, before: dict | None) -> str:
@@ -145,12 +165,8 @@ def markdown(result: dict, cmd: str, before: dict | None) -> str:
         "merged") else ""
     lines = [f"Compile time ({hw['cpu']}, {hw['cores']} cores, {len(hw['devices'])} "
              f"device(s), jax {hw['jax']}, load average {hw['load_average']:.1f} at the start "
-             f"and {result['load_end']:.1f} at the end{merged}; `{cmd}`). Every program of "
-             "the full `vbl reproduce` (full-scale plans; `quick`: `--quick` compiles it "
-             "too), persistent compilation cache off. `before`: the "
-             "same program before the compile-cost work (commit b22967f, measured "
-             f"{b_where}; another machine type when its CPU differs, so compare the totals "
-             "roughly; `-`: a program that did not exist then). `shared`: its StableHLO "
+             f"and {result['load_end']:.1f} at the end{merged}; `{cmd}`). "
+             f"{_scope(bool(result.get('quick')), b_where)} `shared`: its StableHLO "
              "equals an earlier row's, so a reproduce compiles it once.", "",
              "| run | group | function | learners | trace CPU s | compile CPU s | "
              "total CPU s | before: total CPU s | total wall s | load | shared | quick |",
@@ -164,12 +180,12 @@ def markdown(result: dict, cmd: str, before: dict | None) -> str:
                      f"{r['trace_s'] + r['compile_s']:.1f} | {r['load']:.1f} | "
                      f"{'yes' if r['shared'] else ''} | {'yes' if r['quick'] else ''} |")
     own = [r for r in rows if not r["shared"]]
-    quick = [r for r in own if r["quick"]]
     walls = [r["trace_s"] + r["compile_s"] for r in rows]
-    lines += ["", f"Compiled by a cold full reproduce: {len(own)} programs, "
-              f"{sum(map(_total, own)):.0f} CPU s; by a cold `--quick`: {len(quick)} programs, "
-              f"{sum(map(_total, quick)):.0f} CPU s; before: {len(b_rows)} programs "
-              f"(defaults only), {sum(map(_total, b_rows)):.0f} CPU s.", "",
+    which = "`vbl reproduce --quick`" if result.get("quick") else "full reproduce"
+    lines += ["", f"Compiled by a cold {which}: {len(own)} programs, "
+              f"{sum(map(_total, own)):.0f} CPU s" + (
+                  f"; before: {len(b_rows)} programs (defaults only), "
+                  f"{sum(map(_total, b_rows)):.0f} CPU s." if before else "."), "",
               f"Target: every program <= {MAX_COMPILE_S:.0f} s (trace + compile, CPU time): "
               f"{'met' if _total(worst) <= MAX_COMPILE_S else 'not met'}; the longest is "
               f"{worst['run']} {worst['function']}, {_total(worst):.1f} CPU s; the longest "
@@ -182,14 +198,18 @@ def markdown(result: dict, cmd: str, before: dict | None) -> str:
 
 def main(argv=None):
     registry.discover()
-    jobs = reproduce_jobs(paper_experiments())
+    quick = "--quick" in (sys.argv[1:] if argv is None else argv)
+    jobs = reproduce_jobs(paper_experiments(), quick=quick)
     folders = [j.folder for j in jobs]
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", nargs="*", default=folders, choices=folders,
                     help="reproduce runs to measure (default: every one)")
     ap.add_argument("--devices", type=int, default=DEVICES,
                     help="JAX host devices (default: every usable core)")
-    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "compile_time"))
+    ap.add_argument("--quick", action="store_true",
+                    help="the programs of vbl reproduce --quick, at their quick scale")
+    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / (
+        "compile_time_quick" if quick else "compile_time")))
     ap.add_argument("--before", default=str(ROOT / "benchmarks" / "results" /
                                             "compile_time_before.json"),
                     help="the measurement to compare with (JSON of this benchmark)")
@@ -200,7 +220,8 @@ def main(argv=None):
     args = ap.parse_args(argv)
     out = pathlib.Path(args.out)
     before_path = pathlib.Path(args.before)
-    before = json.loads(before_path.read_text()) if before_path.exists() else None
+    before = (json.loads(before_path.read_text()) if before_path.exists() and not args.quick
+              else None)
     if args.rebuild:
         result = json.loads(out.with_suffix(".json").read_text())
         text = markdown(result, result.get("command", "python benchmarks/compile_time.py"),
@@ -209,8 +230,8 @@ def main(argv=None):
         print(text)
         return
     result = dict(benchmark="compile_time", hardware=hardware_info(), rows=[],
-                  target_s=MAX_COMPILE_S)
-    fresh = {j.folder: time_run(j) for j in jobs if j.folder in args.runs}
+                  target_s=MAX_COMPILE_S, quick=args.quick)
+    fresh = {j.folder: time_run(j, args.quick) for j in jobs if j.folder in args.runs}
     old = (json.loads(out.with_suffix(".json").read_text())["rows"]
            if args.merge and out.with_suffix(".json").exists() else [])
     kept = [r for r in old if r.get("run") in folders and r["run"] not in fresh]
@@ -221,6 +242,7 @@ def main(argv=None):
     result["rows"] = [r for f in folders for r in by_run.get(f, [])]
     result["load_end"] = os.getloadavg()[0]
     result["command"] = cmd = "python benchmarks/compile_time.py" + (
+        " --quick" if args.quick else "") + (
         " --runs " + " ".join(args.runs) if args.runs != folders else "") + (
         " --merge" if args.merge else "")
     text = markdown(result, cmd, before)

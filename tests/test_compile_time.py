@@ -44,3 +44,26 @@ def test_quick_rows_are_the_programs_a_quick_reproduce_compiles():
     assert not ct.in_quick(t2, "monte_carlo", {"ball_velocity": False})
     assert not ct.in_quick(ppo, None, {})
     assert ct.in_quick(registry.get("grid_shooting"), None, {})
+
+
+def test_quick_mode_measures_the_quick_plans():
+    """``--quick`` rows come from the quick-scale plan (every row a quick program) and its
+    table sums the quick run alone, with no before column to compare with."""
+    from vbl.engine import registry
+    from vbl.engine.reproduce import Job
+    from vbl.engine.runner import resolve
+    from vbl.engine.sweep import make_plan
+
+    registry.discover()
+    exp = registry.get("toy_bandit")
+    sizes = {q: [g.num_learners for g in make_plan(exp, *resolve(exp, quick=q)[:3]).groups]
+             for q in (False, True)}
+    assert sizes[True] != sizes[False]  # the quick plan is another size
+    rows = ct.time_run(Job("toy_bandit"), quick=True)
+    assert rows and all(r["quick"] for r in rows)
+    assert sorted({r["learners"] for r in rows}) == sorted(set(sizes[True]))
+    result = dict(hardware=dict(cpu="cpu", cores=2, devices=["d"], jax="x",
+                                load_average=0.0), load_end=0.0, rows=rows, quick=True)
+    text = ct.markdown(result, "cmd", None)
+    assert "`vbl reproduce --quick`" in text and f"{len(rows)} programs" in text
+    assert "before:" not in text.split("Compiled by")[1]
