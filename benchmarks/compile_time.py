@@ -198,18 +198,16 @@ def markdown(result: dict, cmd: str, before: dict | None) -> str:
 
 def main(argv=None):
     registry.discover()
-    quick = "--quick" in (sys.argv[1:] if argv is None else argv)
-    jobs = reproduce_jobs(paper_experiments(), quick=quick)
-    folders = [j.folder for j in jobs]
+    every = [j.folder for j in reproduce_jobs(paper_experiments())]
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--runs", nargs="*", default=folders, choices=folders,
+    ap.add_argument("--runs", nargs="*", choices=every,
                     help="reproduce runs to measure (default: every one)")
     ap.add_argument("--devices", type=int, default=DEVICES,
                     help="JAX host devices (default: every usable core)")
     ap.add_argument("--quick", action="store_true",
                     help="the programs of vbl reproduce --quick, at their quick scale")
-    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / (
-        "compile_time_quick" if quick else "compile_time")))
+    ap.add_argument("--out", help="results path without suffix (default: benchmarks/results/"
+                    "compile_time, with --quick compile_time_quick)")
     ap.add_argument("--before", default=str(ROOT / "benchmarks" / "results" /
                                             "compile_time_before.json"),
                     help="the measurement to compare with (JSON of this benchmark)")
@@ -218,20 +216,30 @@ def main(argv=None):
     ap.add_argument("--rebuild", action="store_true",
                     help="measure nothing: the tables again from the JSON at --out")
     args = ap.parse_args(argv)
-    out = pathlib.Path(args.out)
+    jobs = reproduce_jobs(paper_experiments(), quick=args.quick)
+    folders = [j.folder for j in jobs]
+    runs = folders if args.runs is None else args.runs
+    if not set(runs) <= set(folders):
+        ap.error(f"--runs {sorted(set(runs) - set(folders))}: not in vbl reproduce --quick; "
+                 f"choose from {folders}")
+    out = pathlib.Path(args.out or ROOT / "benchmarks" / "results" / (
+        "compile_time_quick" if args.quick else "compile_time"))
     before_path = pathlib.Path(args.before)
-    before = (json.loads(before_path.read_text()) if before_path.exists() and not args.quick
-              else None)
+
+    def before_of(result: dict) -> dict | None:  # quick plans have no earlier measurement
+        return (json.loads(before_path.read_text())
+                if before_path.exists() and not result.get("quick") else None)
+
     if args.rebuild:
         result = json.loads(out.with_suffix(".json").read_text())
         text = markdown(result, result.get("command", "python benchmarks/compile_time.py"),
-                        before)
+                        before_of(result))
         write_results(out, result, text)
         print(text)
         return
     result = dict(benchmark="compile_time", hardware=hardware_info(), rows=[],
                   target_s=MAX_COMPILE_S, quick=args.quick)
-    fresh = {j.folder: time_run(j, args.quick) for j in jobs if j.folder in args.runs}
+    fresh = {j.folder: time_run(j, args.quick) for j in jobs if j.folder in runs}
     old = (json.loads(out.with_suffix(".json").read_text())["rows"]
            if args.merge and out.with_suffix(".json").exists() else [])
     kept = [r for r in old if r.get("run") in folders and r["run"] not in fresh]
@@ -243,9 +251,9 @@ def main(argv=None):
     result["load_end"] = os.getloadavg()[0]
     result["command"] = cmd = "python benchmarks/compile_time.py" + (
         " --quick" if args.quick else "") + (
-        " --runs " + " ".join(args.runs) if args.runs != folders else "") + (
+        " --runs " + " ".join(runs) if runs != folders else "") + (
         " --merge" if args.merge else "")
-    text = markdown(result, cmd, before)
+    text = markdown(result, cmd, before_of(result))
     write_results(out, result, text)
     print(text)
 
