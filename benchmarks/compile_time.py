@@ -113,7 +113,7 @@ def time_run(job: Job, quick: bool = False) -> list[dict]:
     with engine_precision():
         for group in plan.groups:
             prog, n = group.program, group.num_learners
-            init_fn, step_fn, final_fn = _compiled(prog, sharding)
+            init_fn, step_fn, final_fn, begin_fn = _compiled(prog, sharding)
             reps = len(group.point_ids)
             keys = put(np.tile(plan.init_keys, (reps, 1)), sharding)
             final_keys = put(np.tile(plan.final_keys, (reps, 1)), sharding)
@@ -125,6 +125,8 @@ def time_run(job: Job, quick: bool = False) -> list[dict]:
             row(head, "init", times)
             carry = jax.block_until_ready(init_c(keys, cfgs))
             row(head, "step", _timed(step_fn, carry, cfgs)[0])
+            if begin_fn is not None:
+                row(head, "begin_final", _timed(begin_fn, carry, cfgs, final_keys)[0])
             if final_fn is not None:
                 row(head, "final", _timed(final_fn, carry, cfgs, final_keys)[0])
     return rows

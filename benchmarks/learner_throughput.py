@@ -112,7 +112,7 @@ def _time_experiment(name: str, chunks: int, reps: int, sets: list[str]) -> dict
     group = plan.groups[0]
     prog, n = group.program, group.num_learners
     sharding = learner_sharding()
-    init_fn, step_fn, _ = _compiled(prog, sharding)
+    init_fn, step_fn, *_ = _compiled(prog, sharding)
     keys = put(np.tile(plan.init_keys, (len(group.point_ids), 1)), sharding)
     cfgs = put(group.configs, sharding)
     carry = jax.block_until_ready(init_fn(keys, cfgs))

@@ -197,7 +197,7 @@ def time_size(exp, sets: list[str], n: int, chunks: int, reps: int) -> dict:
     ndev = len(jax.devices())
     distinct = min(n, DISTINCT_LEARNERS)
     g, keys, cfgs, shape = _learner_set(exp, sets, distinct)
-    init_fn, step_fn, _ = _compiled(g.program, sharding)
+    init_fn, step_fn, *_ = _compiled(g.program, sharding)
     first = -(-distinct // ndev) * ndev
     pad = pad_index(distinct, first)
     carry = to_host(init_fn(put(keys[pad], sharding),

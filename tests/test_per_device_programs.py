@@ -32,7 +32,7 @@ def step(carry, c):
 prog = Program(init=init, step=step, num_chunks=1)
 sh = learner_sharding()
 assert len(jax.devices()) == 2
-init_fn, step_fn, _ = _compiled(prog, sh)
+init_fn, step_fn, *_ = _compiled(prog, sh)
 keys = put(np.asarray(jax.random.split(jax.random.PRNGKey(0), 8)), sh)
 cfg = put(np.zeros(8, np.float32), sh)
 carry = init_fn(keys, cfg)
@@ -87,7 +87,7 @@ def test_init_and_final_run_in_bounded_batches(monkeypatch):
         keys = np.asarray(jax.random.split(jax.random.PRNGKey(0), n))
         cfg = np.linspace(0.0, 1.0, n).astype(np.float32)
         monkeypatch.setattr(runner, "ONCE_LEARNER_BATCH", batch)
-        init_fn, _, final_fn = runner._compiled(Program(**vars(prog)), sh)
+        init_fn, _, final_fn, _ = runner._compiled(Program(**vars(prog)), sh)
         k, c = put(keys, sh), put(cfg, sh)
         temps[batch, n] = init_fn.lower(k, c).compile().memory_analysis().temp_size_in_bytes
         carry = np.asarray(init_fn(k, c))

@@ -7,6 +7,7 @@ import importlib
 
 _EXPORTS = {
     "Experiment": "experiment", "Program": "experiment", "ReportSection": "experiment",
+    "finish": "experiment",
     "RunContext": "experiment", "RunResult": "experiment", "EngineError": "errors",
     "register": "registry", "get": "registry", "discover": "registry",
     "all_experiments": "registry", "run_experiment": "runner",

@@ -21,7 +21,8 @@ import jax
 
 from vbl.params import ParamError, get_path
 
-__all__ = ["Program", "Experiment", "RunResult", "ReportSection", "RunContext", "PaperRow"]
+__all__ = ["Program", "finish", "Experiment", "RunResult", "ReportSection", "RunContext",
+           "PaperRow"]
 
 Config = Any  # a flax.struct dataclass declared with vbl.params.param/section
 Carry = Any  # any pytree of arrays (one learner's state)
@@ -46,6 +47,12 @@ class Program:
       num_chunks: number of ``step`` calls in one run (>= 1).
       final: optional ``(carry, config, key) -> metrics`` evaluated once after the last chunk
         (e.g. greedy evaluation on fresh starts); ``key`` is independent of the training keys.
+      begin_final: optional ``(carry, config, key) -> carry`` for a program whose final
+        evaluation runs through its own ``step`` (so the evaluation is compiled once): after
+        the last chunk the engine calls it with the final ``key``, then ``step``
+        ``final_steps`` times (their metrics are dropped), then ``final`` on that carry
+        (:func:`finish`). The checkpoint keeps the carry of the last training chunk.
+      final_steps: ``step`` calls after ``begin_final`` (>= 1 with it, 0 without).
       progress_metric: the per-chunk metric the progress bar shows beside the rate (e.g.
         ``"eval_success"``); None: none.
     """
@@ -55,10 +62,30 @@ class Program:
     num_chunks: int
     final: Callable[[Carry, Config, jax.Array], Metrics] | None = None
     progress_metric: str | None = None
+    begin_final: Callable[[Carry, Config, jax.Array], Carry] | None = None
+    final_steps: int = 0
 
     def __post_init__(self) -> None:
         if not isinstance(self.num_chunks, int) or self.num_chunks < 1:
             raise ValueError(f"Program.num_chunks must be an int >= 1, got {self.num_chunks!r}")
+        if self.begin_final is None:
+            if self.final_steps != 0:
+                raise ValueError(f"Program.final_steps={self.final_steps!r} needs begin_final "
+                                 "(without it, final_steps is 0)")
+        elif self.final is None or not isinstance(self.final_steps, int) \
+                or self.final_steps < 1:
+            raise ValueError("Program.begin_final needs final and an int final_steps >= 1, "
+                             f"got final={self.final!r}, final_steps={self.final_steps!r}")
+
+
+def finish(prog: Program, carry: Carry, config: Config, key: jax.Array) -> Metrics:
+    """``prog.final``'s metrics of a trained ``carry`` in one traced call (for a program run
+    inside another): ``begin_final``, ``final_steps`` x ``step`` in a ``fori_loop``, then
+    ``final``; ``final`` alone for a program without ``begin_final``."""
+    if prog.begin_final is not None:
+        carry = jax.lax.fori_loop(0, prog.final_steps, lambda _, c: prog.step(c, config)[0],
+                                  prog.begin_final(carry, config, key))
+    return prog.final(carry, config, key)
 
 
 @dataclass(frozen=True)

@@ -599,7 +599,7 @@ def _run_group(plan: SweepPlan, group: Group, sharding, ckpts: Checkpoints, log:
     batches, gather = _batching(n, sharding, learner_batch)
     init_keys = group.select(plan.init_keys)
     final_keys = group.select(plan.final_keys)
-    init_fn, step_fn, final_fn = _compiled(prog, sharding)
+    init_fn, step_fn, final_fn, begin_fn = _compiled(prog, sharding)
     cfgs = batches(group.configs)
     first, end = (0, prog.num_chunks) if span is None else span
     done = max(first, start - group.step_offset)
@@ -638,13 +638,28 @@ def _run_group(plan: SweepPlan, group: Group, sharding, ckpts: Checkpoints, log:
         last = chunk + 1 == end
         if chunk + 1 == prog.num_chunks and prog.final is not None:
             keys = batches(final_keys)
-            final_fn = _ready(final_fn, ident, "final", carries[0], cfgs[0], keys[0])
+            done_carries = _final_carries(prog, begin_fn, step_fn, ident, carries, cfgs, keys)
+            final_fn = _ready(final_fn, ident, "final", done_carries[0], cfgs[0], keys[0])
             with execution_turn():
                 fin = gather([final_fn(c, cfg, k) for c, cfg, k in
-                              zip(carries, cfgs, keys, strict=True)])
+                              zip(done_carries, cfgs, keys, strict=True)])
             log.append(_rows(plan, group, step, "final", fin))
         if last or (chunk + 1) % every == 0:
             ckpts.save(step, gather(carries), {"group": group.index, "chunk": chunk + 1})
+
+
+def _final_carries(prog, begin_fn, step_fn, ident: str, carries: list, cfgs: list,
+                   keys: list) -> list:
+    """The carries that ``final`` reads: ``carries`` themselves, or for a program with
+    ``begin_final`` the carries after it and ``final_steps`` compiled steps."""
+    if prog.begin_final is None:
+        return carries
+    begin_fn = _ready(begin_fn, ident, "begin_final", carries[0], cfgs[0], keys[0])
+    with execution_turn():
+        carries = [begin_fn(c, cfg, k) for c, cfg, k in zip(carries, cfgs, keys, strict=True)]
+        for _ in range(prog.final_steps):
+            carries = [step_fn(c, cfg)[0] for c, cfg in zip(carries, cfgs, strict=True)]
+        return jax.block_until_ready(carries)
 
 
 def _batching(n: int, sharding, learner_batch: int) -> tuple[Callable, Callable]:
@@ -736,17 +751,18 @@ def _per_device(fn, sharding, batch: int | None = None):
 
 
 def _compiled(prog, sharding) -> tuple:
-    """The per-device ``jit(vmap(...))`` of a program's functions (:func:`_per_device`),
-    cached per (program, sharding)."""
+    """The per-device ``jit(vmap(...))`` of a program's ``init``, ``step``, ``final`` and
+    ``begin_final`` (:func:`_per_device`; None for a missing one), cached per (program,
+    sharding)."""
     key = (id(prog), sharding)
     if key not in _JITTED:
         once = ONCE_LEARNER_BATCH
-        final = (_per_device(prog.final, sharding, once) if prog.final is not None
-                 else None)
+        final, begin = ((None if f is None else _per_device(f, sharding, once))
+                        for f in (prog.final, prog.begin_final))
         _JITTED[key] = (_per_device(prog.init, sharding, once),
-                        _per_device(prog.step, sharding), final,
+                        _per_device(prog.step, sharding), final, begin,
                         prog)  # keeps prog alive so its id stays unique
-    return _JITTED[key][:3]
+    return _JITTED[key][:4]
 
 
 def _rows(plan: SweepPlan, group: Group, step: int, chunk: int | str,

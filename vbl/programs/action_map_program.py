@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from vbl.engine.experiment import Program
+from vbl.engine.experiment import Program, finish
 from vbl.envs.rollout import rollout, stateless
 from vbl.envs.shooting import ShootingEnv
 from vbl.params import ParamError, param, validate
@@ -159,7 +159,7 @@ def make_action_map_program(cfg: Any) -> Program:
                        refined_policy=rm.policy.astype(F32),
                        refined_transitions=rm.transitions.astype(F32))
         if gprog is not None:
-            g = gprog.final(carry.grid, c.baseline.on(c.env), k_grid)
+            g = finish(gprog, carry.grid, c.baseline.on(c.env), k_grid)
             out.update(grid_success=g["greedy_success"], random_success=g["random_success"],
                        grid_primitives=carry.grid_primitives)
         return out

@@ -9,7 +9,9 @@ evaluation. Config sections: ``env`` (the task's params), ``agent``
 (:class:`vbl.agents.qlearning.QRunnerParams`), ``train`` (:class:`TabularTrainParams`) and
 the map's own (``grid``; ``cva``). Evaluation runs through the training step in evaluation
 mode from starts drawn in ``init``, on key streams of its own (:data:`PREPARE_STREAM`,
-:data:`EVAL_STREAM`), so it leaves training unchanged.
+:data:`EVAL_STREAM`), so it leaves training unchanged; so does the final evaluation, after
+the last chunk (``Program.begin_final``), so the step is the one program that holds the
+env and the learner step.
 
 See docs/agents.md, "The tabular learner" (evaluation, the metrics per chunk and final).
 """
@@ -30,8 +32,8 @@ from vbl.agents.state_maps import StateMap
 from vbl.engine.experiment import Program
 from vbl.params import ParamError, param, section, validate
 
-__all__ = ["TabularTrainParams", "TabularCarry", "make_tabular_program", "curve_metric",
-           "decision_primitives", "EVAL_STREAM", "PREPARE_STREAM"]
+__all__ = ["TabularTrainParams", "TabularCarry", "FinalProgress", "make_tabular_program",
+           "curve_metric", "decision_primitives", "EVAL_STREAM", "PREPARE_STREAM"]
 
 F32 = jnp.float32
 EVAL_STREAM = 0x5EED  #: fold_in tag of the evaluation keys (kept off the training stream)
@@ -96,12 +98,26 @@ class TabularTrainParams:
 
 
 @struct.dataclass
+class FinalProgress:
+    """Where the final evaluation stands. It runs through the training step: unit
+    ``u = policy x eval_rounds + round`` (policies greedy, near-greedy, random) is one
+    round's starts evaluated for ``eval_chunks`` sub-chunks."""
+
+    done: jax.Array     #: () int32 sub-chunks of the final evaluation run; -1: training
+    keys: jax.Array     #: (units, 2) uint32 each unit's evaluation key
+    counts: jax.Array   #: (3,) int32 episodes, primitives, actions of the unit in progress
+    results: dict       #: name -> (units,) float32 :func:`evaluation_stats` of each unit
+
+
+@struct.dataclass
 class TabularCarry:
     """One learner between chunks."""
 
-    learner: QRunnerState  #: the training runner's state
-    fitted: Any            #: the map's fitted parameters (StateMap.prepare)
-    starts: QRunnerState   #: (eval_rounds, ...) fresh evaluation starts
+    learner: QRunnerState     #: the training runner's state
+    fitted: Any               #: the map's fitted parameters (StateMap.prepare)
+    starts: QRunnerState      #: (eval_rounds, ...) fresh evaluation starts
+    evaluation: QRunnerState  #: the final evaluation's unit in progress (training: starts[0])
+    final: FinalProgress
 
 
 def _require(cfg: Any) -> None:
@@ -150,21 +166,38 @@ def _training_metrics(t: dict, learner: QRunnerState, difficulty: jax.Array) -> 
                 learning_rate=t["learning_rate"][-1, -1].astype(F32))
 
 
-def _policy_metrics(evaluate: Any, key: jax.Array, q: jax.Array, starts: QRunnerState,
-                    eval_epsilon: Any) -> dict:
-    """The final evaluation's success metrics: the learned greedy policy, the learned
-    near-greedy one (``eval_epsilon``) and the zero table (uniformly random), each on the
-    same starts (R, ...); ``evaluate(key, q, epsilon, start)`` evaluates one round."""
-    rounds = jax.tree.leaves(starts)[0].shape[0]
-    qs = jnp.stack([q, q, jnp.zeros_like(q)])
-    eps = jnp.stack([jnp.float32(0.0), jnp.asarray(eval_epsilon, F32), jnp.float32(0.0)])
+POLICIES = 3  #: final evaluation: greedy, near-greedy (train.eval_epsilon), random
+STATS = ("success_rate", "finished", "mean_primitives", "primitives_per_decision")
 
-    def policy(k, q_p, e_p):
-        return jax.vmap(lambda kk, st: evaluate(kk, q_p, e_p, st))(
-            jax.random.split(k, rounds), starts)
 
-    res = jax.vmap(policy)(jax.random.split(key, 3), qs, eps)  # each (3, rounds)
-    mean = {k: jnp.mean(v, axis=1).astype(F32) for k, v in res.items()}
+def _no_final(rounds: int) -> FinalProgress:
+    """The final evaluation not begun (``done`` -1), for ``rounds`` rounds per policy."""
+    units = POLICIES * rounds
+    return FinalProgress(done=jnp.int32(-1), keys=jnp.zeros((units, 2), jnp.uint32),
+                         counts=jnp.zeros((3,), jnp.int32),
+                         results={k: jnp.zeros((units,), F32) for k in STATS})
+
+
+def _unit_keys(key: jax.Array, rounds: int) -> jax.Array:
+    """(POLICIES x rounds, 2) evaluation keys of the units: round r of policy p has
+    ``split(split(key, POLICIES)[p], rounds)[r]``."""
+    return jax.vmap(lambda k: jax.random.split(k, rounds))(
+        jax.random.split(key, POLICIES)).reshape(POLICIES * rounds, -1)
+
+
+def _round_mean(v: jax.Array) -> jax.Array:
+    """(POLICIES,) float32 means of (POLICIES, rounds) results over the rounds, summed as
+    the even rounds plus the odd rounds: the order in which XLA's vectorised reduction adds
+    a short row, so that the means do not depend on where they are compiled."""
+    return ((jnp.sum(v[:, 0::2], axis=1) + jnp.sum(v[:, 1::2], axis=1))
+            / v.shape[1]).astype(F32)
+
+
+def _policy_metrics(results: dict, rounds: int) -> dict:
+    """The final evaluation's success metrics from its units' ``results``: the learned
+    greedy policy, the learned near-greedy one and the zero table (uniformly random), each
+    the mean over the same ``rounds`` rounds of starts."""
+    mean = {k: _round_mean(v.reshape(POLICIES, rounds)) for k, v in results.items()}
     return dict(greedy_success=mean["success_rate"][0],
                 near_greedy_success=mean["success_rate"][1],
                 random_success=mean["success_rate"][2],
@@ -202,8 +235,9 @@ def make_tabular_program(smap: StateMap, cfg: Any) -> Program:
     train = validate(cfg.train, "train.")
     agent = validate(cfg.agent.replace(num_states=int(smap.num_states)), "agent.")
     _check_evaluation_length(train, agent, cfg.env)
-    steps = train.eval_chunks * agent.chunk_steps
     n_train, n_eval, rounds = train.eval_every, train.eval_chunks, train.eval_rounds
+    subs = n_train + (n_eval if train.eval_curve else 0)  # sub-chunks per step
+    units = POLICIES * rounds
 
     runner = partial(_runner, smap, agent)
     eval_setting = partial(_evaluation_setting, smap, agent)
@@ -220,53 +254,81 @@ def make_tabular_program(smap: StateMap, cfg: Any) -> Program:
         # reset (its camera) is compiled once
         both = jax.vmap(runner(c).init)(keys, _stack(params(c), p_eval, rounds),
                                         _stack(smap.env_params(fitted, c.env), e_eval, rounds))
-        learner = jax.tree.map(lambda a: a[0], both)
-        return TabularCarry(learner, fitted, jax.tree.map(lambda a: a[1:], both))
+        learner, starts = (jax.tree.map(lambda a: a[0], both),
+                           jax.tree.map(lambda a: a[1:], both))
+        return TabularCarry(learner, fitted, starts, jax.tree.map(lambda a: a[0], starts),
+                            _no_final(rounds))
 
     def step(carry: TabularCarry, c):
         run = runner(c)
         p_eval, e_eval = eval_setting(c, carry.fitted)
         e_train = smap.env_params(carry.fitted, c.env)
-        first = jax.tree.map(lambda a: a[0], carry.starts)
+        fin = carry.final
+        finishing = fin.done >= 0
 
         def chunk(state, j):
-            """Sub-chunk j: training (j < eval_every) or evaluation, one compiled run_chunk."""
-            learner, ev = state
-            evaluating = j >= n_train
+            """Sub-chunk j: training, a curve point's evaluation or (finishing) a unit of the
+            final evaluation; one compiled run_chunk."""
+            learner, ev, counts, results = state
+            g = fin.done + j                     # the final evaluation's sub-chunk
+            u = jnp.minimum(g // n_eval, units - 1)
+            policy, rnd = u // rounds, u % rounds
+            evaluating = finishing | (j >= n_train)
+            begin = jnp.where(finishing, g % n_eval == 0, j == n_train)
+            start = jax.tree.map(lambda a: a[jnp.where(finishing, rnd, 0)], carry.starts)
+            fresh = start.replace(
+                key=jnp.where(finishing, fin.keys[u], jax.random.fold_in(learner.key,
+                                                                         EVAL_STREAM)),
+                q=jnp.where(finishing & (policy == POLICIES - 1), 0.0, learner.q))
+            ev = _where(begin, fresh, ev)
+            eps = jnp.where(finishing, jnp.where(policy == 1, c.train.eval_epsilon, 0.0),
+                            c.train.curve_epsilon)
             lr = c.agent.learning_rate * schedule_value(
                 c.train.lr_scale, learner.steps // agent.chunk_steps)
-            fresh = first.replace(key=jax.random.fold_in(learner.key, EVAL_STREAM),
-                                  q=learner.q)
-            ev = _where(j == n_train, fresh, ev)
             cur, m = run.run_chunk(
                 _where(evaluating, ev, learner), _where(evaluating, p_eval, params(c).replace(
                     learning_rate=jnp.asarray(lr, F32))), _where(evaluating, e_eval, e_train),
-                Evaluation(evaluating, jnp.asarray(c.train.curve_epsilon, F32)))
+                Evaluation(evaluating, jnp.asarray(eps, F32)))
             learner, ev = _where(evaluating, learner, cur), _where(evaluating, cur, ev)
-            return (learner, ev), dict(m, learning_rate=jnp.full_like(m["rate"], lr))
+            counts = jnp.where(begin, 0, counts) + jnp.stack(
+                [jnp.sum(m[k], dtype=jnp.int32) for k in ("episodes", "primitives", "actions")])
+            ended = finishing & (g % n_eval == n_eval - 1) & (g < units * n_eval)
+            stats = evaluation_stats(ev, dict(zip(("episodes", "primitives", "actions"),
+                                                  counts, strict=True)))
+            results = {k: v.at[u].set(jnp.where(ended, stats[k], v[u]))
+                       for k, v in results.items()}
+            return (learner, ev, counts, results), dict(
+                m, learning_rate=jnp.full_like(m["rate"], lr))
 
-        subs = n_train + (n_eval if train.eval_curve else 0)
-        (learner, ev), ms = jax.lax.scan(chunk, (carry.learner, first), jnp.arange(subs))
+        (learner, ev, counts, results), ms = jax.lax.scan(
+            chunk, (carry.learner, carry.evaluation, fin.counts, fin.results),
+            jnp.arange(subs))
         out = _training_metrics(jax.tree.map(lambda a: a[:n_train], ms), learner,
                                 learner.lem.difficulty if agent.lem.enabled else
                                 jnp.asarray(c.env.start_difficulty))
         if train.eval_curve:
             e = jax.tree.map(lambda a: a[n_train:], ms)
             out["eval_success"] = evaluation_stats(ev, e)["success_rate"]
-        return carry.replace(learner=learner), out
+        # a training carry keeps the first starts as its evaluation state (a function of
+        # the rest); a finishing one the unit in progress
+        fin = fin.replace(done=jnp.where(finishing, fin.done + subs, fin.done),
+                          counts=jnp.where(finishing, counts, fin.counts), results=results)
+        ev = _where(finishing, ev, jax.tree.map(lambda a: a[0], carry.starts))
+        return carry.replace(learner=learner, evaluation=ev, final=fin), out
+
+    def begin_final(carry: TabularCarry, c, key) -> TabularCarry:
+        return carry.replace(final=_no_final(rounds).replace(done=jnp.int32(0),
+                                                             keys=_unit_keys(key, rounds)))
 
     def final(carry: TabularCarry, c, key):
-        run = runner(c)
-        p_eval, e_eval = eval_setting(c, carry.fitted)
         q = carry.learner.q
         moved = jnp.any(q != jnp.asarray(c.agent.q_init, F32), axis=1)
-        return dict(_policy_metrics(lambda k, q_p, e_p, st: run.evaluate(
-                        k, q_p, p_eval, e_eval, steps, e_p, start=st),
-                        key, q, carry.starts, c.train.eval_epsilon),
+        return dict(_policy_metrics(carry.final.results, rounds),
                     num_states=jnp.asarray(agent.num_states, F32),
                     states_with_value=jnp.sum(moved).astype(F32),
                     **smap.describe(carry.fitted))
 
     return Program(init=init, step=step, num_chunks=train.num_chunks // train.eval_every,
-                   final=final,
+                   final=final, begin_final=begin_final,
+                   final_steps=-(-units * n_eval // subs),
                    progress_metric="eval_success" if train.eval_curve else "train_success")
