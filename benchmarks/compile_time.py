@@ -136,12 +136,14 @@ def _total(r: dict) -> float:
     return r["trace_cpu_s"] + r["compile_cpu_s"]
 
 
-def _scope(quick: bool, b_where: str) -> str:
+def _scope(quick: bool, b_where: str, before: bool) -> str:
     """What the table's rows are, for the header of :func:`markdown`."""
     if quick:
         return ("Every program of `vbl reproduce --quick` (its quick-scale plans), persistent "
-                "compilation cache off; `before`: none (the measurement before the "
-                "compile-cost work is of full-scale plans).")
+                "compilation cache off. `before`: " + (
+                    "the same program with the tabular learner's final evaluation as a "
+                    f"program of its own (commit 06b55b1, measured {b_where}; `-`: a program "
+                    "that did not exist then)." if before else "none given."))
     return ("Every program of the full `vbl reproduce` (full-scale plans; `quick`: "
             "`vbl reproduce --quick` compiles the group too, at its own scale, which "
             "`compile_time_quick.md` measures), persistent compilation cache off. `before`: "
@@ -168,7 +170,8 @@ def markdown(result: dict, cmd: str, before: dict | None) -> str:
     lines = [f"Compile time ({hw['cpu']}, {hw['cores']} cores, {len(hw['devices'])} "
              f"device(s), jax {hw['jax']}, load average {hw['load_average']:.1f} at the start "
              f"and {result['load_end']:.1f} at the end{merged}; `{cmd}`). "
-             f"{_scope(bool(result.get('quick')), b_where)} `shared`: its StableHLO "
+             f"{_scope(bool(result.get('quick')), b_where, bool(before))} `shared`: its "
+             "StableHLO "
              "equals an earlier row's, so a reproduce compiles it once.", "",
              "| run | group | function | learners | trace CPU s | compile CPU s | "
              "total CPU s | before: total CPU s | total wall s | load | shared | quick |",
@@ -186,7 +189,8 @@ def markdown(result: dict, cmd: str, before: dict | None) -> str:
     which = "`vbl reproduce --quick`" if result.get("quick") else "full reproduce"
     lines += ["", f"Compiled by a cold {which}: {len(own)} programs, "
               f"{sum(map(_total, own)):.0f} CPU s" + (
-                  f"; before: {len(b_rows)} programs (defaults only), "
+                  f"; before: {len(b_rows)} programs"
+                  f"{'' if result.get('quick') else ' (defaults only)'}, "
                   f"{sum(map(_total, b_rows)):.0f} CPU s." if before else "."), "",
               f"Target: every program <= {MAX_COMPILE_S:.0f} s (trace + compile, CPU time): "
               f"{'met' if _total(worst) <= MAX_COMPILE_S else 'not met'}; the longest is "
@@ -210,9 +214,9 @@ def main(argv=None):
                     help="the programs of vbl reproduce --quick, at their quick scale")
     ap.add_argument("--out", help="results path without suffix (default: benchmarks/results/"
                     "compile_time, with --quick compile_time_quick)")
-    ap.add_argument("--before", default=str(ROOT / "benchmarks" / "results" /
-                                            "compile_time_before.json"),
-                    help="the measurement to compare with (JSON of this benchmark)")
+    ap.add_argument("--before", help="the measurement to compare with (JSON of this "
+                    "benchmark; default: benchmarks/results/compile_time_before.json, with "
+                    "--quick compile_time_quick_before.json)")
     ap.add_argument("--merge", action="store_true",
                     help="keep the other runs' rows of the existing JSON at --out")
     ap.add_argument("--rebuild", action="store_true",
@@ -226,11 +230,11 @@ def main(argv=None):
                  f"choose from {folders}")
     out = pathlib.Path(args.out or ROOT / "benchmarks" / "results" / (
         "compile_time_quick" if args.quick else "compile_time"))
-    before_path = pathlib.Path(args.before)
-
-    def before_of(result: dict) -> dict | None:  # quick plans have no earlier measurement
-        return (json.loads(before_path.read_text())
-                if before_path.exists() and not result.get("quick") else None)
+    def before_of(result: dict) -> dict | None:
+        path = pathlib.Path(args.before or ROOT / "benchmarks" / "results" / (
+            "compile_time_quick_before.json" if result.get("quick") else
+            "compile_time_before.json"))
+        return json.loads(path.read_text()) if path.exists() else None
 
     if args.rebuild:
         result = json.loads(out.with_suffix(".json").read_text())

@@ -48,7 +48,7 @@ def test_quick_rows_are_the_programs_a_quick_reproduce_compiles():
 
 def test_quick_mode_measures_the_quick_plans():
     """``--quick`` rows come from the quick-scale plan (every row a quick program) and its
-    table sums the quick run alone, with no before column to compare with."""
+    table sums the quick run alone, or beside a quick `before` measurement."""
     from vbl.engine import registry
     from vbl.engine.reproduce import Job
     from vbl.engine.runner import resolve
@@ -67,3 +67,13 @@ def test_quick_mode_measures_the_quick_plans():
     text = ct.markdown(result, "cmd", None)
     assert "`vbl reproduce --quick`" in text and f"{len(rows)} programs" in text
     assert "before:" not in text.split("Compiled by")[1]
+    # a quick `before` (the same plans measured earlier) is compared row by row: a program
+    # it lacks shows "-", and its summary counts its own programs
+    old = [dict(r, trace_cpu_s=1.0, compile_cpu_s=2.0) for r in rows[:1]]
+    b = dict(hardware=dict(cpu="old", cores=2, load_average=1.0), rows=old)
+    text = ct.markdown(result, "cmd", b)
+    table = [ln for ln in text.splitlines() if ln.startswith(f"| {rows[0]['run']} ")]
+    assert table[0].split("|")[8].strip() == "3.0"
+    assert all(ln.split("|")[8].strip() == "-" for ln in table[1:]) and len(table) > 1
+    assert "before: 1 programs, 3 CPU s." in text and "defaults only" not in text
+    assert "2-core old" in text

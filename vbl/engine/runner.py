@@ -71,9 +71,9 @@ __all__ = ["run_experiment", "resolve", "describe_sweep", "load_result", "defaul
            "shard_spec", "whole_spec"]
 
 ONCE_LEARNER_BATCH = 64
-"""Most learners per device that a program's ``init`` and ``final`` (run once per group)
-compute at once: larger batches run as a loop over vmapped batches of this size
-(``jax.lax.map``), which bounds their memory (Table 2's ``init``, data collection and
+"""Most learners per device that a program's ``init``, ``begin_final`` and ``final`` (run
+once per group) compute at once: larger batches run as a loop over vmapped batches of this
+size (``jax.lax.map``), which bounds their memory (Table 2's ``init``, data collection and
 identification, needs about 23 MB per learner); each learner's result is what it gets
 alone, to float rounding, and with fewer learners per device the program is the plain
 ``vmap``. ``step`` vmaps all its learners at once."""
