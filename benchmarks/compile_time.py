@@ -230,6 +230,7 @@ def main(argv=None):
                  f"choose from {folders}")
     out = pathlib.Path(args.out or ROOT / "benchmarks" / "results" / (
         "compile_time_quick" if args.quick else "compile_time"))
+
     def before_of(result: dict) -> dict | None:
         path = pathlib.Path(args.before or ROOT / "benchmarks" / "results" / (
             "compile_time_quick_before.json" if result.get("quick") else

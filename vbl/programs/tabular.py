@@ -168,6 +168,12 @@ def _training_metrics(t: dict, learner: QRunnerState, difficulty: jax.Array) -> 
 
 POLICIES = 3  #: final evaluation: greedy, near-greedy (train.eval_epsilon), random
 STATS = ("success_rate", "finished", "mean_primitives", "primitives_per_decision")
+COUNTED = ("episodes", "primitives", "actions")  #: a unit's tallies (FinalProgress.counts)
+
+
+def _first(tree: Any) -> Any:
+    """The first entry along the leading axis of every leaf."""
+    return jax.tree.map(lambda a: a[0], tree)
 
 
 def _no_final(rounds: int) -> FinalProgress:
@@ -191,6 +197,48 @@ def _round_mean(v: jax.Array) -> jax.Array:
     a short row, so that the means do not depend on where they are compiled."""
     return ((jnp.sum(v[:, 0::2], axis=1) + jnp.sum(v[:, 1::2], axis=1))
             / v.shape[1]).astype(F32)
+
+
+def _evaluation_start(carry: TabularCarry, learner: QRunnerState, finishing: jax.Array,
+                      u: jax.Array, rounds: int, c: Any) -> tuple[QRunnerState, jax.Array]:
+    """(fresh state, epsilon) of a sub-chunk that begins an evaluation. Finishing: unit
+    ``u``'s (round ``u % rounds``'s starts and the unit's key; policy ``u // rounds``'s
+    table, the zero one for the random policy, and epsilon); else the curve's (the first
+    starts, a key folded off the learner's, its table, ``train.curve_epsilon``)."""
+    policy, rnd = u // rounds, u % rounds
+    start = jax.tree.map(lambda a: a[jnp.where(finishing, rnd, 0)], carry.starts)
+    fresh = start.replace(
+        key=jnp.where(finishing, carry.final.keys[u],
+                      jax.random.fold_in(learner.key, EVAL_STREAM)),
+        q=jnp.where(finishing & (policy == POLICIES - 1), 0.0, learner.q))
+    eps = jnp.where(finishing, jnp.where(policy == 1, c.train.eval_epsilon, 0.0),
+                    c.train.curve_epsilon)
+    return fresh, jnp.asarray(eps, F32)
+
+
+def _tally(counts: jax.Array, results: dict, ev: QRunnerState, m: dict, begin: jax.Array,
+           ended: jax.Array, u: jax.Array) -> tuple[jax.Array, dict]:
+    """A unit's (counts, results) after a sub-chunk with runner metrics ``m`` and state
+    ``ev``: the counts restart where ``begin``; where ``ended``, unit ``u``'s results are
+    :func:`evaluation_stats` of its state and counts."""
+    counts = jnp.where(begin, 0, counts) + jnp.stack(
+        [jnp.sum(m[k], dtype=jnp.int32) for k in COUNTED])
+    stats = evaluation_stats(ev, dict(zip(COUNTED, counts, strict=True)))
+    return counts, {k: v.at[u].set(jnp.where(ended, stats[k], v[u]))
+                    for k, v in results.items()}
+
+
+def _next_carry(carry: TabularCarry, learner: QRunnerState, ev: QRunnerState,
+                counts: jax.Array, results: dict, subs: int) -> TabularCarry:
+    """The carry after a step of ``subs`` sub-chunks. A training carry keeps the first
+    starts as its evaluation state (a function of the rest) and its final evaluation
+    unbegun; a finishing one keeps the unit in progress and its tallies."""
+    fin = carry.final
+    finishing = fin.done >= 0
+    fin = fin.replace(done=jnp.where(finishing, fin.done + subs, fin.done),
+                      counts=jnp.where(finishing, counts, fin.counts), results=results)
+    return carry.replace(learner=learner, evaluation=_where(finishing, ev, _first(carry.starts)),
+                         final=fin)
 
 
 def _policy_metrics(results: dict, rounds: int) -> dict:
@@ -222,8 +270,26 @@ def _evaluation_setting(smap: StateMap, agent: Any, c: Any, fitted: Any) -> tupl
     return p, smap.env_params(fitted, c.env.replace(start_difficulty=d))
 
 
-# shape: a program factory in the purejaxrl mould: init, step and final are short closures
-# over the static config, and the factory's length is theirs.
+def _begin_final(rounds: int, carry: TabularCarry, c: Any, key: jax.Array) -> TabularCarry:
+    """``Program.begin_final``: the final evaluation begun, its units' keys from ``key``."""
+    return carry.replace(final=_no_final(rounds).replace(done=jnp.int32(0),
+                                                         keys=_unit_keys(key, rounds)))
+
+
+def _final(smap: StateMap, num_states: int, rounds: int, carry: TabularCarry, c: Any,
+           key: jax.Array) -> dict:
+    """``Program.final``: the policies' metrics from the finished evaluation's units, the
+    table's size and the rows it moved from ``agent.q_init``, and the map's own."""
+    q = carry.learner.q
+    moved = jnp.any(q != jnp.asarray(c.agent.q_init, F32), axis=1)
+    return dict(_policy_metrics(carry.final.results, rounds),
+                num_states=jnp.asarray(num_states, F32),
+                states_with_value=jnp.sum(moved).astype(F32),
+                **smap.describe(carry.fitted))
+
+
+# shape: a program factory in the purejaxrl mould: init and step are short closures over
+# the static config, and the factory's length is theirs.
 def make_tabular_program(smap: StateMap, cfg: Any) -> Program:
     """An engine :class:`~vbl.engine.Program` training one tabular learner on ``smap``.
 
@@ -254,10 +320,8 @@ def make_tabular_program(smap: StateMap, cfg: Any) -> Program:
         # reset (its camera) is compiled once
         both = jax.vmap(runner(c).init)(keys, _stack(params(c), p_eval, rounds),
                                         _stack(smap.env_params(fitted, c.env), e_eval, rounds))
-        learner, starts = (jax.tree.map(lambda a: a[0], both),
-                           jax.tree.map(lambda a: a[1:], both))
-        return TabularCarry(learner, fitted, starts, jax.tree.map(lambda a: a[0], starts),
-                            _no_final(rounds))
+        starts = jax.tree.map(lambda a: a[1:], both)
+        return TabularCarry(_first(both), fitted, starts, _first(starts), _no_final(rounds))
 
     def step(carry: TabularCarry, c):
         run = runner(c)
@@ -272,31 +336,19 @@ def make_tabular_program(smap: StateMap, cfg: Any) -> Program:
             learner, ev, counts, results = state
             g = fin.done + j                     # the final evaluation's sub-chunk
             u = jnp.minimum(g // n_eval, units - 1)
-            policy, rnd = u // rounds, u % rounds
             evaluating = finishing | (j >= n_train)
             begin = jnp.where(finishing, g % n_eval == 0, j == n_train)
-            start = jax.tree.map(lambda a: a[jnp.where(finishing, rnd, 0)], carry.starts)
-            fresh = start.replace(
-                key=jnp.where(finishing, fin.keys[u], jax.random.fold_in(learner.key,
-                                                                         EVAL_STREAM)),
-                q=jnp.where(finishing & (policy == POLICIES - 1), 0.0, learner.q))
+            fresh, eps = _evaluation_start(carry, learner, finishing, u, rounds, c)
             ev = _where(begin, fresh, ev)
-            eps = jnp.where(finishing, jnp.where(policy == 1, c.train.eval_epsilon, 0.0),
-                            c.train.curve_epsilon)
             lr = c.agent.learning_rate * schedule_value(
                 c.train.lr_scale, learner.steps // agent.chunk_steps)
             cur, m = run.run_chunk(
                 _where(evaluating, ev, learner), _where(evaluating, p_eval, params(c).replace(
                     learning_rate=jnp.asarray(lr, F32))), _where(evaluating, e_eval, e_train),
-                Evaluation(evaluating, jnp.asarray(eps, F32)))
+                Evaluation(evaluating, eps))
             learner, ev = _where(evaluating, learner, cur), _where(evaluating, cur, ev)
-            counts = jnp.where(begin, 0, counts) + jnp.stack(
-                [jnp.sum(m[k], dtype=jnp.int32) for k in ("episodes", "primitives", "actions")])
             ended = finishing & (g % n_eval == n_eval - 1) & (g < units * n_eval)
-            stats = evaluation_stats(ev, dict(zip(("episodes", "primitives", "actions"),
-                                                  counts, strict=True)))
-            results = {k: v.at[u].set(jnp.where(ended, stats[k], v[u]))
-                       for k, v in results.items()}
+            counts, results = _tally(counts, results, ev, m, begin, ended, u)
             return (learner, ev, counts, results), dict(
                 m, learning_rate=jnp.full_like(m["rate"], lr))
 
@@ -309,26 +361,10 @@ def make_tabular_program(smap: StateMap, cfg: Any) -> Program:
         if train.eval_curve:
             e = jax.tree.map(lambda a: a[n_train:], ms)
             out["eval_success"] = evaluation_stats(ev, e)["success_rate"]
-        # a training carry keeps the first starts as its evaluation state (a function of
-        # the rest); a finishing one the unit in progress
-        fin = fin.replace(done=jnp.where(finishing, fin.done + subs, fin.done),
-                          counts=jnp.where(finishing, counts, fin.counts), results=results)
-        ev = _where(finishing, ev, jax.tree.map(lambda a: a[0], carry.starts))
-        return carry.replace(learner=learner, evaluation=ev, final=fin), out
-
-    def begin_final(carry: TabularCarry, c, key) -> TabularCarry:
-        return carry.replace(final=_no_final(rounds).replace(done=jnp.int32(0),
-                                                             keys=_unit_keys(key, rounds)))
-
-    def final(carry: TabularCarry, c, key):
-        q = carry.learner.q
-        moved = jnp.any(q != jnp.asarray(c.agent.q_init, F32), axis=1)
-        return dict(_policy_metrics(carry.final.results, rounds),
-                    num_states=jnp.asarray(agent.num_states, F32),
-                    states_with_value=jnp.sum(moved).astype(F32),
-                    **smap.describe(carry.fitted))
+        return _next_carry(carry, learner, ev, counts, results, subs), out
 
     return Program(init=init, step=step, num_chunks=train.num_chunks // train.eval_every,
-                   final=final, begin_final=begin_final,
+                   final=partial(_final, smap, agent.num_states, rounds),
+                   begin_final=partial(_begin_final, rounds),
                    final_steps=-(-units * n_eval // subs),
                    progress_metric="eval_success" if train.eval_curve else "train_success")
