@@ -247,7 +247,7 @@ def test_mc_update_of_one_key_over_many_passes_matches_the_closed_form():
     n = np.array([length, 300])
     last = np.array([length - 1, 400])
     q0 = np.array([[0.3, 0.0], [0.0, 0.0], [0.0, 0.7]], np.float32)
-    log = mc_init(2, length).replace(s=jnp.asarray(s), a=jnp.asarray(a),
+    log = mc_init(2, length, q0.size).replace(s=jnp.asarray(s), a=jnp.asarray(a),
                                      clock=jnp.asarray(np.stack([clock, clock]), jnp.int32),
                                      n=jnp.asarray(n, jnp.int32))
     q, _, used = mc_update(jnp.asarray(q0), log, jnp.array([True, True]),

@@ -51,7 +51,7 @@ def test_mc_update_by_hand():
     """Env 0: decisions (s1, a0) at primitive 0 and (s1, a0) at 2, (s2, a1) at 3; scores on
     primitive 3 (gamma 0.5): returns 1/8, 1/2 (mean 5/16, two updates at lr 1/2: step 3/4)
     and 1. Env 1: one decision (s1, a0), trial still running: not learned from."""
-    log = mc_init(2, 3)
+    log = mc_init(2, 3, 4 * 2)
     t = jnp.asarray(True)
     for s, a, c, d1 in ((1, 0, 0, True), (1, 0, 2, False), (2, 1, 3, False)):
         log = mc_log(log, jnp.array([True, d1]), jnp.array([s, s]), jnp.array([a, a]),
@@ -102,7 +102,7 @@ def test_mc_update_matches_a_numpy_reference_with_shared_keys():
     ended, scored = rng.random(n_env) < 0.33, rng.random(n_env) < 0.5
     last = np.full(n_env, 45)
     q0 = rng.random((n_s, n_a)).astype(np.float32)
-    log = mc_init(n_env, length).replace(s=jnp.asarray(s, jnp.int32),
+    log = mc_init(n_env, length, n_s * n_a).replace(s=jnp.asarray(s, jnp.int32),
                                          a=jnp.asarray(a, jnp.int32),
                                          clock=jnp.asarray(clock, jnp.int32),
                                          n=jnp.asarray(n, jnp.int32))
@@ -118,7 +118,10 @@ def test_mc_update_matches_a_numpy_reference_with_shared_keys():
 def test_mc_update_vmapped_over_learners_that_need_different_numbers_of_passes():
     """Three learners in one vmapped update: no trial ended, one short trial, and most
     trials ended with long logs (more decisions than one pass of MC_PASS_ENTRIES reads);
-    a masked trial (weight False) teaches nothing. Each equals the NumPy reference."""
+    a masked trial (weight False) teaches nothing. Each equals the NumPy reference, the
+    work table is all zeros after it, and a second update with the returned log (the same
+    decisions logged again) equals the reference applied twice: a table left with one
+    update's sums would carry them into the next."""
     rng = np.random.default_rng(7)
     n_env, length, n_s, n_a = 64, 128, 5, 2
     s = rng.integers(0, n_s, (3, n_env, length))
@@ -135,16 +138,33 @@ def test_mc_update_vmapped_over_learners_that_need_different_numbers_of_passes()
     last = np.full((3, n_env), 250)
     q0 = rng.random((3, n_s, n_a)).astype(np.float32)
     log = MCLog(s=jnp.asarray(s, jnp.int32), a=jnp.asarray(a, jnp.int32),
-                clock=jnp.asarray(clock, jnp.int32), n=jnp.asarray(n, jnp.int32))
-    q, _, used = jax.vmap(lambda q, lg, e, sc, la, w: mc_update(q, lg, e, sc, la, 0.2, 0.9, w))(
-        jnp.asarray(q0), log, jnp.asarray(ended), jnp.asarray(scored),
-        jnp.asarray(last, jnp.int32), jnp.asarray(weight))
+                clock=jnp.asarray(clock, jnp.int32), n=jnp.asarray(n, jnp.int32),
+                sums=jnp.zeros((3, n_s * n_a + 1, 2), jnp.float32))
+    update = jax.jit(jax.vmap(lambda q, lg, e, sc, la, w: mc_update(q, lg, e, sc, la, 0.2,
+                                                                     0.9, w)))
+    args = (jnp.asarray(ended), jnp.asarray(scored), jnp.asarray(last, jnp.int32),
+            jnp.asarray(weight))
+    q, log1, used = update(jnp.asarray(q0), log, *args)
+    np.testing.assert_array_equal(np.asarray(log1.sums), 0.0)
+    q2, log2, _ = update(q, log1.replace(n=jnp.asarray(n, jnp.int32)), *args)
+    np.testing.assert_array_equal(np.asarray(log2.sums), 0.0)
     for i in range(3):
         use = ended[i] & weight[i]
         want = numpy_mc_update(q0[i], s[i], a[i], clock[i], n[i], use, scored[i], last[i],
                                0.2, 0.9)
         np.testing.assert_allclose(np.asarray(q[i]), want, rtol=2e-6, atol=1e-7)
         assert float(used[i]) == n[i][use].sum()
+        want2 = numpy_mc_update(want, s[i], a[i], clock[i], n[i], use, scored[i], last[i],
+                                0.2, 0.9)
+        np.testing.assert_allclose(np.asarray(q2[i]), want2, rtol=4e-6, atol=2e-7)
+
+
+def test_mc_update_refuses_a_work_table_of_another_q_table():
+    """A log made for a 4 x 2 table cannot update a 4 x 3 one (its writes would drop)."""
+    log = mc_init(1, 2, 4 * 2)
+    with pytest.raises(ValueError, match=r"needs \(13, 2\)"):
+        mc_update(jnp.zeros((4, 3)), log, jnp.array([True]), jnp.array([True]),
+                  jnp.array([0]), 0.5, 0.5)
 
 
 def _params(update="monte_carlo", lr=0.01, macro=False, **agent):

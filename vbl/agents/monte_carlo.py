@@ -30,18 +30,23 @@ I32 = jnp.int32
 @struct.dataclass
 class MCLog:
     """Decisions of every env's running trial: s, a, clock (E, L) int32 (clock = primitives
-    of the trial before the decision); n (E,) int32 decisions logged. A full log drops
-    later decisions."""
+    of the trial before the decision); n (E,) int32 decisions logged (a full log drops
+    later decisions); and the update's work table ``sums`` (S * A + 1, 2) float32 of an
+    (S, A) Q table, all zeros between updates (:func:`mc_update`)."""
 
     s: jax.Array
     a: jax.Array
     clock: jax.Array
     n: jax.Array
+    sums: jax.Array
 
 
-def mc_init(num_envs: int, length: int) -> MCLog:
+def mc_init(num_envs: int, length: int, num_keys: int) -> MCLog:
+    """An empty log of ``num_envs`` envs x ``length`` decisions for a Q table of
+    ``num_keys`` = S * A entries."""
     z = jnp.zeros((num_envs, length), I32)
-    return MCLog(s=z, a=z, clock=z, n=jnp.zeros((num_envs,), I32))
+    return MCLog(s=z, a=z, clock=z, n=jnp.zeros((num_envs,), I32),
+                 sums=jnp.zeros((num_keys + 1, 2), F32))
 
 
 def log_append(fields: tuple, n: jax.Array, decided: jax.Array,
@@ -67,7 +72,7 @@ def mc_log(log: MCLog, decided: jax.Array, s: jax.Array, a: jax.Array,
            clock: jax.Array) -> MCLog:
     """Append (s, a, clock) (E,) where ``decided`` (E,) bool."""
     (s, a, clock), n = log_append((log.s, log.a, log.clock), log.n, decided, (s, a, clock))
-    return MCLog(s=s, a=a, clock=clock, n=n)
+    return log.replace(s=s, a=a, clock=clock, n=n)
 
 
 #: Logged decisions one pass of :func:`mc_update` reads (its loop runs ceil(decisions of the
@@ -86,12 +91,18 @@ def mc_update(q: jax.Array, log: MCLog, ended: jax.Array, scored: jax.Array,
     of decisions learned from () float32).
 
     The learning trials' decisions, packed in env order, are read :data:`MC_PASS_ENTRIES`
-    at a time: a first pass sums each (state, action)'s count and returns into table-sized
-    sums, a second gives each decision its key's new value (decisions of one key write the
-    same value) and zeroes the key's count, so a later pass that holds the key writes its
-    value again (a zero count moves nothing)."""
+    at a time: a first pass sums each (state, action)'s count and returns into the log's
+    work table (in packed order), a second gives each decision its key's new value
+    (decisions of one key write the same value) and zeroes the key's sums, so a later pass
+    that holds the key writes its value again (a zero count moves nothing) and the table
+    is all zeros again at the end. The table lives in the log because a fresh table-sized
+    zero array per update cost more than the rest of the update
+    (docs/findings/learner_cost.md, "The Monte Carlo update")."""
     n_s, n_a = q.shape
     size, length = n_s * n_a, log.s.shape[1]
+    if log.sums.shape != (size + 1, 2):
+        raise ValueError(f"the log's work table has shape {log.sums.shape}; a {n_s} x {n_a} "
+                         f"Q table needs ({size + 1}, 2): mc_init(..., num_keys={size})")
     use = jnp.asarray(ended, bool) if weight is None else jnp.asarray(ended, bool) & weight
     cnt = jnp.where(use, log.n, 0)
     end = jnp.cumsum(cnt)                      # (E,) packed index after each env's decisions
@@ -114,20 +125,22 @@ def mc_update(q: jax.Array, log: MCLog, ended: jax.Array, scored: jax.Array,
         idx, w = entries(p)
         return sums.at[idx].add(w, mode="drop")
 
-    def put(p, state):  # a key's first pass writes its new value and zeroes its count
+    def put(p, state):  # a key's first pass writes its new value and zeroes its sums
         flat, sums = state
         idx, _ = entries(p)
         s = sums[idx]
         old = flat.at[idx].get(mode="fill", fill_value=0.0)
         new = old + (1.0 - keep ** s[:, 0]) * (s[:, 1] / jnp.maximum(s[:, 0], 1.0) - old)
-        return flat.at[idx].set(new.astype(F32), mode="drop"), sums.at[idx, 0].set(
-            0.0, mode="drop")
+        # zeros computed from the values read (s >= 0): XLA then reads before it writes in
+        # place, where plain zeros would make it copy the table first
+        return flat.at[idx].set(new.astype(F32), mode="drop"), sums.at[idx].set(
+            s * 0.0, mode="drop")
 
     # pass 0 outright, a loop only for more: under vmap a loop with a batched trip count
-    # selects its whole carry (the table) every pass, and most steps need one pass or none
-    sums = jax.lax.fori_loop(1, n_pass, add, add(0, jnp.zeros((size + 1, 2), F32)))
+    # selects its whole carry (the tables) every pass, and most steps need one pass or none
+    sums = jax.lax.fori_loop(1, n_pass, add, add(0, log.sums))
     learned = jnp.sum(sums[:size, 0])
-    flat, _ = jax.lax.fori_loop(1, n_pass, put, put(0, (q.reshape(-1), sums)))
+    flat, sums = jax.lax.fori_loop(1, n_pass, put, put(0, (q.reshape(-1), sums)))
     q = flat.reshape(n_s, n_a)
-    log = log.replace(n=jnp.where(jnp.asarray(ended, bool), 0, log.n).astype(I32))
+    log = log.replace(n=jnp.where(jnp.asarray(ended, bool), 0, log.n).astype(I32), sums=sums)
     return q, log, learned

@@ -259,7 +259,7 @@ def _init(run: _Runner, key, params: QRunnerParams, env_params) -> QRunnerState:
     return QRunnerState(key=key, q=q, env_state=st.inner, obs=obs, s=st.index,
                         steps=jnp.int32(0), episodes=jnp.int32(0), ep_primitives=zeros,
                         ep_actions=zeros, perceived=st.key, lem=lem,
-                        rule=run.rule.init(run.num_envs), macro=st.running)
+                        rule=run.rule.init(run.num_envs, q.size), macro=st.running)
 
 
 def _schedule_count(run: _Runner, steps: jax.Array, episodes: jax.Array) -> jax.Array:

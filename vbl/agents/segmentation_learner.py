@@ -168,7 +168,7 @@ def monte_carlo_update(q: jax.Array, seg: Segmentation, log: TrialLog, ended: ja
     (:func:`vbl.agents.monte_carlo.mc_update` with one env); the log empties.
     Returns (q (L, A), log)."""
     one = MCLog(s=leaf_of(seg, log.x)[None], a=log.a[None], clock=log.clock[None],
-                n=log.n[None])
+                n=log.n[None], sums=jnp.zeros((q.size + 1, 2), jnp.float32))
     q, _, _ = mc_update(q, one, jnp.asarray(ended)[None], jnp.asarray(scored)[None],
                         jnp.asarray(clock, I32)[None], alpha, gamma)
     return q, log.replace(n=jnp.where(ended, 0, log.n).astype(I32))

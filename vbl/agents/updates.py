@@ -14,7 +14,8 @@ asynchronous macro actions an env's transition arrives at the primitive its acti
 (``Transition.advance``), carries the discounted reward of its n primitives and
 bootstraps with ``discount**n``; traces decay by ``discount**n * lambda`` per decision.
 
-``init(num_envs) -> state`` (a pytree, leading axis E); ``update(q, state, t, hp) ->
+``init(num_envs, num_keys) -> state`` (a pytree: per-env parts with leading axis E;
+``num_keys`` = S * A, the table's size); ``update(q, state, t, hp) ->
 (q, state, td_abs)`` with ``hp`` the agent's params (``learning_rate``, ``discount``,
 ``trace.lam``; traced) and ``td_abs`` the mean |TD error| of the updated transitions
 (0 for Monte Carlo); ``act(state, chosen) -> action`` overrides the policy's choice
@@ -66,7 +67,7 @@ class UpdateRule(NamedTuple):
     """A tabular update rule (module doc)."""
 
     name: str
-    init: Callable    #: num_envs -> state
+    init: Callable    #: (num_envs, num_keys = S * A) -> state
     update: Callable  #: (q, state, Transition, hp) -> (q, state, td_abs)
     act: Callable     #: (state, chosen (E,)) -> action (E,)
     next_action: bool  #: the runner fills ``Transition.a_next`` (Sarsa)
@@ -96,7 +97,7 @@ def _one_step(duplicates: str) -> UpdateRule:
                             hp.discount, duplicates=duplicates, weight=w, num_primitives=t.n)
         return q, state, _td_abs(delta, w)
 
-    return UpdateRule("q_learning", lambda e: (), update, _keep, False)
+    return UpdateRule("q_learning", lambda e, k: (), update, _keep, False)
 
 
 def _traces(kind: str, duplicates: str, length: int, truncation: str) -> UpdateRule:
@@ -120,7 +121,7 @@ def _traces(kind: str, duplicates: str, length: int, truncation: str) -> UpdateR
     def act(tr, chosen):  # Sarsa: the action picked at the end of the previous step
         return jnp.where(tr.a_next >= 0, tr.a_next, chosen) if sarsa else chosen
 
-    return UpdateRule(kind, lambda e: trace_init(e, length), update, act, sarsa)
+    return UpdateRule(kind, lambda e, k: trace_init(e, length), update, act, sarsa)
 
 
 def _monte_carlo(length: int, truncation: str) -> UpdateRule:
@@ -134,7 +135,7 @@ def _monte_carlo(length: int, truncation: str) -> UpdateRule:
                               hp.discount, t.weight)
         return q, log, jnp.float32(0.0)
 
-    return UpdateRule("monte_carlo", lambda e: mc_init(e, length), update, _keep, False)
+    return UpdateRule("monte_carlo", lambda e, k: mc_init(e, length, k), update, _keep, False)
 
 
 def make_rule(name: str, *, duplicates: str = "mean", trace_length: int = 16,
