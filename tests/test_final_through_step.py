@@ -10,6 +10,9 @@
   equals the runner's own `evaluate` of that round's starts with that unit's key, bit for
   bit, in layouts where a unit fills a sub-chunk, where units span steps and where the
   step has no curve sub-chunks; the metrics are the means over rounds of the units.
+* A program inside another (Figure 5's map program and its grid baseline, slow): the
+  outer program's final steps run the grid's final evaluation, whose metrics equal
+  `finish` of the grid program, and its evaluation episodes are not counted as training.
 """
 
 from __future__ import annotations
@@ -235,3 +238,43 @@ def _check_units(train: dict) -> None:
     one = jax.jit(lambda c: finish(prog, c, cfg, fkey))(carry)
     for k in fin:
         np.testing.assert_array_equal(one[k], fin[k], k)
+
+
+# ------------------------------------------------------------------ a program inside another
+
+@pytest.mark.slow
+def test_figure5_runs_the_grids_final_through_its_own_step():
+    """Figure 5's program trains the grid baseline in its step and hands on the grid's
+    ``begin_final`` and ``final_steps``: its grid metrics equal ``finish`` of the grid
+    program on the trained grid carry (the grid key: the second half of the final key),
+    bit for bit, and the grid's evaluation episodes do not count as its training
+    primitives."""
+    from vbl.engine.config import apply_overrides
+    from vbl.engine.registry import get
+    from vbl.programs.baselines import grid_program
+
+    exp = get("fig5_action_based")
+    cfg = apply_overrides(exp.default_config, {
+        **exp.quick, "eval.grid_baseline": True, "eval.episodes": 16,
+        "collect.episodes_per_action": 40, "refine.iterations": 0,
+        "baseline.agent.num_envs": 8, "baseline.train.num_chunks": 4,
+        "baseline.train.eval_every": 2, "baseline.train.eval_rounds": 2})
+    with engine_precision():
+        prog = exp.make_program(cfg)
+        assert prog.final_steps >= 1 and prog.num_chunks == 2
+        step = jax.jit(lambda c: prog.step(c, cfg))
+        carry = jax.jit(lambda k: prog.init(k, cfg))(jax.random.PRNGKey(0))
+        for _ in range(prog.num_chunks):
+            carry, _ = step(carry)
+        fkey = jax.random.PRNGKey(5)
+        done = jax.jit(lambda c: prog.begin_final(c, cfg, fkey))(carry)
+        for _ in range(prog.final_steps):
+            done, _ = step(done)
+        out = jax.jit(lambda c: prog.final(c, cfg, fkey))(done)
+        base = cfg.baseline.on(cfg.env)
+        want = jax.jit(lambda g: finish(grid_program(base), g, base,
+                                        jax.random.split(fkey)[1]))(carry.grid)
+    np.testing.assert_array_equal(out["grid_success"], want["greedy_success"])
+    np.testing.assert_array_equal(out["random_success"], want["random_success"])
+    np.testing.assert_array_equal(out["grid_primitives"], carry.grid_primitives)
+    assert float(carry.grid_primitives) > 0.0

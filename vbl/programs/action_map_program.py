@@ -7,7 +7,9 @@ map's policy in closed loop (:mod:`vbl.spaces.cell_refine`), all in ``init``. Th
 train the grid baseline of :mod:`vbl.programs.baselines` (its preset: Q-learning on the
 319-state grid, macro actions, LEM) on the same env. ``final`` evaluates the map's
 policy (and the refined one) on fresh starts at ``baseline.train.eval_difficulty`` and takes
-the grid's own final evaluation (greedy and random policy) at the same difficulty.
+the grid's own final evaluation (greedy and random policy) at the same difficulty; the
+grid's evaluation runs through the step (the program hands on the grid's ``begin_final``
+and ``final_steps``), so the grid's step is compiled once.
 
 A config for :func:`make_action_map_program` has the sections ``env``
 (:class:`~vbl.envs.shooting.ShootingParams`), ``features``, ``collect``
@@ -24,7 +26,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from vbl.engine.experiment import Program, finish
+from vbl.engine.experiment import Program
 from vbl.envs.rollout import rollout, stateless
 from vbl.envs.shooting import ShootingEnv
 from vbl.params import ParamError, param, validate
@@ -127,11 +129,17 @@ def make_action_map_program(cfg: Any) -> Program:
         if gprog is None:
             return carry, {"map_states": states}
         g, m = gprog.step(carry.grid, c.baseline.on(c.env))
-        prims = carry.grid_primitives + m["episodes"] * m["mean_primitives"]
+        # the grid's final evaluation runs through this step too (not training episodes)
+        prims = jnp.where(carry.grid.finishing(), carry.grid_primitives,
+                          carry.grid_primitives + m["episodes"] * m["mean_primitives"])
         curve = curve_metric(m)  # baseline.train.eval_curve
         return carry.replace(grid=g, grid_primitives=prims.astype(F32)), {
             "episodes": m["episodes"], f"grid_{curve}": m[curve],
             "grid_difficulty": m["difficulty"], "map_states": states}
+
+    def begin_final(carry, c, key):
+        k_grid = jax.random.split(key)[1]
+        return carry.replace(grid=gprog.begin_final(carry.grid, c.baseline.on(c.env), k_grid))
 
     def final(carry, c, key):
         k_map, k_grid = jax.random.split(key)
@@ -159,11 +167,13 @@ def make_action_map_program(cfg: Any) -> Program:
                        refined_policy=rm.policy.astype(F32),
                        refined_transitions=rm.transitions.astype(F32))
         if gprog is not None:
-            g = finish(gprog, carry.grid, c.baseline.on(c.env), k_grid)
+            g = gprog.final(carry.grid, c.baseline.on(c.env), k_grid)
             out.update(grid_success=g["greedy_success"], random_success=g["random_success"],
                        grid_primitives=carry.grid_primitives)
         return out
 
     return Program(init=init, step=step, final=final,
+                   begin_final=None if gprog is None else begin_final,
+                   final_steps=0 if gprog is None else gprog.final_steps,
                    num_chunks=1 if gprog is None else gprog.num_chunks,
                    progress_metric=None if gprog is None else f"grid_{gprog.progress_metric}")

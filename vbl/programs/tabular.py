@@ -119,6 +119,10 @@ class TabularCarry:
     evaluation: QRunnerState  #: the final evaluation's unit in progress (training: starts[0])
     final: FinalProgress
 
+    def finishing(self) -> jax.Array:
+        """() bool: the final evaluation has begun (a step runs its units, not training)."""
+        return self.final.done >= 0
+
 
 def _require(cfg: Any) -> None:
     missing = [n for n in ("env", "agent", "train") if not hasattr(cfg, n)]
