@@ -246,8 +246,8 @@ ISSUE_MUTANTS = [
     Mutant("issue-claim-larger-arm", "vbl/engine/report.py", "n = min(a.size, b.size)",
            "n = max(a.size, b.size)", SURVIVORS, "claim counts the larger arm's seeds"),
     Mutant("issue-mc-count-not-zeroed", "vbl/agents/monte_carlo.py",
-           'sums.at[idx, 0].set(\n            0.0, mode="drop")', "sums", SURVIVORS,
-           "a key's count is not zeroed after its first write"),
+           'sums.at[idx].set(\n            s * 0.0, mode="drop")', "sums", SURVIVORS,
+           "a key's sums are not zeroed after its first write"),
     Mutant("issue-env-reset-on-terminated", EB, 'done = info["episode_done"]',
            "done = terminated", ENV_TESTS, "truncated episodes never reset"),
 ]
