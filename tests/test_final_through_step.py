@@ -196,6 +196,20 @@ def _units_by_evaluate(cfg, carry, fkey) -> dict:
     return out
 
 
+def _trained_and_finished(prog: Program, cfg, fkey) -> tuple:
+    """(carry after ``prog.num_chunks`` training steps from key 0, that carry after
+    ``begin_final`` with ``fkey`` and ``final_steps`` more steps), as the runner drives
+    them."""
+    step = jax.jit(lambda c: prog.step(c, cfg))
+    carry = jax.jit(lambda k: prog.init(k, cfg))(jax.random.PRNGKey(0))
+    for _ in range(prog.num_chunks):
+        carry, _ = step(carry)
+    done = jax.jit(lambda c: prog.begin_final(c, cfg, fkey))(carry)
+    for _ in range(prog.final_steps):
+        done, _ = step(done)
+    return carry, done
+
+
 @pytest.mark.parametrize("train", [
     dict(eval_every=1, eval_chunks=1),                    # a unit fills one sub-chunk
     dict(eval_every=1, eval_chunks=3),                    # units span steps (4 sub-chunks)
@@ -214,14 +228,8 @@ def _check_units(train: dict) -> None:
     prog = make_tabular_program(ChainMap(), cfg)
     subs = train["eval_every"] + (train["eval_chunks"] if train.get("eval_curve", True) else 0)
     assert prog.final_steps == -(-9 * train["eval_chunks"] // subs)
-    step = jax.jit(lambda c: prog.step(c, cfg))
-    carry = jax.jit(lambda k: prog.init(k, cfg))(jax.random.PRNGKey(0))
-    for _ in range(prog.num_chunks):
-        carry, _ = step(carry)
     fkey = jax.random.PRNGKey(7)
-    done = jax.jit(lambda c: prog.begin_final(c, cfg, fkey))(carry)
-    for _ in range(prog.final_steps):
-        done, _ = step(done)
+    carry, done = _trained_and_finished(prog, cfg, fkey)
     for a, b in zip(jax.tree.leaves(done.learner), jax.tree.leaves(carry.learner), strict=True):
         np.testing.assert_array_equal(a, b)              # the final steps train nothing
     want = _units_by_evaluate(cfg, carry, fkey)
@@ -262,14 +270,8 @@ def test_figure5_runs_the_grids_final_through_its_own_step():
     with engine_precision():
         prog = exp.make_program(cfg)
         assert prog.final_steps >= 1 and prog.num_chunks == 2
-        step = jax.jit(lambda c: prog.step(c, cfg))
-        carry = jax.jit(lambda k: prog.init(k, cfg))(jax.random.PRNGKey(0))
-        for _ in range(prog.num_chunks):
-            carry, _ = step(carry)
         fkey = jax.random.PRNGKey(5)
-        done = jax.jit(lambda c: prog.begin_final(c, cfg, fkey))(carry)
-        for _ in range(prog.final_steps):
-            done, _ = step(done)
+        carry, done = _trained_and_finished(prog, cfg, fkey)
         out = jax.jit(lambda c: prog.final(c, cfg, fkey))(done)
         base = cfg.baseline.on(cfg.env)
         want = jax.jit(lambda g: finish(grid_program(base), g, base,

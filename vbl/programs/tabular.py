@@ -237,8 +237,7 @@ def _next_carry(carry: TabularCarry, learner: QRunnerState, ev: QRunnerState,
     """The carry after a step of ``subs`` sub-chunks. A training carry keeps the first
     starts as its evaluation state (a function of the rest) and its final evaluation
     unbegun; a finishing one keeps the unit in progress and its tallies."""
-    fin = carry.final
-    finishing = fin.done >= 0
+    fin, finishing = carry.final, carry.finishing()
     fin = fin.replace(done=jnp.where(finishing, fin.done + subs, fin.done),
                       counts=jnp.where(finishing, counts, fin.counts), results=results)
     return carry.replace(learner=learner, evaluation=_where(finishing, ev, _first(carry.starts)),
@@ -331,8 +330,7 @@ def make_tabular_program(smap: StateMap, cfg: Any) -> Program:
         run = runner(c)
         p_eval, e_eval = eval_setting(c, carry.fitted)
         e_train = smap.env_params(carry.fitted, c.env)
-        fin = carry.final
-        finishing = fin.done >= 0
+        fin, finishing = carry.final, carry.finishing()
 
         def chunk(state, j):
             """Sub-chunk j: training, a curve point's evaluation or (finishing) a unit of the
