@@ -8,6 +8,7 @@ the inputs of both sections' feature functions outside ``jit``. Definitions:
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 
 from vbl.vision.camera import F32, CameraParams, camera_frame, focal_lengths, to_camera
@@ -44,6 +45,7 @@ SEC2_GOAL_LOST_SIDE = 8
 SEC2_NOISE_DIM = 6
 
 
+@jax.jit
 def section2_features(robot_pose, ball_xy, ball_radius, goal_corners, cam: CameraParams,
                       eps=None) -> jnp.ndarray:
     """Section 2 observation (9,) float32 of one robot's camera (layout ``SEC2_*``).

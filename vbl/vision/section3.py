@@ -543,6 +543,7 @@ def _add_noise(ball_f, goal_f, other_f, eps, vis, cam: CameraParams):
     return ball_f, goal_f, other_f
 
 
+@jax.jit
 def section3_features(robot_pose, ball_xy, ball_radius, goal_corners, other_pose, other_size,
                       cam: CameraParams, eps=None) -> Section3Obs:
     """Section 3 observation of one robot's camera (see ``docs/vision.md``).

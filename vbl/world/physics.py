@@ -275,6 +275,7 @@ def _goal_line(ball_before, bx, new, bv, scored, c: _Consts):
     return new, bv, scored
 
 
+@jax.jit
 def world_step(state: WorldState, actions: jax.Array, params: WorldParams,
                slip_eps: jax.Array | None = None) -> tuple[WorldState, WorldEvents]:
     """Advance one action primitive.
