@@ -136,14 +136,16 @@ def _total(r: dict) -> float:
     return r["trace_cpu_s"] + r["compile_cpu_s"]
 
 
-def _scope(quick: bool, b_where: str, before: bool) -> str:
-    """What the table's rows are, for the header of :func:`markdown`."""
+def _scope(quick: bool, b_where: str, before: dict | None) -> str:
+    """What the table's rows are, for the header of :func:`markdown`; a ``before`` JSON
+    says what it measured in its ``note`` (the code and commit it compares with)."""
     if quick:
+        what = (before or {}).get("note", "the same program with the tabular learner's final "
+                                          "evaluation as a program of its own (commit 06b55b1")
         return ("Every program of `vbl reproduce --quick` (its quick-scale plans), persistent "
                 "compilation cache off. `before`: " + (
-                    "the same program with the tabular learner's final evaluation as a "
-                    f"program of its own (commit 06b55b1, measured {b_where}; `-`: a program "
-                    "that did not exist then)." if before else "none given."))
+                    f"{what}, measured {b_where}; `-`: a program that did not exist then)."
+                    if before else "none given."))
     return ("Every program of the full `vbl reproduce` (full-scale plans; `quick`: "
             "`vbl reproduce --quick` compiles the group too, at its own scale, which "
             "`compile_time_quick.md` measures), persistent compilation cache off. `before`: "
@@ -170,7 +172,7 @@ def markdown(result: dict, cmd: str, before: dict | None) -> str:
     lines = [f"Compile time ({hw['cpu']}, {hw['cores']} cores, {len(hw['devices'])} "
              f"device(s), jax {hw['jax']}, load average {hw['load_average']:.1f} at the start "
              f"and {result['load_end']:.1f} at the end{merged}; `{cmd}`). "
-             f"{_scope(bool(result.get('quick')), b_where, bool(before))} `shared`: its "
+             f"{_scope(bool(result.get('quick')), b_where, before)} `shared`: its "
              "StableHLO "
              "equals an earlier row's, so a reproduce compiles it once.", "",
              "| run | group | function | learners | trace CPU s | compile CPU s | "
@@ -259,7 +261,8 @@ def main(argv=None):
     result["command"] = cmd = "python benchmarks/compile_time.py" + (
         " --quick" if args.quick else "") + (
         " --runs " + " ".join(runs) if runs != folders else "") + (
-        " --merge" if args.merge else "")
+        " --merge" if args.merge else "") + (
+        f" --before {args.before}" if args.before else "")
     text = markdown(result, cmd, before_of(result))
     write_results(out, result, text)
     print(text)
