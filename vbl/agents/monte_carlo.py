@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-__all__ = ["MCLog", "mc_init", "log_append", "mc_log", "mc_update"]
+__all__ = ["MCLog", "mc_init", "mc_work_table", "log_append", "mc_log", "mc_update"]
 
 F32 = jnp.float32
 I32 = jnp.int32
@@ -41,12 +41,19 @@ class MCLog:
     sums: jax.Array
 
 
+def mc_work_table(num_keys: int) -> jax.Array:
+    """:func:`mc_update`'s all-zero work table (num_keys + 1, 2) float32 for a Q table of
+    ``num_keys`` = S * A entries: each key's count and return sum, and a row for dropped
+    entries."""
+    return jnp.zeros((num_keys + 1, 2), F32)
+
+
 def mc_init(num_envs: int, length: int, num_keys: int) -> MCLog:
     """An empty log of ``num_envs`` envs x ``length`` decisions for a Q table of
     ``num_keys`` = S * A entries."""
     z = jnp.zeros((num_envs, length), I32)
     return MCLog(s=z, a=z, clock=z, n=jnp.zeros((num_envs,), I32),
-                 sums=jnp.zeros((num_keys + 1, 2), F32))
+                 sums=mc_work_table(num_keys))
 
 
 def log_append(fields: tuple, n: jax.Array, decided: jax.Array,

@@ -34,7 +34,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from vbl.agents.exploration import boltzmann_action
-from vbl.agents.monte_carlo import MCLog, log_append, mc_update
+from vbl.agents.monte_carlo import MCLog, log_append, mc_update, mc_work_table
 from vbl.agents.qlearning import q_update
 from vbl.agents.steering import steer_action
 from vbl.envs.rollout import rollout, stateless
@@ -168,7 +168,7 @@ def monte_carlo_update(q: jax.Array, seg: Segmentation, log: TrialLog, ended: ja
     (:func:`vbl.agents.monte_carlo.mc_update` with one env); the log empties.
     Returns (q (L, A), log)."""
     one = MCLog(s=leaf_of(seg, log.x)[None], a=log.a[None], clock=log.clock[None],
-                n=log.n[None], sums=jnp.zeros((q.size + 1, 2), jnp.float32))
+                n=log.n[None], sums=mc_work_table(q.size))
     q, _, _ = mc_update(q, one, jnp.asarray(ended)[None], jnp.asarray(scored)[None],
                         jnp.asarray(clock, I32)[None], alpha, gamma)
     return q, log.replace(n=jnp.where(ended, 0, log.n).astype(I32))
