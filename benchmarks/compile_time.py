@@ -138,10 +138,13 @@ def _total(r: dict) -> float:
 
 def _scope(quick: bool, b_where: str, before: dict | None) -> str:
     """What the table's rows are, for the header of :func:`markdown`; a ``before`` JSON
-    says what it measured in its ``note`` (the code and commit it compares with)."""
+    says what it measured in its ``note`` (the code and commit it compares with), else the
+    default comparison of the table is meant."""
+    what = (before or {}).get("note", (
+        "the same program with the tabular learner's final evaluation as a program of its "
+        "own (commit 06b55b1") if quick else (
+        "the same program before the compile-cost work (commit b22967f"))
     if quick:
-        what = (before or {}).get("note", "the same program with the tabular learner's final "
-                                          "evaluation as a program of its own (commit 06b55b1")
         return ("Every program of `vbl reproduce --quick` (its quick-scale plans), persistent "
                 "compilation cache off. `before`: " + (
                     f"{what}, measured {b_where}; `-`: a program that did not exist then)."
@@ -149,9 +152,8 @@ def _scope(quick: bool, b_where: str, before: dict | None) -> str:
     return ("Every program of the full `vbl reproduce` (full-scale plans; `quick`: "
             "`vbl reproduce --quick` compiles the group too, at its own scale, which "
             "`compile_time_quick.md` measures), persistent compilation cache off. `before`: "
-            "the same program before the compile-cost work (commit b22967f, measured "
-            f"{b_where}; another machine type when its CPU differs, so compare the totals "
-            "roughly; `-`: a program that did not exist then).")
+            f"{what}, measured {b_where}; another machine type when its CPU differs, so "
+            "compare the totals roughly; `-`: a program that did not exist then).")
 
 
 def markdown(result: dict, cmd: str, before: dict | None) -> str:
