@@ -33,8 +33,9 @@ def _counting(monkeypatch, module, name: str) -> list[int]:
 
 
 def _program(env):
-    """A program that calls the env's camera and physics at three call sites and vmap
-    depths: a reset, and a step of 2 x 3 envs."""
+    """A program that resets and steps one env (the camera at both, the physics step in
+    the step), then the same for 2 x 3 envs under two vmaps: each function is called at
+    two or four places, at vmap depths 0 and 2."""
     p = env.default_params
 
     def one(key):
