@@ -203,6 +203,28 @@ def test_pixel_collection_cost(capsys):
         assert len(vals) == 3 and all(math.isfinite(v) and v >= 0 for v in vals), r
 
 
+def test_suite_time(capsys, tmp_path):
+    """The suite-time probe at toy size: cold and warm runs of one test file, their counts
+    read from pytest's own closing line (the file's test count, independently collected)."""
+    out = run_probe("suite_time", ["--tiny", "--out", str(tmp_path)], capsys)
+    rows = table(out)
+    assert [r[0] for r in rows] == ["cold", "warm"]
+    data = json.loads((tmp_path / "suite_time.json").read_text())
+    entry = data["tests/test_stats.py"]
+    spec = importlib.util.spec_from_file_location("probe_st", PROBES / "suite_time.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    tests = (PROBES.parents[1] / "tests" / "test_stats.py").read_text().count("\ndef test_")
+    for phase, row in zip(("cold", "warm"), rows, strict=True):
+        r = entry[phase]
+        assert r["counts"]["passed"] >= tests and "failed" not in r["counts"]
+        assert int(row[3]) == r["counts"]["passed"] and r["wall_s"] > 0 and r["cpu_s"] > 0
+    assert entry["command"] == "python benchmarks/probes/suite_time.py --tiny"
+    assert mod.counts("x\n== 3 passed, 1 failed, 2 deselected in 9.1s ==\n") == {
+        "passed": 3, "failed": 1, "deselected": 2}
+    assert mod.counts("no summary") == {}
+
+
 @pytest.mark.parametrize("name", sorted(p.stem for p in PROBES.glob("*.py")))
 def test_probe_has_tiny_option(name):
     """Every probe offers the size its test runs at."""
