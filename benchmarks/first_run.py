@@ -18,7 +18,6 @@ import argparse
 import json
 import os
 import pathlib
-import resource
 import shutil
 import subprocess
 import sys
@@ -28,7 +27,7 @@ import time
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.hardware import hardware_info, write_results  # noqa: E402
+from benchmarks.hardware import children_cpu_s, hardware_info, write_results  # noqa: E402
 
 COLD_TARGET_S = 240.0  #: s wall, cold ``vbl reproduce --quick`` on a quiet 2-core machine
 WARM_TARGET_S = 120.0  #: s wall, the same command again
@@ -36,11 +35,6 @@ QUICK_ONLY = "table1_identification"  #: the one experiment of ``--quick``
 BEFORE = ROOT / "benchmarks" / "results" / "first_run_before.json"
 """This benchmark's result for the code before the quick run held the paper's rows only
 (commit da16431: 8 runs, with the PPO comparators and Table 2's velocity control)."""
-
-
-def _children_cpu_s() -> float:
-    r = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return r.ru_utime + r.ru_stime
 
 
 def reproduce_twice(work: pathlib.Path, only: list[str], env: dict[str, str]) -> dict:
@@ -52,13 +46,13 @@ def reproduce_twice(work: pathlib.Path, only: list[str], env: dict[str, str]) ->
         folder = work / phase
         cmd = [sys.executable, "-m", "vbl.cli", "reproduce", "--quick", "--quiet", "--out",
                str(folder)] + [a for name in only for a in ("--only", name)]
-        load0, cpu0, t0 = os.getloadavg()[0], _children_cpu_s(), time.perf_counter()
+        load0, cpu0, t0 = os.getloadavg()[0], children_cpu_s(), time.perf_counter()
         proc = subprocess.run(cmd, env=env, cwd=ROOT, capture_output=True, text=True)
         if proc.returncode != 0:
             raise SystemExit(f"first_run: {' '.join(cmd[2:])} exited {proc.returncode}: "
                              f"{proc.stderr.strip().splitlines()[-1:]}")
         out[phase] = dict(wall_s=round(time.perf_counter() - t0, 1),
-                          cpu_s=round(_children_cpu_s() - cpu0, 1),
+                          cpu_s=round(children_cpu_s() - cpu0, 1),
                           load_average=[load0, os.getloadavg()[0]],
                           manifest=json.loads((folder / "reproduce.json").read_text()))
     runs = [r["folder"] for r in out["cold"]["manifest"]["runs"]]

@@ -3,12 +3,14 @@
 import json
 import os
 import pathlib
+import resource
 
 import jax
 
 from vbl.engine.machine import cpu_model, load_average
 
-__all__ = ["cpu_model", "load_average", "hardware_info", "write_results", "write_entry"]
+__all__ = ["cpu_model", "load_average", "hardware_info", "write_results", "write_entry",
+           "children_cpu_s"]
 
 
 def write_results(out: pathlib.Path, result: dict, text: str) -> None:
@@ -31,3 +33,9 @@ def hardware_info() -> dict:
     """CPU model, core count, jax version, device list and load average."""
     return dict(cpu=cpu_model(), cores=os.cpu_count(), jax=jax.__version__,
                 devices=[str(d) for d in jax.devices()], load_average=load_average())
+
+
+def children_cpu_s() -> float:
+    """CPU seconds (user + system, all threads) of this process's finished child processes."""
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime

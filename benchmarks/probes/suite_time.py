@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import os
 import re
-import resource
 import subprocess
 import sys
 import tempfile
@@ -33,17 +32,12 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
-from benchmarks.hardware import hardware_info, load_average, write_entry  # noqa: E402
+from benchmarks.hardware import children_cpu_s, hardware_info, load_average, write_entry  # noqa: E402
 
 RESULT = ROOT / "benchmarks" / "results" / "suite_time.json"
 TINY_TESTS = "tests/test_stats.py"  #: the smoke test's one file (no compilation to speak of)
 #: pytest's closing line: "N passed[, N failed][, ...] in S s"
 CLOSING = re.compile(r"^=*\s*(.*\d+ (?:passed|failed).*) in [\d.]+s", re.M)
-
-
-def _children_cpu_s() -> float:
-    r = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return r.ru_utime + r.ru_stime
 
 
 def counts(output: str) -> dict[str, int]:
@@ -59,7 +53,7 @@ def run_phase(tests: list[str], cache: Path) -> dict:
     """One ``python -m pytest [tests]`` with ``VBL_JAX_CACHE=cache``: wall, CPU, counts."""
     env = dict(os.environ, VBL_JAX_CACHE=str(cache))
     cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *tests]
-    load0, cpu0, t0 = load_average(), _children_cpu_s(), time.perf_counter()
+    load0, cpu0, t0 = load_average(), children_cpu_s(), time.perf_counter()
     proc = subprocess.run(cmd, env=env, cwd=ROOT, capture_output=True, text=True)
     wall = time.perf_counter() - t0
     found = counts(proc.stdout)
@@ -67,7 +61,7 @@ def run_phase(tests: list[str], cache: Path) -> dict:
         tail = (proc.stdout + proc.stderr).strip().splitlines()[-3:]
         raise SystemExit(f"suite_time: pytest exited {proc.returncode}: {tail}")
     loads = [None if x is None else round(x, 2) for x in (load0, load_average())]
-    return dict(wall_s=round(wall, 1), cpu_s=round(_children_cpu_s() - cpu0, 1),
+    return dict(wall_s=round(wall, 1), cpu_s=round(children_cpu_s() - cpu0, 1),
                 counts=found, load_average=loads)
 
 
