@@ -2,10 +2,13 @@
 compilation (``vbl.engine.jax_setup.program_lock`` / ``compile_shared``) makes a second
 compiler of the same program wait for the first, then read the cache. ``flock`` locks of
 two opens of one file exclude each other also within one process, so threads stand in for
-the processes here."""
+the processes here; the cache's own reads are checked across real processes."""
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 import threading
 import time
 
@@ -14,6 +17,20 @@ import jax.numpy as jnp
 
 from vbl.engine import jax_setup
 from vbl.engine.jax_setup import LOCKS_DIR, compile_shared, program_lock
+
+# A program that compiles in milliseconds; prints how often the process read the
+# persistent cache and how often it found the program there.
+_SMALL_PROGRAM = """
+from jax._src import monitoring
+from vbl.engine.jax_setup import use_compilation_cache
+use_compilation_cache()
+import jax, jax.numpy as jnp
+seen = []
+monitoring.register_event_listener(lambda name, **kw: seen.append(name))
+jax.jit(lambda x: jnp.sin(x) * 3.0 + 1.0)(jnp.arange(5.0)).block_until_ready()
+print(seen.count("/jax/compilation_cache/compile_requests_use_cache"),
+      seen.count("/jax/compilation_cache/cache_hits"))
+"""
 
 
 def _hold(path, seconds: float, started: threading.Event) -> threading.Thread:
@@ -90,3 +107,17 @@ def test_each_kind_of_cpu_has_its_own_cache_folder(monkeypatch, tmp_path):
     assert _cache_dir() == str(tmp_path / machine_key())
     monkeypatch.setenv("VBL_JAX_CACHE", "0")
     assert _cache_dir() is None
+
+
+def test_a_program_of_milliseconds_is_read_back_by_the_next_process(tmp_path):
+    """Every program is cached, however fast it compiles (JAX's default leaves out those
+    under a second, which a warm run would compile again): the second process finds it."""
+    env = dict(os.environ, VBL_JAX_CACHE=str(tmp_path), JAX_PLATFORMS="cpu")
+    counts = []
+    for _ in range(2):
+        out = subprocess.run([sys.executable, "-c", _SMALL_PROGRAM], env=env, text=True,
+                             capture_output=True, timeout=120, check=True).stdout
+        counts.append(tuple(int(n) for n in out.split()))
+    (asked, found), (asked_again, found_again) = counts
+    assert asked >= 1 and found == 0  # a fresh cache
+    assert found_again == asked_again == asked  # the next process compiles nothing

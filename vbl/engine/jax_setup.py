@@ -36,7 +36,10 @@ __all__ = ["use_compilation_cache", "machine_key", "engine_precision", "CACHE_MI
            "COMPILER_OPTIONS", "compile_shared", "program_lock", "COMPILE_WAIT_S",
            "LOCKS_DIR", "shared_cache_folder", "execution_turn", "EXECUTION_LOCK_ENV"]
 
-CACHE_MIN_COMPILE_S = 1.0  #: s; programs that compile faster are not written to the cache
+CACHE_MIN_COMPILE_S = 0.0
+"""s; programs that compile faster are not written to the cache. 0: every program is, so a
+warm run compiles nothing (JAX's default, 1 s, leaves the many small programs of a run, its
+helpers and reductions, to be compiled again by every process)."""
 
 COMPILER_OPTIONS = {"xla_backend_optimization_level": 1}
 """XLA options of every engine program (``jax.jit(..., compiler_options=...)``, per
@@ -173,8 +176,7 @@ def compile_shared(fn, *args) -> None:
     """Compile the jitted ``fn`` for ``args`` (its next call runs the compiled program)
     holding a lock named by the program's hash in the compilation cache's folder: of
     several processes compiling the same program at once, the first compiles it and writes
-    it to the cache, the others wait and then read it (a program that compiles in less than
-    :data:`CACHE_MIN_COMPILE_S` is not cached: they compile it again). Without the cache,
+    it to the cache, the others wait and then read it. Without the cache,
     or in a multi-process run, ``fn`` compiles at its first call as usual."""
     where = shared_cache_folder()
     if not where:
