@@ -21,10 +21,10 @@ from vbl.engine.jax_setup import LOCKS_DIR, compile_shared, program_lock
 # A program that compiles in milliseconds; prints how often the process read the
 # persistent cache and how often it found the program there.
 _SMALL_PROGRAM = """
-from jax._src import monitoring
+import jax, jax.numpy as jnp
+from jax import monitoring
 from vbl.engine.jax_setup import use_compilation_cache
 use_compilation_cache()
-import jax, jax.numpy as jnp
 seen = []
 monitoring.register_event_listener(lambda name, **kw: seen.append(name))
 jax.jit(lambda x: jnp.sin(x) * 3.0 + 1.0)(jnp.arange(5.0)).block_until_ready()

@@ -23,12 +23,18 @@ NUMBER = re.compile(r"-?\d+(?:\.\d+)?(?:e[+-]?\d+)?")
 PHASES = ("shooter still", "approach", "after contact", "all rolling")
 
 
-def run_probe(name: str, argv: list[str], capsys) -> str:
-    """Load ``benchmarks/probes/<name>.py`` as a fresh module, run ``main(argv)`` (it must
-    return 0) and return what it printed."""
+def load_probe(name: str):
+    """``benchmarks/probes/<name>.py`` loaded as a fresh module."""
     spec = importlib.util.spec_from_file_location(f"probe_{name}", PROBES / f"{name}.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
+    return mod
+
+
+def run_probe(name: str, argv: list[str], capsys) -> str:
+    """Load ``benchmarks/probes/<name>.py`` as a fresh module, run ``main(argv)`` (it must
+    return 0) and return what it printed."""
+    mod = load_probe(name)
     capsys.readouterr()
     assert mod.main(argv) == 0
     return capsys.readouterr().out
@@ -92,9 +98,7 @@ def test_ball_velocity_r2(capsys, tmp_path):
 
 def test_ball_velocity_r2_bad_set(capsys):
     """A bad override is one line and exit status 2, before any computation."""
-    spec = importlib.util.spec_from_file_location("probe_bv", PROBES / "ball_velocity_r2.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = load_probe("ball_velocity_r2")
     assert mod.main(["--tiny", "--set", "cva.no_such_path=1"]) == 2
     assert mod.main(["--tiny", "--set", "cva.n_used=0"]) == 2
     out = capsys.readouterr().out.strip().splitlines()
@@ -103,9 +107,7 @@ def test_ball_velocity_r2_bad_set(capsys):
 
 def test_held_out_r2_by_hand():
     """The probe's held-out scores on hand-made data (independent: worked by hand)."""
-    spec = importlib.util.spec_from_file_location("probe_bv2", PROBES / "ball_velocity_r2.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = load_probe("ball_velocity_r2")
     import numpy as np
     fit = np.array([True, True, True, True, False, False])
     y = np.array([[0.0], [2.0], [10.0], [12.0], [0.0], [12.0]])
@@ -211,9 +213,7 @@ def test_suite_time(capsys, tmp_path):
     assert [r[0] for r in rows] == ["cold", "warm"]
     data = json.loads((tmp_path / "suite_time.json").read_text())
     entry = data["tests/test_stats.py"]
-    spec = importlib.util.spec_from_file_location("probe_st", PROBES / "suite_time.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = load_probe("suite_time")
     tests = (PROBES.parents[1] / "tests" / "test_stats.py").read_text().count("\ndef test_")
     for phase, row in zip(("cold", "warm"), rows, strict=True):
         r = entry[phase]
@@ -273,9 +273,7 @@ def test_table2_tuned_comparisons_against_numpy():
     import numpy as np
 
     sps = pytest.importorskip("scipy.stats")  # a peer library as the reference
-    spec = importlib.util.spec_from_file_location("probe_t2t", PROBES / "table2_tuned.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = load_probe("table2_tuned")
     a, b = np.array([0.2, 0.4, 0.3, 0.5]), np.array([0.1, 0.1, 0.2, 0.2])
     rows = {"pass, cva": {"default": list(a), "tuned": list(b)},
             "pass, current": {"default": list(b), "tuned": list(a)}}
@@ -306,9 +304,7 @@ def test_table2_ablation_whitening():
     apart (no cross-block mixing), and a zero-padded component stays 0 (no NaN)."""
     import numpy as np
 
-    spec = importlib.util.spec_from_file_location("probe_t2w", PROBES / "table2_ablation.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = load_probe("table2_ablation")
     rng = np.random.default_rng(0)
     a = rng.normal(size=(4000, 3)) @ np.array([[3.0, 0, 0], [2.0, 0.5, 0], [0, 1.0, 0.1]])
     b = rng.normal(size=(4000, 2)) * [10.0, 0.01] + [5.0, -1.0]
